@@ -1,0 +1,41 @@
+"""vesselid: consistent identification of second-order modulus vessel models.
+
+Simulate marine vessels under current, wind and sensor noise, and identify their
+physical models with the consistent instrumental-variable estimators of
+Ljungberg & Enqvist ("Consistent Parameter Estimators for Second-order Modulus
+Systems with Non-additive Disturbances").
+"""
+
+from __future__ import annotations
+
+__version__ = "0.1.0"
+
+from vesselid.errors import (  # noqa: E402
+    ConvergenceWarning,
+    ExperimentDesignWarning,
+    IdentificationError,
+    LogValidationError,
+    ModelSpecError,
+    RankDeficientError,
+    SimulationDivergedError,
+    VesselidError,
+    WeakInstrumentWarning,
+)
+from vesselid.model import Aggregate, ModelSpec  # noqa: E402
+from vesselid.terms import Term  # noqa: E402
+
+__all__ = [
+    "Aggregate",
+    "ConvergenceWarning",
+    "ExperimentDesignWarning",
+    "IdentificationError",
+    "LogValidationError",
+    "ModelSpec",
+    "ModelSpecError",
+    "RankDeficientError",
+    "SimulationDivergedError",
+    "Term",
+    "VesselidError",
+    "WeakInstrumentWarning",
+    "__version__",
+]

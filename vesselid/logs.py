@@ -1,0 +1,573 @@
+"""Trial logs: one row per sample, with metadata that travels with the data.
+
+A :class:`TrialLog` wraps a :class:`pandas.DataFrame` whose columns are (DESIGN.md,
+"Trial log"):
+
+* ``experiment`` (optional): experiment id; one experiment (id ``0``) when absent,
+* ``time`` (optional): sample time, strictly increasing within every experiment,
+* one column per state and input of the model spec,
+* measured disturbance (sensor) columns used by aggregate relations, e.g. ``w_c``,
+* ground truth ``true_<name>`` columns when the log was simulated,
+
+plus a JSON-serialisable ``metadata`` dict (``"spec"``, ``"seed"``, ``"vesselid_version"``,
+noise settings, ...).  On disk the metadata lives in a JSON sidecar next to a CSV file
+(``trial.csv`` → ``trial.json``) or inside the schema metadata of a Parquet file
+(key ``b"vesselid"``).  Saving is atomic and the round trip is exact: floats are written
+with 17 significant digits and read back with a correctly rounding parser, and column
+dtypes are recorded so that ``TrialLog.load(p).data`` equals the saved frame.
+
+The row index is not saved; a loaded log always has a default ``RangeIndex``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import warnings
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from vesselid._io import atomic_path
+from vesselid.errors import LogValidationError
+from vesselid.model import ModelSpec
+
+__all__ = ["PARQUET_METADATA_KEY", "SUPPORTED_SUFFIXES", "TrialLog", "concat_logs"]
+
+#: Key of the vesselid metadata in the Parquet schema metadata.
+PARQUET_METADATA_KEY = b"vesselid"
+#: File suffixes :meth:`TrialLog.save` and :meth:`TrialLog.load` understand.
+SUPPORTED_SUFFIXES = (".csv", ".parquet", ".pq")
+
+_FORMAT = "vesselid-trial-log"
+_FORMAT_VERSION = 1
+_CSV_FLOAT_FORMAT = "%.17g"  # 17 significant digits: every float64 round-trips exactly
+
+
+class _ParquetUnavailableError(LogValidationError, ImportError):
+    """pyarrow is not installed (both a :class:`LogValidationError` and an ImportError)."""
+
+
+# ----------------------------------------------------------------------------- helpers
+def _package_version() -> str:
+    try:
+        from vesselid import __version__
+    except ImportError:  # pragma: no cover - __init__ always defines it
+        return "unknown"
+    return str(__version__)
+
+
+def _json_default(obj: Any) -> Any:
+    """Convert numpy scalars/arrays, paths and model specs for :func:`json.dumps`."""
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    if isinstance(obj, ModelSpec):
+        return obj.to_dict()
+    raise TypeError(f"object of type {type(obj).__name__} is not JSON serialisable")
+
+
+def _dumps(obj: Any) -> str:
+    try:
+        return json.dumps(obj, default=_json_default, indent=2, sort_keys=False)
+    except (TypeError, ValueError) as exc:
+        raise LogValidationError(f"trial log metadata is not JSON-serialisable: {exc}") from exc
+
+
+def _suffix(path: Path) -> str:
+    suffix = path.suffix.lower()
+    if suffix not in SUPPORTED_SUFFIXES:
+        raise LogValidationError(
+            f"unsupported trial log file suffix {path.suffix or '(none)'!r} in {str(path)!r}; "
+            f"supported: {', '.join(SUPPORTED_SUFFIXES)}"
+        )
+    return suffix
+
+
+def _import_pyarrow() -> tuple[Any, Any]:
+    try:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+    except ImportError as exc:
+        raise _ParquetUnavailableError(
+            "reading/writing Parquet trial logs needs pyarrow: pip install 'vesselid[parquet]'"
+        ) from exc
+    return pa, pq
+
+
+def _sidecar_path(path: Path) -> Path:
+    return path.with_suffix(".json")
+
+
+def _row_text(data: pd.DataFrame, pos: int) -> str:
+    """``"row 17"``, plus the index label when it differs from the position."""
+    label = data.index[pos]
+    same = isinstance(label, (int, np.integer)) and int(label) == pos
+    return f"row {pos}" if same else f"row {pos} (index label {label!r})"
+
+
+def _experiment_text(data: pd.DataFrame, pos: int) -> str:
+    if "experiment" not in data.columns:
+        return ""
+    return f" in experiment {_scalar(data['experiment'].iloc[pos])!r}"
+
+
+def _scalar(value: Any) -> Any:
+    return value.item() if isinstance(value, np.generic) else value
+
+
+def _sort_ids(ids: list) -> list:
+    try:
+        return sorted(ids)
+    except TypeError:  # mixed, unorderable ids: keep order of first appearance
+        return ids
+
+
+def _is_real_numeric(series: pd.Series) -> bool:
+    dtype = series.dtype
+    return (
+        pd.api.types.is_numeric_dtype(dtype)
+        and not pd.api.types.is_complex_dtype(dtype)
+        and not pd.api.types.is_object_dtype(dtype)
+    )
+
+
+# ---------------------------------------------------------------------------- TrialLog
+class TrialLog:
+    """A trial log: a DataFrame with one row per sample, plus JSON-serialisable metadata.
+
+    Parameters
+    ----------
+    data : pandas.DataFrame
+        The samples. See the module docstring for the column conventions.
+    metadata : dict, optional
+        JSON-serialisable metadata. Keys used by vesselid: ``"spec"``
+        (:meth:`ModelSpec.to_dict`), ``"vesselid_version"``, ``"seed"``, ``"system"``,
+        ``"disturbances"``, ``"inputs"``; anything else is kept as is.
+
+    Notes
+    -----
+    The constructor only stores its arguments; call :meth:`validate` to check the data.
+    """
+
+    def __init__(self, data: pd.DataFrame, metadata: dict | None = None) -> None:
+        if not isinstance(data, pd.DataFrame):
+            raise LogValidationError(
+                f"trial log data must be a pandas DataFrame, got {type(data).__name__}"
+            )
+        self.data: pd.DataFrame = data
+        self.metadata: dict = dict(metadata) if metadata is not None else {}
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def spec(self) -> ModelSpec | None:
+        """The model spec stored in ``metadata["spec"]``, or ``None``."""
+        raw = self.metadata.get("spec")
+        if raw is None:
+            return None
+        if isinstance(raw, ModelSpec):
+            return raw
+        return ModelSpec.from_dict(raw)
+
+    @property
+    def experiment_ids(self) -> list:
+        """Sorted unique values of the ``experiment`` column, or ``[0]`` when it is absent."""
+        if "experiment" not in self.data.columns:
+            return [0]
+        ids = [_scalar(v) for v in pd.unique(self.data["experiment"].dropna())]
+        return _sort_ids(ids)
+
+    def experiments(self) -> list[tuple[object, pd.DataFrame]]:
+        """Split the log into experiments.
+
+        Returns
+        -------
+        list of (id, DataFrame)
+            One entry per experiment, in :attr:`experiment_ids` order (sorted ids); each
+            frame keeps the original row order and index labels. Without an ``experiment``
+            column the whole log is experiment ``0``.
+        """
+        if "experiment" not in self.data.columns:
+            return [(0, self.data)]
+        col = self.data["experiment"]
+        out = []
+        for eid in self.experiment_ids:
+            out.append((eid, self.data.loc[(col == eid).to_numpy()]))
+        return out
+
+    def to_frame(self) -> pd.DataFrame:
+        """The data as a DataFrame (not a copy)."""
+        return self.data
+
+    def __len__(self) -> int:
+        return len(self.data)
+
+    def __repr__(self) -> str:
+        cols = [str(c) for c in self.data.columns]
+        shown = cols if len(cols) <= 8 else [*cols[:7], "...", cols[-1]]
+        n_exp = len(self.experiment_ids)
+        return (
+            f"TrialLog({len(self.data)} rows, {n_exp} experiment{'s' if n_exp != 1 else ''}, "
+            f"columns=[{', '.join(shown)}])"
+        )
+
+    # ------------------------------------------------------------------ validation
+    def validate(
+        self,
+        spec: ModelSpec | None = None,
+        *,
+        columns: Sequence[str] | None = None,
+        min_samples: int = 2,
+    ) -> TrialLog:
+        """Check the log against a model spec.
+
+        Parameters
+        ----------
+        spec : ModelSpec, optional
+            Model whose states, inputs and aggregate sensor columns must be present.
+            Defaults to :attr:`spec` (the spec in the metadata), if any.
+        columns : sequence of str, optional
+            Further required columns.
+        min_samples : int, default 2
+            Minimum number of rows per experiment.
+
+        Returns
+        -------
+        TrialLog
+            ``self``, so that calls can be chained.
+
+        Raises
+        ------
+        LogValidationError
+            Missing columns (all of them are listed), a non-numeric required column,
+            NaN/±inf in a required column or in ``time`` (naming the column and first row),
+            ``time`` not strictly increasing within an experiment, or an experiment with
+            fewer than ``min_samples`` rows.
+        """
+        if spec is None:
+            spec = self.spec
+        data = self.data
+        required: list[str] = []
+        if spec is not None:
+            required.extend(spec.states)
+            required.extend(spec.inputs)
+            required.extend(spec.sensors)
+        if columns is not None:
+            if isinstance(columns, str):
+                columns = [columns]
+            required.extend(columns)
+        required = list(dict.fromkeys(required))
+
+        available = list(data.columns)
+        missing = [c for c in required if c not in data.columns]
+        if missing:
+            what = "column" if len(missing) == 1 else "columns"
+            raise LogValidationError(
+                f"trial log is missing {what} {missing}; available columns: {available}"
+            )
+        duplicated = sorted({str(c) for c in data.columns[data.columns.duplicated()]})
+        if duplicated:
+            raise LogValidationError(f"trial log has duplicated columns {duplicated}")
+
+        checked = [*required, "time"] if "time" in data.columns else required
+        checked = list(dict.fromkeys(checked))
+        for col in checked:
+            if not _is_real_numeric(data[col]):
+                raise LogValidationError(
+                    f"column {col!r} must be numeric, got dtype {data[col].dtype}"
+                )
+
+        if "experiment" in data.columns:
+            bad = data["experiment"].isna().to_numpy()
+            if bad.any():
+                pos = int(np.flatnonzero(bad)[0])
+                raise LogValidationError(
+                    f"column 'experiment' has a missing value at {_row_text(data, pos)}"
+                )
+
+        if min_samples < 1:
+            raise LogValidationError(f"min_samples must be at least 1, got {min_samples}")
+        parts = self.experiments()
+        if not parts:  # an empty frame with an 'experiment' column
+            parts = [(0, data)]
+        for eid, frame in parts:
+            if len(frame) < min_samples:
+                raise LogValidationError(
+                    f"experiment {eid!r} has {len(frame)} sample{'s' if len(frame) != 1 else ''}; "
+                    f"at least {min_samples} are required"
+                )
+
+        for col in checked:
+            values = data[col].to_numpy(dtype=float, na_value=np.nan)
+            bad = ~np.isfinite(values)
+            if bad.any():
+                positions = np.flatnonzero(bad)
+                pos = int(positions[0])
+                value = values[pos]
+                kind = "NaN" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+                more = f" ({positions.size} non-finite values in total)" if positions.size > 1 else ""
+                raise LogValidationError(
+                    f"column {col!r} has {kind} at {_row_text(data, pos)}"
+                    f"{_experiment_text(data, pos)}{more}"
+                )
+
+        if "time" in data.columns:
+            offsets = _positions_by_experiment(data)
+            times = data["time"].to_numpy(dtype=float)
+            for eid, pos in offsets:
+                if pos.size < 2:
+                    continue
+                t = times[pos]
+                steps = np.diff(t)
+                bad = np.flatnonzero(~(steps > 0))
+                if bad.size:
+                    k = int(bad[0]) + 1
+                    row = int(pos[k])
+                    raise LogValidationError(
+                        f"column 'time' is not strictly increasing in experiment {eid!r} at "
+                        f"{_row_text(data, row)}: {t[k]!r} follows {t[k - 1]!r}"
+                    )
+        return self
+
+    # ------------------------------------------------------------------------ I/O
+    def save(self, path: str | Path) -> Path:
+        """Write the log atomically.
+
+        Parameters
+        ----------
+        path : str or Path
+            ``.csv``: CSV (no index, 17 significant digits) plus a JSON sidecar
+            ``path.with_suffix(".json")`` with the metadata and column dtypes.
+            ``.parquet`` / ``.pq``: Parquet with the metadata in the schema metadata
+            under ``b"vesselid"`` (needs pyarrow: ``pip install 'vesselid[parquet]'``).
+
+        Returns
+        -------
+        Path
+            The path of the data file.
+
+        Raises
+        ------
+        LogValidationError
+            Unsupported suffix, non-string or duplicated column names, metadata that is
+            not JSON-serialisable, or pyarrow missing for Parquet.
+
+        Notes
+        -----
+        Every file is written to a temporary file beside its target and renamed into
+        place only once all files are complete; if writing fails nothing is left behind
+        and existing files are untouched. The row index is not saved.
+        """
+        path = Path(path)
+        suffix = _suffix(path)
+        data = self.data
+        bad_names = [c for c in data.columns if not isinstance(c, str)]
+        if bad_names:
+            raise LogValidationError(f"trial log column names must be strings, got {bad_names}")
+        duplicated = sorted(set(data.columns[data.columns.duplicated()]))
+        if duplicated:
+            raise LogValidationError(f"trial log has duplicated columns {duplicated}")
+        envelope = {
+            "format": _FORMAT,
+            "format_version": _FORMAT_VERSION,
+            "vesselid_version": _package_version(),
+            "columns": list(data.columns),
+            "dtypes": {c: str(data[c].dtype) for c in data.columns},
+            "metadata": self.metadata,
+        }
+        text = _dumps(envelope)  # fail before touching the disk
+        if suffix == ".csv":
+            sidecar = _sidecar_path(path)
+            with atomic_path(path) as tmp_data, atomic_path(sidecar) as tmp_meta:
+                data.to_csv(tmp_data, index=False, float_format=_CSV_FLOAT_FORMAT)
+                tmp_meta.write_text(text + "\n", encoding="utf-8")
+        else:
+            pa, pq = _import_pyarrow()
+            table = pa.Table.from_pandas(data, preserve_index=False)
+            schema_meta = dict(table.schema.metadata or {})
+            schema_meta[PARQUET_METADATA_KEY] = text.encode("utf-8")
+            table = table.replace_schema_metadata(schema_meta)
+            with atomic_path(path) as tmp_data:
+                pq.write_table(table, tmp_data)
+        return path
+
+    @classmethod
+    def load(
+        cls, path: str | Path, spec: ModelSpec | None = None, validate: bool = True
+    ) -> TrialLog:
+        """Read a log written by :meth:`save`, or a user's own CSV/Parquet file.
+
+        Parameters
+        ----------
+        path : str or Path
+            A ``.csv`` file (with an optional JSON sidecar ``path.with_suffix(".json")``)
+            or a ``.parquet`` / ``.pq`` file.
+        spec : ModelSpec, optional
+            Model to validate against; defaults to the spec stored in the metadata.
+        validate : bool, default True
+            Run :meth:`validate` after reading.
+
+        Returns
+        -------
+        TrialLog
+
+        Raises
+        ------
+        LogValidationError
+            Missing or unreadable file, unsupported suffix, invalid sidecar, or a log
+            that fails validation.
+        """
+        path = Path(path)
+        suffix = _suffix(path)
+        if not path.is_file():
+            raise LogValidationError(f"trial log file {str(path)!r} does not exist")
+        if suffix == ".csv":
+            data, envelope = _read_csv(path)
+        else:
+            data, envelope = _read_parquet(path)
+        metadata = envelope.get("metadata", {}) if envelope else {}
+        if not isinstance(metadata, dict):
+            raise LogValidationError(f"{path}: trial log metadata must be a JSON object")
+        log = cls(data, metadata)
+        if validate:
+            try:
+                log.validate(spec if spec is not None else log.spec)
+            except LogValidationError as exc:
+                raise LogValidationError(f"{path}: {exc}") from exc
+        return log
+
+
+def _positions_by_experiment(data: pd.DataFrame) -> list[tuple[object, np.ndarray]]:
+    """0-based row positions of every experiment, in sorted-id order."""
+    if "experiment" not in data.columns:
+        return [(0, np.arange(len(data)))]
+    col = data["experiment"]
+    ids = _sort_ids([_scalar(v) for v in pd.unique(col.dropna())])
+    return [(eid, np.flatnonzero((col == eid).to_numpy())) for eid in ids]
+
+
+def _read_envelope(text: str, where: str) -> dict:
+    try:
+        envelope = json.loads(text)
+    except ValueError as exc:
+        raise LogValidationError(f"{where}: invalid trial log metadata JSON: {exc}") from exc
+    if not isinstance(envelope, dict):
+        raise LogValidationError(f"{where}: trial log metadata must be a JSON object")
+    if envelope.get("format") != _FORMAT:
+        # A plain JSON object written by hand: treat it as the metadata itself.
+        envelope = {"metadata": envelope}
+    return envelope
+
+
+def _read_csv(path: Path) -> tuple[pd.DataFrame, dict]:
+    sidecar = _sidecar_path(path)
+    envelope: dict = {}
+    dtypes: dict[str, str] = {}
+    if sidecar.is_file():
+        envelope = _read_envelope(sidecar.read_text(encoding="utf-8"), str(sidecar))
+        dtypes = envelope.get("dtypes") or {}
+        if not isinstance(dtypes, dict):
+            raise LogValidationError(f"{sidecar}: 'dtypes' must be a JSON object")
+    try:
+        header = pd.read_csv(path, nrows=0)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise LogValidationError(f"{path}: cannot read CSV: {exc}") from exc
+    if dtypes and list(header.columns) != list(envelope.get("columns", dtypes)):
+        warnings.warn(
+            f"{sidecar} describes columns {list(envelope.get('columns', dtypes))} but "
+            f"{path} has {list(header.columns)}; ignoring the recorded dtypes",
+            UserWarning,
+            stacklevel=3,
+        )
+        dtypes = {}
+    # Columns whose dtype read_csv can take directly; the rest are cast afterwards.
+    direct: dict[str, Any] = {}
+    later: dict[str, str] = {}
+    for col, name in dtypes.items():
+        if name.startswith(("datetime64", "timedelta64", "period", "interval")):
+            later[col] = name
+        else:
+            direct[col] = name
+    try:
+        data = pd.read_csv(path, dtype=direct or None, float_precision="round_trip")
+        for col, name in later.items():
+            data[col] = data[col].astype(name)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise LogValidationError(f"{path}: cannot read CSV: {exc}") from exc
+    except (TypeError, ValueError) as exc:
+        raise LogValidationError(
+            f"{path}: values do not match the dtypes recorded in {sidecar.name}: {exc}"
+        ) from exc
+    return data, envelope
+
+
+def _read_parquet(path: Path) -> tuple[pd.DataFrame, dict]:
+    pa, pq = _import_pyarrow()
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowException, OSError) as exc:
+        raise LogValidationError(f"{path}: cannot read Parquet: {exc}") from exc
+    raw = (table.schema.metadata or {}).get(PARQUET_METADATA_KEY)
+    envelope = _read_envelope(raw.decode("utf-8"), str(path)) if raw is not None else {}
+    return table.to_pandas(), envelope
+
+
+# ------------------------------------------------------------------------- concat_logs
+def concat_logs(logs: Sequence[TrialLog]) -> TrialLog:
+    """Stack logs as separate experiments.
+
+    Parameters
+    ----------
+    logs : sequence of TrialLog
+        Logs with the same set of columns. Each experiment of each log becomes its own
+        experiment; ids are renumbered ``0, 1, ...`` in order (log by log, and within a
+        log in :attr:`TrialLog.experiment_ids` order).
+
+    Returns
+    -------
+    TrialLog
+        An integer ``experiment`` column (first column unless the first log already has
+        one), a fresh ``RangeIndex``, and a copy of the first log's metadata. When any log
+        has a ``"seed"``, ``metadata["seeds"]`` lists every log's seed in order (``None``
+        where absent), so the others' seeds are kept.
+
+    Raises
+    ------
+    LogValidationError
+        No logs, or logs with different columns.
+    """
+    logs = list(logs)
+    if not logs:
+        raise LogValidationError("concat_logs needs at least one trial log")
+    first = logs[0]
+    reference = [c for c in first.data.columns if c != "experiment"]
+    frames = []
+    next_id = 0
+    for i, log in enumerate(logs):
+        cols = [c for c in log.data.columns if c != "experiment"]
+        if set(cols) != set(reference):
+            extra = sorted(set(cols) - set(reference))
+            lacking = sorted(set(reference) - set(cols))
+            raise LogValidationError(
+                f"trial log {i} has different columns from log 0: "
+                f"extra {extra}, missing {lacking}"
+            )
+        for _, frame in log.experiments():
+            part = frame[reference].copy()
+            part.insert(0, "experiment", np.full(len(part), next_id, dtype=np.int64))
+            frames.append(part)
+            next_id += 1
+    data = pd.concat(frames, ignore_index=True)
+    if "experiment" in first.data.columns:
+        data = data[list(first.data.columns)]
+    metadata = dict(first.metadata)
+    seeds = [log.metadata.get("seed") for log in logs]
+    if any(s is not None for s in seeds):
+        metadata["seeds"] = seeds
+    return TrialLog(data, metadata)

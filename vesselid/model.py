@@ -1,0 +1,392 @@
+"""Model structures: states, inputs, per-state term lists, θ0 and aggregate relations.
+
+A :class:`ModelSpec` describes the second-order modulus system (2a)–(2b) of the
+paper: for every state ``x_i`` an equation ``x_i(k+1) = φ_iᵀ([x(k)+v(k); u(k)]) θ_i``
+with terms from Definition 2.1. It loads from and saves to the TOML contract of
+DESIGN.md::
+
+    name = "heave"
+    states = ["w"]
+    inputs = ["tau"]
+    dt = 1.0
+
+    [equations]
+    w = ["w", "w*|w|", "tau"]
+
+    [theta0]
+    w = [0.99, -0.1, 1.0]
+
+    [aggregate]
+    w = "w - w_c"
+
+The optional ``[aggregate]`` relation (paper §4, §6) says that the regressors of the
+predictor use the state combined with a measured disturbance column,
+``ỹ = y ± y₂`` (eq. (9)); the target stays the state measurement ``y``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import sys
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from vesselid._io import atomic_write_text
+from vesselid.errors import ModelSpecError
+from vesselid.terms import Term, TermCodes, encode_terms
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+__all__ = ["Aggregate", "ModelSpec"]
+
+_NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+_AGG_RE = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*([+-])\s*([A-Za-z_][A-Za-z0-9_]*)\s*$")
+
+
+@dataclass(frozen=True)
+class Aggregate:
+    """Aggregated-state relation ``r = state + sign * sensor`` (paper eq. (9), Remark 4.3).
+
+    Parameters
+    ----------
+    state : str
+        The state whose regressors use the aggregated signal.
+    sensor : str
+        Name of the measured disturbance column (e.g. a current meter ``w_c``).
+    sign : int
+        ``+1`` or ``-1``.
+    """
+
+    state: str
+    sensor: str
+    sign: int
+
+    @classmethod
+    def parse(cls, state: str, text: str) -> Aggregate:
+        match = _AGG_RE.match(text) if isinstance(text, str) else None
+        if match is None:
+            raise ModelSpecError(
+                f"aggregate relation for {state!r} must read '{state} + sensor' or "
+                f"'{state} - sensor', got {text!r}"
+            )
+        lhs, op, sensor = match.groups()
+        if lhs != state:
+            raise ModelSpecError(
+                f"aggregate relation for {state!r} must start with the state itself, got {text!r}"
+            )
+        return cls(state=state, sensor=sensor, sign=1 if op == "+" else -1)
+
+    def __str__(self) -> str:
+        return f"{self.state} {'+' if self.sign > 0 else '-'} {self.sensor}"
+
+
+def _check_name(kind: str, name: Any) -> str:
+    if not isinstance(name, str) or not _NAME_RE.match(name):
+        raise ModelSpecError(f"{kind} name {name!r} is not a valid identifier")
+    return name
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """A second-order modulus model structure (paper eq. (1)–(3)).
+
+    Parameters
+    ----------
+    name : str
+        Model name.
+    states : sequence of str
+        State names; in trial logs one measured column per state, same name.
+    inputs : sequence of str
+        Known input names (one column each).
+    equations : mapping state -> sequence of terms (str or :class:`Term`)
+        The terms of each state equation, Definition 2.1.
+    theta0 : mapping state -> sequence of float, optional
+        True parameter values, same order as the terms.
+    aggregate : mapping state -> str or :class:`Aggregate`, optional
+        Aggregated-state relations (``"w - w_c"``).
+    dt : float, optional
+        Sample time in seconds.
+
+    Raises
+    ------
+    ModelSpecError
+        Unknown signal, empty equation, duplicate term, θ0 length mismatch, ...
+    """
+
+    name: str
+    states: tuple[str, ...]
+    inputs: tuple[str, ...]
+    equations: Mapping[str, tuple[Term, ...]]
+    theta0: Mapping[str, tuple[float, ...]] | None = None
+    aggregate: Mapping[str, Aggregate] = field(default_factory=dict)
+    dt: float | None = None
+
+    def __init__(
+        self,
+        name: str,
+        states: Sequence[str],
+        inputs: Sequence[str],
+        equations: Mapping[str, Sequence[str | Term]],
+        theta0: Mapping[str, Sequence[float]] | None = None,
+        aggregate: Mapping[str, str | Aggregate] | None = None,
+        dt: float | None = None,
+    ) -> None:
+        if isinstance(states, str) or isinstance(inputs, str):
+            raise ModelSpecError("states and inputs must be lists of names, not strings")
+        states_t = tuple(_check_name("state", s) for s in states)
+        inputs_t = tuple(_check_name("input", u) for u in inputs)
+        if not states_t:
+            raise ModelSpecError("a model needs at least one state")
+        names = states_t + inputs_t
+        dupes = sorted({n for n in names if names.count(n) > 1})
+        if dupes:
+            raise ModelSpecError(f"signal names must be unique across states and inputs: {dupes}")
+        if not isinstance(equations, Mapping):
+            raise ModelSpecError("equations must map each state to a list of terms")
+        unknown_eq = sorted(set(equations) - set(states_t))
+        if unknown_eq:
+            raise ModelSpecError(f"equations given for unknown states {unknown_eq}")
+        eqs: dict[str, tuple[Term, ...]] = {}
+        for state in states_t:
+            if state not in equations:
+                raise ModelSpecError(f"no equation for state {state!r}")
+            raw = equations[state]
+            if isinstance(raw, str):
+                raise ModelSpecError(f"equation of {state!r} must be a list of terms, got {raw!r}")
+            terms = tuple(Term.parse(t) for t in raw)
+            if not terms:
+                raise ModelSpecError(f"equation of {state!r} is empty")
+            seen: dict[str, str] = {}
+            for term in terms:
+                for sig in term.signals:
+                    if sig not in names:
+                        raise ModelSpecError(
+                            f"term {term} in equation {state!r} uses unknown signal {sig!r}; "
+                            f"states {list(states_t)}, inputs {list(inputs_t)}"
+                        )
+                key = _canonical(term)
+                if key in seen:
+                    raise ModelSpecError(
+                        f"duplicate term in equation {state!r}: {seen[key]} and {term}"
+                    )
+                seen[key] = str(term)
+            eqs[state] = terms
+        th: dict[str, tuple[float, ...]] | None = None
+        if theta0 is not None:
+            th = {}
+            unknown_th = sorted(set(theta0) - set(states_t))
+            if unknown_th:
+                raise ModelSpecError(f"theta0 given for unknown states {unknown_th}")
+            for state in states_t:
+                if state not in theta0:
+                    raise ModelSpecError(f"theta0 has no values for state {state!r}")
+                values = tuple(float(x) for x in theta0[state])
+                if len(values) != len(eqs[state]):
+                    raise ModelSpecError(
+                        f"theta0 of {state!r} has {len(values)} values but the equation has "
+                        f"{len(eqs[state])} terms"
+                    )
+                if not all(math.isfinite(x) for x in values):
+                    raise ModelSpecError(f"theta0 of {state!r} holds non-finite values")
+                th[state] = values
+        agg: dict[str, Aggregate] = {}
+        for state, rel in (aggregate or {}).items():
+            if state not in states_t:
+                raise ModelSpecError(f"aggregate relation given for unknown state {state!r}")
+            a = rel if isinstance(rel, Aggregate) else Aggregate.parse(state, rel)
+            if a.state != state:
+                raise ModelSpecError(f"aggregate relation {a} filed under state {state!r}")
+            if a.sensor in names:
+                raise ModelSpecError(
+                    f"aggregate sensor column {a.sensor!r} must differ from state/input names"
+                )
+            agg[state] = a
+        if dt is not None:
+            dt = float(dt)
+            if not (math.isfinite(dt) and dt > 0):
+                raise ModelSpecError(f"dt must be a positive number, got {dt}")
+        object.__setattr__(self, "name", str(name))
+        object.__setattr__(self, "states", states_t)
+        object.__setattr__(self, "inputs", inputs_t)
+        object.__setattr__(self, "equations", eqs)
+        object.__setattr__(self, "theta0", th)
+        object.__setattr__(self, "aggregate", agg)
+        object.__setattr__(self, "dt", dt)
+
+    # ------------------------------------------------------------------ derived
+    @property
+    def signals(self) -> tuple[str, ...]:
+        """Ordered signal vector ``[states..., inputs...]`` the terms are encoded against."""
+        return self.states + self.inputs
+
+    @property
+    def n_states(self) -> int:
+        return len(self.states)
+
+    @property
+    def n_inputs(self) -> int:
+        return len(self.inputs)
+
+    @cached_property
+    def codes(self) -> TermCodes:
+        """Compiled encoding of all terms (see :mod:`vesselid.terms`)."""
+        return encode_terms([self.equations[s] for s in self.states], self.signals)
+
+    @property
+    def n_params(self) -> int:
+        return sum(len(t) for t in self.equations.values())
+
+    @cached_property
+    def param_index(self) -> pd.MultiIndex:
+        """``(equation, term)`` labels of the stacked parameter vector θ."""
+        tuples = [(s, str(t)) for s in self.states for t in self.equations[s]]
+        return pd.MultiIndex.from_tuples(tuples, names=["equation", "term"])
+
+    @property
+    def sensors(self) -> tuple[str, ...]:
+        """Measured disturbance columns the aggregate relations need."""
+        return tuple(self.aggregate[s].sensor for s in self.states if s in self.aggregate)
+
+    def theta0_vector(self) -> np.ndarray:
+        """θ0 stacked in :attr:`param_index` order.
+
+        Raises
+        ------
+        ModelSpecError
+            If the spec has no θ0.
+        """
+        if self.theta0 is None:
+            raise ModelSpecError(f"model {self.name!r} has no theta0")
+        return np.concatenate([np.asarray(self.theta0[s], dtype=float) for s in self.states])
+
+    def theta0_series(self) -> pd.Series:
+        """θ0 as a labelled Series indexed by ``(equation, term)``."""
+        return pd.Series(self.theta0_vector(), index=self.param_index, name="theta0")
+
+    def vector_from(self, values: Mapping[str, Sequence[float]] | pd.Series | np.ndarray):
+        """Stack parameters given per equation (or as a Series/array) into θ order."""
+        if isinstance(values, pd.Series):
+            return values.reindex(self.param_index).to_numpy(dtype=float)
+        if isinstance(values, np.ndarray):
+            arr = np.asarray(values, dtype=float)
+            if arr.shape != (self.n_params,):
+                raise ModelSpecError(f"expected {self.n_params} parameters, got {arr.shape}")
+            return arr
+        return ModelSpec(
+            self.name, self.states, self.inputs, self.equations, theta0=values
+        ).theta0_vector()
+
+    def with_theta0(self, theta: Mapping[str, Sequence[float]] | pd.Series | np.ndarray):
+        """A copy with new θ0 values."""
+        vec = self.vector_from(theta)
+        per_state, start = {}, 0
+        for s in self.states:
+            n = len(self.equations[s])
+            per_state[s] = vec[start : start + n].tolist()
+            start += n
+        return ModelSpec(
+            self.name, self.states, self.inputs, self.equations, per_state, self.aggregate, self.dt
+        )
+
+    def with_aggregate(self, aggregate: Mapping[str, str | Aggregate] | None) -> ModelSpec:
+        """A copy with other aggregate relations (``None`` or ``{}`` removes them)."""
+        return ModelSpec(
+            self.name, self.states, self.inputs, self.equations, self.theta0, aggregate, self.dt
+        )
+
+    # ---------------------------------------------------------------------- I/O
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-data form matching the TOML contract."""
+        out: dict[str, Any] = {
+            "name": self.name,
+            "states": list(self.states),
+            "inputs": list(self.inputs),
+        }
+        if self.dt is not None:
+            out["dt"] = self.dt
+        out["equations"] = {s: [str(t) for t in self.equations[s]] for s in self.states}
+        if self.theta0 is not None:
+            out["theta0"] = {s: list(self.theta0[s]) for s in self.states}
+        if self.aggregate:
+            out["aggregate"] = {s: str(a) for s, a in self.aggregate.items()}
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> ModelSpec:
+        """Build from the plain-data form (as read from TOML or JSON)."""
+        if not isinstance(data, Mapping):
+            raise ModelSpecError("a model spec must be a table/mapping")
+        allowed = {"name", "states", "inputs", "dt", "equations", "theta0", "aggregate"}
+        unknown = sorted(set(data) - allowed)
+        if unknown:
+            raise ModelSpecError(f"unknown model spec keys {unknown}; allowed {sorted(allowed)}")
+        for key in ("states", "equations"):
+            if key not in data:
+                raise ModelSpecError(f"model spec is missing {key!r}")
+        return cls(
+            name=data.get("name", "model"),
+            states=data["states"],
+            inputs=data.get("inputs", []),
+            equations=data["equations"],
+            theta0=data.get("theta0"),
+            aggregate=data.get("aggregate"),
+            dt=data.get("dt"),
+        )
+
+    def to_toml(self) -> str:
+        """TOML text of the spec (DESIGN.md contract)."""
+        import tomli_w
+
+        return tomli_w.dumps(self.to_dict())
+
+    @classmethod
+    def from_toml(cls, text: str) -> ModelSpec:
+        """Parse TOML text."""
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise ModelSpecError(f"invalid TOML: {exc}") from exc
+        return cls.from_dict(data)
+
+    @classmethod
+    def load(cls, path: str | Path) -> ModelSpec:
+        """Read a TOML spec file."""
+        path = Path(path)
+        if not path.is_file():
+            raise ModelSpecError(f"model spec file {str(path)!r} does not exist")
+        try:
+            return cls.from_toml(path.read_text(encoding="utf-8"))
+        except ModelSpecError as exc:
+            raise ModelSpecError(f"{path}: {exc}") from exc
+
+    def save(self, path: str | Path) -> Path:
+        """Write the spec as TOML, atomically."""
+        atomic_write_text(path, self.to_toml())
+        return Path(path)
+
+    def __str__(self) -> str:
+        lines = [f"ModelSpec {self.name!r}: states {list(self.states)}, inputs {list(self.inputs)}"]
+        for s in self.states:
+            terms = ", ".join(str(t) for t in self.equations[s])
+            agg = f"   (regressors use {self.aggregate[s]})" if s in self.aggregate else ""
+            lines.append(f"  {s}(k+1) = [{terms}] θ_{s}{agg}")
+        return "\n".join(lines)
+
+
+def _canonical(term: Term) -> str:
+    """Key under which commuting products are equal (``u*r`` == ``r*u``)."""
+    if term.right is None:
+        return str(term)
+    a = f"|{term.left}|" if term.left_abs else term.left
+    b = f"|{term.right}|" if term.right_abs else term.right
+    return "*".join(sorted((a, b)))

@@ -1,0 +1,394 @@
+"""Simulated plants and the catalogue of systems from the paper.
+
+A :class:`System` is a :class:`~vesselid.model.ModelSpec` with true θ0 plus how the
+world disturbs it: a physical current ``q`` per state entering inside the
+nonlinearity as ``v = sign · q`` (for the heave vehicle ``w_r = w_a − w_c``, so
+``v = −w_c``), an additive process disturbance ``w``, sensor noise ``e`` on the
+state measurement ``y = x + e`` (1b), and optionally a disturbance sensor
+``y₂ = q + e₂`` (paper §4, A12) whose column name and sign come from the spec's
+aggregate relation.
+
+Catalogue: :func:`heave` (paper §6, Tables 1–2) and :func:`siso_example` (paper §5).
+The surge/sway/yaw vessel lives in :mod:`vesselid.vessels`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from vesselid.disturbances import Gaussian, Process, Uniform, Zero
+from vesselid.errors import VesselidError
+from vesselid.model import ModelSpec
+from vesselid.signals import InputSignal, RandomPulses, StaticOffset
+from vesselid.simulate import DEFAULT_DIVERGENCE_LIMIT, simulate_states
+
+__all__ = ["SYSTEMS", "Simulation", "System", "get_system", "heave", "siso_example"]
+
+SeedLike = int | np.random.SeedSequence | None
+
+
+@dataclass(frozen=True)
+class System:
+    """A simulated plant: model structure with θ0, disturbances, sensors and input design.
+
+    Parameters
+    ----------
+    spec : ModelSpec
+        Structure with ``theta0``. Its aggregate relations name the disturbance
+        sensors and their signs (``"w - w_c"``: sensor ``w_c``, ``v = −w_c``).
+    inputs : mapping input -> InputSignal
+        Input design for each input.
+    current : mapping state -> Process
+        Physical disturbance ``q`` per state (``v = sign · q``); absent = zero.
+    current_sign : mapping state -> int
+        Sign of the coupling; default from the aggregate relation, else +1.
+    process_noise : mapping state -> Process
+        Additive process disturbance ``w`` (1a).
+    sensor_noise : mapping state -> Process
+        Measurement noise ``e`` (1b).
+    current_sensor_noise : mapping state -> Process
+        Noise ``e₂`` of the disturbance sensor ``y₂ = q + e₂``; a state listed here
+        gets a sensor column (named by the aggregate relation, else ``<state>_c``).
+    x0 : mapping state -> float
+        Initial state.
+    """
+
+    spec: ModelSpec
+    inputs: Mapping[str, InputSignal]
+    current: Mapping[str, Process] = field(default_factory=dict)
+    current_sign: Mapping[str, int] = field(default_factory=dict)
+    process_noise: Mapping[str, Process] = field(default_factory=dict)
+    sensor_noise: Mapping[str, Process] = field(default_factory=dict)
+    current_sensor_noise: Mapping[str, Process] = field(default_factory=dict)
+    x0: Mapping[str, float] = field(default_factory=dict)
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        spec = self.spec
+        if spec.theta0 is None:
+            raise VesselidError(f"system {spec.name!r} needs a spec with theta0")
+        missing = [u for u in spec.inputs if u not in self.inputs]
+        if missing:
+            raise VesselidError(f"system {spec.name!r} has no input design for {missing}")
+        for label, mapping in (
+            ("current", self.current),
+            ("current_sign", self.current_sign),
+            ("process_noise", self.process_noise),
+            ("sensor_noise", self.sensor_noise),
+            ("current_sensor_noise", self.current_sensor_noise),
+            ("x0", self.x0),
+        ):
+            unknown = sorted(set(mapping) - set(spec.states))
+            if unknown:
+                raise VesselidError(f"{label} given for unknown states {unknown}")
+        for s, sign in self.current_sign.items():
+            if sign not in (1, -1):
+                raise VesselidError(f"current_sign of {s!r} must be +1 or -1, got {sign}")
+
+    # ------------------------------------------------------------------ helpers
+    def sign(self, state: str) -> int:
+        """Coupling sign ``v = sign · q`` of a state's current."""
+        if state in self.current_sign:
+            return int(self.current_sign[state])
+        if state in self.spec.aggregate:
+            return int(self.spec.aggregate[state].sign)
+        return 1
+
+    def sensor_name(self, state: str) -> str:
+        """Column name of a state's disturbance sensor."""
+        if state in self.spec.aggregate:
+            return self.spec.aggregate[state].sensor
+        return f"{state}_c"
+
+    @property
+    def sensor_states(self) -> tuple[str, ...]:
+        return tuple(s for s in self.spec.states if s in self.current_sensor_noise)
+
+    def identification_spec(self, *, aggregate: bool | None = None) -> ModelSpec:
+        """The model spec a user identifies with.
+
+        With ``aggregate=True`` the regressors use ``state ± sensor`` (paper (9)); with
+        ``False`` the plain predictor (3). Default: aggregate iff the system has
+        disturbance sensors.
+        """
+        use = bool(self.sensor_states) if aggregate is None else aggregate
+        if not use:
+            return self.spec.with_aggregate(None)
+        if not self.sensor_states:
+            raise VesselidError(f"system {self.spec.name!r} has no disturbance sensor to aggregate")
+        rel = {
+            s: f"{s} {'+' if self.sign(s) > 0 else '-'} {self.sensor_name(s)}"
+            for s in self.sensor_states
+        }
+        return self.spec.with_aggregate(rel)
+
+    def describe(self) -> dict[str, Any]:
+        """JSON-serialisable settings (for log metadata)."""
+        return {
+            "name": self.spec.name,
+            "description": self.description,
+            "inputs": {k: v.to_dict() for k, v in self.inputs.items()},
+            "current": {k: v.to_dict() for k, v in self.current.items()},
+            "current_sign": {s: self.sign(s) for s in self.spec.states},
+            "process_noise": {k: v.to_dict() for k, v in self.process_noise.items()},
+            "sensor_noise": {k: v.to_dict() for k, v in self.sensor_noise.items()},
+            "current_sensor_noise": {k: v.to_dict() for k, v in self.current_sensor_noise.items()},
+            "x0": {k: float(v) for k, v in self.x0.items()},
+        }
+
+    # --------------------------------------------------------------- simulation
+    def _draw(self, rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
+        """Draw one run's signals; the order of draws is fixed (determinism)."""
+        spec = self.spec
+        zero = Zero()
+        u = np.column_stack([self.inputs[name].sample(rng, n) for name in spec.inputs]) \
+            if spec.inputs else np.zeros((n, 0))
+        q = np.column_stack([self.current.get(s, zero).sample(rng, n) for s in spec.states])
+        w = np.column_stack([self.process_noise.get(s, zero).sample(rng, n) for s in spec.states])
+        e = np.column_stack([self.sensor_noise.get(s, zero).sample(rng, n) for s in spec.states])
+        e2 = [self.current_sensor_noise[s].sample(rng, n) for s in self.sensor_states]
+        e2_arr = np.column_stack(e2) if e2 else np.zeros((n, 0))
+        return {"u": u, "q": q, "w": w, "e": e, "e2": e2_arr}
+
+    def simulate(
+        self,
+        n_samples: int,
+        n_runs: int = 1,
+        seed: SeedLike = None,
+        *,
+        run_seeds: Sequence[np.random.SeedSequence] | None = None,
+        limit: float = DEFAULT_DIVERGENCE_LIMIT,
+    ) -> Simulation:
+        """Simulate ``n_runs`` independent runs of ``n_samples`` samples.
+
+        Run ``r`` draws all its signals from ``default_rng(SeedSequence(seed).spawn(n_runs)[r])``,
+        so any subset of runs can be regenerated on its own (Monte Carlo chunks,
+        Dask workers) and gives bit-identical data.
+
+        Raises
+        ------
+        SimulationDivergedError
+            If a state diverges (unstable θ0 or too large an input).
+        """
+        n_samples = int(n_samples)
+        if n_samples < 2:
+            raise VesselidError(f"need at least 2 samples, got {n_samples}")
+        if run_seeds is None:
+            if int(n_runs) < 1:
+                raise VesselidError(f"need at least one run, got {n_runs}")
+            root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+            run_seeds = root.spawn(int(n_runs))
+        draws = [self._draw(np.random.default_rng(ss), n_samples) for ss in run_seeds]
+        stack = {k: np.stack([d[k] for d in draws]) for k in draws[0]}
+        signs = np.array([self.sign(s) for s in self.spec.states], dtype=float)
+        v = stack["q"] * signs
+        x0 = np.array([float(self.x0.get(s, 0.0)) for s in self.spec.states])
+        x = simulate_states(self.spec, stack["u"], x0=x0, v=v, w=stack["w"], limit=limit)
+        y = x + stack["e"]
+        idx = [self.spec.states.index(s) for s in self.sensor_states]
+        y2 = stack["q"][:, :, idx] + stack["e2"]
+        return Simulation(
+            system=self, x=x, y=y, u=stack["u"], q=stack["q"], w=stack["w"], y2=y2,
+            seed=None if seed is None or isinstance(seed, np.random.SeedSequence) else int(seed),
+            entropy=[ss.entropy if isinstance(ss.entropy, int) else None for ss in run_seeds][:1],
+            spawn_keys=[list(ss.spawn_key) for ss in run_seeds],
+        )
+
+
+@dataclass
+class Simulation:
+    """Arrays of a batch simulation, shapes ``(runs, samples, ·)``.
+
+    ``x`` true states, ``y`` state measurements (1b), ``u`` inputs, ``q`` physical
+    currents, ``w`` process disturbances, ``y2`` disturbance-sensor readings.
+    """
+
+    system: System
+    x: np.ndarray
+    y: np.ndarray
+    u: np.ndarray
+    q: np.ndarray
+    w: np.ndarray
+    y2: np.ndarray
+    seed: int | None = None
+    entropy: list | None = None
+    spawn_keys: list | None = None
+
+    @property
+    def n_runs(self) -> int:
+        return int(self.x.shape[0])
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.x.shape[1])
+
+    def to_frame(self) -> pd.DataFrame:
+        """Tidy frame: runs become experiments (DESIGN.md trial-log columns)."""
+        sysm = self.system
+        spec = sysm.spec
+        dt = spec.dt or 1.0
+        n_r, n_k = self.n_runs, self.n_samples
+        cols: dict[str, np.ndarray] = {
+            "experiment": np.repeat(np.arange(n_r, dtype=np.int64), n_k),
+            "time": np.tile(np.arange(n_k) * dt, n_r),
+        }
+        for i, s in enumerate(spec.states):
+            cols[s] = self.y[:, :, i].ravel()
+        for j, name in enumerate(spec.inputs):
+            cols[name] = self.u[:, :, j].ravel()
+        for j, s in enumerate(sysm.sensor_states):
+            cols[sysm.sensor_name(s)] = self.y2[:, :, j].ravel()
+        for i, s in enumerate(spec.states):
+            cols[f"true_{s}"] = self.x[:, :, i].ravel()
+        for i, s in enumerate(spec.states):
+            if s in sysm.current and not sysm.current[s].is_zero:
+                cols[f"true_current_{s}"] = self.q[:, :, i].ravel()
+            if s in sysm.process_noise and not sysm.process_noise[s].is_zero:
+                cols[f"true_process_{s}"] = self.w[:, :, i].ravel()
+        return pd.DataFrame(cols)
+
+    def to_log(self, *, aggregate: bool | None = None):
+        """A :class:`~vesselid.logs.TrialLog` with metadata (spec, θ0, seeds, settings)."""
+        from vesselid import __version__
+        from vesselid.logs import TrialLog
+
+        spec = self.system.identification_spec(aggregate=aggregate)
+        meta = {
+            "spec": spec.to_dict(),
+            "system": self.system.describe(),
+            "seed": self.seed,
+            "spawn_keys": self.spawn_keys,
+            "vesselid_version": __version__,
+            "samples_per_experiment": self.n_samples,
+            "experiments": self.n_runs,
+        }
+        return TrialLog(self.to_frame(), meta)
+
+
+# --------------------------------------------------------------------- catalogue
+HEAVE_THETA0 = {"w": [0.99, -0.1, 1.0]}
+
+
+def heave(
+    *,
+    current_mean: float = 0.0,
+    current_sensor: bool | None = None,
+    xi_mean: float | None = None,
+    variance: float = 0.01,
+    pulse_low: float = 0.1,
+    pulse_high: float = 0.3,
+    pulse_min_width: int = 10,
+    pulse_max_width: int = 100,
+    x0: float = 1.3,
+) -> System:
+    """Heave motion of an underwater vehicle, paper §6 (eq. (15) restructured).
+
+    ``w_a(k+1) = a0 w_r(k) + n0 w_r(k)|w_r(k)| + f0 τ(k) + ξ(k)``,
+    ``w_r = w_a − w_c``, ``y1 = w_a + e1``, θ0 = [a0, n0, f0] = [0.99, −0.1, 1].
+
+    Parameters
+    ----------
+    current_mean : float
+        Mean current w̄c; ``w_c ~ N(w̄c, variance)``.
+    current_sensor : bool, optional
+        Add the current meter ``y2 = w_c + e2``, ``e2 ~ N(0, variance)`` (Table 2);
+        default: on iff ``current_mean != 0``.
+    xi_mean : float, optional
+        Mean of ξ. Default ``w̄c − 0.05``, §6 read literally; Table 2's published
+        plain-IV row is consistent with ``−0.05`` instead (see README).
+    variance : float
+        Variance of the Gaussian noises (0.01 in the paper).
+    pulse_low, pulse_high, pulse_min_width, pulse_max_width
+        Random-width pulse input: amplitudes 0.1–0.3 as in §6; the widths are not
+        given in the paper (10–100 samples by default).
+    x0 : float
+        Initial heave velocity (inside the range the pulses drive it to).
+    """
+    if current_sensor is None:
+        current_sensor = current_mean != 0.0
+    xi = current_mean - 0.05 if xi_mean is None else xi_mean
+    std = float(np.sqrt(variance))
+    spec = ModelSpec(
+        name="heave",
+        states=["w"],
+        inputs=["tau"],
+        equations={"w": ["w", "w*|w|", "tau"]},
+        theta0=HEAVE_THETA0,
+        aggregate={"w": "w - w_c"},
+        dt=1.0,
+    )
+    return System(
+        spec=spec,
+        inputs={"tau": RandomPulses(pulse_low, pulse_high, pulse_min_width, pulse_max_width)},
+        current={"w": Gaussian(current_mean, std)},
+        current_sign={"w": -1},
+        process_noise={"w": Gaussian(xi, std)},
+        sensor_noise={"w": Gaussian(0.0, std)},
+        current_sensor_noise={"w": Gaussian(0.0, std)} if current_sensor else {},
+        x0={"w": x0},
+        description="Heave of an underwater vehicle, Ljungberg & Enqvist §6",
+    )
+
+
+def siso_example(
+    *,
+    n0: float = -0.1,
+    f0: float = 1.0,
+    v_mean: float = 0.0,
+    v_half_width: float = 0.1,
+    e1_half_width: float = 0.1,
+    e2_half_width: float = 0.1,
+    w_std: float = 0.02,
+    u_mean: float = 1.0,
+    u_half_width: float = 0.5,
+    current_sensor: bool | None = None,
+    x0: float = 0.9,
+) -> System:
+    """The SISO example of paper §5.
+
+    ``x(k+1) = n0 (x+v)|x+v| + f0 u + w``, ``y1 = x + e1`` with uniform ``v``,
+    ``e1``, ``e2`` and a static-offset input ``u = ū + ũ``. The paper gives no
+    numbers; these defaults keep ``x ≈ 0.9`` well above
+    ``|v̄| + η_v + η_e1 + η_e2`` (A15). ``y2 = v + e2`` when ``current_sensor``.
+    """
+    if current_sensor is None:
+        current_sensor = v_mean != 0.0
+    spec = ModelSpec(
+        name="siso_example",
+        states=["x"],
+        inputs=["u"],
+        equations={"x": ["x*|x|", "u"]},
+        theta0={"x": [n0, f0]},
+        aggregate={"x": "x + v"},
+        dt=1.0,
+    )
+    return System(
+        spec=spec,
+        inputs={"u": StaticOffset(u_mean, Uniform(0.0, u_half_width))},
+        current={"x": Uniform(v_mean, v_half_width)},
+        current_sign={"x": 1},
+        process_noise={"x": Gaussian(0.0, w_std)},
+        sensor_noise={"x": Uniform(0.0, e1_half_width)},
+        current_sensor_noise={"x": Uniform(0.0, e2_half_width)} if current_sensor else {},
+        x0={"x": x0},
+        description="SISO example, Ljungberg & Enqvist §5",
+    )
+
+
+SYSTEMS = {"heave": heave, "siso": siso_example}
+
+
+def get_system(name: str, **options: Any) -> System:
+    """Build a catalogue system by name (``heave``, ``siso``, ``cybership2``)."""
+    if name == "cybership2":
+        from vesselid.vessels import cybership2_system
+
+        return cybership2_system(**options)
+    if name not in SYSTEMS:
+        raise VesselidError(f"unknown system {name!r}; known: {[*SYSTEMS, 'cybership2']}")
+    return SYSTEMS[name](**options)
