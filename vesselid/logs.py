@@ -23,8 +23,9 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +46,16 @@ SUPPORTED_SUFFIXES = (".csv", ".parquet", ".pq")
 _FORMAT = "vesselid-trial-log"
 _FORMAT_VERSION = 1
 _CSV_FLOAT_FORMAT = "%.17g"  # 17 significant digits: every float64 round-trips exactly
+
+
+def _pandas_before(major: int, minor: int) -> bool:
+    match = re.match(r"(\d+)\.(\d+)", pd.__version__)
+    return match is None or (int(match[1]), int(match[2])) < (major, minor)
+
+
+# pandas < 3.1 needs the round-trip converter for exact floats; 3.1 deprecates the argument
+# because every mode then uses the correctly rounding converter.
+_CSV_READ_KWARGS: dict[str, Any] = {"float_precision": "round_trip"} if _pandas_before(3, 1) else {}
 
 
 class _ParquetUnavailableError(LogValidationError, ImportError):
@@ -109,7 +120,7 @@ def _row_text(data: pd.DataFrame, pos: int) -> str:
     """``"row 17"``, plus the index label when it differs from the position."""
     label = data.index[pos]
     same = isinstance(label, (int, np.integer)) and int(label) == pos
-    return f"row {pos}" if same else f"row {pos} (index label {label!r})"
+    return f"row {pos}" if same else f"row {pos} (index label {_scalar(label)!r})"
 
 
 def _experiment_text(data: pd.DataFrame, pos: int) -> str:
@@ -311,7 +322,9 @@ class TrialLog:
                 pos = int(positions[0])
                 value = values[pos]
                 kind = "NaN" if math.isnan(value) else ("inf" if value > 0 else "-inf")
-                more = f" ({positions.size} non-finite values in total)" if positions.size > 1 else ""
+                more = (
+                    f" ({positions.size} non-finite values in total)" if positions.size > 1 else ""
+                )
                 raise LogValidationError(
                     f"column {col!r} has {kind} at {_row_text(data, pos)}"
                     f"{_experiment_text(data, pos)}{more}"
@@ -331,7 +344,7 @@ class TrialLog:
                     row = int(pos[k])
                     raise LogValidationError(
                         f"column 'time' is not strictly increasing in experiment {eid!r} at "
-                        f"{_row_text(data, row)}: {t[k]!r} follows {t[k - 1]!r}"
+                        f"{_row_text(data, row)}: {float(t[k])!r} follows {float(t[k - 1])!r}"
                     )
         return self
 
@@ -495,7 +508,7 @@ def _read_csv(path: Path) -> tuple[pd.DataFrame, dict]:
         else:
             direct[col] = name
     try:
-        data = pd.read_csv(path, dtype=direct or None, float_precision="round_trip")
+        data = pd.read_csv(path, dtype=direct or None, **_CSV_READ_KWARGS)
         for col, name in later.items():
             data[col] = data[col].astype(name)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
@@ -555,8 +568,7 @@ def concat_logs(logs: Sequence[TrialLog]) -> TrialLog:
             extra = sorted(set(cols) - set(reference))
             lacking = sorted(set(reference) - set(cols))
             raise LogValidationError(
-                f"trial log {i} has different columns from log 0: "
-                f"extra {extra}, missing {lacking}"
+                f"trial log {i} has different columns from log 0: extra {extra}, missing {lacking}"
             )
         for _, frame in log.experiments():
             part = frame[reference].copy()

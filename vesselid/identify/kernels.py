@@ -1,0 +1,179 @@
+"""Compiled moment kernels for least squares and instrumental variables.
+
+Data of many experiments (and many Monte Carlo runs) are concatenated along time;
+``starts[s] : starts[s+1]`` is segment (experiment) ``s``, which belongs to
+parameter group ``group[s]`` (one group per independent estimate). For every
+segment the kernels accumulate, over the equations ``k = 1 … N_s − 1`` of the
+one-step-ahead predictor (3) / (9),
+
+* ``S_zφ = Σ z(k) φᵀ(k)`` (within each state equation's block only),
+* ``S_zy = Σ z(k) y_i(k)``, ``S_z = Σ z(k)``, ``S_φ = Σ φ(k)``, ``S_y = Σ y(k)``,
+
+where ``φ(k) = Φ([ỹ(k−1); u(k−1)])`` are the regressors built from the regressor
+signal ``ỹ`` (the measured state, or the aggregated state of eq. (9)), ``y`` is the
+target measurement, and ``z(k)`` is either ``φ(k)`` itself (least squares (16)) or
+the instrument ``ζ(k) = Φ([x̂(k−1); u(k−1)])`` computed from a simulation of the
+auxiliary model ``x̂(k+1) = Φᵀ([x̂(k); u(k)]) θ_g`` (paper §6, Thil et al. 2008).
+Zero-mean instruments (A7) follow from these sums without a second pass:
+``Σ (z − z̄) φᵀ = S_zφ − S_z S_φᵀ / N``.
+
+The simulation and the accumulation are fused, so one refined-IV iteration over a
+whole Monte Carlo study is one pass over the data.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from vesselid.terms import term_value
+
+__all__ = ["AUX_DIVERGED", "AUX_OK", "instrument_matrix", "moments", "regressor_matrix"]
+
+AUX_OK = 0
+AUX_DIVERGED = 1
+
+
+@njit(cache=True, parallel=True)
+def moments(
+    regsig, target, u, starts, group, theta, active, use_sim, codes, eq, block_start, limit,
+    s_zphi, s_zy, s_z, s_phi, s_y, count, status,
+):
+    """Accumulate per-segment LS/IV moments (see module docstring).
+
+    Parameters
+    ----------
+    regsig, target : (T, n) float arrays
+    u : (T, m) float array
+    starts : (S+1,) int array
+    group : (S,) int array, group of each segment
+    theta : (G, P) auxiliary-model parameters per group (ignored when not ``use_sim``)
+    active : (G,) bool, groups to process (others are left untouched)
+    use_sim : bool, instruments from the auxiliary model (True) or z = φ (False)
+    codes, eq : term encoding; ``block_start`` (n+1,) parameter offsets per equation
+    limit : (S,) float, divergence limit of the auxiliary simulation per segment
+    s_zphi (S,P,P), s_zy (S,P), s_z (S,P), s_phi (S,P), s_y (S,n), count (S,), status (S,)
+        Outputs, overwritten for active segments.
+    """
+    n_seg = starts.shape[0] - 1
+    n = regsig.shape[1]
+    m = u.shape[1]
+    n_par = codes.shape[0]
+    for s in prange(n_seg):
+        g = group[s]
+        if not active[g]:
+            continue
+        a = starts[s]
+        b = starts[s + 1]
+        sig = np.empty(n + m)
+        sim = np.empty(n + m)
+        xh = np.empty(n)
+        nxt = np.empty(n)
+        phi = np.empty(n_par)
+        z = np.empty(n_par)
+        for p in range(n_par):
+            s_zy[s, p] = 0.0
+            s_z[s, p] = 0.0
+            s_phi[s, p] = 0.0
+            for q in range(n_par):
+                s_zphi[s, p, q] = 0.0
+        for i in range(n):
+            s_y[s, i] = 0.0
+            xh[i] = target[a, i]
+        status[s] = AUX_OK
+        count[s] = b - a - 1
+        th = theta[g]
+        for k in range(a + 1, b):
+            for i in range(n):
+                sig[i] = regsig[k - 1, i]
+            for j in range(m):
+                sig[n + j] = u[k - 1, j]
+                sim[n + j] = u[k - 1, j]
+            for p in range(n_par):
+                phi[p] = term_value(codes, p, sig)
+            if use_sim:
+                for i in range(n):
+                    sim[i] = xh[i]
+                for p in range(n_par):
+                    z[p] = term_value(codes, p, sim)
+                # advance the auxiliary model: x̂(k) = Φᵀ([x̂(k−1); u(k−1)]) θ
+                for i in range(n):
+                    nxt[i] = 0.0
+                for p in range(n_par):
+                    nxt[eq[p]] += th[p] * z[p]
+                bad = False
+                for i in range(n):
+                    if not np.isfinite(nxt[i]) or abs(nxt[i]) > limit[s]:
+                        bad = True
+                    xh[i] = nxt[i]
+                if bad:
+                    status[s] = AUX_DIVERGED
+                    break
+            else:
+                for p in range(n_par):
+                    z[p] = phi[p]
+            for i in range(n):
+                yi = target[k, i]
+                s_y[s, i] += yi
+                for p in range(block_start[i], block_start[i + 1]):
+                    zp = z[p]
+                    s_zy[s, p] += zp * yi
+                    s_z[s, p] += zp
+                    s_phi[s, p] += phi[p]
+                    for q in range(block_start[i], block_start[i + 1]):
+                        s_zphi[s, p, q] += zp * phi[q]
+
+
+@njit(cache=True)
+def regressor_matrix(regsig, u, starts, codes):
+    """Φ rows for every equation: row ``k`` of the output uses ``[ỹ(k−1); u(k−1)]``.
+
+    The first row of each segment has no predecessor and is left as NaN.
+    """
+    t_len, n = regsig.shape
+    m = u.shape[1]
+    n_par = codes.shape[0]
+    out = np.full((t_len, n_par), np.nan)
+    sig = np.empty(n + m)
+    for s in range(starts.shape[0] - 1):
+        for k in range(starts[s] + 1, starts[s + 1]):
+            for i in range(n):
+                sig[i] = regsig[k - 1, i]
+            for j in range(m):
+                sig[n + j] = u[k - 1, j]
+            for p in range(n_par):
+                out[k, p] = term_value(codes, p, sig)
+    return out
+
+
+@njit(cache=True)
+def instrument_matrix(target, u, starts, theta, codes, eq, n):
+    """Instruments ``ζ(k) = Φ([x̂(k−1); u(k−1)])`` and the auxiliary states ``x̂``.
+
+    ``x̂`` restarts from the measured target at the start of every segment. Rows
+    that are first in their segment are NaN in ``Z``.
+    """
+    t_len = target.shape[0]
+    m = u.shape[1]
+    n_par = codes.shape[0]
+    z_out = np.full((t_len, n_par), np.nan)
+    x_out = np.empty((t_len, n))
+    sim = np.empty(n + m)
+    nxt = np.empty(n)
+    for s in range(starts.shape[0] - 1):
+        a = starts[s]
+        for i in range(n):
+            x_out[a, i] = target[a, i]
+        for k in range(a + 1, starts[s + 1]):
+            for i in range(n):
+                sim[i] = x_out[k - 1, i]
+                nxt[i] = 0.0
+            for j in range(m):
+                sim[n + j] = u[k - 1, j]
+            for p in range(n_par):
+                zp = term_value(codes, p, sim)
+                z_out[k, p] = zp
+                nxt[eq[p]] += theta[p] * zp
+            for i in range(n):
+                x_out[k, i] = nxt[i]
+    return z_out, x_out
