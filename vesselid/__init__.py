@@ -39,3 +39,10 @@ __all__ = [
     "WeakInstrumentWarning",
     "__version__",
 ]
+
+try:  # register the gymnasium environments (vesselid/Heave-v0, ...) when gymnasium is there
+    from vesselid.envs import register_envs as _reg
+
+    _reg()
+except ImportError:
+    pass

@@ -16,7 +16,7 @@ from numba import njit, prange
 
 from vesselid.errors import SimulationDivergedError
 from vesselid.model import ModelSpec
-from vesselid.terms import term_value
+from vesselid.terms import fill_factors, term_value
 
 __all__ = ["DEFAULT_DIVERGENCE_LIMIT", "simulate_states", "step_states"]
 
@@ -36,13 +36,15 @@ def _step(codes, eq, theta, s, out):
 
 
 @njit(cache=True, parallel=True)
-def _simulate_kernel(x0, u, v, w, codes, eq, theta, limit, x_out, status, fail_at):
+def _simulate_kernel(x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at):
     n_runs, n_samples, n = x_out.shape
     m = u.shape[2]
+    n_par = fac.shape[0]
     per_run_theta = theta.shape[0] > 1
     for r in prange(n_runs):
         th = theta[r] if per_run_theta else theta[0]
         s = np.empty(n + m)
+        f = np.empty(2 * (n + m) + 1)
         nxt = np.empty(n)
         for i in range(n):
             x_out[r, 0, i] = x0[r, i]
@@ -55,7 +57,9 @@ def _simulate_kernel(x0, u, v, w, codes, eq, theta, limit, x_out, status, fail_a
                 s[n + j] = u[r, k, j]
             for i in range(n):
                 nxt[i] = w[r, k, i]
-            _step(codes, eq, th, s, nxt)
+            fill_factors(s, f)
+            for p in range(n_par):
+                nxt[eq[p]] += th[p] * (f[fac[p, 0]] * f[fac[p, 1]])
             bad = STATUS_OK
             for i in range(n):
                 xi = nxt[i]
@@ -166,7 +170,7 @@ def simulate_states(
     status = np.empty(n_runs, dtype=np.int64)
     fail_at = np.empty(n_runs, dtype=np.int64)
     codes = spec.codes
-    _simulate_kernel(x0_arr, u_b, v_b, w_b, codes.codes, codes.equation,
+    _simulate_kernel(x0_arr, u_b, v_b, w_b, codes.factors, codes.equation,
                      np.ascontiguousarray(th), float(limit), x, status, fail_at)
     if raise_on_divergence and np.any(status != STATUS_OK):
         bad = np.flatnonzero(status != STATUS_OK)

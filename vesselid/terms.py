@@ -20,7 +20,16 @@ from numba import njit
 
 from vesselid.errors import ModelSpecError
 
-__all__ = ["ALLOWED_FORMS", "Term", "TermCodes", "encode_terms", "evaluate_terms", "term_value"]
+__all__ = [
+    "ALLOWED_FORMS",
+    "Term",
+    "TermCodes",
+    "encode_terms",
+    "evaluate_terms",
+    "factor_codes",
+    "fill_factors",
+    "term_value",
+]
 
 ALLOWED_FORMS = "x, |x|, x*y, x*|y|, |x|*y (x, y signal names; y may equal x)"
 
@@ -133,6 +142,14 @@ class TermCodes:
     def n_params(self) -> int:
         return int(self.codes.shape[0])
 
+    @property
+    def factors(self) -> np.ndarray:
+        """Branch-free form: term ``p`` is ``F[f[p, 0]] * F[f[p, 1]]`` with
+        ``F = [s, |s|, 1]`` (length ``2 S + 1``) filled by :func:`fill_factors`."""
+        return factor_codes(self.codes, self.n_signals)
+
+    n_signals: int = 0
+
 
 def encode_terms(
     terms_per_equation: Sequence[Sequence[Term]], signal_names: Sequence[str]
@@ -152,7 +169,26 @@ def encode_terms(
             rows.append((index[term.left], int(term.left_abs), right, int(term.right_abs)))
             equation.append(eq)
     codes = np.asarray(rows, dtype=np.int64).reshape(-1, 4)
-    return TermCodes(codes=codes, equation=np.asarray(equation, dtype=np.int64))
+    return TermCodes(codes=codes, equation=np.asarray(equation, dtype=np.int64),
+                     n_signals=len(signal_names))
+
+
+def factor_codes(codes: np.ndarray, n_signals: int) -> np.ndarray:
+    """Convert ``(P, 4)`` term codes to ``(P, 2)`` indices into ``F = [s, |s|, 1]``."""
+    one = 2 * n_signals
+    left = codes[:, 0] + n_signals * codes[:, 1]
+    right = np.where(codes[:, 2] >= 0, codes[:, 2] + n_signals * codes[:, 3], one)
+    return np.ascontiguousarray(np.column_stack([left, right]).astype(np.int64))
+
+
+@njit(cache=True, inline="always")
+def fill_factors(s: np.ndarray, f: np.ndarray) -> None:
+    """Fill ``f = [s, |s|, 1]`` (``len(f) == 2 len(s) + 1``) for factor-coded terms."""
+    n_s = s.shape[0]
+    for i in range(n_s):
+        f[i] = s[i]
+        f[n_s + i] = abs(s[i])
+    f[2 * n_s] = 1.0
 
 
 @njit(cache=True, inline="always")

@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from vesselid.terms import term_value
+from vesselid.terms import fill_factors
 
 __all__ = ["AUX_DIVERGED", "AUX_OK", "instrument_matrix", "moments", "regressor_matrix"]
 
@@ -36,7 +36,7 @@ AUX_DIVERGED = 1
 
 @njit(cache=True, parallel=True)
 def moments(
-    regsig, target, u, starts, group, theta, active, use_sim, codes, eq, block_start, limit,
+    regsig, target, u, starts, group, theta, active, use_sim, fac, eq, block_start, limit,
     s_zphi, s_zy, s_z, s_phi, s_y, count, status,
 ):
     """Accumulate per-segment LS/IV moments (see module docstring).
@@ -50,7 +50,8 @@ def moments(
     theta : (G, P) auxiliary-model parameters per group (ignored when not ``use_sim``)
     active : (G,) bool, groups to process (others are left untouched)
     use_sim : bool, instruments from the auxiliary model (True) or z = φ (False)
-    codes, eq : term encoding; ``block_start`` (n+1,) parameter offsets per equation
+    fac, eq : factor-coded terms (:func:`vesselid.terms.factor_codes`) and their equations;
+        ``block_start`` (n+1,) parameter offsets per equation
     limit : (S,) float, divergence limit of the auxiliary simulation per segment
     s_zphi (S,P,P), s_zy (S,P), s_z (S,P), s_phi (S,P), s_y (S,n), count (S,), status (S,)
         Outputs, overwritten for active segments.
@@ -58,54 +59,59 @@ def moments(
     n_seg = starts.shape[0] - 1
     n = regsig.shape[1]
     m = u.shape[1]
-    n_par = codes.shape[0]
+    n_par = fac.shape[0]
+    n_f = 2 * (n + m) + 1
     for s in prange(n_seg):
         g = group[s]
         if not active[g]:
             continue
         a = starts[s]
         b = starts[s + 1]
-        sig = np.empty(n + m)
-        sim = np.empty(n + m)
+        f_dat = np.empty(n_f)
+        f_sim = np.empty(n_f)
+        f_dat[n_f - 1] = 1.0
+        f_sim[n_f - 1] = 1.0
         xh = np.empty(n)
-        nxt = np.empty(n)
         phi = np.empty(n_par)
         z = np.empty(n_par)
-        for p in range(n_par):
-            s_zy[s, p] = 0.0
-            s_z[s, p] = 0.0
-            s_phi[s, p] = 0.0
-            for q in range(n_par):
-                s_zphi[s, p, q] = 0.0
+        # local accumulators keep the inner loop in cache
+        l_zphi = np.zeros((n_par, n_par))
+        l_zy = np.zeros(n_par)
+        l_z = np.zeros(n_par)
+        l_phi = np.zeros(n_par)
+        l_y = np.zeros(n)
         for i in range(n):
-            s_y[s, i] = 0.0
             xh[i] = target[a, i]
         status[s] = AUX_OK
         count[s] = b - a - 1
         th = theta[g]
         for k in range(a + 1, b):
             for i in range(n):
-                sig[i] = regsig[k - 1, i]
+                val = regsig[k - 1, i]
+                f_dat[i] = val
+                f_dat[n + m + i] = abs(val)
             for j in range(m):
-                sig[n + j] = u[k - 1, j]
-                sim[n + j] = u[k - 1, j]
+                val = u[k - 1, j]
+                f_dat[n + j] = val
+                f_dat[2 * n + m + j] = abs(val)
+                f_sim[n + j] = val
+                f_sim[2 * n + m + j] = abs(val)
             for p in range(n_par):
-                phi[p] = term_value(codes, p, sig)
+                phi[p] = f_dat[fac[p, 0]] * f_dat[fac[p, 1]]
             if use_sim:
                 for i in range(n):
-                    sim[i] = xh[i]
-                for p in range(n_par):
-                    z[p] = term_value(codes, p, sim)
+                    f_sim[i] = xh[i]
+                    f_sim[n + m + i] = abs(xh[i])
+                    xh[i] = 0.0
                 # advance the auxiliary model: x̂(k) = Φᵀ([x̂(k−1); u(k−1)]) θ
-                for i in range(n):
-                    nxt[i] = 0.0
                 for p in range(n_par):
-                    nxt[eq[p]] += th[p] * z[p]
+                    zp = f_sim[fac[p, 0]] * f_sim[fac[p, 1]]
+                    z[p] = zp
+                    xh[eq[p]] += th[p] * zp
                 bad = False
                 for i in range(n):
-                    if not np.isfinite(nxt[i]) or abs(nxt[i]) > limit[s]:
+                    if not np.isfinite(xh[i]) or abs(xh[i]) > limit[s]:
                         bad = True
-                    xh[i] = nxt[i]
                 if bad:
                     status[s] = AUX_DIVERGED
                     break
@@ -114,40 +120,50 @@ def moments(
                     z[p] = phi[p]
             for i in range(n):
                 yi = target[k, i]
-                s_y[s, i] += yi
+                l_y[i] += yi
                 for p in range(block_start[i], block_start[i + 1]):
                     zp = z[p]
-                    s_zy[s, p] += zp * yi
-                    s_z[s, p] += zp
-                    s_phi[s, p] += phi[p]
+                    l_zy[p] += zp * yi
+                    l_z[p] += zp
+                    l_phi[p] += phi[p]
                     for q in range(block_start[i], block_start[i + 1]):
-                        s_zphi[s, p, q] += zp * phi[q]
+                        l_zphi[p, q] += zp * phi[q]
+        for p in range(n_par):
+            s_zy[s, p] = l_zy[p]
+            s_z[s, p] = l_z[p]
+            s_phi[s, p] = l_phi[p]
+            for q in range(n_par):
+                s_zphi[s, p, q] = l_zphi[p, q]
+        for i in range(n):
+            s_y[s, i] = l_y[i]
 
 
 @njit(cache=True)
-def regressor_matrix(regsig, u, starts, codes):
+def regressor_matrix(regsig, u, starts, fac):
     """Φ rows for every equation: row ``k`` of the output uses ``[ỹ(k−1); u(k−1)]``.
 
     The first row of each segment has no predecessor and is left as NaN.
     """
     t_len, n = regsig.shape
     m = u.shape[1]
-    n_par = codes.shape[0]
+    n_par = fac.shape[0]
     out = np.full((t_len, n_par), np.nan)
     sig = np.empty(n + m)
+    f = np.empty(2 * (n + m) + 1)
     for s in range(starts.shape[0] - 1):
         for k in range(starts[s] + 1, starts[s + 1]):
             for i in range(n):
                 sig[i] = regsig[k - 1, i]
             for j in range(m):
                 sig[n + j] = u[k - 1, j]
+            fill_factors(sig, f)
             for p in range(n_par):
-                out[k, p] = term_value(codes, p, sig)
+                out[k, p] = f[fac[p, 0]] * f[fac[p, 1]]
     return out
 
 
 @njit(cache=True)
-def instrument_matrix(target, u, starts, theta, codes, eq, n):
+def instrument_matrix(target, u, starts, theta, fac, eq, n):
     """Instruments ``ζ(k) = Φ([x̂(k−1); u(k−1)])`` and the auxiliary states ``x̂``.
 
     ``x̂`` restarts from the measured target at the start of every segment. Rows
@@ -155,10 +171,11 @@ def instrument_matrix(target, u, starts, theta, codes, eq, n):
     """
     t_len = target.shape[0]
     m = u.shape[1]
-    n_par = codes.shape[0]
+    n_par = fac.shape[0]
     z_out = np.full((t_len, n_par), np.nan)
     x_out = np.empty((t_len, n))
     sim = np.empty(n + m)
+    f = np.empty(2 * (n + m) + 1)
     nxt = np.empty(n)
     for s in range(starts.shape[0] - 1):
         a = starts[s]
@@ -170,8 +187,9 @@ def instrument_matrix(target, u, starts, theta, codes, eq, n):
                 nxt[i] = 0.0
             for j in range(m):
                 sim[n + j] = u[k - 1, j]
+            fill_factors(sim, f)
             for p in range(n_par):
-                zp = term_value(codes, p, sim)
+                zp = f[fac[p, 0]] * f[fac[p, 1]]
                 z_out[k, p] = zp
                 nxt[eq[p]] += theta[p] * zp
             for i in range(n):

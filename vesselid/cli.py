@@ -1,0 +1,167 @@
+"""The ``vesselid`` command line.
+
+::
+
+    vesselid simulate  --system heave --samples 10000 --seed 0 --out trial.csv
+    vesselid identify  trial.csv --model heave.toml --method ls|iv|iv-zero-mean [--json PATH|-]
+    vesselid reproduce [--table 1|2|all] [--runs 1000] [--samples 10000] [--seed 0] [--out DIR]
+    vesselid sea-trial --vessel cybership2 --experiments 6 --samples 20000 --seed 0 --out DIR
+
+Exit code 0 on success, 2 on bad input with a one-line reason on stderr.
+Subcommands living in other modules register themselves through an
+``add_parser(subparsers)`` function that sets ``func`` (returning an exit code).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+
+from vesselid import __version__
+from vesselid.errors import VesselidError
+
+__all__ = ["main"]
+
+#: Modules that add their own subcommands (``add_parser(subparsers)``).
+PLUGIN_MODULES = ("vesselid.reproduce", "vesselid.seatrial")
+
+
+class CLIError(VesselidError):
+    """Bad command-line input (exit code 2)."""
+
+
+def _spec_path_for(out: Path) -> Path:
+    return out.with_name(out.stem + ".toml")
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from vesselid.systems import get_system
+
+    out = Path(args.out)
+    if out.suffix.lower() not in (".csv", ".parquet", ".pq"):
+        raise CLIError(f"--out must end in .csv or .parquet, got {out.name!r}")
+    options: dict = {}
+    if args.system in ("heave", "siso"):
+        key = "current_mean" if args.system == "heave" else "v_mean"
+        if args.current_mean is not None:
+            options[key] = args.current_mean
+        if args.current_sensor:
+            options["current_sensor"] = True
+    elif args.current_mean is not None or args.current_sensor:
+        options["current_speed"] = args.current_mean or 0.0
+        if args.current_sensor:
+            options["current_sensor"] = True
+    system = get_system(args.system, **options)
+    sim = system.simulate(args.samples, n_runs=args.experiments, seed=args.seed)
+    log = sim.to_log()
+    log.metadata["command"] = "vesselid " + " ".join(sys.argv[1:]) if sys.argv else ""
+    spec_path = _spec_path_for(out)
+    log.spec.save(spec_path)
+    log.save(out)
+    print(f"wrote {out} ({len(log)} rows, {args.experiments} experiment(s)) and model spec "
+          f"{spec_path}")
+    print(f"next: vesselid identify {out} --model {spec_path} --method iv-zero-mean")
+    return 0
+
+
+def cmd_identify(args: argparse.Namespace) -> int:
+    from vesselid.identify import identify
+    from vesselid.logs import TrialLog
+    from vesselid.model import ModelSpec
+
+    spec = ModelSpec.load(args.model) if args.model else None
+    log = TrialLog.load(args.log, spec=spec)
+    if spec is None and log.spec is None:
+        raise CLIError(f"{args.log} carries no model spec; pass --model SPEC.toml")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = identify(log, spec, method=args.method, combine=args.combine,
+                          max_iter=args.max_iter)
+    payload = result.to_dict()
+    if args.json:
+        text = json.dumps(payload, indent=2)
+        if args.json == "-":
+            print(text)
+        else:
+            from vesselid._io import atomic_write_text
+
+            atomic_write_text(args.json, text + "\n")
+            print(result.summary())
+            print(f"\nwrote {args.json}")
+    else:
+        print(result.summary())
+    for w in caught:
+        if args.json != "-":
+            continue
+        print(f"warning: {w.message}", file=sys.stderr)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="vesselid",
+        description="Simulate marine vessels under current, wind and sensor noise, and identify "
+                    "their second-order modulus models consistently (Ljungberg & Enqvist).",
+    )
+    parser.add_argument("--version", action="version", version=f"vesselid {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    p = sub.add_parser("simulate", help="simulate a catalogue system and write a trial log",
+                       description="Simulate a catalogue system; writes the trial log and the "
+                                   "matching model spec (<out stem>.toml).")
+    p.add_argument("--system", default="heave", help="heave (paper §6), siso (§5), cybership2")
+    p.add_argument("--samples", type=int, default=10000, help="samples per experiment")
+    p.add_argument("--experiments", type=int, default=1, help="independent experiments")
+    p.add_argument("--current-mean", type=float, default=None,
+                   help="mean current (heave: w̄c; default 0)")
+    p.add_argument("--current-sensor", action="store_true",
+                   help="log a current-meter reading and use the aggregated-state predictor")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True, help="trial.csv or trial.parquet")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("identify", help="identify a model from a trial log",
+                       description="Identify θ from a trial log (CSV or Parquet).")
+    p.add_argument("log", help="trial log (.csv with optional .json sidecar, or .parquet)")
+    p.add_argument("--model", help="model spec TOML (default: the spec stored in the log)")
+    p.add_argument("--method", default="iv-zero-mean", choices=["ls", "iv", "iv-zero-mean"])
+    p.add_argument("--combine", default="pooled", choices=["pooled", "stacked"],
+                   help="multi-experiment equations: pooled normal equations (default) or the "
+                        "stacked least-squares form (6)")
+    p.add_argument("--max-iter", type=int, default=100)
+    p.add_argument("--json", metavar="PATH|-", help="write the result as JSON ('-' = stdout)")
+    p.set_defaults(func=cmd_identify)
+
+    for name in PLUGIN_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name != name:
+                raise
+            continue
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 0
+    try:
+        return int(args.func(args) or 0)
+    except (VesselidError, ValueError, FileNotFoundError) as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        print(f"vesselid {args.command}: error: {msg}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

@@ -1,0 +1,145 @@
+"""Diagnostics: experiment-design margins (A10/A15), collinearity, instrument strength, fit.
+
+* :func:`design_margins` — per state and experiment, the share of samples whose
+  magnitude lies within a margin ``η`` of zero, and the number of sign changes.
+  The consistency proofs (Lemma 3.1 with A10, Lemma 4.1 with A15) need every
+  state that appears under a modulus to stay farther than ``η`` from zero, so that
+  ``|x|`` can be treated as ``±x``.
+* :func:`collinear_terms` — names the terms behind a rank-deficient regressor
+  matrix (e.g. ``w`` and ``|w|`` when ``w`` never changes sign).
+* :func:`condition_number` — of the column-equilibrated ``ZᵀΦ`` (instrument
+  strength).
+* :func:`nrmse_fit` — ``100 (1 − ‖y − ŷ‖ / ‖y − ȳ‖)`` percent.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from vesselid.model import ModelSpec
+
+__all__ = [
+    "collinear_terms",
+    "condition_number",
+    "design_margins",
+    "modulus_signals",
+    "nrmse_fit",
+]
+
+
+def modulus_signals(spec: ModelSpec) -> list[str]:
+    """States that appear under a modulus in some term (they need A10/A15 margins)."""
+    out: list[str] = []
+    for s in spec.states:
+        for terms in spec.equations.values():
+            for t in terms:
+                if (t.left == s and t.left_abs) or (t.right == s and t.right_abs):
+                    out.append(s)
+                    break
+            else:
+                continue
+            break
+    return out
+
+
+def design_margins(
+    signal: np.ndarray,
+    starts: np.ndarray,
+    spec: ModelSpec,
+    eta: Mapping[str, float],
+    experiment_ids: Sequence | None = None,
+    *,
+    threshold: float = 0.01,
+) -> pd.DataFrame:
+    """Experiment-design check for A10/A15.
+
+    Parameters
+    ----------
+    signal : ndarray (T, n)
+        The regressor signal per state (measured or aggregated state).
+    starts : ndarray (S+1,)
+        Experiment boundaries.
+    spec : ModelSpec
+    eta : mapping state -> float
+        Margin ``η_i`` (A10: ``max(η_e, η_v)``; A15: ``η_e1 + η_e2 + η_v``).
+    threshold : float
+        Largest acceptable share of samples inside the margin.
+
+    Returns
+    -------
+    DataFrame
+        One row per (experiment, state): ``eta``, ``share_within_eta``,
+        ``sign_changes``, ``min_abs``, ``under_modulus``, ``ok``.
+    """
+    ids = list(experiment_ids) if experiment_ids is not None else list(range(starts.size - 1))
+    mod = set(modulus_signals(spec))
+    rows = []
+    for sidx in range(starts.size - 1):
+        seg = signal[int(starts[sidx]) : int(starts[sidx + 1])]
+        for i, s in enumerate(spec.states):
+            x = seg[:, i]
+            e = float(eta.get(s, 0.0))
+            share = float(np.mean(np.abs(x) <= e)) if x.size else 1.0
+            sgn = np.sign(x)
+            changes = int(np.count_nonzero(sgn[1:] * sgn[:-1] < 0))
+            under = s in mod
+            rows.append({
+                "experiment": ids[sidx],
+                "state": s,
+                "eta": e,
+                "share_within_eta": share,
+                "sign_changes": changes,
+                "min_abs": float(np.min(np.abs(x))) if x.size else np.nan,
+                "under_modulus": under,
+                "ok": (not under) or share <= threshold,
+            })
+    return pd.DataFrame(rows)
+
+
+def collinear_terms(phi: np.ndarray, names: Sequence[str], *, rtol: float = 1e-9) -> list[list[str]]:
+    """Groups of terms that are (near) linearly dependent in the regressor matrix ``phi``.
+
+    Columns are scaled to unit norm; every singular value below ``rtol`` times the
+    largest gives a null-space direction, and the terms with a noticeable weight in
+    it are reported. An all-zero column is reported alone.
+    """
+    phi = np.asarray(phi, dtype=float)
+    norms = np.linalg.norm(phi, axis=0)
+    groups: list[list[str]] = [[names[j]] for j in np.flatnonzero(norms == 0)]
+    keep = np.flatnonzero(norms > 0)
+    if keep.size == 0:
+        return groups
+    scaled = phi[:, keep] / norms[keep]
+    _, sv, vt = np.linalg.svd(scaled, full_matrices=False)
+    for k in np.flatnonzero(sv < rtol * sv[0]):
+        vec = vt[k]
+        members = [names[keep[j]] for j in np.flatnonzero(np.abs(vec) > 0.05)]
+        if members:
+            groups.append(members)
+    return groups
+
+
+def condition_number(a: np.ndarray) -> float:
+    """Condition number of ``a`` after scaling rows and columns to unit norm."""
+    a = np.asarray(a, dtype=float)
+    r = np.linalg.norm(a, axis=1)
+    c = np.linalg.norm(a, axis=0)
+    if np.any(r == 0) or np.any(c == 0):
+        return float("inf")
+    return float(np.linalg.cond(a / r[:, None] / c[None, :]))
+
+
+def nrmse_fit(y: np.ndarray, y_hat: np.ndarray) -> float:
+    """Normalised-RMSE fit in percent, ``100 (1 − ‖y − ŷ‖ / ‖y − ȳ‖)`` (100 = perfect)."""
+    y = np.asarray(y, dtype=float)
+    y_hat = np.asarray(y_hat, dtype=float)
+    ok = np.isfinite(y) & np.isfinite(y_hat)
+    if not ok.any():
+        return float("nan")
+    den = np.linalg.norm(y[ok] - y[ok].mean())
+    if den == 0:
+        return float("nan")
+    return float(100.0 * (1.0 - np.linalg.norm(y[ok] - y_hat[ok]) / den))

@@ -1,0 +1,166 @@
+"""Regression data: trial logs (or simulated arrays) turned into concatenated segments.
+
+One :class:`RegressionData` holds everything the estimators need, for one log
+with several experiments or for a whole Monte Carlo study (one parameter group
+per run):
+
+* ``target`` — the state measurements ``y(k)`` (the left-hand side of (4)/(10)),
+* ``regsig`` — the signal the regressors are built from: ``y`` for the predictor
+  (3), the aggregated ``ỹ = y ± y₂`` for the aggregated-state predictor (9),
+* ``u`` — the known inputs,
+* ``starts`` — segment (experiment) boundaries, ``group`` — segment → group.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from vesselid.errors import IdentificationError, LogValidationError
+from vesselid.model import ModelSpec
+
+__all__ = ["RegressionData", "from_arrays", "from_log"]
+
+
+@dataclass(frozen=True)
+class RegressionData:
+    """Concatenated regression data (see module docstring)."""
+
+    target: np.ndarray
+    regsig: np.ndarray
+    u: np.ndarray
+    starts: np.ndarray
+    group: np.ndarray
+    n_groups: int
+    experiment_ids: tuple = ()
+    sensor: np.ndarray | None = None
+
+    @property
+    def n_segments(self) -> int:
+        return int(self.starts.size - 1)
+
+    @property
+    def lengths(self) -> np.ndarray:
+        return np.diff(self.starts)
+
+    def segment(self, s: int) -> slice:
+        return slice(int(self.starts[s]), int(self.starts[s + 1]))
+
+    def check_lengths(self, spec: ModelSpec, min_samples: int | None = None) -> None:
+        """Every experiment needs enough samples to estimate its equations."""
+        p_max = max(len(t) for t in spec.equations.values())
+        need = max(p_max + 2, 3) if min_samples is None else int(min_samples)
+        short = np.flatnonzero(self.lengths < need)
+        if short.size:
+            s = int(short[0])
+            eid = self.experiment_ids[s] if self.experiment_ids else s
+            raise IdentificationError(
+                f"experiment {eid} has {int(self.lengths[s])} samples; at least {need} are "
+                f"needed for {p_max} parameters per equation"
+            )
+
+
+def _aggregated(spec: ModelSpec, states: np.ndarray, sensors: dict[str, np.ndarray]):
+    regsig = states.copy()
+    sensor = np.zeros_like(states)
+    for i, s in enumerate(spec.states):
+        if s in spec.aggregate:
+            agg = spec.aggregate[s]
+            sensor[:, i] = agg.sign * sensors[agg.sensor]
+            regsig[:, i] = states[:, i] + sensor[:, i]
+    return regsig, sensor
+
+
+def from_log(log, spec: ModelSpec | None = None, *, min_samples: int | None = None):
+    """Build regression data from a :class:`~vesselid.logs.TrialLog` (or DataFrame).
+
+    The log is validated first (missing columns, NaN/inf, time order, samples per
+    experiment); nothing is silently dropped.
+
+    Returns
+    -------
+    (RegressionData, ModelSpec)
+    """
+    from vesselid.logs import TrialLog
+
+    if not isinstance(log, TrialLog):
+        log = TrialLog(log)
+    spec = spec or log.spec
+    if spec is None:
+        raise IdentificationError("no model spec given and the log carries none")
+    log.validate(spec)
+    frames = log.experiments()
+    lengths = [len(f) for _, f in frames]
+    starts = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
+    cat = [f for _, f in frames]
+    try:
+        states = np.concatenate([f[list(spec.states)].to_numpy(float) for f in cat])
+        inputs = (np.concatenate([f[list(spec.inputs)].to_numpy(float) for f in cat])
+                  if spec.inputs else np.zeros((starts[-1], 0)))
+        sensors = {c: np.concatenate([f[c].to_numpy(float) for f in cat]) for c in spec.sensors}
+    except (KeyError, ValueError) as exc:  # pragma: no cover - validate() catches these first
+        raise LogValidationError(str(exc)) from exc
+    regsig, sensor = _aggregated(spec, states, sensors)
+    data = RegressionData(
+        target=np.ascontiguousarray(states),
+        regsig=np.ascontiguousarray(regsig),
+        u=np.ascontiguousarray(inputs),
+        starts=starts,
+        group=np.zeros(len(frames), dtype=np.int64),
+        n_groups=1,
+        experiment_ids=tuple(eid for eid, _ in frames),
+        sensor=sensor,
+    )
+    data.check_lengths(spec, min_samples)
+    return data, spec
+
+
+def from_arrays(
+    spec: ModelSpec,
+    y: np.ndarray,
+    u: np.ndarray,
+    *,
+    y2: np.ndarray | None = None,
+    experiments_per_group: int = 1,
+) -> RegressionData:
+    """Build regression data from batch arrays ``(R, N, ·)`` without a DataFrame.
+
+    The Monte Carlo fast path: ``R`` runs, consecutive blocks of
+    ``experiments_per_group`` runs form one parameter group. ``y2`` holds the
+    disturbance-sensor readings for the aggregated states, in the order of
+    ``spec.states`` that have an aggregate relation.
+    """
+    y = np.asarray(y, dtype=float)
+    u = np.asarray(u, dtype=float)
+    n_runs, n_samples, n = y.shape
+    if n_runs % experiments_per_group:
+        raise IdentificationError("runs must be a multiple of experiments_per_group")
+    target = y.reshape(-1, n)
+    sensors: dict[str, np.ndarray] = {}
+    if spec.aggregate:
+        if y2 is None:
+            raise IdentificationError("the spec aggregates states but no sensor readings y2 given")
+        agg_states = [s for s in spec.states if s in spec.aggregate]
+        y2 = np.asarray(y2, dtype=float).reshape(-1, len(agg_states))
+        for j, s in enumerate(agg_states):
+            sensors[spec.aggregate[s].sensor] = y2[:, j]
+    regsig, sensor = _aggregated(spec, target, sensors)
+    n_groups = n_runs // experiments_per_group
+    return RegressionData(
+        target=np.ascontiguousarray(target),
+        regsig=np.ascontiguousarray(regsig),
+        u=np.ascontiguousarray(u.reshape(-1, u.shape[-1])),
+        starts=np.arange(n_runs + 1, dtype=np.int64) * n_samples,
+        group=np.repeat(np.arange(n_groups, dtype=np.int64), experiments_per_group),
+        n_groups=n_groups,
+        experiment_ids=tuple(range(n_runs)),
+        sensor=sensor,
+    )
+
+
+def block_starts(spec: ModelSpec) -> np.ndarray:
+    """Parameter offsets of each state equation's block in θ."""
+    sizes: Sequence[int] = [len(spec.equations[s]) for s in spec.states]
+    return np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
