@@ -22,7 +22,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import deque
-from typing import Any, SupportsFloat
+from typing import Any, ClassVar, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
@@ -518,7 +518,8 @@ class HeaveEnv(gym.Env[np.ndarray, np.ndarray]):
     * v0: Initial version.
     """
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 30}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"],
+                                          "render_fps": 30}
 
     def __init__(
         self,
@@ -717,7 +718,7 @@ class HeaveVectorEnv(VectorEnv):
     - ``max_episode_steps``: truncation length (0 or None: never truncate).
     {arguments}"""
 
-    metadata = {
+    metadata: ClassVar[dict[str, Any]] = {
         "render_modes": ["rgb_array"],
         "render_fps": 30,
         "autoreset_mode": AutoresetMode.NEXT_STEP,

@@ -260,8 +260,10 @@ class GaussMarkov(Process):
     ``x(k+1) = mean + a (x(k) - mean) + sqrt(1 - a²) std ε(k)`` with
     ``a = exp(-dt / time_constant)``, started in its stationary distribution, so the
     stationary standard deviation is ``std`` for any time constant. With ``bound``
-    the innovations are truncated Gaussians scaled so that ``|x - mean| < bound``
-    always holds (a bounded first-order process, used for slowly varying currents).
+    the process is passed through the smooth saturation ``b·tanh(g/b)``, so
+    ``|x - mean| < bound`` always holds while the colour is kept (a bounded
+    first-order process, used for slowly varying currents); :attr:`std` then
+    reports the exact stationary standard deviation after saturation.
     """
 
     mean_: float = 0.0
@@ -296,22 +298,13 @@ class GaussMarkov(Process):
         if self.std_ == 0:
             return np.full(n, self.mean_)
         a = self.pole
-        if math.isinf(self.bound_):
-            innov = rng.normal(0.0, self.std_ * math.sqrt(1 - a * a), n)
-            innov[0] = rng.normal(0.0, self.std_)
-            # x(k) = a x(k-1) + innov(k), started from its stationary draw
-            x = sps.lfilter([1.0], [1.0, -a], innov)
-            return x + self.mean_
-        # Bounded: innovations bounded by (1 - a) * bound keep |x| < bound forever.
-        ib = (1 - a) * self.bound_
-        sig = self.std_ * math.sqrt(1 - a * a)
-        b = ib / sig
-        innov = stats.truncnorm(-b, b, scale=sig).rvs(size=n, random_state=rng)
-        x0 = stats.truncnorm(-self.bound_ / self.std_, self.bound_ / self.std_,
-                             scale=self.std_).rvs(random_state=rng)
-        innov[0] = x0
-        x = sps.lfilter([1.0], [1.0, -a], innov)
-        return x + self.mean_
+        innov = rng.normal(0.0, self.std_ * math.sqrt(1 - a * a), n)
+        innov[0] = rng.normal(0.0, self.std_)
+        # g(k) = a g(k-1) + innov(k), started from its stationary draw
+        g = sps.lfilter([1.0], [1.0, -a], innov)
+        if math.isfinite(self.bound_):
+            g = self.bound_ * np.tanh(g / self.bound_)
+        return g + self.mean_
 
     @property
     def mean(self) -> float:
@@ -319,7 +312,12 @@ class GaussMarkov(Process):
 
     @property
     def std(self) -> float:
-        return self.std_
+        if not math.isfinite(self.bound_) or self.std_ == 0:
+            return self.std_
+        # E[b² tanh²(g/b)], g ~ N(0, σ²), by Gauss–Hermite quadrature
+        t, wts = np.polynomial.hermite_e.hermegauss(80)
+        val = self.bound_ * np.tanh(self.std_ * t / self.bound_)
+        return float(math.sqrt(np.sum(wts * val**2) / math.sqrt(2 * math.pi)))
 
     @property
     def bound(self) -> float:

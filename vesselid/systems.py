@@ -343,9 +343,9 @@ def siso_example(
     v_half_width: float = 0.1,
     e1_half_width: float = 0.1,
     e2_half_width: float = 0.1,
-    w_std: float = 0.02,
+    w_half_width: float = 0.05,
     u_mean: float = 1.0,
-    u_half_width: float = 0.5,
+    u_half_width: float = 0.3,
     current_sensor: bool | None = None,
     x0: float = 0.9,
 ) -> System:
@@ -353,8 +353,9 @@ def siso_example(
 
     ``x(k+1) = n0 (x+v)|x+v| + f0 u + w``, ``y1 = x + e1`` with uniform ``v``,
     ``e1``, ``e2`` and a static-offset input ``u = ū + ũ``. The paper gives no
-    numbers; these defaults keep ``x ≈ 0.9`` well above
-    ``|v̄| + η_v + η_e1 + η_e2`` (A15). ``y2 = v + e2`` when ``current_sensor``.
+    numbers; with these bounded defaults (uniform ``w`` too) every sample satisfies
+    ``x ≥ −0.1·1.5² + 0.7 − 0.05 = 0.425 > |v̄| + η_v + η_e1 + η_e2 = 0.4`` for
+    ``v̄ = 0.1`` (A15). ``y2 = v + e2`` when ``current_sensor``.
     """
     if current_sensor is None:
         current_sensor = v_mean != 0.0
@@ -372,7 +373,7 @@ def siso_example(
         inputs={"u": StaticOffset(u_mean, Uniform(0.0, u_half_width))},
         current={"x": Uniform(v_mean, v_half_width)},
         current_sign={"x": 1},
-        process_noise={"x": Gaussian(0.0, w_std)},
+        process_noise={"x": Uniform(0.0, w_half_width)},
         sensor_noise={"x": Uniform(0.0, e1_half_width)},
         current_sensor_noise={"x": Uniform(0.0, e2_half_width)} if current_sensor else {},
         x0={"x": x0},

@@ -1,0 +1,781 @@
+"""``vesselid/Manoeuvring3DOF-v0``: surge/sway/yaw manoeuvring of CyberShip II.
+
+The plant is :mod:`vesselid.vessels`: the Skjetne, Smogeli & Fossen (2004) CyberShip II
+model discretised with explicit Euler into the second-order modulus regression of
+:func:`vesselid.vessels.cybership2_spec`, driven through the spec's term codes and θ0 by
+the compiled kernels of :mod:`vesselid.vessels` (the same code as
+:func:`vesselid.vessels.simulate_cybership2`), with an earth-fixed ocean current rotated
+into the body frame (the paper's non-additive ``v = −ν_c``), Blendermann (1994) wind with
+gusts, optional unmodelled forces, and a switchable sensor suite.
+
+:class:`Manoeuvring3DOFEnv` is the single environment; :class:`Manoeuvring3DOFVectorEnv`
+steps ``num_envs`` vessels with one parallel compiled kernel (next-step autoreset), for
+``gym.make_vec(..., vectorization_mode="vector_entry_point")``.
+
+Both implement the recorder contract of :mod:`vesselid.envs.recorder` (``model_spec``,
+``dt``, ``log_row``, ``log_inputs``, ``log_metadata``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict
+from typing import Any, ClassVar, SupportsFloat
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from vesselid.errors import VesselidError
+from vesselid.model import ModelSpec
+from vesselid.vessels import (
+    A_UC,
+    A_VC,
+    A_VRW,
+    A_XW,
+    CYBERSHIP2,
+    N_AUX,
+    N_DIST,
+    N_ENV,
+    SENSOR_CHANNELS,
+    SENSOR_GROUPS,
+    STATUS_OK,
+    CyberShip2Disturbances,
+    CyberShip2Sensors,
+    VesselModel,
+    _env_observe,
+    _env_step_parallel,
+    _env_step_serial,
+)
+
+__all__ = ["Manoeuvring3DOFEnv", "Manoeuvring3DOFVectorEnv"]
+
+_N_SENS = len(SENSOR_CHANNELS)
+_ANGLE_CHANNELS = {"psi", "wind_angle"}
+SINGLE_BLOCK = 1024  # disturbance rows drawn at once by a single env
+VECTOR_BLOCK_SAMPLES = 1 << 16  # rows x envs drawn at once by a vector env
+
+# Layout of the per-step info buffer (one fresh array per step; info values are views).
+_I_NU, _I_NUR, _I_ETA, _I_CUR, _I_WIND, _I_WF, _I_TAU, _I_SENS = 0, 3, 6, 9, 12, 14, 17, 20
+_N_INFO = _I_SENS + _N_SENS
+
+
+def _triple(name: str, value: Any) -> tuple[float, float, float]:
+    arr = np.broadcast_to(np.asarray(value, dtype=float), (3,))
+    if not np.all(np.isfinite(arr)):
+        raise VesselidError(f"{name} must be finite, got {value!r}")
+    return (float(arr[0]), float(arr[1]), float(arr[2]))
+
+
+class _Core:
+    """State, buffers and kernel calls for ``B`` vessels (shared by both envs)."""
+
+    def __init__(
+        self,
+        n: int,
+        *,
+        parallel: bool,
+        dt: float,
+        current_speed: float,
+        current_direction: float | None,
+        current_variation: float,
+        current_time_constant: float,
+        wind_speed: float,
+        wind_direction: float | None,
+        wind_gust: float,
+        force_noise: Sequence[float] | float,
+        sensors: CyberShip2Sensors | Mapping[str, Any] | None,
+        cubic_surge: bool,
+        force_max: Sequence[float],
+        u_ref: float,
+        psi_ref: float,
+        reward_weights: Sequence[float],
+        initial_speed: Sequence[float],
+        velocity_limit: float,
+        block: int,
+    ) -> None:
+        fmax = _triple("force_max", force_max)
+        if min(fmax) <= 0:
+            raise VesselidError(f"force_max must be positive, got {force_max!r}")
+        rw = _triple("reward_weights", reward_weights)
+        for name, val in (("current_speed", current_speed), ("current_variation",
+                          current_variation), ("wind_speed", wind_speed),
+                          ("wind_gust", wind_gust)):
+            if not (math.isfinite(float(val)) and float(val) >= 0):
+                raise VesselidError(f"{name} must be a non-negative number, got {val!r}")
+        vlim = float(velocity_limit)
+        if not (math.isfinite(vlim) and vlim > 0):
+            raise VesselidError(f"velocity_limit must be positive, got {velocity_limit!r}")
+        lo, hi = (float(x) for x in initial_speed)
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+            raise VesselidError(f"initial_speed must be a range (low, high), got {initial_speed}")
+        dist = CyberShip2Disturbances(
+            current_speed=float(current_speed),
+            current_direction=0.0 if current_direction is None else float(current_direction),
+            current_speed_std=float(current_variation),
+            current_direction_std=float(current_variation) / max(float(current_speed), 0.05)
+            if current_variation > 0 else 0.0,
+            current_time_constant=float(current_time_constant),
+            wind_speed=float(wind_speed),
+            wind_direction=0.0 if wind_direction is None else float(wind_direction),
+            gust_std=float(wind_gust),
+            wind_direction_std=0.1 if wind_gust > 0 else 0.0,
+            force_noise_std=_triple("force_noise", force_noise),
+            cubic_surge=bool(cubic_surge),
+        )
+        sens = CyberShip2Sensors() if sensors is None else sensors
+        self.model = VesselModel(
+            dt=dt, disturbances=dist, sensors=sens, tau_scale=fmax, normalized_inputs=True,
+            u_ref=float(u_ref), psi_ref=float(psi_ref), reward_weights=rw, limit=vlim,
+        )
+        self.velocity_limit = vlim
+        self.random_current_direction = current_direction is None
+        self.random_wind_direction = wind_direction is None
+        self.initial_speed = (lo, hi)
+        self.n = int(n)
+        self.parallel = parallel
+        self.kernel = _env_step_parallel if parallel else _env_step_serial
+        self.block = int(block)
+        m = self.model
+        self.channels = m.sensors.channels
+        self.n_obs = len(self.channels)
+        self.nu = np.zeros((n, 3))
+        self.eta = np.zeros((n, 3))
+        self.act = np.zeros((n, 3))
+        self.aux = np.zeros((n, N_AUX))
+        self.sens = np.zeros((n, _N_SENS))
+        self.dist = np.zeros((n, self.block + 1, N_DIST))
+        self.envp = np.zeros((n, N_ENV))
+        self.obs = np.zeros((n, self.n_obs), dtype=np.float32)
+        self.reward = np.zeros(n)
+        self.w = np.zeros((n, 3))
+        self.status = np.zeros(n, dtype=np.int64)
+        self.no_skip = np.zeros(n, dtype=np.bool_)
+        self.scratch = np.zeros((n, 6))
+        self.j = 0
+        self.rng: np.random.Generator | None = None
+        # sensor slices for info
+        self.groups: list[tuple[str, int, int]] = []
+        i = 0
+        for g, chans in SENSOR_GROUPS.items():
+            if g in m.sensors.enabled:
+                self.groups.append((g, i, i + len(chans)))
+            i += len(chans)
+
+    # -- spaces -----------------------------------------------------------------
+    def spaces(self) -> tuple[spaces.Box, spaces.Box]:
+        action = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
+        d = self.model.disturbances
+        vel = 2.0 * self.velocity_limit
+        wind = 2.0 * (d.wind_speed + 3.0 * d.gust_std + self.velocity_limit)
+        high = np.array([np.pi if c in _ANGLE_CHANNELS else wind if c == "wind_speed" else vel
+                         for c in self.channels], dtype=np.float32)
+        return action, spaces.Box(-high, high, dtype=np.float32)
+
+    # -- reset --------------------------------------------------------------------
+    def _initial(self, rng: np.random.Generator, idx: np.ndarray,
+                 options: Mapping[str, Any] | None) -> None:
+        k = idx.size
+        opts = dict(options or {})
+        unknown = sorted(set(opts) - {"nu", "eta", "current_direction", "wind_direction"})
+        if unknown:
+            raise VesselidError(f"unknown reset options {unknown}; allowed: nu, eta, "
+                                "current_direction, wind_direction")
+        lo, hi = self.initial_speed
+        nu = np.column_stack([rng.uniform(lo, hi, k), rng.uniform(-0.02, 0.02, k),
+                              rng.uniform(-0.02, 0.02, k)])
+        eta = np.column_stack([np.zeros(k), np.zeros(k), rng.uniform(-np.pi, np.pi, k)])
+        d = self.model.disturbances
+        cdir = rng.uniform(-np.pi, np.pi, k) if self.random_current_direction \
+            else np.full(k, d.current_direction)
+        wdir = rng.uniform(-np.pi, np.pi, k) if self.random_wind_direction \
+            else np.full(k, d.wind_direction)
+        if "nu" in opts:
+            nu = np.broadcast_to(np.asarray(opts["nu"], dtype=float), (k, 3))
+        if "eta" in opts:
+            eta = np.broadcast_to(np.asarray(opts["eta"], dtype=float), (k, 3))
+        if "current_direction" in opts:
+            cdir = np.broadcast_to(np.asarray(opts["current_direction"], dtype=float), (k,))
+        if "wind_direction" in opts:
+            wdir = np.broadcast_to(np.asarray(opts["wind_direction"], dtype=float), (k,))
+        for name, arr in (("nu", nu), ("eta", eta), ("current_direction", cdir),
+                          ("wind_direction", wdir)):
+            if not np.all(np.isfinite(arr)):
+                raise VesselidError(f"reset option {name} must be finite")
+        self.nu[idx] = nu
+        self.eta[idx] = eta
+        self.envp[idx, 0] = d.current_speed
+        self.envp[idx, 1] = cdir
+        self.envp[idx, 2] = d.wind_speed
+        self.envp[idx, 3] = wdir
+        self.act[idx] = 0.0
+        self.scratch[idx] = 0.0
+        self.w[idx] = 0.0
+
+    def reset_all(self, rng: np.random.Generator, options: Mapping[str, Any] | None) -> None:
+        self.rng = rng
+        self._initial(rng, np.arange(self.n), options)
+        self.model.start_block(rng, self.dist)
+        self.j = 0
+        mask = np.ones(self.n, dtype=np.bool_)
+        m = self.model
+        _env_observe(self.nu, self.eta, self.aux, self.sens, self.dist, 0, self.envp, m.par,
+                     m.obs_idx, self.obs, mask)
+
+    # -- step ---------------------------------------------------------------------
+    def step(self, skip: np.ndarray) -> None:
+        if self.j >= self.block:
+            self.model.continue_block(self.rng, self.dist)
+            self.j = 0
+        m = self.model
+        self.kernel(self.nu, self.eta, self.act, self.aux, self.sens, self.dist, self.j,
+                    self.envp, m.codes, m.eq, m.theta, m.par, m.obs_idx, self.obs,
+                    self.reward, self.w, self.status, skip, self.scratch)
+        self.j += 1
+
+    # -- info -----------------------------------------------------------------------
+    def info(self, row: int | None = None) -> dict[str, np.ndarray]:
+        """Info dict (views into one fresh array); ``row`` selects a single vessel."""
+        sl = slice(None) if row is None else row
+        buf = np.empty((self.n if row is None else 1, _N_INFO))
+        nu, aux = self.nu[sl], self.aux[sl]
+        b = buf if row is None else buf[0]
+        b[..., _I_NU:_I_NU + 3] = nu
+        b[..., _I_CUR] = aux[..., A_UC]
+        b[..., _I_CUR + 1] = aux[..., A_VC]
+        b[..., _I_CUR + 2] = 0.0
+        b[..., _I_NUR:_I_NUR + 3] = nu - b[..., _I_CUR:_I_CUR + 3]
+        b[..., _I_ETA:_I_ETA + 3] = self.eta[sl]
+        b[..., _I_WIND:_I_WIND + 2] = aux[..., A_VRW:A_VRW + 2]
+        b[..., _I_WF:_I_WF + 3] = aux[..., A_XW:A_XW + 3]
+        b[..., _I_TAU:_I_TAU + 3] = self.scratch[sl, 3:6]
+        b[..., _I_SENS:] = self.sens[sl]
+        out = {
+            "nu": b[..., _I_NU:_I_NU + 3],
+            "nu_r": b[..., _I_NUR:_I_NUR + 3],
+            "eta": b[..., _I_ETA:_I_ETA + 3],
+            "current": b[..., _I_CUR:_I_CUR + 3],
+            "wind": b[..., _I_WIND:_I_WIND + 2],
+            "wind_force": b[..., _I_WF:_I_WF + 3],
+            "tau": b[..., _I_TAU:_I_TAU + 3],
+        }
+        for g, i0, i1 in self.groups:
+            out[g] = b[..., _I_SENS + i0:_I_SENS + i1]
+        return out
+
+    def tau(self, actions: Any) -> np.ndarray:
+        a = np.clip(np.asarray(actions, dtype=np.float64), -1.0, 1.0)
+        return a * np.asarray(self.model.tau_scale)
+
+    def metadata(self) -> dict[str, Any]:
+        m = self.model
+        return {
+            "system": "cybership2",
+            "dt": m.dt,
+            "coefficients": asdict(m.coefficients),
+            "disturbances": m.disturbances.to_dict(),
+            "random_current_direction": self.random_current_direction,
+            "random_wind_direction": self.random_wind_direction,
+            "sensors": m.sensors.to_dict(),
+            "force_max": list(m.tau_scale),
+            "u_ref": m.u_ref,
+            "psi_ref": m.psi_ref,
+            "reward_weights": list(m.reward_weights),
+        }
+
+
+def _log_row(info: Mapping[str, Any], enabled: Sequence[str]) -> dict[str, Any]:
+    """Trial-log columns from an info dict (single or batched)."""
+    row: dict[str, Any] = {}
+
+    def col(key: str, i: int) -> Any:
+        return np.asarray(info[key])[..., i]
+
+    if "gnss" in enabled:
+        row["u"], row["v"] = col("gnss", 0), col("gnss", 1)
+    if "gyro" in enabled:
+        row["r"] = col("gyro", 0)
+    if "heading" in enabled:
+        row["psi"] = col("heading", 0)
+    if "speed_log" in enabled:
+        row["u_log"], row["v_log"] = col("speed_log", 0), col("speed_log", 1)
+        if "gyro" in enabled:
+            row["r_log"] = col("gyro", 0)
+    if "current_meter" in enabled:
+        row["u_c"], row["v_c"] = col("current_meter", 0), col("current_meter", 1)
+    if "anemometer" in enabled:
+        row["wind_speed"], row["wind_angle"] = col("anemometer", 0), col("anemometer", 1)
+    for i, c in enumerate(("u", "v", "r")):
+        row[f"true_{c}"] = col("nu", i)
+    row["true_u_r"], row["true_v_r"] = col("nu_r", 0), col("nu_r", 1)
+    row["true_u_c"], row["true_v_c"] = col("current", 0), col("current", 1)
+    for i, c in enumerate(("north", "east", "psi")):
+        row[f"true_{c}"] = col("eta", i)
+    if np.ndim(row["true_u"]) == 0:
+        row = {k: float(v) for k, v in row.items()}
+    return row
+
+
+# ---------------------------------------------------------------------------- rendering
+def _interactive_backend() -> bool:
+    import matplotlib
+
+    backend = str(matplotlib.get_backend()).lower()
+    try:
+        from matplotlib.backends import BackendFilter, backend_registry
+
+        names = backend_registry.list_builtin(BackendFilter.INTERACTIVE)
+    except ImportError:  # pragma: no cover - matplotlib < 3.9
+        from matplotlib import rcsetup
+
+        names = rcsetup.interactive_bk
+    return backend in {n.lower() for n in names}
+
+
+class _Plot:
+    """Trajectory in the north-east plane with a heading arrow, and velocity time series."""
+
+    def __init__(self, mode: str, fps: int, length: float) -> None:
+        self.mode = mode
+        self.fps = fps
+        self.length = length
+        self.interactive = False
+        if mode == "human":
+            import matplotlib.pyplot as plt
+
+            self._plt = plt
+            self.interactive = _interactive_backend()
+            self.fig = plt.figure(figsize=(8.0, 4.0))
+            if self.interactive:
+                plt.ion()
+        else:
+            from matplotlib.backends.backend_agg import FigureCanvasAgg
+            from matplotlib.figure import Figure
+
+            self.fig = Figure(figsize=(8.0, 4.0), dpi=80)
+            FigureCanvasAgg(self.fig)
+        self.ax_ne, self.ax_v = self.fig.subplots(1, 2)
+        (self.l_traj,) = self.ax_ne.plot([], [], lw=1.0)
+        self.arrow = None
+        self.ax_ne.set_xlabel("east (m)")
+        self.ax_ne.set_ylabel("north (m)")
+        self.ax_ne.set_aspect("equal", adjustable="datalim")
+        self.l_u = self.ax_v.plot([], [], label="u")[0]
+        self.l_v = self.ax_v.plot([], [], label="v")[0]
+        self.l_r = self.ax_v.plot([], [], label="r")[0]
+        self.ax_v.set_xlabel("time (s)")
+        self.ax_v.legend(loc="upper left", fontsize="small")
+        self.fig.tight_layout()
+
+    def draw(self, hist: np.ndarray) -> np.ndarray | None:
+        """``hist`` columns: t, north, east, psi, u, v, r."""
+        t, n, e, psi, u, v, r = hist.T
+        self.l_traj.set_data(e, n)
+        if self.arrow is not None:
+            self.arrow.remove()
+        size = 2.0 * self.length
+        self.arrow = self.ax_ne.arrow(e[-1], n[-1], size * math.sin(psi[-1]),
+                                      size * math.cos(psi[-1]), width=0.15 * size,
+                                      length_includes_head=True, color="C3")
+        self.ax_ne.set_xlim(e.min() - 2 * size, e.max() + 2 * size)
+        self.ax_ne.set_ylim(n.min() - 2 * size, n.max() + 2 * size)
+        self.l_u.set_data(t, u)
+        self.l_v.set_data(t, v)
+        self.l_r.set_data(t, r)
+        self.ax_v.relim()
+        self.ax_v.autoscale_view()
+        self.ax_v.set_xlim(t[0], max(t[-1], t[0] + 1e-3))
+        self.fig.canvas.draw()
+        if self.mode == "human":
+            if self.interactive:
+                self.fig.canvas.flush_events()
+                self._plt.pause(1.0 / self.fps)
+            return None
+        buf = np.asarray(self.fig.canvas.buffer_rgba())
+        return np.ascontiguousarray(buf[..., :3])
+
+    def close(self) -> None:
+        if self.mode == "human":
+            self._plt.close(self.fig)
+        self.fig = None
+
+
+_DOC_ARGS = """
+    - ``render_mode``: ``None``, ``"human"`` (matplotlib window; off-screen Agg figure on
+      headless machines) or ``"rgb_array"`` (the vector env renders sub-env 0).
+    - ``dt``: sample time of the Euler discretisation (0.1 s).
+    - ``current_speed``: mean earth-frame current speed (0.05 m/s, model scale).
+    - ``current_direction``: going-to direction of the current (rad from north towards
+      east); ``None`` (default) draws it uniformly per episode from ``np_random``.
+    - ``current_variation``: std of the bounded Gauss–Markov variation of the current speed
+      (m/s; the direction varies by ``current_variation / max(current_speed, 0.05)`` rad),
+      time constant ``current_time_constant`` (120 s), bound 3 std.
+    - ``wind_speed``: mean true wind speed (1.0 m/s model scale ≈ 8 m/s full scale).
+    - ``wind_direction``: going-to direction of the wind; ``None`` draws it per episode.
+    - ``wind_gust``: std of the coloured (Gauss–Markov, 5 s) gusts of the wind speed; with
+      gusts the wind direction also varies (0.1 rad, 30 s).
+    - ``force_noise``: std of unmodelled Gauss–Markov forces ``[X, Y, N]`` (0).
+    - ``sensors``: :class:`vesselid.vessels.CyberShip2Sensors` or a mapping of its fields
+      (noise std per sensor, ``None`` switches a sensor off). Default: all six sensors.
+    - ``cubic_surge``: add the published cubic surge damping ``X_uuu u_r³`` (then the
+      identification spec is misspecified).
+    - ``force_max``: physical ``[X, Y, N]`` at action ±1 (``(2.0, 1.5, 1.0)`` N, N, N m).
+    - ``u_ref``, ``psi_ref``: reference surge speed (0.3 m/s) and heading (0 rad).
+    - ``reward_weights``: ``(w_u, w_ψ, w_a)`` of the reward (``(10, 1, 0.01)``).
+    - ``initial_speed``: range of the uniform initial surge speed (``(0.0, 0.4)`` m/s).
+    - ``velocity_limit``: the episode terminates when a component of ν exceeds it
+      (5 m/s; unreachable with the default forces); velocity channels are bounded by
+      ±2·velocity_limit, the apparent wind speed by ±2·(wind_speed + 3·wind_gust +
+      velocity_limit), angles by ±π.
+    - ``render_window``: number of recent samples plotted (600).
+"""
+
+
+# --------------------------------------------------------------------------- single env
+class Manoeuvring3DOFEnv(gym.Env[np.ndarray, np.ndarray]):
+    """Surge/sway/yaw manoeuvring of CyberShip II in current and wind.
+
+    ## Description
+
+    CyberShip II (Skjetne, Smogeli & Fossen 2004), a 1:70 supply-ship model, moves in
+    the horizontal plane. Its velocity relative to water obeys
+    ``M ν̇_r + C(ν_r)ν_r + D(ν_r)ν_r = τ + τ_wind`` with linear and modulus damping,
+    discretised by explicit Euler at ``dt`` into the second-order modulus regression of
+    :func:`vesselid.vessels.cybership2_spec` (paper Definition 2.1). In the paper's
+    notation ``x(k+1) = Φᵀ([x(k) + v(k); τ(k)])θ0 + w(k)`` with ``x = ν`` the absolute
+    velocity, ``v = −ν_c`` the body-frame current (non-additive) and ``w`` the change of
+    the body-frame current plus wind and unmodelled forces. Position and heading follow
+    ``η(k+1) = η(k) + dt R(ψ)ν``. The current is fixed in the earth frame (constant plus a
+    bounded Gauss–Markov variation) and rotated into the body frame; wind loads follow
+    Blendermann (1994) with the relative wind speed squared and angle.
+
+    ## Action Space
+
+    ``Box(-1, 1, (3,), float32)``: normalised generalised forces; ``τ = clip(a, −1, 1) ·
+    force_max`` gives ``[X, Y, N]`` in N, N, N m.
+
+    ## Observation Space
+
+    ``Box(float32)`` concatenating the enabled sensor readings, in this order (default:
+    all): GNSS velocity ``[u, v]`` (absolute, body frame), Doppler speed log
+    ``[u_r, v_r]`` (velocity through water — the aggregated state of the paper's
+    Remark 4.3), current meter ``[u_c, v_c]``, anemometer ``[V_rw, γ_rw]`` (apparent wind
+    speed and angle, 0 = from ahead), gyro ``r``, heading ``ψ``. Angles are wrapped to
+    ``[−π, π)`` (bounds ±π); see ``velocity_limit`` for the other bounds. Sensor noise is Gaussian
+    clipped at 3 std (bounded, paper A2).
+
+    ## Rewards
+
+    ``−(w_u (u − u_ref)² + w_ψ wrap(ψ − ψ_ref)² + w_a ‖a‖²)`` from the true state after the
+    step: track a surge speed over ground and a heading with a small action penalty.
+
+    ## Starting State
+
+    ``u ~ U(initial_speed)``, ``v, r ~ U(−0.02, 0.02)``, position at the origin, heading
+    ``U(−π, π)``; random current/wind directions when not given. ``reset(options=...)``
+    accepts ``nu``, ``eta``, ``current_direction`` and ``wind_direction``.
+
+    ## Episode End
+
+    Termination if a velocity component exceeds ``velocity_limit`` or becomes non-finite
+    (unreachable with the default bounded forces). Truncation at ``max_episode_steps``
+    (2000 in the registration).
+
+    ## Info
+
+    Same keys after ``reset`` and ``step``: ``nu`` (true ν), ``nu_r`` (ν − ν_c), ``eta``,
+    ``current`` (body-frame ``[u_c, v_c, 0]``; the paper's ``v = −current``), ``wind``
+    (true apparent wind ``[V_rw, γ_rw]``), ``wind_force`` (``τ_wind``), ``tau`` (applied
+    forces; zero after reset) and one key per enabled sensor (``gnss``, ``speed_log``,
+    ``current_meter``, ``anemometer``, ``gyro``, ``heading``).
+
+    ## Arguments
+
+    {arguments}
+
+    All randomness (initial state, directions, current, gusts, noise — pre-drawn in
+    blocks) comes from ``self.np_random``.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"],
+                                          "render_fps": 10}
+
+    def __init__(
+        self,
+        render_mode: str | None = None,
+        *,
+        dt: float = 0.1,
+        current_speed: float = 0.05,
+        current_direction: float | None = None,
+        current_variation: float = 0.005,
+        current_time_constant: float = 120.0,
+        wind_speed: float = 1.0,
+        wind_direction: float | None = None,
+        wind_gust: float = 0.2,
+        force_noise: Sequence[float] | float = 0.0,
+        sensors: CyberShip2Sensors | Mapping[str, Any] | None = None,
+        cubic_surge: bool = False,
+        force_max: Sequence[float] = (2.0, 1.5, 1.0),
+        u_ref: float = 0.3,
+        psi_ref: float = 0.0,
+        reward_weights: Sequence[float] = (10.0, 1.0, 0.01),
+        initial_speed: Sequence[float] = (0.0, 0.4),
+        velocity_limit: float = 5.0,
+        render_window: int = 600,
+    ) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise VesselidError(f"render_mode must be one of "
+                                f"{self.metadata['render_modes']} or None, got {render_mode!r}")
+        self._core = _Core(
+            1, parallel=False, dt=dt, current_speed=current_speed,
+            current_direction=current_direction, current_variation=current_variation,
+            current_time_constant=current_time_constant, wind_speed=wind_speed,
+            wind_direction=wind_direction, wind_gust=wind_gust, force_noise=force_noise,
+            sensors=sensors, cubic_surge=cubic_surge, force_max=force_max, u_ref=u_ref,
+            psi_ref=psi_ref, reward_weights=reward_weights, initial_speed=initial_speed,
+            velocity_limit=velocity_limit, block=SINGLE_BLOCK,
+        )
+        self.render_mode = render_mode
+        self.action_space, self.observation_space = self._core.spaces()
+        #: Identification structure of the recorded data (recorder contract).
+        self.model_spec: ModelSpec = self._core.model.spec
+        #: Sample time (s).
+        self.dt: float = self._core.model.dt
+        self._act = self._core.act[0]
+        self._skip = self._core.no_skip
+        self._t = 0
+        self._hist: deque | None = deque(maxlen=int(render_window)) if render_mode else None
+        self._plot: _Plot | None = None
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        self._core.reset_all(self.np_random, options)
+        self._t = 0
+        if self._hist is not None:
+            self._hist.clear()
+            self._record()
+        if self.render_mode == "human":
+            self.render()
+        return self._core.obs[0].copy(), self._core.info(0)
+
+    def step(
+        self, action: Any
+    ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
+        core = self._core
+        if core.rng is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        self._act[:] = action
+        core.step(self._skip)
+        self._t += 1
+        if self._hist is not None:
+            self._record()
+            if self.render_mode == "human":
+                self.render()
+        terminated = bool(core.status[0] != STATUS_OK)
+        return core.obs[0].copy(), float(core.reward[0]), terminated, False, core.info(0)
+
+    def _record(self) -> None:
+        c = self._core
+        self._hist.append((self._t * self.dt, *c.eta[0], *c.nu[0]))
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; "
+                            "e.g. gym.make('vesselid/Manoeuvring3DOF-v0', render_mode='rgb_array')")
+            return None
+        if self._plot is None:
+            self._plot = _Plot(self.render_mode, self.metadata["render_fps"], CYBERSHIP2.L)
+        if not self._hist:
+            self._record()
+        return self._plot.draw(np.asarray(self._hist))
+
+    def close(self) -> None:
+        if self._plot is not None:
+            self._plot.close()
+            self._plot = None
+
+    # --------------------------------------------------------- recorder contract
+    def log_row(self, info: dict[str, Any]) -> dict[str, float]:
+        """Trial-log columns at the time of ``info`` (recorder contract).
+
+        Measured ``u, v`` (GNSS), ``r`` (gyro), ``psi``, speed log ``u_log, v_log,
+        r_log``, current meter ``u_c, v_c``, anemometer ``wind_speed, wind_angle`` (enabled
+        sensors only) and ground truth ``true_*`` (as
+        :meth:`vesselid.vessels.CyberShip2Simulation.to_frame`).
+        """
+        return _log_row(info, self._core.model.sensors.enabled)
+
+    def log_inputs(self, action: Any) -> dict[str, float]:
+        """Physical inputs ``{"X", "Y", "N"}`` applied for ``action``."""
+        tau = self._core.tau(np.asarray(action, dtype=np.float64).reshape(3))
+        return {"X": float(tau[0]), "Y": float(tau[1]), "N": float(tau[2])}
+
+    def log_metadata(self) -> dict[str, Any]:
+        """Disturbance and sensor settings (JSON-serialisable), for log metadata."""
+        return self._core.metadata()
+
+
+# --------------------------------------------------------------------------- vector env
+class Manoeuvring3DOFVectorEnv(VectorEnv):
+    """``num_envs`` CyberShip II vessels stepped by one parallel compiled kernel.
+
+    Same dynamics, spaces, rewards and info keys as :class:`Manoeuvring3DOFEnv` (info
+    values batched along the first axis). Next-step autoreset: the step after an episode
+    ends resets that sub-env (its action is ignored, reward 0, not done). Truncation after
+    ``max_episode_steps`` steps (passed by ``gym.make_vec`` from the registration).
+    Disturbance processes run on continuously across autoresets (they are stationary);
+    directions and the initial state are redrawn.
+
+    ## Arguments
+
+    - ``num_envs``: number of vessels.
+    - ``max_episode_steps``: truncation length (2000).
+    {arguments}
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {
+        "render_modes": ["rgb_array"],
+        "render_fps": 10,
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+    }
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        max_episode_steps: int = 2000,
+        render_mode: str | None = None,
+        *,
+        dt: float = 0.1,
+        current_speed: float = 0.05,
+        current_direction: float | None = None,
+        current_variation: float = 0.005,
+        current_time_constant: float = 120.0,
+        wind_speed: float = 1.0,
+        wind_direction: float | None = None,
+        wind_gust: float = 0.2,
+        force_noise: Sequence[float] | float = 0.0,
+        sensors: CyberShip2Sensors | Mapping[str, Any] | None = None,
+        cubic_surge: bool = False,
+        force_max: Sequence[float] = (2.0, 1.5, 1.0),
+        u_ref: float = 0.3,
+        psi_ref: float = 0.0,
+        reward_weights: Sequence[float] = (10.0, 1.0, 0.01),
+        initial_speed: Sequence[float] = (0.0, 0.4),
+        velocity_limit: float = 5.0,
+        render_window: int = 600,
+    ) -> None:
+        if int(num_envs) < 1:
+            raise VesselidError(f"num_envs must be >= 1, got {num_envs}")
+        if int(max_episode_steps) < 1:
+            raise VesselidError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise VesselidError(f"render_mode must be one of "
+                                f"{self.metadata['render_modes']} or None, got {render_mode!r}")
+        self.num_envs = int(num_envs)
+        self.max_episode_steps = int(max_episode_steps)
+        self.render_mode = render_mode
+        block = max(16, VECTOR_BLOCK_SAMPLES // self.num_envs)
+        self._core = _Core(
+            self.num_envs, parallel=True, dt=dt, current_speed=current_speed,
+            current_direction=current_direction, current_variation=current_variation,
+            current_time_constant=current_time_constant, wind_speed=wind_speed,
+            wind_direction=wind_direction, wind_gust=wind_gust, force_noise=force_noise,
+            sensors=sensors, cubic_surge=cubic_surge, force_max=force_max, u_ref=u_ref,
+            psi_ref=psi_ref, reward_weights=reward_weights, initial_speed=initial_speed,
+            velocity_limit=velocity_limit, block=block,
+        )
+        self.single_action_space, self.single_observation_space = self._core.spaces()
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        #: Identification structure of the recorded data (recorder contract).
+        self.model_spec: ModelSpec = self._core.model.spec
+        #: Sample time (s).
+        self.dt: float = self._core.model.dt
+        self._steps = np.zeros(self.num_envs, dtype=np.int64)
+        self._prev_done = np.zeros(self.num_envs, dtype=np.bool_)
+        self._hist: deque | None = deque(maxlen=int(render_window)) if render_mode else None
+        self._plot: _Plot | None = None
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        self._core.reset_all(self.np_random, options)
+        self._steps[:] = 0
+        self._prev_done[:] = False
+        if self._hist is not None:
+            self._hist.clear()
+            self._record()
+        return self._core.obs.copy(), self._core.info()
+
+    def step(
+        self, actions: Any
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        core = self._core
+        if core.rng is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        core.act[:] = actions
+        skip = self._prev_done
+        if skip.any():
+            core._initial(core.rng, np.flatnonzero(skip), None)
+        core.step(skip)
+        self._steps += 1
+        self._steps[skip] = 0
+        terminated = core.status != STATUS_OK
+        truncated = self._steps >= self.max_episode_steps
+        terminated[skip] = False
+        truncated[skip] = False
+        self._prev_done = terminated | truncated
+        if self._hist is not None:
+            if skip[0]:
+                self._hist.clear()
+            self._record()
+        return core.obs.copy(), core.reward.copy(), terminated, truncated, core.info()
+
+    def _record(self) -> None:
+        c = self._core
+        self._hist.append((self._steps[0] * self.dt, *c.eta[0], *c.nu[0]))
+
+    def render(self) -> np.ndarray | None:
+        """RGB frame of sub-environment 0."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode")
+            return None
+        if self._plot is None:
+            self._plot = _Plot(self.render_mode, self.metadata["render_fps"], CYBERSHIP2.L)
+        if not self._hist:
+            self._record()
+        return self._plot.draw(np.asarray(self._hist))
+
+    def close_extras(self, **kwargs: Any) -> None:
+        if self._plot is not None:
+            self._plot.close()
+            self._plot = None
+
+    # --------------------------------------------------------- recorder contract
+    def log_row(self, info: dict[str, Any]) -> dict[str, np.ndarray]:
+        """Trial-log columns at the time of ``info``, arrays of shape ``(num_envs,)``."""
+        return _log_row(info, self._core.model.sensors.enabled)
+
+    def log_inputs(self, actions: Any) -> dict[str, np.ndarray]:
+        """Physical inputs ``{"X", "Y", "N"}`` (arrays ``(num_envs,)``) for ``actions``."""
+        tau = self._core.tau(np.asarray(actions, dtype=np.float64).reshape(self.num_envs, 3))
+        return {"X": tau[:, 0], "Y": tau[:, 1], "N": tau[:, 2]}
+
+    def log_metadata(self) -> dict[str, Any]:
+        """Disturbance and sensor settings (JSON-serialisable), for log metadata."""
+        return self._core.metadata()
+
+
+Manoeuvring3DOFEnv.__doc__ = (Manoeuvring3DOFEnv.__doc__ or "").replace(
+    "{arguments}", _DOC_ARGS.strip()
+)
+Manoeuvring3DOFVectorEnv.__doc__ = (Manoeuvring3DOFVectorEnv.__doc__ or "").replace(
+    "{arguments}", _DOC_ARGS.strip()
+)
