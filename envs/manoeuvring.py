@@ -33,15 +33,23 @@ from gymnasium.vector.utils import batch_space
 from vesselid.errors import VesselidError
 from vesselid.model import ModelSpec
 from vesselid.vessels import (
-    A_UC,
-    A_VC,
-    A_VRW,
-    A_XW,
     CYBERSHIP2,
-    N_AUX,
     N_DIST,
-    N_ENV,
-    SENSOR_CHANNELS,
+    N_GM,
+    N_ST,
+    S_ACT,
+    S_CUR,
+    S_ENV,
+    S_ETA,
+    S_INFO,
+    S_NU,
+    S_NUR,
+    S_REW,
+    S_SENS,
+    S_STAT,
+    S_TAU,
+    S_WF,
+    S_WIND,
     SENSOR_GROUPS,
     STATUS_OK,
     CyberShip2Disturbances,
@@ -54,14 +62,11 @@ from vesselid.vessels import (
 
 __all__ = ["Manoeuvring3DOFEnv", "Manoeuvring3DOFVectorEnv"]
 
-_N_SENS = len(SENSOR_CHANNELS)
 _ANGLE_CHANNELS = {"psi", "wind_angle"}
 SINGLE_BLOCK = 1024  # disturbance rows drawn at once by a single env
 VECTOR_BLOCK_SAMPLES = 1 << 16  # rows x envs drawn at once by a vector env
-
-# Layout of the per-step info buffer (one fresh array per step; info values are views).
-_I_NU, _I_NUR, _I_ETA, _I_CUR, _I_WIND, _I_WF, _I_TAU, _I_SENS = 0, 3, 6, 9, 12, 14, 17, 20
-_N_INFO = _I_SENS + _N_SENS
+_INFO_KEYS = (("nu", S_NU, 3), ("nu_r", S_NUR, 3), ("eta", S_ETA, 3), ("current", S_CUR, 3),
+              ("wind", S_WIND, 2), ("wind_force", S_WF, 3), ("tau", S_TAU, 3))
 
 
 def _triple(name: str, value: Any) -> tuple[float, float, float]:
@@ -143,27 +148,20 @@ class _Core:
         m = self.model
         self.channels = m.sensors.channels
         self.n_obs = len(self.channels)
-        self.nu = np.zeros((n, 3))
-        self.eta = np.zeros((n, 3))
-        self.act = np.zeros((n, 3))
-        self.aux = np.zeros((n, N_AUX))
-        self.sens = np.zeros((n, _N_SENS))
+        self.st = np.zeros((n, N_ST))
         self.dist = np.zeros((n, self.block + 1, N_DIST))
-        self.envp = np.zeros((n, N_ENV))
+        self.latent = np.zeros((n, N_GM))
         self.obs = np.zeros((n, self.n_obs), dtype=np.float32)
-        self.reward = np.zeros(n)
-        self.w = np.zeros((n, 3))
-        self.status = np.zeros(n, dtype=np.int64)
         self.no_skip = np.zeros(n, dtype=np.bool_)
-        self.scratch = np.zeros((n, 6))
+        self.n_chunks = max(1, min(n // 64, 64))
         self.j = 0
         self.rng: np.random.Generator | None = None
         # sensor slices for info
-        self.groups: list[tuple[str, int, int]] = []
-        i = 0
+        self.slices: list[tuple[str, slice]] = [(k, slice(i, i + w)) for k, i, w in _INFO_KEYS]
+        i = S_SENS
         for g, chans in SENSOR_GROUPS.items():
             if g in m.sensors.enabled:
-                self.groups.append((g, i, i + len(chans)))
+                self.slices.append((g, slice(i, i + len(chans))))
             i += len(chans)
 
     # -- spaces -----------------------------------------------------------------
@@ -206,66 +204,43 @@ class _Core:
                           ("wind_direction", wdir)):
             if not np.all(np.isfinite(arr)):
                 raise VesselidError(f"reset option {name} must be finite")
-        self.nu[idx] = nu
-        self.eta[idx] = eta
-        self.envp[idx, 0] = d.current_speed
-        self.envp[idx, 1] = cdir
-        self.envp[idx, 2] = d.wind_speed
-        self.envp[idx, 3] = wdir
-        self.act[idx] = 0.0
-        self.scratch[idx] = 0.0
-        self.w[idx] = 0.0
+        st = self.st
+        st[idx] = 0.0
+        st[idx, S_NU:S_NU + 3] = nu
+        st[idx, S_ETA:S_ETA + 3] = eta
+        st[idx, S_ENV] = d.current_speed
+        st[idx, S_ENV + 1] = cdir
+        st[idx, S_ENV + 2] = d.wind_speed
+        st[idx, S_ENV + 3] = wdir
 
     def reset_all(self, rng: np.random.Generator, options: Mapping[str, Any] | None) -> None:
         self.rng = rng
         self._initial(rng, np.arange(self.n), options)
-        self.model.start_block(rng, self.dist)
+        self.model.start_block(rng, self.dist, self.latent)
         self.j = 0
         mask = np.ones(self.n, dtype=np.bool_)
         m = self.model
-        _env_observe(self.nu, self.eta, self.aux, self.sens, self.dist, 0, self.envp, m.par,
-                     m.obs_idx, self.obs, mask)
+        _env_observe(self.st, self.dist, 0, m.par, m.obs_idx, self.obs, mask)
 
     # -- step ---------------------------------------------------------------------
     def step(self, skip: np.ndarray) -> None:
         if self.j >= self.block:
-            self.model.continue_block(self.rng, self.dist)
+            self.model.continue_block(self.rng, self.dist, self.latent)
             self.j = 0
         m = self.model
-        self.kernel(self.nu, self.eta, self.act, self.aux, self.sens, self.dist, self.j,
-                    self.envp, m.codes, m.eq, m.theta, m.par, m.obs_idx, self.obs,
-                    self.reward, self.w, self.status, skip, self.scratch)
+        if self.parallel:
+            _env_step_parallel(self.st, self.dist, self.j, m.codes, m.eq, m.theta, m.par,
+                               m.obs_idx, self.obs, skip, self.n_chunks)
+        else:
+            _env_step_serial(self.st, self.dist, self.j, m.codes, m.eq, m.theta, m.par,
+                             m.obs_idx, self.obs, skip)
         self.j += 1
 
     # -- info -----------------------------------------------------------------------
     def info(self, row: int | None = None) -> dict[str, np.ndarray]:
-        """Info dict (views into one fresh array); ``row`` selects a single vessel."""
-        sl = slice(None) if row is None else row
-        buf = np.empty((self.n if row is None else 1, _N_INFO))
-        nu, aux = self.nu[sl], self.aux[sl]
-        b = buf if row is None else buf[0]
-        b[..., _I_NU:_I_NU + 3] = nu
-        b[..., _I_CUR] = aux[..., A_UC]
-        b[..., _I_CUR + 1] = aux[..., A_VC]
-        b[..., _I_CUR + 2] = 0.0
-        b[..., _I_NUR:_I_NUR + 3] = nu - b[..., _I_CUR:_I_CUR + 3]
-        b[..., _I_ETA:_I_ETA + 3] = self.eta[sl]
-        b[..., _I_WIND:_I_WIND + 2] = aux[..., A_VRW:A_VRW + 2]
-        b[..., _I_WF:_I_WF + 3] = aux[..., A_XW:A_XW + 3]
-        b[..., _I_TAU:_I_TAU + 3] = self.scratch[sl, 3:6]
-        b[..., _I_SENS:] = self.sens[sl]
-        out = {
-            "nu": b[..., _I_NU:_I_NU + 3],
-            "nu_r": b[..., _I_NUR:_I_NUR + 3],
-            "eta": b[..., _I_ETA:_I_ETA + 3],
-            "current": b[..., _I_CUR:_I_CUR + 3],
-            "wind": b[..., _I_WIND:_I_WIND + 2],
-            "wind_force": b[..., _I_WF:_I_WF + 3],
-            "tau": b[..., _I_TAU:_I_TAU + 3],
-        }
-        for g, i0, i1 in self.groups:
-            out[g] = b[..., _I_SENS + i0:_I_SENS + i1]
-        return out
+        """Info dict (views into one fresh copy); ``row`` selects a single vessel."""
+        buf = self.st[row if row is not None else slice(None), :S_INFO].copy()
+        return {k: buf[..., sl] for k, sl in self.slices}
 
     def tau(self, actions: Any) -> np.ndarray:
         a = np.clip(np.asarray(actions, dtype=np.float64), -1.0, 1.0)
@@ -363,7 +338,7 @@ class _Plot:
         self.arrow = None
         self.ax_ne.set_xlabel("east (m)")
         self.ax_ne.set_ylabel("north (m)")
-        self.ax_ne.set_aspect("equal", adjustable="datalim")
+        self.ax_ne.set_aspect("equal", adjustable="box")
         self.l_u = self.ax_v.plot([], [], label="u")[0]
         self.l_v = self.ax_v.plot([], [], label="v")[0]
         self.l_r = self.ax_v.plot([], [], label="r")[0]
@@ -545,7 +520,7 @@ class Manoeuvring3DOFEnv(gym.Env[np.ndarray, np.ndarray]):
         self.model_spec: ModelSpec = self._core.model.spec
         #: Sample time (s).
         self.dt: float = self._core.model.dt
-        self._act = self._core.act[0]
+        self._act = self._core.st[0, S_ACT:S_ACT + 3]
         self._skip = self._core.no_skip
         self._t = 0
         self._hist: deque | None = deque(maxlen=int(render_window)) if render_mode else None
@@ -577,12 +552,14 @@ class Manoeuvring3DOFEnv(gym.Env[np.ndarray, np.ndarray]):
             self._record()
             if self.render_mode == "human":
                 self.render()
-        terminated = bool(core.status[0] != STATUS_OK)
-        return core.obs[0].copy(), float(core.reward[0]), terminated, False, core.info(0)
+        st = core.st[0]
+        terminated = bool(st[S_STAT] != STATUS_OK)
+        return core.obs[0].copy(), float(st[S_REW]), terminated, False, core.info(0)
 
     def _record(self) -> None:
         c = self._core
-        self._hist.append((self._t * self.dt, *c.eta[0], *c.nu[0]))
+        self._hist.append((self._t * self.dt, *c.st[0, S_ETA:S_ETA + 3],
+                           *c.st[0, S_NU:S_NU + 3]))
 
     def render(self) -> np.ndarray | None:
         if self.render_mode is None:
@@ -720,14 +697,14 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
         core = self._core
         if core.rng is None:
             raise gym.error.ResetNeeded("call reset() before step()")
-        core.act[:] = actions
+        core.st[:, S_ACT:S_ACT + 3] = actions
         skip = self._prev_done
         if skip.any():
             core._initial(core.rng, np.flatnonzero(skip), None)
         core.step(skip)
         self._steps += 1
         self._steps[skip] = 0
-        terminated = core.status != STATUS_OK
+        terminated = core.st[:, S_STAT] != STATUS_OK
         truncated = self._steps >= self.max_episode_steps
         terminated[skip] = False
         truncated[skip] = False
@@ -736,11 +713,12 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
             if skip[0]:
                 self._hist.clear()
             self._record()
-        return core.obs.copy(), core.reward.copy(), terminated, truncated, core.info()
+        return core.obs.copy(), core.st[:, S_REW].copy(), terminated, truncated, core.info()
 
     def _record(self) -> None:
         c = self._core
-        self._hist.append((self._steps[0] * self.dt, *c.eta[0], *c.nu[0]))
+        self._hist.append((self._steps[0] * self.dt, *c.st[0, S_ETA:S_ETA + 3],
+                           *c.st[0, S_NU:S_NU + 3]))
 
     def render(self) -> np.ndarray | None:
         """RGB frame of sub-environment 0."""

@@ -310,7 +310,8 @@ class TrialRecorder(gym.Wrapper):
         VesselidError
             Nothing has been recorded.
         """
-        episodes = [dict(e, finished=True) for e in self._episodes]
+        episodes = [dict(e, finished=bool(e["terminated"] or e["truncated"]))
+                    for e in self._episodes]
         if include_unfinished and self._open:
             n = len(self._inp)
             finished = self._ep_meta["terminated"] or self._ep_meta["truncated"]

@@ -41,7 +41,7 @@ def test_simulate_then_identify(tmp_path, capsys, suffix):
     payload = json.loads(js.read_text())
     assert payload["method"] == "iv-zero-mean" and payload["experiments"] == 2
     assert payload["samples"] == 6000 and set(payload["params"]["w"]) == {"w", "w*|w|", "tau"}
-    code, text, err = run(["identify", str(out), "--method", "ls", "--json", "-"], capsys)
+    code, text, _ = run(["identify", str(out), "--method", "ls", "--json", "-"], capsys)
     assert code == 0 and json.loads(text)["method"] == "ls"
 
 

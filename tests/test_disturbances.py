@@ -7,8 +7,8 @@ import pytest
 
 from vesselid.disturbances import (
     Constant,
-    GaussMarkov,
     Gaussian,
+    GaussMarkov,
     TruncatedGaussian,
     Uniform,
     Zero,
@@ -48,7 +48,7 @@ def test_moments_and_bounds(process):
 
 
 def test_gauss_markov_is_coloured():
-    x = draw(GaussMarkov(0, 1, time_constant=10.0)) 
+    x = draw(GaussMarkov(0, 1, time_constant=10.0))
     lag1 = np.corrcoef(x[:-1], x[1:])[0, 1]
     assert lag1 == pytest.approx(math.exp(-0.1), abs=0.01)
     white = draw(Gaussian(0, 1))

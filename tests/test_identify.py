@@ -264,7 +264,7 @@ def test_bad_logs():
         identify(TrialLog(df.drop(columns="tau")), spec)
     bad = df.copy()
     bad.loc[17, "w"] = np.nan
-    with pytest.raises(LogValidationError, match="'w'.*row 17"):
+    with pytest.raises(LogValidationError, match=r"'w'.*row 17"):
         identify(TrialLog(bad), spec)
     bad = df.copy()
     bad.loc[3, "tau"] = np.inf

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-from vesselid.errors import (  # noqa: E402
+from vesselid.errors import (
     ConvergenceWarning,
     ExperimentDesignWarning,
     IdentificationError,
@@ -21,8 +21,8 @@ from vesselid.errors import (  # noqa: E402
     VesselidError,
     WeakInstrumentWarning,
 )
-from vesselid.model import Aggregate, ModelSpec  # noqa: E402
-from vesselid.terms import Term  # noqa: E402
+from vesselid.model import Aggregate, ModelSpec
+from vesselid.terms import Term
 
 __all__ = [
     "Aggregate",

@@ -99,7 +99,9 @@ def design_margins(
     return pd.DataFrame(rows)
 
 
-def collinear_terms(phi: np.ndarray, names: Sequence[str], *, rtol: float = 1e-9) -> list[list[str]]:
+def collinear_terms(
+    phi: np.ndarray, names: Sequence[str], *, rtol: float = 1e-9
+) -> list[list[str]]:
     """Groups of terms that are (near) linearly dependent in the regressor matrix ``phi``.
 
     Columns are scaled to unit norm; every singular value below ``rtol`` times the

@@ -18,10 +18,10 @@ from vesselid.disturbances import Process, process_from_dict
 from vesselid.errors import VesselidError
 
 __all__ = [
+    "PRBS",
     "ConstantInput",
     "InputSignal",
     "Multisine",
-    "PRBS",
     "RandomPulses",
     "StaticOffset",
     "input_from_dict",

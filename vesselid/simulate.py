@@ -35,46 +35,60 @@ def _step(codes, eq, theta, s, out):
         out[eq[p]] += theta[p] * term_value(codes, p, s)
 
 
-@njit(cache=True, parallel=True)
-def _simulate_kernel(x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at):
-    n_runs, n_samples, n = x_out.shape
+@njit(cache=True, inline="always")
+def _simulate_run(r, x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at):
+    n_samples, n = x_out.shape[1], x_out.shape[2]
     m = u.shape[2]
     n_par = fac.shape[0]
-    per_run_theta = theta.shape[0] > 1
-    for r in prange(n_runs):
-        th = theta[r] if per_run_theta else theta[0]
-        s = np.empty(n + m)
-        f = np.empty(2 * (n + m) + 1)
-        nxt = np.empty(n)
+    th = theta[r] if theta.shape[0] > 1 else theta[0]
+    s = np.empty(n + m)
+    f = np.empty(2 * (n + m) + 1)
+    nxt = np.empty(n)
+    for i in range(n):
+        x_out[r, 0, i] = x0[r, i]
+    status[r] = STATUS_OK
+    fail_at[r] = -1
+    for k in range(n_samples - 1):
         for i in range(n):
-            x_out[r, 0, i] = x0[r, i]
-        status[r] = STATUS_OK
-        fail_at[r] = -1
-        for k in range(n_samples - 1):
-            for i in range(n):
-                s[i] = x_out[r, k, i] + v[r, k, i]
-            for j in range(m):
-                s[n + j] = u[r, k, j]
-            for i in range(n):
-                nxt[i] = w[r, k, i]
-            fill_factors(s, f)
-            for p in range(n_par):
-                nxt[eq[p]] += th[p] * (f[fac[p, 0]] * f[fac[p, 1]])
-            bad = STATUS_OK
-            for i in range(n):
-                xi = nxt[i]
-                x_out[r, k + 1, i] = xi
-                if not np.isfinite(xi):
-                    bad = STATUS_NONFINITE
-                elif abs(xi) > limit:
-                    bad = STATUS_LIMIT
-            if bad != STATUS_OK:
-                status[r] = bad
-                fail_at[r] = k + 1
-                for kk in range(k + 2, n_samples):
-                    for i in range(n):
-                        x_out[r, kk, i] = np.nan
-                break
+            s[i] = x_out[r, k, i] + v[r, k, i]
+        for j in range(m):
+            s[n + j] = u[r, k, j]
+        for i in range(n):
+            nxt[i] = w[r, k, i]
+        fill_factors(s, f)
+        for p in range(n_par):
+            nxt[eq[p]] += th[p] * (f[fac[p, 0]] * f[fac[p, 1]])
+        bad = STATUS_OK
+        for i in range(n):
+            xi = nxt[i]
+            x_out[r, k + 1, i] = xi
+            if not np.isfinite(xi):
+                bad = STATUS_NONFINITE
+            elif abs(xi) > limit:
+                bad = STATUS_LIMIT
+        if bad != STATUS_OK:
+            status[r] = bad
+            fail_at[r] = k + 1
+            for kk in range(k + 2, n_samples):
+                for i in range(n):
+                    x_out[r, kk, i] = np.nan
+            break
+
+
+@njit(cache=True, parallel=True)
+def _simulate_parallel(x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at):
+    for r in prange(x_out.shape[0]):
+        _simulate_run(r, x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at)
+
+
+@njit(cache=True)
+def _simulate_serial(x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at):
+    for r in range(x_out.shape[0]):
+        _simulate_run(r, x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at)
+
+
+#: Below this many samples in total the serial kernel is used.
+PARALLEL_MIN_SAMPLES = 200_000
 
 
 @njit(cache=True)
@@ -170,8 +184,10 @@ def simulate_states(
     status = np.empty(n_runs, dtype=np.int64)
     fail_at = np.empty(n_runs, dtype=np.int64)
     codes = spec.codes
-    _simulate_kernel(x0_arr, u_b, v_b, w_b, codes.factors, codes.equation,
-                     np.ascontiguousarray(th), float(limit), x, status, fail_at)
+    parallel = n_runs > 1 and n_runs * n_samples >= PARALLEL_MIN_SAMPLES
+    kernel = _simulate_parallel if parallel else _simulate_serial
+    kernel(x0_arr, u_b, v_b, w_b, codes.factors, codes.equation, np.ascontiguousarray(th),
+           float(limit), x, status, fail_at)
     if raise_on_divergence and np.any(status != STATUS_OK):
         bad = np.flatnonzero(status != STATUS_OK)
         r = int(bad[0])

@@ -181,7 +181,8 @@ class System:
         if run_seeds is None:
             if int(n_runs) < 1:
                 raise VesselidError(f"need at least one run, got {n_runs}")
-            root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+            root = (seed if isinstance(seed, np.random.SeedSequence)
+                    else np.random.SeedSequence(seed))
             run_seeds = root.spawn(int(n_runs))
         draws = [self._draw(np.random.default_rng(ss), n_samples) for ss in run_seeds]
         stack = {k: np.stack([d[k] for d in draws]) for k in draws[0]}

@@ -52,7 +52,6 @@ from typing import Any
 import numpy as np
 from numba import njit, prange
 from scipy import signal as sps
-from scipy import special
 
 from vesselid.disturbances import GaussMarkov
 from vesselid.errors import SimulationDivergedError, VesselidError
@@ -584,7 +583,7 @@ P_WPSI = 28
 P_WA = 29
 N_PAR = 30
 
-# Disturbance rows: per time step, zero-mean variations and noise.
+# Disturbance rows ``dist[b, k]``: zero-mean variations and noise at time k.
 D_VC = 0  # current speed variation
 D_BC = 1  # current direction variation
 D_VW = 2  # wind speed gust
@@ -592,37 +591,49 @@ D_BW = 3  # wind direction variation
 D_F = 4  # 3 unmodelled forces
 D_E = 7  # sensor noise, _N_SENS channels
 N_DIST = D_E + _N_SENS
+N_GM = 7  # GM channels (the first seven)
 
-# Per-vessel environment means: [V_c, β_c, V_w, β_w].
-N_ENV = 4
-
-# Auxiliary outputs per time: [u_c, v_c, V_rw, γ_rw, X_w, Y_w, N_w].
-A_UC, A_VC, A_VRW, A_GRW, A_XW = 0, 1, 2, 3, 4
-N_AUX = 7
+# Vessel state rows ``st[b]`` (env) or ``st[r, k]`` (rollout). The first S_INFO columns
+# are the environments' info layout.
+S_NU = 0  # ν (3)
+S_NUR = 3  # ν_r = ν − ν_c (3)
+S_ETA = 6  # η = [north, east, ψ] (3)
+S_CUR = 9  # body-frame current [u_c, v_c, 0] (3)
+S_WIND = 12  # apparent wind [V_rw, γ_rw] (2)
+S_WF = 14  # wind force [X, Y, N] (3)
+S_TAU = 17  # applied τ (3)
+S_SENS = 20  # sensor readings (_N_SENS)
+S_INFO = S_SENS + _N_SENS
+S_W = S_INFO  # the paper's w(k) (3)
+S_REW = S_W + 3  # reward of the step into this row
+S_STAT = S_REW + 1  # divergence status
+S_ENV = S_STAT + 1  # means [V_c, β_c, V_w, β_w] (4)
+S_ACT = S_ENV + 4  # input: action or τ (3)
+N_ST = S_ACT + 3
 
 STATUS_OK, STATUS_NONFINITE, STATUS_LIMIT = 0, 1, 2
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _wrap(a):
     return a - 2.0 * math.pi * math.floor((a + math.pi) / (2.0 * math.pi))
 
 
-@njit(cache=True)
-def _observe(nu, eta, row, envp, par, sens, aux):
-    """Current, wind and sensor readings at one time for one vessel."""
-    u = nu[0]
-    v = nu[1]
-    r = nu[2]
-    psi = eta[2]
-    vc = envp[0] + row[D_VC]
-    dc = envp[1] + row[D_BC] - psi
+@njit(cache=True, inline="always")
+def _observe(st, i, dist, b, j, par):
+    """Current, wind and sensor readings of state row ``st[i]`` with noise ``dist[b, j]``."""
+    u = st[i, S_NU]
+    v = st[i, S_NU + 1]
+    r = st[i, S_NU + 2]
+    psi = st[i, S_ETA + 2]
+    vc = st[i, S_ENV] + dist[b, j, D_VC]
+    dc = st[i, S_ENV + 1] + dist[b, j, D_BC] - psi
     uc = vc * math.cos(dc)
     vcb = vc * math.sin(dc)
-    vw = envp[2] + row[D_VW]
+    vw = st[i, S_ENV + 2] + dist[b, j, D_VW]
     if vw < 0.0:
         vw = 0.0
-    dw = envp[3] + row[D_BW] - psi
+    dw = st[i, S_ENV + 3] + dist[b, j, D_BW] - psi
     urw = u - vw * math.cos(dw)
     vrw = v - vw * math.sin(dw)
     v2 = urw * urw + vrw * vrw
@@ -642,187 +653,185 @@ def _observe(nu, eta, row, envp, par, sens, aux):
         yw = q * cy * par[P_AL]
         nw = q * (par[P_SL] / par[P_LOA] - 0.18 * (ag - 0.5 * math.pi)) * cy \
             * par[P_AL] * par[P_LOA]
-    aux[A_UC] = uc
-    aux[A_VC] = vcb
-    aux[A_VRW] = math.sqrt(v2)
-    aux[A_GRW] = gam
-    aux[A_XW] = xw
-    aux[A_XW + 1] = yw
-    aux[A_XW + 2] = nw
+    vr = math.sqrt(v2)
+    st[i, S_CUR] = uc
+    st[i, S_CUR + 1] = vcb
+    st[i, S_CUR + 2] = 0.0
+    st[i, S_NUR] = u - uc
+    st[i, S_NUR + 1] = v - vcb
+    st[i, S_NUR + 2] = r
+    st[i, S_WIND] = vr
+    st[i, S_WIND + 1] = gam
+    st[i, S_WF] = xw
+    st[i, S_WF + 1] = yw
+    st[i, S_WF + 2] = nw
     e = D_E
-    sens[0] = u + row[e]
-    sens[1] = v + row[e + 1]
-    sens[2] = (u - uc) + row[e + 2]
-    sens[3] = (v - vcb) + row[e + 3]
-    sens[4] = uc + row[e + 4]
-    sens[5] = vcb + row[e + 5]
-    sens[6] = math.sqrt(v2) + row[e + 6]
-    sens[7] = _wrap(gam + row[e + 7])
-    sens[8] = r + row[e + 8]
-    sens[9] = _wrap(psi + row[e + 9])
+    o = S_SENS
+    st[i, o] = u + dist[b, j, e]
+    st[i, o + 1] = v + dist[b, j, e + 1]
+    st[i, o + 2] = (u - uc) + dist[b, j, e + 2]
+    st[i, o + 3] = (v - vcb) + dist[b, j, e + 3]
+    st[i, o + 4] = uc + dist[b, j, e + 4]
+    st[i, o + 5] = vcb + dist[b, j, e + 5]
+    st[i, o + 6] = vr + dist[b, j, e + 6]
+    st[i, o + 7] = _wrap(gam + dist[b, j, e + 7])
+    st[i, o + 8] = r + dist[b, j, e + 8]
+    st[i, o + 9] = _wrap(psi + dist[b, j, e + 9])
 
 
-@njit(cache=True)
-def _advance(nu, eta, act, aux, row0, row1, envp, codes, eq, theta, par, s, nu1, eta1, w):
-    """One Euler step of one vessel: ``ν(k+1) = Φᵀ([ν(k) − ν_c(k); τ(k)]) θ0 + w(k)``.
+@njit(cache=True, inline="always")
+def _advance(st, i, i1, dist, b, j, codes, eq, theta, par, s):
+    """One Euler step ``st[i] → st[i1]`` (``i1`` may equal ``i``) with disturbance rows
+    ``dist[b, j]`` (time k) and ``dist[b, j + 1]`` (time k+1).
 
-    ``nu1``/``eta1`` may alias ``nu``/``eta`` (all inputs are read first). The
-    hydrodynamics are evaluated only through the term codes and θ (one physics).
-    Returns the divergence status.
+    ``ν(k+1) = Φᵀ([ν(k) − ν_c(k); τ(k)]) θ0 + w(k)`` with
+    ``w(k) = ν_c(k+1) + dt M⁻¹ (τ_wind + τ_noise [+ X_uuu u_r³])``: the hydrodynamics are
+    evaluated only through the term codes and θ (one physics). Needs ``_observe`` of row
+    ``i`` first (current and wind at time k).
     """
     dt = par[P_DT]
-    u = nu[0]
-    v = nu[1]
-    r = nu[2]
-    n0 = eta[0]
-    e0 = eta[1]
-    psi = eta[2]
-    # regressor signals [ν_r; τ]; the paper's x + v with v = −ν_c
-    s[0] = u - aux[A_UC]
-    s[1] = v - aux[A_VC]
+    u = st[i, S_NU]
+    v = st[i, S_NU + 1]
+    r = st[i, S_NU + 2]
+    n0 = st[i, S_ETA]
+    e0 = st[i, S_ETA + 1]
+    psi = st[i, S_ETA + 2]
+    # regressor signals [x + v; τ] with v = −ν_c
+    s[0] = u - st[i, S_CUR]
+    s[1] = v - st[i, S_CUR + 1]
     s[2] = r
     asq = 0.0
-    for j in range(3):
-        a = act[j]
+    for q in range(3):
+        a = st[i, S_ACT + q]
         if par[P_CLIP] > 0.0:
             if a > 1.0:
                 a = 1.0
             elif a < -1.0:
                 a = -1.0
             asq += a * a
-        s[3 + j] = a * par[P_TAU + j]
-    # additive force: wind + unmodelled force noise (+ cubic surge damping)
-    fx = aux[A_XW] + row0[D_F]
-    fy = aux[A_XW + 1] + row0[D_F + 1]
-    fn = aux[A_XW + 2] + row0[D_F + 2]
+        s[3 + q] = a * par[P_TAU + q]
+    # additive forces: wind + unmodelled noise (+ cubic surge damping)
+    fx = st[i, S_WF] + dist[b, j, D_F]
+    fy = st[i, S_WF + 1] + dist[b, j, D_F + 1]
+    fn = st[i, S_WF + 2] + dist[b, j, D_F + 2]
     if par[P_XUUU] != 0.0:
         fx += par[P_XUUU] * s[0] * s[0] * s[0]
     # body-frame current at k+1 (heading after the step)
     psi1 = psi + dt * r
-    vc1 = envp[0] + row1[D_VC]
-    dc1 = envp[1] + row1[D_BC] - psi1
+    vc1 = st[i, S_ENV] + dist[b, j + 1, D_VC]
+    dc1 = st[i, S_ENV + 1] + dist[b, j + 1, D_BC] - psi1
     m = P_MINV
-    w[0] = vc1 * math.cos(dc1) + (par[m] * fx + par[m + 1] * fy + par[m + 2] * fn)
-    w[1] = vc1 * math.sin(dc1) + (par[m + 3] * fx + par[m + 4] * fy + par[m + 5] * fn)
-    w[2] = 0.0 + (par[m + 6] * fx + par[m + 7] * fy + par[m + 8] * fn)
-    for i in range(3):
-        nu1[i] = w[i]
+    w0 = vc1 * math.cos(dc1) + (par[m] * fx + par[m + 1] * fy + par[m + 2] * fn)
+    w1 = vc1 * math.sin(dc1) + (par[m + 3] * fx + par[m + 4] * fy + par[m + 5] * fn)
+    w2 = 0.0 + (par[m + 6] * fx + par[m + 7] * fy + par[m + 8] * fn)
+    st[i, S_W] = w0
+    st[i, S_W + 1] = w1
+    st[i, S_W + 2] = w2
+    for q in range(3):
+        st[i, S_TAU + q] = s[3 + q]
+    st[i1, S_NU] = w0
+    st[i1, S_NU + 1] = w1
+    st[i1, S_NU + 2] = w2
     for p in range(codes.shape[0]):
-        nu1[eq[p]] += theta[p] * term_value(codes, p, s)
+        st[i1, S_NU + eq[p]] += theta[p] * term_value(codes, p, s)
     c = math.cos(psi)
     sn = math.sin(psi)
-    eta1[0] = n0 + dt * (c * u - sn * v)
-    eta1[1] = e0 + dt * (sn * u + c * v)
-    eta1[2] = psi1
+    st[i1, S_ETA] = n0 + dt * (c * u - sn * v)
+    st[i1, S_ETA + 1] = e0 + dt * (sn * u + c * v)
+    st[i1, S_ETA + 2] = psi1
     status = STATUS_OK
-    for i in range(3):
-        x = nu1[i]
+    for q in range(3):
+        x = st[i1, S_NU + q]
         if not math.isfinite(x):
             status = STATUS_NONFINITE
         elif abs(x) > par[P_LIMIT]:
             status = STATUS_LIMIT
-    return status, asq
-
-
-@njit(cache=True)
-def _reward(nu, eta, asq, par):
-    du = nu[0] - par[P_UREF]
-    dpsi = _wrap(eta[2] - par[P_PSIREF])
-    return -(par[P_WU] * du * du + par[P_WPSI] * dpsi * dpsi + par[P_WA] * asq)
+    st[i1, S_STAT] = status
+    du = st[i1, S_NU] - par[P_UREF]
+    dpsi = _wrap(psi1 - par[P_PSIREF])
+    st[i1, S_REW] = -(par[P_WU] * du * du + par[P_WPSI] * dpsi * dpsi + par[P_WA] * asq)
+    return status
 
 
 @njit(cache=True, parallel=True)
-def _rollout_kernel(nu0, eta0, tau, dist, envp, codes, eq, theta, par,
-                    nu, eta, sens, aux, w, status, fail_at):
-    """Roll out ``R`` vessels for ``N`` samples (parallel over vessels)."""
-    n_runs, n_samples = tau.shape[0], tau.shape[1]
+def _rollout_kernel(st, dist, codes, eq, theta, par, fail_at):
+    """Roll out ``R`` vessels for ``N`` samples (parallel over vessels).
+
+    ``st`` ``(R, N, N_ST)`` holds the initial ν, η in row 0, and the means and inputs in
+    every row; everything else is written.
+    """
+    n_runs, n_samples = st.shape[0], st.shape[1]
     for b in prange(n_runs):
         s = np.empty(6)
-        for i in range(3):
-            nu[b, 0, i] = nu0[b, i]
-            eta[b, 0, i] = eta0[b, i]
-        status[b] = STATUS_OK
+        x = st[b]
         fail_at[b] = -1
-        _observe(nu[b, 0], eta[b, 0], dist[b, 0], envp[b], par, sens[b, 0], aux[b, 0])
+        _observe(x, 0, dist, b, 0, par)
         for k in range(n_samples - 1):
-            st, _ = _advance(nu[b, k], eta[b, k], tau[b, k], aux[b, k], dist[b, k],
-                             dist[b, k + 1], envp[b], codes, eq, theta, par, s,
-                             nu[b, k + 1], eta[b, k + 1], w[b, k])
-            if st != STATUS_OK:
-                status[b] = st
+            status = _advance(x, k, k + 1, dist, b, k, codes, eq, theta, par, s)
+            if status != STATUS_OK:
                 fail_at[b] = k + 1
                 for kk in range(k + 1, n_samples):
-                    for i in range(3):
-                        nu[b, kk, i] = np.nan
-                        eta[b, kk, i] = np.nan
+                    for q in range(S_INFO):
+                        x[kk, q] = np.nan
                 break
-            _observe(nu[b, k + 1], eta[b, k + 1], dist[b, k + 1], envp[b], par,
-                     sens[b, k + 1], aux[b, k + 1])
-        for i in range(3):
-            w[b, n_samples - 1, i] = 0.0
+            _observe(x, k + 1, dist, b, k + 1, par)
+        for q in range(3):
+            x[n_samples - 1, S_W + q] = 0.0
 
 
 @njit(cache=True)
-def _env_step_one(b, nu, eta, act, aux, sens, dist, j, envp, codes, eq, theta, par,
-                  obs_idx, obs, reward, w, status, skip, s):
-    if not skip[b]:
-        st, asq = _advance(nu[b], eta[b], act[b], aux[b], dist[b, j], dist[b, j + 1],
-                           envp[b], codes, eq, theta, par, s, nu[b], eta[b], w[b])
-        status[b] = st
-        reward[b] = _reward(nu[b], eta[b], asq, par)
-    else:
-        status[b] = STATUS_OK
-        reward[b] = 0.0
-        for i in range(3):
-            w[b, i] = 0.0
-    _observe(nu[b], eta[b], dist[b, j + 1], envp[b], par, sens[b], aux[b])
-    for i in range(obs_idx.shape[0]):
-        obs[b, i] = sens[b, obs_idx[i]]
+def _env_chunk(st, dist, j, codes, eq, theta, par, obs_idx, obs, skip, lo, hi, s):
+    for b in range(lo, hi):
+        if skip[b]:
+            st[b, S_REW] = 0.0
+            st[b, S_STAT] = 0.0
+            for q in range(3):
+                st[b, S_W + q] = 0.0
+                st[b, S_TAU + q] = 0.0
+        else:
+            _advance(st, b, b, dist, b, j, codes, eq, theta, par, s)
+        _observe(st, b, dist, b, j + 1, par)
+        for q in range(obs_idx.shape[0]):
+            obs[b, q] = st[b, S_SENS + obs_idx[q]]
 
 
 @njit(cache=True)
-def _env_step_serial(nu, eta, act, aux, sens, dist, j, envp, codes, eq, theta, par,
-                     obs_idx, obs, reward, w, status, skip, scratch):
-    """Advance a batch of vessels one step in place (serial; for single envs)."""
-    for b in range(nu.shape[0]):
-        _env_step_one(b, nu, eta, act, aux, sens, dist, j, envp, codes, eq, theta, par,
-                      obs_idx, obs, reward, w, status, skip, scratch[b])
+def _env_step_serial(st, dist, j, codes, eq, theta, par, obs_idx, obs, skip):
+    """Advance a batch of vessels one step in place (serial; for single envs).
+
+    Vessels with ``skip`` set are only observed (next-step autoreset).
+    """
+    s = np.empty(6)
+    _env_chunk(st, dist, j, codes, eq, theta, par, obs_idx, obs, skip, 0, st.shape[0], s)
 
 
 @njit(cache=True, parallel=True)
-def _env_step_parallel(nu, eta, act, aux, sens, dist, j, envp, codes, eq, theta, par,
-                       obs_idx, obs, reward, w, status, skip, scratch):
-    """Advance a batch of vessels one step in place (parallel over vessels)."""
-    for b in prange(nu.shape[0]):
-        _env_step_one(b, nu, eta, act, aux, sens, dist, j, envp, codes, eq, theta, par,
-                      obs_idx, obs, reward, w, status, skip, scratch[b])
+def _env_step_parallel(st, dist, j, codes, eq, theta, par, obs_idx, obs, skip, n_chunks):
+    """Advance a batch of vessels one step in place, in ``n_chunks`` parallel chunks."""
+    n_b = st.shape[0]
+    for c in prange(n_chunks):
+        s = np.empty(6)
+        _env_chunk(st, dist, j, codes, eq, theta, par, obs_idx, obs, skip,
+                   c * n_b // n_chunks, (c + 1) * n_b // n_chunks, s)
 
 
 @njit(cache=True)
-def _env_observe(nu, eta, aux, sens, dist, j, envp, par, obs_idx, obs, mask):
+def _env_observe(st, dist, j, par, obs_idx, obs, mask):
     """Sensor readings at buffer row ``j`` for the vessels in ``mask`` (after a reset)."""
-    for b in range(nu.shape[0]):
+    for b in range(st.shape[0]):
         if mask[b]:
-            _observe(nu[b], eta[b], dist[b, j], envp[b], par, sens[b], aux[b])
-            for i in range(obs_idx.shape[0]):
-                obs[b, i] = sens[b, obs_idx[i]]
+            _observe(st, b, dist, b, j, par)
+            for q in range(obs_idx.shape[0]):
+                obs[b, q] = st[b, S_SENS + obs_idx[q]]
 
 
 # ------------------------------------------------------------------------ vessel model
-def _truncated_normal(rng: np.random.Generator, half_width: float, size) -> np.ndarray:
-    """Standard normal truncated to ``±half_width`` (inverse-CDF sampling)."""
-    if math.isinf(half_width):
-        return rng.standard_normal(size)
-    lo = special.ndtr(-half_width)
-    return special.ndtri(rng.uniform(lo, 1.0 - lo, size))
-
-
 @dataclass
 class VesselModel:
     """Compiled-kernel parameters for one vessel configuration (shared by all users).
 
     Builds the identification spec (:func:`cybership2_spec`), θ0, the term codes and
-    the packed parameter vector of the kernels.
+    the packed parameter vector of the kernels, and draws the disturbance rows.
     """
 
     dt: float = DEFAULT_DT
@@ -868,18 +877,17 @@ class VesselModel:
         par[P_WU:P_WU + 3] = np.asarray(self.reward_weights, dtype=float)
         self.par = par
         self.processes = self.disturbances.processes(self.dt)
+        self._gm = [(i, gm.pole, gm.std_, gm.bound_) for i, gm in enumerate(self.processes)
+                    if not gm.is_zero]
         self.sensor_std = self.sensors.std_vector()
+        self._noisy = np.flatnonzero(self.sensor_std > 0)
         self.obs_idx = self.sensors.channel_index()
 
-    def env_means(self, n: int, current_direction=None, wind_direction=None) -> np.ndarray:
+    def env_means(self, n: int) -> np.ndarray:
         """``(n, 4)`` per-vessel means ``[V_c, β_c, V_w, β_w]``."""
         d = self.disturbances
-        out = np.empty((n, N_ENV))
-        out[:, 0] = d.current_speed
-        out[:, 1] = d.current_direction if current_direction is None else current_direction
-        out[:, 2] = d.wind_speed
-        out[:, 3] = d.wind_direction if wind_direction is None else wind_direction
-        return out
+        return np.tile([d.current_speed, d.current_direction, d.wind_speed,
+                        d.wind_direction], (n, 1)).astype(float)
 
     # -- disturbance draws ---------------------------------------------------
     def draw_run(self, rng: np.random.Generator, n: int) -> np.ndarray:
@@ -898,102 +906,90 @@ class VesselModel:
         out[:, D_E:] = z * self.sensor_std
         return out
 
-    def start_block(self, rng: np.random.Generator, buf: np.ndarray) -> None:
-        """Fill row 0 of a ``(B, K+1, N_DIST)`` block buffer (stationary start), then the rest."""
+    def start_block(self, rng: np.random.Generator, buf: np.ndarray,
+                    latent: np.ndarray) -> None:
+        """Fill a ``(B, K+1, N_DIST)`` block buffer from a stationary start.
+
+        ``latent`` ``(B, N_GM)`` keeps the unsaturated GM states between blocks.
+        """
         n_b = buf.shape[0]
         buf[:, 0, :] = 0.0
-        for i, gm in enumerate(self.processes):
-            if gm.is_zero:
-                continue
-            hw = gm.bound / gm.std if math.isfinite(gm.bound) else math.inf
-            buf[:, 0, i] = gm.std * _truncated_normal(rng, hw, n_b)
+        latent[:] = 0.0
+        for i, _a, std, bound in self._gm:
+            g = std * rng.standard_normal(n_b)
+            latent[:, i] = g
+            buf[:, 0, i] = bound * np.tanh(g / bound) if math.isfinite(bound) else g
         self._sensor_noise(rng, buf[:, 0:1, :])
-        self.continue_block(rng, buf, first=True)
+        self.continue_block(rng, buf, latent, first=True)
 
-    def continue_block(self, rng: np.random.Generator, buf: np.ndarray, *,
-                       first: bool = False) -> None:
+    def continue_block(self, rng: np.random.Generator, buf: np.ndarray, latent: np.ndarray,
+                       *, first: bool = False) -> None:
         """Draw rows ``1..K`` continuing every GM process from row 0 (row K → row 0 first).
 
-        Same recursion and innovation law as :meth:`GaussMarkov.sample`
-        (``x(k) = a x(k−1) + ε(k)``, truncated innovations for bounded processes), so the
-        block-wise draws of the environments form one stationary process.
+        Same recursion and saturation as :meth:`GaussMarkov.sample`
+        (``g(k) = a g(k−1) + ε(k)``, bounded processes ``b·tanh(g/b)``), so the block-wise
+        draws of the environments form one stationary process.
         """
         if not first:
             buf[:, 0, :] = buf[:, -1, :]
         n_b, k1 = buf.shape[0], buf.shape[1] - 1
-        for i, gm in enumerate(self.processes):
-            if gm.is_zero:
-                continue
-            a = gm.pole
-            sig = gm.std * math.sqrt(1.0 - a * a)
-            hw = (1.0 - a) * gm.bound / sig if math.isfinite(gm.bound) else math.inf
-            innov = sig * _truncated_normal(rng, hw, (n_b, k1))
-            buf[:, 1:, i] = sps.lfilter([1.0], [1.0, -a], innov, axis=1,
-                                        zi=a * buf[:, 0:1, i])[0]
+        for i, a, std, bound in self._gm:
+            innov = rng.standard_normal((n_b, k1))
+            innov *= std * math.sqrt(1.0 - a * a)
+            g = sps.lfilter([1.0], [1.0, -a], innov, axis=1, zi=a * latent[:, i:i + 1])[0]
+            latent[:, i] = g[:, -1]
+            buf[:, 1:, i] = bound * np.tanh(g / bound) if math.isfinite(bound) else g
         self._sensor_noise(rng, buf[:, 1:, :])
 
     def _sensor_noise(self, rng: np.random.Generator, view: np.ndarray) -> None:
-        idx = np.flatnonzero(self.sensor_std > 0)
+        idx = self._noisy
+        view[..., D_E:] = 0.0
         if idx.size == 0:
-            view[..., D_E:] = 0.0
             return
         z = rng.standard_normal((*view.shape[:-1], idx.size))
         clip = self.sensors.clip
         np.clip(z, -clip, clip, out=z)
         z *= self.sensor_std[idx]
-        view[..., D_E:] = 0.0
         view[..., D_E + idx] = z
 
 
 # --------------------------------------------------------------------- batch simulator
 @dataclass
 class CyberShip2Simulation:
-    """Arrays of :func:`simulate_cybership2`, shapes ``(runs, samples, ·)``.
+    """Result of :func:`simulate_cybership2`; arrays have shape ``(runs, samples, ·)``.
 
-    Attributes
-    ----------
-    nu : true absolute velocity ``[u, v, r]`` (the paper's ``x``).
-    nu_r : velocity relative to water ``ν − ν_c`` (the aggregated state ``x + v``).
-    nu_c : body-frame current ``[u_c, v_c, 0]`` (``v = −nu_c``).
-    eta : ``[north, east, ψ]`` (ψ not wrapped).
-    tau : applied generalised forces ``[X, Y, N]``.
-    v, w : the paper's disturbances of (1a); ``w[:, -1]`` is zero (unused).
-    wind : apparent wind ``[V_rw, γ_rw]``; ``tau_wind`` its force ``[X, Y, N]``.
-    sensors : readings of all channels (:data:`SENSOR_CHANNELS`).
+    Properties: ``nu`` true absolute velocity ``[u, v, r]`` (the paper's ``x``), ``nu_r``
+    velocity relative to water (the aggregated state ``x + v``), ``nu_c`` body-frame
+    current ``[u_c, v_c, 0]``, ``v = −nu_c`` and ``w`` the paper's disturbances of (1a)
+    (``w[:, -1]`` is zero, unused), ``eta = [north, east, ψ]`` (ψ not wrapped), ``tau``
+    applied forces, ``wind`` apparent wind ``[V_rw, γ_rw]``, ``tau_wind`` its force,
+    ``sensors`` readings of all channels (:data:`SENSOR_CHANNELS`).
     """
 
     model: VesselModel
-    nu: np.ndarray
-    eta: np.ndarray
-    tau: np.ndarray
-    sensors: np.ndarray
-    aux: np.ndarray
-    w: np.ndarray
-    env_means: np.ndarray
+    state: np.ndarray
     seed: int | None = None
     spawn_keys: list | None = None
 
-    @property
-    def nu_c(self) -> np.ndarray:
-        out = np.zeros_like(self.nu)
-        out[..., :2] = self.aux[..., A_UC:A_VC + 1]
-        return out
+    def _cols(self, start: int, n: int) -> np.ndarray:
+        return self.state[..., start:start + n]
 
-    @property
-    def nu_r(self) -> np.ndarray:
-        return self.nu - self.nu_c
+    nu = property(lambda self: self._cols(S_NU, 3), doc="True absolute velocity ν.")
+    nu_r = property(lambda self: self._cols(S_NUR, 3), doc="ν_r = ν − ν_c.")
+    nu_c = property(lambda self: self._cols(S_CUR, 3), doc="Body-frame current [u_c, v_c, 0].")
+    eta = property(lambda self: self._cols(S_ETA, 3), doc="η = [north, east, ψ].")
+    tau = property(lambda self: self._cols(S_ACT, 3), doc="Applied forces [X, Y, N].")
+    wind = property(lambda self: self._cols(S_WIND, 2), doc="Apparent wind [V_rw, γ_rw].")
+    tau_wind = property(lambda self: self._cols(S_WF, 3), doc="Wind force [X, Y, N].")
+    sensors = property(lambda self: self._cols(S_SENS, _N_SENS), doc="Sensor readings.")
+    w = property(lambda self: self._cols(S_W, 3), doc="The paper's additive w(k).")
+    env_means = property(lambda self: self.state[:, 0, S_ENV:S_ENV + 4],
+                         doc="Per-run means [V_c, β_c, V_w, β_w].")
 
     @property
     def v(self) -> np.ndarray:
+        """The paper's non-additive disturbance ``v(k) = −ν_c(k)``."""
         return -self.nu_c
-
-    @property
-    def wind(self) -> np.ndarray:
-        return self.aux[..., A_VRW:A_GRW + 1]
-
-    @property
-    def tau_wind(self) -> np.ndarray:
-        return self.aux[..., A_XW:A_XW + 3]
 
     @property
     def spec(self) -> ModelSpec:
@@ -1001,11 +997,11 @@ class CyberShip2Simulation:
 
     @property
     def n_runs(self) -> int:
-        return int(self.nu.shape[0])
+        return int(self.state.shape[0])
 
     @property
     def n_samples(self) -> int:
-        return int(self.nu.shape[1])
+        return int(self.state.shape[1])
 
     def to_frame(self) -> Any:
         """Tidy trial-log frame (DESIGN.md): one row per sample, runs are experiments.
@@ -1080,7 +1076,7 @@ class CyberShip2Simulation:
                 "coefficients": asdict(m.coefficients),
                 "disturbances": m.disturbances.to_dict(),
                 "sensors": m.sensors.to_dict(),
-                "env_means": self.env_means.tolist(),
+                "env_means": np.asarray(self.env_means).tolist(),
             },
             "seed": self.seed,
             "spawn_keys": self.spawn_keys,
@@ -1181,37 +1177,34 @@ def simulate_cybership2(
     if wind_direction is not None:
         envp[:, 3] = np.broadcast_to(np.asarray(wind_direction, dtype=float), n_r)
     eta0_arr = np.zeros((n_r, 3)) if eta0 is None else np.asarray(eta0, dtype=float)
-    eta0_arr = np.ascontiguousarray(np.broadcast_to(np.atleast_2d(eta0_arr), (n_r, 3)))
+    eta0_arr = np.broadcast_to(np.atleast_2d(eta0_arr), (n_r, 3))
     if nu0 is None:
-        psi0 = eta0_arr[:, 2]
         vc = envp[:, 0] + dist[:, 0, D_VC]
-        dc = envp[:, 1] + dist[:, 0, D_BC] - psi0
+        dc = envp[:, 1] + dist[:, 0, D_BC] - eta0_arr[:, 2]
         nu0_arr = np.column_stack([vc * np.cos(dc), vc * np.sin(dc), np.zeros(n_r)])
     else:
         nu0_arr = np.asarray(nu0, dtype=float)
-    nu0_arr = np.ascontiguousarray(np.broadcast_to(np.atleast_2d(nu0_arr), (n_r, 3)))
-    nu = np.empty((n_r, n_k, 3))
-    eta = np.empty((n_r, n_k, 3))
-    sens = np.empty((n_r, n_k, _N_SENS))
-    aux = np.zeros((n_r, n_k, N_AUX))
-    w = np.zeros((n_r, n_k, 3))
-    status = np.empty(n_r, dtype=np.int64)
+    nu0_arr = np.broadcast_to(np.atleast_2d(nu0_arr), (n_r, 3))
+    if not (np.all(np.isfinite(nu0_arr)) and np.all(np.isfinite(eta0_arr))):
+        raise VesselidError("nu0 and eta0 must be finite")
+    st = np.zeros((n_r, n_k, N_ST))
+    st[:, 0, S_NU:S_NU + 3] = nu0_arr
+    st[:, 0, S_ETA:S_ETA + 3] = eta0_arr
+    st[:, :, S_ENV:S_ENV + 4] = envp[:, None, :]
+    st[:, :, S_ACT:S_ACT + 3] = tau
     fail_at = np.empty(n_r, dtype=np.int64)
-    _rollout_kernel(nu0_arr, eta0_arr, tau, dist, envp, model.codes, model.eq, model.theta,
-                    model.par, nu, eta, sens, aux, w, status, fail_at)
-    if np.any(status != STATUS_OK):
-        bad = np.flatnonzero(status != STATUS_OK)
+    _rollout_kernel(st, dist, model.codes, model.eq, model.theta, model.par, fail_at)
+    if np.any(fail_at >= 0):
+        bad = np.flatnonzero(fail_at >= 0)
         r = int(bad[0])
-        why = "became non-finite" if status[r] == STATUS_NONFINITE else f"exceeded {limit:g}"
         raise SimulationDivergedError(
-            f"CyberShip II simulation diverged in {bad.size} of {n_r} run(s): run {r} {why} "
-            f"at sample {int(fail_at[r])}; reduce the input forces or dt"
+            f"CyberShip II simulation diverged in {bad.size} of {n_r} run(s): run {r} became "
+            f"non-finite or exceeded |ν| > {limit:g} at sample {int(fail_at[r])}; reduce the "
+            f"input forces or dt"
         )
     seed_int = None if seed is None or isinstance(seed, np.random.SeedSequence) else int(seed)
-    return CyberShip2Simulation(
-        model=model, nu=nu, eta=eta, tau=tau, sensors=sens, aux=aux, w=w, env_means=envp,
-        seed=seed_int, spawn_keys=[list(ss.spawn_key) for ss in run_seeds],
-    )
+    return CyberShip2Simulation(model=model, state=st, seed=seed_int,
+                                spawn_keys=[list(ss.spawn_key) for ss in run_seeds])
 
 
 # ------------------------------------------------------------------- catalogue system

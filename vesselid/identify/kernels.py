@@ -34,7 +34,30 @@ AUX_OK = 0
 AUX_DIVERGED = 1
 
 
+#: Below this many samples the serial kernels are used (thread start-up costs more).
+PARALLEL_MIN_SAMPLES = 200_000
+
+
 @njit(cache=True, parallel=True)
+def _moments_parallel(
+    regsig, target, u, starts, group, theta, active, use_sim, fac, eq, block_start, limit,
+    s_zphi, s_zy, s_z, s_phi, s_y, count, status,
+):
+    for s in prange(starts.shape[0] - 1):
+        _moments_segment(s, regsig, target, u, starts, group, theta, active, use_sim, fac, eq,
+                         block_start, limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status)
+
+
+@njit(cache=True)
+def _moments_serial(
+    regsig, target, u, starts, group, theta, active, use_sim, fac, eq, block_start, limit,
+    s_zphi, s_zy, s_z, s_phi, s_y, count, status,
+):
+    for s in range(starts.shape[0] - 1):
+        _moments_segment(s, regsig, target, u, starts, group, theta, active, use_sim, fac, eq,
+                         block_start, limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status)
+
+
 def moments(
     regsig, target, u, starts, group, theta, active, use_sim, fac, eq, block_start, limit,
     s_zphi, s_zy, s_z, s_phi, s_y, count, status,
@@ -55,87 +78,98 @@ def moments(
     limit : (S,) float, divergence limit of the auxiliary simulation per segment
     s_zphi (S,P,P), s_zy (S,P), s_z (S,P), s_phi (S,P), s_y (S,n), count (S,), status (S,)
         Outputs, overwritten for active segments.
+
+    Segments run in parallel threads when there are several and enough samples.
     """
-    n_seg = starts.shape[0] - 1
+    parallel = starts.shape[0] > 2 and target.shape[0] >= PARALLEL_MIN_SAMPLES
+    kernel = _moments_parallel if parallel else _moments_serial
+    kernel(regsig, target, u, starts, group, theta, active, use_sim, fac, eq, block_start,
+           limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status)
+
+
+@njit(cache=True, inline="always")
+def _moments_segment(
+    s, regsig, target, u, starts, group, theta, active, use_sim, fac, eq, block_start, limit,
+    s_zphi, s_zy, s_z, s_phi, s_y, count, status,
+):
     n = regsig.shape[1]
     m = u.shape[1]
     n_par = fac.shape[0]
     n_f = 2 * (n + m) + 1
-    for s in prange(n_seg):
-        g = group[s]
-        if not active[g]:
-            continue
-        a = starts[s]
-        b = starts[s + 1]
-        f_dat = np.empty(n_f)
-        f_sim = np.empty(n_f)
-        f_dat[n_f - 1] = 1.0
-        f_sim[n_f - 1] = 1.0
-        xh = np.empty(n)
-        phi = np.empty(n_par)
-        z = np.empty(n_par)
-        # local accumulators keep the inner loop in cache
-        l_zphi = np.zeros((n_par, n_par))
-        l_zy = np.zeros(n_par)
-        l_z = np.zeros(n_par)
-        l_phi = np.zeros(n_par)
-        l_y = np.zeros(n)
+    g = group[s]
+    if not active[g]:
+        return
+    a = starts[s]
+    b = starts[s + 1]
+    f_dat = np.empty(n_f)
+    f_sim = np.empty(n_f)
+    f_dat[n_f - 1] = 1.0
+    f_sim[n_f - 1] = 1.0
+    xh = np.empty(n)
+    phi = np.empty(n_par)
+    z = np.empty(n_par)
+    # local accumulators keep the inner loop in cache
+    l_zphi = np.zeros((n_par, n_par))
+    l_zy = np.zeros(n_par)
+    l_z = np.zeros(n_par)
+    l_phi = np.zeros(n_par)
+    l_y = np.zeros(n)
+    for i in range(n):
+        xh[i] = target[a, i]
+    status[s] = AUX_OK
+    count[s] = b - a - 1
+    th = theta[g]
+    for k in range(a + 1, b):
         for i in range(n):
-            xh[i] = target[a, i]
-        status[s] = AUX_OK
-        count[s] = b - a - 1
-        th = theta[g]
-        for k in range(a + 1, b):
-            for i in range(n):
-                val = regsig[k - 1, i]
-                f_dat[i] = val
-                f_dat[n + m + i] = abs(val)
-            for j in range(m):
-                val = u[k - 1, j]
-                f_dat[n + j] = val
-                f_dat[2 * n + m + j] = abs(val)
-                f_sim[n + j] = val
-                f_sim[2 * n + m + j] = abs(val)
-            for p in range(n_par):
-                phi[p] = f_dat[fac[p, 0]] * f_dat[fac[p, 1]]
-            if use_sim:
-                for i in range(n):
-                    f_sim[i] = xh[i]
-                    f_sim[n + m + i] = abs(xh[i])
-                    xh[i] = 0.0
-                # advance the auxiliary model: x̂(k) = Φᵀ([x̂(k−1); u(k−1)]) θ
-                for p in range(n_par):
-                    zp = f_sim[fac[p, 0]] * f_sim[fac[p, 1]]
-                    z[p] = zp
-                    xh[eq[p]] += th[p] * zp
-                bad = False
-                for i in range(n):
-                    if not np.isfinite(xh[i]) or abs(xh[i]) > limit[s]:
-                        bad = True
-                if bad:
-                    status[s] = AUX_DIVERGED
-                    break
-            else:
-                for p in range(n_par):
-                    z[p] = phi[p]
-            for i in range(n):
-                yi = target[k, i]
-                l_y[i] += yi
-                for p in range(block_start[i], block_start[i + 1]):
-                    zp = z[p]
-                    l_zy[p] += zp * yi
-                    l_z[p] += zp
-                    l_phi[p] += phi[p]
-                    for q in range(block_start[i], block_start[i + 1]):
-                        l_zphi[p, q] += zp * phi[q]
+            val = regsig[k - 1, i]
+            f_dat[i] = val
+            f_dat[n + m + i] = abs(val)
+        for j in range(m):
+            val = u[k - 1, j]
+            f_dat[n + j] = val
+            f_dat[2 * n + m + j] = abs(val)
+            f_sim[n + j] = val
+            f_sim[2 * n + m + j] = abs(val)
         for p in range(n_par):
-            s_zy[s, p] = l_zy[p]
-            s_z[s, p] = l_z[p]
-            s_phi[s, p] = l_phi[p]
-            for q in range(n_par):
-                s_zphi[s, p, q] = l_zphi[p, q]
+            phi[p] = f_dat[fac[p, 0]] * f_dat[fac[p, 1]]
+        if use_sim:
+            for i in range(n):
+                f_sim[i] = xh[i]
+                f_sim[n + m + i] = abs(xh[i])
+                xh[i] = 0.0
+            # advance the auxiliary model: x̂(k) = Φᵀ([x̂(k−1); u(k−1)]) θ
+            for p in range(n_par):
+                zp = f_sim[fac[p, 0]] * f_sim[fac[p, 1]]
+                z[p] = zp
+                xh[eq[p]] += th[p] * zp
+            bad = False
+            for i in range(n):
+                if not np.isfinite(xh[i]) or abs(xh[i]) > limit[s]:
+                    bad = True
+            if bad:
+                status[s] = AUX_DIVERGED
+                break
+        else:
+            for p in range(n_par):
+                z[p] = phi[p]
         for i in range(n):
-            s_y[s, i] = l_y[i]
+            yi = target[k, i]
+            l_y[i] += yi
+            for p in range(block_start[i], block_start[i + 1]):
+                zp = z[p]
+                l_zy[p] += zp * yi
+                l_z[p] += zp
+                l_phi[p] += phi[p]
+                for q in range(block_start[i], block_start[i + 1]):
+                    l_zphi[p, q] += zp * phi[q]
+    for p in range(n_par):
+        s_zy[s, p] = l_zy[p]
+        s_z[s, p] = l_z[p]
+        s_phi[s, p] = l_phi[p]
+        for q in range(n_par):
+            s_zphi[s, p, q] = l_zphi[p, q]
+    for i in range(n):
+        s_y[s, i] = l_y[i]
 
 
 @njit(cache=True)
