@@ -25,6 +25,7 @@ from dataclasses import asdict
 from typing import Any, ClassVar, SupportsFloat
 
 import gymnasium as gym
+import numba
 import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
@@ -153,7 +154,7 @@ class _Core:
         self.latent = np.zeros((n, N_GM))
         self.obs = np.zeros((n, self.n_obs), dtype=np.float32)
         self.no_skip = np.zeros(n, dtype=np.bool_)
-        self.n_chunks = max(1, min(n // 64, 64))
+        self.n_chunks = max(1, min(n // 128, numba.get_num_threads()))
         self.j = 0
         self.rng: np.random.Generator | None = None
         # sensor slices for info
@@ -613,6 +614,9 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
 
     - ``num_envs``: number of vessels.
     - ``max_episode_steps``: truncation length (2000).
+    - ``parallel``: step the vessels in parallel numba threads; default: only with at least
+      four threads and 256 vessels (OpenMP thread pools collapse on small or oversubscribed
+      machines, where the serial kernel is faster).
     {arguments}
     """
 
@@ -646,6 +650,7 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
         initial_speed: Sequence[float] = (0.0, 0.4),
         velocity_limit: float = 5.0,
         render_window: int = 600,
+        parallel: bool | None = None,
     ) -> None:
         if int(num_envs) < 1:
             raise VesselidError(f"num_envs must be >= 1, got {num_envs}")
@@ -658,8 +663,10 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
         self.max_episode_steps = int(max_episode_steps)
         self.render_mode = render_mode
         block = max(16, VECTOR_BLOCK_SAMPLES // self.num_envs)
+        if parallel is None:
+            parallel = numba.get_num_threads() >= 4 and self.num_envs >= 256
         self._core = _Core(
-            self.num_envs, parallel=True, dt=dt, current_speed=current_speed,
+            self.num_envs, parallel=bool(parallel), dt=dt, current_speed=current_speed,
             current_direction=current_direction, current_variation=current_variation,
             current_time_constant=current_time_constant, wind_speed=wind_speed,
             wind_direction=wind_direction, wind_gust=wind_gust, force_noise=force_noise,

@@ -303,7 +303,9 @@ class TrialRecorder(gym.Wrapper):
             environment's extra columns (``true_*``, ...). Metadata: ``spec``,
             ``vesselid_version``, ``seed`` (of the first reset), ``reset_seeds``,
             ``env_id``, ``env_kwargs``, ``env_class``, ``env_settings``, ``episodes``
-            (per experiment: seed, steps, terminated, truncated, finished).
+            (per experiment: seed, steps, terminated, truncated, and finished: whether
+            the episode ended with ``terminated`` or ``truncated`` rather than being cut
+            by a ``reset`` or still running).
 
         Raises
         ------

@@ -6,10 +6,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
-from vesselid.envs.heave import HeaveEnv, HeaveVectorEnv
-from vesselid.envs.recorder import TrialRecorder, VectorTrialRecorder
 
 import vesselid  # noqa: F401  (registers the environments)
+from vesselid.envs.heave import HeaveEnv, HeaveVectorEnv
+from vesselid.envs.recorder import TrialRecorder, VectorTrialRecorder
 from vesselid.errors import VesselidError
 from vesselid.logs import TrialLog
 from vesselid.simulate import simulate_states

@@ -16,10 +16,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env, data_equivalence
-from vesselid.envs import ENV_IDS, register_envs
-from vesselid.envs.recorder import TrialRecorder, VectorTrialRecorder
 
 import vesselid  # noqa: F401  (registers the environments)
+from vesselid.envs import ENV_IDS, register_envs
+from vesselid.envs.recorder import TrialRecorder, VectorTrialRecorder
 
 REGISTERED = sorted(i for i in gym.registry if i.startswith("vesselid/"))
 

@@ -115,7 +115,9 @@ def collinear_terms(
     if keep.size == 0:
         return groups
     scaled = phi[:, keep] / norms[keep]
-    _, sv, vt = np.linalg.svd(scaled, full_matrices=False)
+    # Φ = QR: the singular values and right vectors of R are those of Φ (cheap for tall Φ)
+    r_factor = np.linalg.qr(scaled, mode="r")
+    _, sv, vt = np.linalg.svd(r_factor)
     for k in np.flatnonzero(sv < rtol * sv[0]):
         vec = vt[k]
         members = [names[keep[j]] for j in np.flatnonzero(np.abs(vec) > 0.05)]

@@ -195,15 +195,11 @@ def fill_factors(s: np.ndarray, f: np.ndarray) -> None:
 def term_value(codes: np.ndarray, p: int, s: np.ndarray) -> float:
     """Value of encoded term ``p`` at the signal vector ``s`` (compiled)."""
     a = s[codes[p, 0]]
-    if codes[p, 1] == 1:
-        a = abs(a)
+    a = abs(a) if codes[p, 1] == 1 else a
     j = codes[p, 2]
-    if j >= 0:
-        b = s[j]
-        if codes[p, 3] == 1:
-            b = abs(b)
-        a = a * b
-    return a
+    b = s[j] if j >= 0 else 1.0
+    b = abs(b) if codes[p, 3] == 1 else b
+    return a * b
 
 
 def evaluate_terms(codes: np.ndarray, signals: np.ndarray) -> np.ndarray:

@@ -920,6 +920,7 @@ class VesselModel:
             latent[:, i] = g
             buf[:, 0, i] = bound * np.tanh(g / bound) if math.isfinite(bound) else g
         self._sensor_noise(rng, buf[:, 0:1, :])
+        buf[:, 1:, :] = 0.0
         self.continue_block(rng, buf, latent, first=True)
 
     def continue_block(self, rng: np.random.Generator, buf: np.ndarray, latent: np.ndarray,
@@ -928,18 +929,33 @@ class VesselModel:
 
         Same recursion and saturation as :meth:`GaussMarkov.sample`
         (``g(k) = a g(k−1) + ε(k)``, bounded processes ``b·tanh(g/b)``), so the block-wise
-        draws of the environments form one stationary process.
+        draws of the environments form one stationary process. One normal draw per block
+        covers the GM innovations and the sensor noise.
         """
         if not first:
             buf[:, 0, :] = buf[:, -1, :]
         n_b, k1 = buf.shape[0], buf.shape[1] - 1
-        for i, a, std, bound in self._gm:
-            innov = rng.standard_normal((n_b, k1))
+        n_gm, idx = len(self._gm), self._noisy
+        if n_gm + idx.size == 0:
+            return
+        z = rng.standard_normal((n_gm + idx.size, n_b, k1))
+        for c, (i, a, std, bound) in enumerate(self._gm):
+            innov = z[c]
             innov *= std * math.sqrt(1.0 - a * a)
             g = sps.lfilter([1.0], [1.0, -a], innov, axis=1, zi=a * latent[:, i:i + 1])[0]
             latent[:, i] = g[:, -1]
-            buf[:, 1:, i] = bound * np.tanh(g / bound) if math.isfinite(bound) else g
-        self._sensor_noise(rng, buf[:, 1:, :])
+            if math.isfinite(bound):
+                g *= 1.0 / bound
+                np.tanh(g, out=g)
+                g *= bound
+            buf[:, 1:, i] = g
+        if idx.size:
+            e = z[n_gm:]
+            clip = self.sensors.clip
+            np.clip(e, -clip, clip, out=e)
+            e *= self.sensor_std[idx][:, None, None]
+            for c, i in enumerate(idx):
+                buf[:, 1:, D_E + i] = e[c]
 
     def _sensor_noise(self, rng: np.random.Generator, view: np.ndarray) -> None:
         idx = self._noisy

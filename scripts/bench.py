@@ -1,0 +1,190 @@
+"""Performance benchmarks (medians after JIT warm-up), with plain-numpy baselines.
+
+Targets (2-core machine):
+
+* simulation of the heave system, 1000 runs × 10⁴ samples ≤ 0.2 s;
+* refined IV (zero-mean instruments) on one heave log of 10⁴ samples ≤ 20 ms;
+* a 3-state, 10⁵-sample, 4-experiment log ≤ 1 s;
+* Table 1 at paper size ≤ 4 s, both tables ≤ 10 s (``bench_reproduce``);
+* Heave-v0 ≥ 100k raw steps/s, Manoeuvring3DOF-v0 ≥ 30k, vector 1024 envs ≥ 1M;
+* the sea-trial pipeline at 6 × 2·10⁴ samples ≤ 10 s.
+
+Run ``python scripts/bench.py`` (all) or ``python scripts/bench.py --only simulate identify``;
+``--json PATH`` writes the figures. Benchmarks live here, never in timed tests.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import statistics
+import sys
+import time
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+
+
+def median_time(fn: Callable[[], object], repeats: int = 5, warmup: int = 1) -> float:
+    """Median wall time of ``fn()`` in seconds after ``warmup`` calls."""
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def numpy_simulate(spec, u, x0, v, w):
+    """Plain-numpy baseline: Python loop over samples, vectorised across runs, same terms."""
+    from vesselid.terms import evaluate_terms
+
+    codes = spec.codes
+    theta = spec.theta0_vector()
+    n_runs, n_samples, n = v.shape
+    x = np.empty((n_runs, n_samples, n))
+    x[:, 0] = x0
+    onehot = np.zeros((codes.n_params, n))
+    onehot[np.arange(codes.n_params), codes.equation] = 1.0
+    weights = theta[:, None] * onehot
+    for k in range(n_samples - 1):
+        s = np.concatenate([x[:, k] + v[:, k], u[:, k]], axis=1)
+        x[:, k + 1] = evaluate_terms(codes.codes, s) @ weights + w[:, k]
+    return x
+
+
+def bench_simulate(repeats: int = 5) -> dict:
+    from vesselid.simulate import simulate_states
+    from vesselid.systems import heave
+
+    system = heave()
+    sim = system.simulate(10_000, n_runs=1000, seed=0)
+    spec = system.spec
+    v = -sim.q
+    x0 = np.array([1.3])
+    kernel = median_time(lambda: simulate_states(spec, sim.u, x0=x0, v=v, w=sim.w), repeats)
+    end_to_end = median_time(lambda: system.simulate(10_000, n_runs=1000, seed=0),
+                             max(repeats // 2, 1))
+    t0 = time.perf_counter()
+    x_np = numpy_simulate(spec, sim.u, x0, v, sim.w)
+    numpy_time = time.perf_counter() - t0
+    assert np.allclose(x_np, sim.x, rtol=1e-10, atol=1e-10)
+    return {
+        "simulate_heave_1000x1e4_kernel_s": kernel,
+        "simulate_heave_1000x1e4_with_noise_generation_s": end_to_end,
+        "simulate_heave_1000x1e4_numpy_loop_s": numpy_time,
+        "simulate_speedup_vs_numpy": numpy_time / kernel,
+    }
+
+
+def _three_state_log(samples: int, experiments: int):
+    """A 3-state log: the CyberShip II sea trial when available, else a generic 3-state model."""
+    try:
+        from vesselid.seatrial import design_sea_trial  # noqa: F401
+
+        have_seatrial = True
+    except ImportError:
+        have_seatrial = False
+    if have_seatrial:
+        from vesselid.seatrial import simulate_sea_trial
+
+        log = simulate_sea_trial(experiments=experiments, samples=samples, seed=0)
+        return log, log.spec
+    from vesselid.disturbances import Gaussian, Uniform
+    from vesselid.model import ModelSpec
+    from vesselid.signals import RandomPulses, StaticOffset
+    from vesselid.systems import System
+
+    spec = ModelSpec(
+        name="three_state",
+        states=["u", "v", "r"],
+        inputs=["X", "Y", "N"],
+        equations={
+            "u": ["u", "u*|u|", "v*r", "X"],
+            "v": ["v", "v*|v|", "u*r", "r*|v|", "Y", "N"],
+            "r": ["r", "r*|r|", "u*v", "v*|r|", "Y", "N"],
+        },
+        theta0={"u": [0.98, -0.02, 0.01, 0.05], "v": [0.9, -0.05, -0.05, 0.01, 0.05, 0.01],
+                "r": [0.9, -0.05, 0.01, 0.01, 0.01, 0.05]},
+    )
+    noise = {s: Gaussian(0, 0.01) for s in spec.states}
+    system = System(
+        spec=spec,
+        inputs={"X": StaticOffset(2.0, Uniform(0, 0.5)), "Y": RandomPulses(0.2, 0.6, 20, 200),
+                "N": RandomPulses(0.2, 0.6, 20, 200)},
+        process_noise=noise, sensor_noise=noise, x0={"u": 1.0, "v": 0.5, "r": 0.5},
+    )
+    log = system.simulate(samples, n_runs=experiments, seed=0).to_log()
+    return log, log.spec
+
+
+def bench_identify(repeats: int = 7) -> dict:
+    from vesselid.identify import identify
+    from vesselid.systems import heave
+
+    warnings.simplefilter("ignore")
+    log = heave().simulate(10_000, seed=0).to_log()
+    out = {
+        f"identify_heave_1e4_{m}_ms": 1000 * median_time(lambda m=m: identify(log, method=m),
+                                                          repeats)
+        for m in ("ls", "iv", "iv-zero-mean")
+    }
+    log3, spec3 = _three_state_log(100_000, 4)
+    out["identify_3state_4x1e5_iv-zero-mean_s"] = median_time(
+        lambda: identify(log3, spec3, method="iv-zero-mean"), max(repeats // 2, 1))
+    out["identify_3state_model"] = spec3.name
+    return out
+
+
+def _load(name: str, func: str) -> Callable | None:
+    path = HERE / f"{name}.py"
+    if not path.exists():
+        return None
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return getattr(module, func, None)
+
+
+BENCHES: dict[str, Callable[[], Callable | None]] = {
+    "simulate": lambda: bench_simulate,
+    "identify": lambda: bench_identify,
+    "heave_env": lambda: _load("bench_envs_heave", "bench_heave"),
+    "manoeuvring_env": lambda: _load("bench_envs", "bench_manoeuvring"),
+    "reproduce": lambda: _load("bench_reproduce", "bench_reproduce"),
+    "seatrial": lambda: _load("bench_seatrial", "bench_seatrial"),
+}
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description="vesselid benchmarks (medians)")
+    parser.add_argument("--only", nargs="*", choices=sorted(BENCHES), help="subset to run")
+    parser.add_argument("--json", help="write the figures as JSON")
+    args = parser.parse_args(argv)
+    results: dict = {}
+    for name in args.only or list(BENCHES):
+        fn = BENCHES[name]()
+        if fn is None:
+            print(f"[{name}] not available")
+            continue
+        print(f"[{name}] running ...", flush=True)
+        figures = fn()
+        results[name] = figures
+        for key, value in figures.items():
+            shown = f"{value:,.4g}" if isinstance(value, float) else value
+            print(f"    {key:<55s} {shown}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=2, default=str) + "\n")
+    return results
+
+
+if __name__ == "__main__":
+    main()
