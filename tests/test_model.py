@@ -78,6 +78,16 @@ def test_spec_errors(kwargs, message):
         heave_spec(**kwargs)
 
 
+def test_direct_aggregate_measurement():
+    """Remark 4.3: a speed log measures the aggregated state itself."""
+    spec = heave_spec(aggregate={"w": "w_log"})
+    assert spec.aggregate["w"] == Aggregate("w", "w_log", 0)
+    assert spec.sensors == ("w_log",)
+    assert ModelSpec.from_toml(spec.to_toml()) == spec
+    with pytest.raises(ModelSpecError, match="cannot be the state itself"):
+        heave_spec(aggregate={"w": "w"})
+
+
 def test_toml_errors(tmp_path):
     with pytest.raises(ModelSpecError, match="does not exist"):
         ModelSpec.load(tmp_path / "missing.toml")

@@ -55,16 +55,22 @@ _AGG_RE = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*([+-])\s*([A-Za-z_][A-Za-z
 
 @dataclass(frozen=True)
 class Aggregate:
-    """Aggregated-state relation ``r = state + sign * sensor`` (paper eq. (9), Remark 4.3).
+    """Aggregated-state relation of paper eq. (9) and Remark 4.3.
+
+    ``"w - w_c"`` / ``"w + w_c"``: the regressors use ``r = state ± sensor`` where the
+    sensor measures the disturbance (a current meter, ``sign = ±1``). A bare column
+    name, ``"u_log"``, says the sensor measures the aggregated state itself (a Doppler
+    speed log measures the velocity through water, Remark 4.3): the regressors use
+    that column directly (``sign = 0``).
 
     Parameters
     ----------
     state : str
         The state whose regressors use the aggregated signal.
     sensor : str
-        Name of the measured disturbance column (e.g. a current meter ``w_c``).
+        Name of the measured column.
     sign : int
-        ``+1`` or ``-1``.
+        ``+1``, ``-1``, or ``0`` for a direct measurement of the aggregated state.
     """
 
     state: str
@@ -73,11 +79,19 @@ class Aggregate:
 
     @classmethod
     def parse(cls, state: str, text: str) -> Aggregate:
+        if isinstance(text, str) and _NAME_RE.match(text.strip()):
+            name = text.strip()
+            if name == state:
+                raise ModelSpecError(
+                    f"aggregate relation for {state!r} cannot be the state itself"
+                )
+            return cls(state=state, sensor=name, sign=0)
         match = _AGG_RE.match(text) if isinstance(text, str) else None
         if match is None:
             raise ModelSpecError(
-                f"aggregate relation for {state!r} must read '{state} + sensor' or "
-                f"'{state} - sensor', got {text!r}"
+                f"aggregate relation for {state!r} must read '{state} + sensor', "
+                f"'{state} - sensor' or name a column measuring the aggregated state, "
+                f"got {text!r}"
             )
         lhs, op, sensor = match.groups()
         if lhs != state:
@@ -87,6 +101,8 @@ class Aggregate:
         return cls(state=state, sensor=sensor, sign=1 if op == "+" else -1)
 
     def __str__(self) -> str:
+        if self.sign == 0:
+            return self.sensor
         return f"{self.state} {'+' if self.sign > 0 else '-'} {self.sensor}"
 
 

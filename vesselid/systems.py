@@ -95,7 +95,7 @@ class System:
         """Coupling sign ``v = sign · q`` of a state's current."""
         if state in self.current_sign:
             return int(self.current_sign[state])
-        if state in self.spec.aggregate:
+        if state in self.spec.aggregate and self.spec.aggregate[state].sign != 0:
             return int(self.spec.aggregate[state].sign)
         return 1
 

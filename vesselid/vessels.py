@@ -402,6 +402,10 @@ class CyberShip2Disturbances:
         the identification spec is then misspecified).
     wind_model : BlendermannWind
         Wind-load coefficients and areas.
+    wind_loads : bool, optional
+        Compute wind loads from the apparent wind. Default: only with wind or gusts, so
+        that without wind the plant is exactly the identification model (the air drag of
+        the vessel's own motion, ~1 % of the thrust, is then neglected).
     """
 
     current_speed: float = 0.0
@@ -420,6 +424,14 @@ class CyberShip2Disturbances:
     force_noise_time_constant: float = 2.0
     cubic_surge: bool = False
     wind_model: BlendermannWind = field(default_factory=BlendermannWind)
+    wind_loads: bool | None = None
+
+    @property
+    def wind_on(self) -> bool:
+        """Whether wind loads are computed (default: iff there is wind or gusts)."""
+        if self.wind_loads is not None:
+            return bool(self.wind_loads)
+        return self.wind_speed > 0 or self.gust_std > 0
 
     def __post_init__(self) -> None:
         fn = tuple(float(x) for x in self.force_noise_std)
@@ -458,6 +470,7 @@ class CyberShip2Disturbances:
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["force_noise_std"] = list(self.force_noise_std)
+        d["wind_loads"] = self.wind_on
         return d
 
 
@@ -581,7 +594,8 @@ P_PSIREF = 26
 P_WU = 27
 P_WPSI = 28
 P_WA = 29
-N_PAR = 30
+P_WIND = 30  # 1.0: compute wind loads
+N_PAR = 31
 
 # Disturbance rows ``dist[b, k]``: zero-mean variations and noise at time k.
 D_VC = 0  # current speed variation
@@ -641,7 +655,7 @@ def _observe(st, i, dist, b, j, par):
     xw = 0.0
     yw = 0.0
     nw = 0.0
-    if v2 > 0.0:
+    if v2 > 0.0 and par[P_WIND] > 0.0:
         ag = abs(gam)
         cdl_af = par[P_CDL_BOW] if ag <= 0.5 * math.pi else par[P_CDL_STERN]
         cdl = cdl_af * par[P_AF] / par[P_AL]
@@ -875,6 +889,7 @@ class VesselModel:
         par[P_UREF] = self.u_ref
         par[P_PSIREF] = self.psi_ref
         par[P_WU:P_WU + 3] = np.asarray(self.reward_weights, dtype=float)
+        par[P_WIND] = 1.0 if self.disturbances.wind_on else 0.0
         self.par = par
         self.processes = self.disturbances.processes(self.dt)
         self._gm = [(i, gm.pole, gm.std_, gm.bound_) for i, gm in enumerate(self.processes)

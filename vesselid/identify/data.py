@@ -68,8 +68,12 @@ def _aggregated(spec: ModelSpec, states: np.ndarray, sensors: dict[str, np.ndarr
     for i, s in enumerate(spec.states):
         if s in spec.aggregate:
             agg = spec.aggregate[s]
-            sensor[:, i] = agg.sign * sensors[agg.sensor]
-            regsig[:, i] = states[:, i] + sensor[:, i]
+            if agg.sign == 0:  # the column measures the aggregated state itself
+                regsig[:, i] = sensors[agg.sensor]
+                sensor[:, i] = regsig[:, i] - states[:, i]
+            else:
+                sensor[:, i] = agg.sign * sensors[agg.sensor]
+                regsig[:, i] = states[:, i] + sensor[:, i]
     return regsig, sensor
 
 
