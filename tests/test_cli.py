@@ -73,3 +73,16 @@ def test_bad_input_exit_code_two(tmp_path, capsys):
     code, _, err = run(["identify", str(tmp_path / "a.csv"), "--model",
                         str(tmp_path / "bad.toml")], capsys)
     assert code == 2 and "TOML" in err
+
+
+def test_cybership2_simulate_identify(tmp_path, capsys):
+    """Turns to both sides by default; the log carries the identifiable structure."""
+    out = tmp_path / "cs.csv"
+    code, text, _ = run(["simulate", "--system", "cybership2", "--samples", "6000", "--seed", "1",
+                         "--out", str(out)], capsys)
+    assert code == 0 and "2 experiment(s)" in text
+    code, text, _ = run(["identify", str(out), "--model", str(tmp_path / "cs.toml"),
+                         "--method", "iv-zero-mean", "--json", "-"], capsys)
+    assert code == 0
+    payload = json.loads(text)
+    assert "v*|r|" not in payload["params"]["v"] and "r*|v|" in payload["params"]["v"]

@@ -334,3 +334,25 @@ def test_direct_aggregated_measurement_exact():
         np.testing.assert_allclose(res.params.to_numpy(), [0.99, -0.1, 1.0], atol=1e-8)
     biased = identify(TrialLog(df), spec.with_aggregate(None), method="ls")
     assert np.max(np.abs(biased.params.to_numpy() - [0.99, -0.1, 1.0])) > 1e-3
+
+
+def test_lagged_iv_start_when_ls_model_diverges(monkeypatch):
+    """If the LS auxiliary model diverges, the iteration starts from basic IV with
+    delayed measurements as instruments and says so."""
+    log = heave().simulate(5000, seed=0).to_log()
+    real = estimators.refined_iv
+    calls = []
+
+    def flaky(data, spec, start, **kw):
+        res = real(data, spec, start, **kw)
+        if not calls:  # pretend the LS start diverged
+            res.reason[:] = estimators.STOP_START_DIVERGED
+            res.theta[:] = np.nan
+        calls.append(start.copy())
+        return res
+
+    monkeypatch.setattr(estimators, "refined_iv", flaky)
+    res = identify(log, method="iv-zero-mean")
+    assert res.diagnostics["start"] == "lagged-iv"
+    assert len(calls) == 2 and not np.allclose(calls[0], calls[1])
+    assert res.converged and np.all(np.isfinite(res.params))

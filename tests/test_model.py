@@ -111,3 +111,18 @@ def test_with_theta0_and_aggregate():
     assert spec.with_aggregate(None).aggregate == {}
     new = spec.with_theta0(np.array([1.0, 2.0, 3.0]))
     assert new.theta0 == {"w": (1.0, 2.0, 3.0)}
+
+
+def test_merge_terms_folds_coefficient():
+    spec = ModelSpec("m", ["v", "r"], ["N"],
+                     {"v": ["v", "v*|r|", "r*|v|", "N"], "r": ["r", "r*|v|", "|r|*v", "N"]},
+                     theta0={"v": [0.9, 0.2, 0.5, 1.0], "r": [0.8, 0.3, 0.1, 2.0]})
+    merged = spec.merge_terms("r*|v|", "v*|r|", -1.0)
+    assert [str(t) for t in merged.equations["v"]] == ["v", "r*|v|", "N"]
+    assert merged.theta0["v"] == (0.9, 0.5 - 0.2, 1.0)
+    # |r|*v is the same term as v*|r|: folded too
+    assert merged.theta0["r"] == (0.8, 0.3 - 0.1, 2.0)
+    rng = np.random.default_rng(0)
+    v, r = rng.uniform(0.1, 1, 50), -rng.uniform(0.1, 1, 50)  # opposite signs
+    full = 0.9 * v + 0.2 * v * np.abs(r) + 0.5 * r * np.abs(v)
+    np.testing.assert_allclose(full, 0.9 * v + 0.3 * r * np.abs(v))

@@ -175,4 +175,11 @@ def test_catalogue_system() -> None:
     sysm = cybership2_system()
     sim = sysm.simulate(3000, 2, seed=0)
     x = sim.x[:, 500:]
-    assert np.all(x[..., 0] > 0.05) and np.all(x[..., 1] < 0) and np.all(x[..., 2] > 0)
+    assert np.all(x[..., 0] > 0.05)
+    # experiment 0 turns to starboard, experiment 1 to port
+    assert np.all(x[0, :, 1] < 0) and np.all(x[0, :, 2] > 0)
+    assert np.all(x[1, :, 1] > 0) and np.all(x[1, :, 2] < 0)
+    # v·r < 0 throughout: the logged structure folds v*|r| into r*|v|
+    assert np.all(x[..., 1] * x[..., 2] < 0)
+    spec = sysm.identification_spec()
+    assert "v*|r|" not in [str(t) for t in spec.equations["v"]]

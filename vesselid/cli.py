@@ -57,6 +57,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         if args.current_sensor:
             options["current_sensor"] = True
     system = get_system(args.system, **options)
+    if args.experiments is None:
+        # a system with per-experiment designs (e.g. turns to both sides) needs all of them
+        n_designs = [len(d) for d in system.inputs.values() if isinstance(d, (list, tuple))]
+        args.experiments = max(n_designs, default=1)
     sim = system.simulate(args.samples, n_runs=args.experiments, seed=args.seed)
     log = sim.to_log()
     log.metadata["command"] = "vesselid " + " ".join(sys.argv[1:]) if sys.argv else ""
@@ -116,7 +120,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "matching model spec (<out stem>.toml).")
     p.add_argument("--system", default="heave", help="heave (paper §6), siso (§5), cybership2")
     p.add_argument("--samples", type=int, default=10000, help="samples per experiment")
-    p.add_argument("--experiments", type=int, default=1, help="independent experiments")
+    p.add_argument("--experiments", type=int, default=None,
+                   help="independent experiments (default 1; cybership2: 2, a turn to each side)")
     p.add_argument("--current-mean", type=float, default=None,
                    help="mean current (heave: w̄c; default 0)")
     p.add_argument("--current-sensor", action="store_true",

@@ -314,6 +314,33 @@ class ModelSpec:
             self.name, self.states, self.inputs, self.equations, per_state, self.aggregate, self.dt
         )
 
+    def merge_terms(self, keep: str, drop: str, factor: float) -> ModelSpec:
+        """Fold term ``drop`` into ``keep`` (``drop = factor · keep`` on the data).
+
+        For data where two regressors are proportional — e.g. ``v·|r| = −r·|v|``
+        whenever ``v`` and ``r`` have opposite signs, as in every steady turn of a
+        ship — only their combination is identifiable. In each equation holding
+        both, ``drop`` is removed and θ0 of ``keep`` becomes
+        ``θ_keep + factor · θ_drop`` (exact on data satisfying the relation).
+        """
+        k, d = Term.parse(keep), Term.parse(drop)
+        equations, theta = {}, {} if self.theta0 is not None else None
+        for s in self.states:
+            terms = list(self.equations[s])
+            keys = [_canonical(t) for t in terms]
+            values = list(self.theta0[s]) if self.theta0 is not None else None
+            if _canonical(k) in keys and _canonical(d) in keys:
+                ik, idrop = keys.index(_canonical(k)), keys.index(_canonical(d))
+                if values is not None:
+                    values[ik] += factor * values[idrop]
+                    del values[idrop]
+                del terms[idrop]
+            equations[s] = terms
+            if theta is not None:
+                theta[s] = values
+        return ModelSpec(self.name, self.states, self.inputs, equations, theta, self.aggregate,
+                         self.dt)
+
     def with_aggregate(self, aggregate: Mapping[str, str | Aggregate] | None) -> ModelSpec:
         """A copy with other aggregate relations (``None`` or ``{}`` removes them)."""
         return ModelSpec(

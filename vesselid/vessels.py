@@ -1245,7 +1245,7 @@ def cybership2_system(
     process_noise_std: Sequence[float] = (2e-4, 2e-4, 2e-4),
     process_noise_time_constant: float = 2.0,
     sensor_noise_std: Sequence[float] = (0.005, 0.005, 0.002),
-    x0: Sequence[float] = (0.6, -0.05, 0.1),
+    x0: Sequence[float] = (0.6, 0.0, 0.0),
     coefficients: CyberShip2Coefficients = CYBERSHIP2,
 ):
     """CyberShip II as a :class:`vesselid.systems.System` (heading-independent case).
@@ -1254,9 +1254,15 @@ def cybership2_system(
     this catalogue entry has **zero current** (``v = 0``), additive Gauss–Markov process
     noise ``w`` (unmodelled forces, bounded at 3 std) and Gaussian state-measurement noise;
     it lets ``vesselid simulate --system cybership2`` work. The inputs are random-width
-    pulses with static offsets (paper §6 / A10) that keep ``u > 0``, ``v < 0`` and
-    ``r > 0`` (a steady starboard turn). For current, wind and the sensor suite use
-    :func:`simulate_cybership2`.
+    pulses with static offsets (paper §6 / A10) that keep ``u > 0`` and, within one
+    experiment, ``v`` and ``r`` of one sign: even-numbered experiments turn to
+    starboard (``v < 0``, ``r > 0``), odd-numbered ones to port. Both directions are
+    needed for the sign-dependent terms. In every steady turn of this vessel ``v`` and
+    ``r`` have opposite signs (whatever the sway force), so ``v·|r| = −r·|v|`` on all
+    such data: the logs carry the identifiable structure with ``v·|r|`` folded into
+    ``r·|v|`` (:meth:`ModelSpec.merge_terms`, θ0 of ``r·|v|`` becomes
+    ``θ_r|v| − θ_v|r|``); the simulation uses the full physics. For current, wind and
+    the sensor suite use :func:`simulate_cybership2` or :mod:`vesselid.seatrial`.
     """
     from vesselid.disturbances import Gaussian
     from vesselid.signals import RandomPulses
@@ -1270,11 +1276,12 @@ def cybership2_system(
     width = (max(1, round(20.0 / dt)), max(1, round(60.0 / dt)))
     inputs = {
         "X": RandomPulses(1.0, 2.0, *width),
-        "Y": RandomPulses(-0.3, 0.1, *width),
-        "N": RandomPulses(0.15, 0.3, *width),
+        "Y": (RandomPulses(-0.3, 0.1, *width), RandomPulses(-0.1, 0.3, *width)),
+        "N": (RandomPulses(0.15, 0.3, *width), RandomPulses(-0.3, -0.15, *width)),
     }
     return System(
         spec=spec, inputs=inputs, process_noise=w, sensor_noise=e,
+        model=spec.merge_terms("r*|v|", "v*|r|", -1.0),
         x0=dict(zip(states, (float(x) for x in x0), strict=True)),
         description="CyberShip II (Skjetne et al. 2004), Euler at dt, no current (see "
                     "vesselid.vessels.simulate_cybership2 for current/wind/sensors)",

@@ -234,6 +234,7 @@ def identify(
         "fit_free_run": fit_free,
         "fixed_point_residual": float(it.residual[0]),
         "oscillation": bool(it.oscillation[0]),
+        "start": None if it.start is None else str(it.start[0]),
         "design": design,
         "design_eta": eta_used,
         "design_eta_source": eta_source,

@@ -92,18 +92,22 @@ def compute_moments(
     out: Moments | None = None,
     limit_factor: float = 1e3,
     limits: np.ndarray | None = None,
+    mode: int | None = None,
 ) -> Moments:
     """Accumulate LS moments (``theta is None``) or IV moments with instruments
-    simulated from the auxiliary model ``theta`` (shape ``(G, P)``)."""
+    simulated from the auxiliary model ``theta`` (shape ``(G, P)``); ``mode``
+    :data:`~vesselid.identify.kernels.MODE_LAGGED` gives basic-IV moments with
+    delayed-measurement instruments."""
     codes = spec.codes
     n_par = codes.n_params
     mom = out or _empty_moments(data.n_segments, n_par, spec.n_states)
-    use_sim = theta is not None
+    if mode is None:
+        mode = kernels.MODE_LS if theta is None else kernels.MODE_SIMULATED
     th = np.zeros((data.n_groups, n_par)) if theta is None else np.ascontiguousarray(theta, float)
     act = np.ones(data.n_groups, dtype=np.bool_) if active is None else active
     lim = _limits(data, limit_factor) if limits is None else limits
     kernels.moments(
-        data.regsig, data.target, data.u, data.starts, data.group, th, act, use_sim,
+        data.regsig, data.target, data.u, data.starts, data.group, th, act, int(mode),
         codes.factors, codes.equation, block_starts(spec), lim,
         mom.zphi, mom.zy, mom.z, mom.phi, mom.y, mom.count, mom.status,
     )
@@ -252,6 +256,7 @@ class IterationResult:
     residual: np.ndarray
     oscillation: np.ndarray
     history: list[np.ndarray] = field(default_factory=list)
+    start: np.ndarray | None = None
 
     @property
     def ok(self) -> np.ndarray:
@@ -270,6 +275,7 @@ def refined_iv(
     min_step: float = 1.0 / 64,
     limit_factor: float = 1e3,
     keep_history: bool = False,
+    groups: np.ndarray | None = None,
 ) -> IterationResult:
     """Refined instrumental variables: iterate ``θ ← θ + α (T(θ) − θ)``.
 
@@ -314,6 +320,8 @@ def refined_iv(
 
     theta = np.array(theta_start, dtype=float, copy=True)
     start_ok = np.all(np.isfinite(theta), axis=1)
+    if groups is not None:
+        start_ok &= groups
     reason = np.full(n_groups, STOP_MAX_ITER, dtype=object)
     reason[~start_ok] = STOP_SINGULAR
     t_theta, ok = evaluate(theta, start_ok)
@@ -418,7 +426,33 @@ def estimate(
             residual=np.zeros(n_groups),
             oscillation=np.zeros(n_groups, dtype=bool),
         )
-    start = theta_ls if theta_start is None else np.broadcast_to(
-        np.asarray(theta_start, dtype=float), theta_ls.shape)
-    return refined_iv(data, spec, start, zero_mean=method == "iv-zero-mean", combine=combine,
-                      **iteration_options)
+    zero_mean = method == "iv-zero-mean"
+    if theta_start is not None:
+        start = np.array(np.broadcast_to(np.asarray(theta_start, dtype=float), theta_ls.shape))
+        res = refined_iv(data, spec, start, zero_mean=zero_mean, combine=combine,
+                         **iteration_options)
+        res.start = np.full(data.n_groups, "given", dtype=object)
+        return res
+    res = refined_iv(data, spec, theta_ls, zero_mean=zero_mean, combine=combine,
+                     **iteration_options)
+    res.start = np.full(data.n_groups, "ls", dtype=object)
+    failed = res.reason == STOP_START_DIVERGED
+    if failed.any():
+        # The LS model's simulation diverges: start from basic IV with delayed
+        # measurements as instruments instead (no simulation needed).
+        mom = compute_moments(data, spec, mode=kernels.MODE_LAGGED)
+        theta_lag, ok_lag = solve_moments(mom, data, spec, zero_mean=zero_mean, combine=combine)
+        retry = failed & ok_lag
+        if retry.any():
+            res2 = refined_iv(data, spec, np.where(retry[:, None], theta_lag, theta_ls),
+                              zero_mean=zero_mean, combine=combine, groups=retry,
+                              **iteration_options)
+            for name in ("theta", "theta_aux", "converged", "iterations", "reason", "residual",
+                         "oscillation"):
+                getattr(res, name)[retry] = getattr(res2, name)[retry]
+            res.start[retry] = "lagged-iv"
+            if res2.history:
+                res.history = res2.history if not res.history else [
+                    np.where(retry[:, None], h2, h1)
+                    for h1, h2 in zip(res.history, res2.history, strict=False)]
+    return res

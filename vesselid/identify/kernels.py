@@ -33,6 +33,11 @@ __all__ = ["AUX_DIVERGED", "AUX_OK", "instrument_matrix", "moments", "regressor_
 AUX_OK = 0
 AUX_DIVERGED = 1
 
+#: Instrument modes of :func:`moments`.
+MODE_LS = 0
+MODE_SIMULATED = 1
+MODE_LAGGED = 2
+
 
 #: Below this many samples the serial kernels are used (thread start-up costs more).
 PARALLEL_MIN_SAMPLES = 200_000
@@ -40,26 +45,26 @@ PARALLEL_MIN_SAMPLES = 200_000
 
 @njit(cache=True, parallel=True)
 def _moments_parallel(
-    regsig, target, u, starts, group, theta, active, use_sim, fac, eq, block_start, limit,
+    regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start, limit,
     s_zphi, s_zy, s_z, s_phi, s_y, count, status,
 ):
     for s in prange(starts.shape[0] - 1):
-        _moments_segment(s, regsig, target, u, starts, group, theta, active, use_sim, fac, eq,
+        _moments_segment(s, regsig, target, u, starts, group, theta, active, mode, fac, eq,
                          block_start, limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status)
 
 
 @njit(cache=True)
 def _moments_serial(
-    regsig, target, u, starts, group, theta, active, use_sim, fac, eq, block_start, limit,
+    regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start, limit,
     s_zphi, s_zy, s_z, s_phi, s_y, count, status,
 ):
     for s in range(starts.shape[0] - 1):
-        _moments_segment(s, regsig, target, u, starts, group, theta, active, use_sim, fac, eq,
+        _moments_segment(s, regsig, target, u, starts, group, theta, active, mode, fac, eq,
                          block_start, limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status)
 
 
 def moments(
-    regsig, target, u, starts, group, theta, active, use_sim, fac, eq, block_start, limit,
+    regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start, limit,
     s_zphi, s_zy, s_z, s_phi, s_y, count, status,
 ):
     """Accumulate per-segment LS/IV moments (see module docstring).
@@ -70,9 +75,10 @@ def moments(
     u : (T, m) float array
     starts : (S+1,) int array
     group : (S,) int array, group of each segment
-    theta : (G, P) auxiliary-model parameters per group (ignored when not ``use_sim``)
+    theta : (G, P) auxiliary-model parameters per group (used in ``MODE_SIMULATED``)
     active : (G,) bool, groups to process (others are left untouched)
-    use_sim : bool, instruments from the auxiliary model (True) or z = φ (False)
+    mode : int, instruments: ``MODE_LS`` (z = φ), ``MODE_SIMULATED`` (auxiliary model
+        ``theta``) or ``MODE_LAGGED`` (basic IV, ``ζ(k) = Φ([ỹ(k−2); u(k−1)])``)
     fac, eq : factor-coded terms (:func:`vesselid.terms.factor_codes`) and their equations;
         ``block_start`` (n+1,) parameter offsets per equation
     limit : (S,) float, divergence limit of the auxiliary simulation per segment
@@ -83,13 +89,13 @@ def moments(
     """
     parallel = starts.shape[0] > 2 and target.shape[0] >= PARALLEL_MIN_SAMPLES
     kernel = _moments_parallel if parallel else _moments_serial
-    kernel(regsig, target, u, starts, group, theta, active, use_sim, fac, eq, block_start,
+    kernel(regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start,
            limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status)
 
 
 @njit(cache=True, inline="always")
 def _moments_segment(
-    s, regsig, target, u, starts, group, theta, active, use_sim, fac, eq, block_start, limit,
+    s, regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start, limit,
     s_zphi, s_zy, s_z, s_phi, s_y, count, status,
 ):
     n = regsig.shape[1]
@@ -132,7 +138,16 @@ def _moments_segment(
             f_sim[2 * n + m + j] = abs(val)
         for p in range(n_par):
             phi[p] = f_dat[fac[p, 0]] * f_dat[fac[p, 1]]
-        if use_sim:
+        if mode == MODE_LAGGED:
+            # basic IV: regressors of the measurements two samples back
+            kk = k - 2 if k - 2 >= a else a
+            for i in range(n):
+                val = regsig[kk, i]
+                f_sim[i] = val
+                f_sim[n + m + i] = abs(val)
+            for p in range(n_par):
+                z[p] = f_sim[fac[p, 0]] * f_sim[fac[p, 1]]
+        elif mode == MODE_SIMULATED:
             for i in range(n):
                 f_sim[i] = xh[i]
                 f_sim[n + m + i] = abs(xh[i])
