@@ -168,3 +168,9 @@ def block_starts(spec: ModelSpec) -> np.ndarray:
     """Parameter offsets of each state equation's block in θ."""
     sizes: Sequence[int] = [len(spec.equations[s]) for s in spec.states]
     return np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+
+
+def duplicate_blocks(spec: ModelSpec) -> np.ndarray:
+    """For each state equation, the first equation with the same term list (or itself)."""
+    keys = [tuple(str(t) for t in spec.equations[s]) for s in spec.states]
+    return np.array([keys.index(k) for k in keys], dtype=np.int64)

@@ -26,7 +26,7 @@ import numpy as np
 
 from vesselid.errors import IdentificationError
 from vesselid.identify import kernels
-from vesselid.identify.data import RegressionData, block_starts
+from vesselid.identify.data import RegressionData, block_starts, duplicate_blocks
 from vesselid.model import ModelSpec
 
 __all__ = [
@@ -108,7 +108,7 @@ def compute_moments(
     lim = _limits(data, limit_factor) if limits is None else limits
     kernels.moments(
         data.regsig, data.target, data.u, data.starts, data.group, th, act, int(mode),
-        codes.factors, codes.equation, block_starts(spec), lim,
+        codes.factors, codes.equation, block_starts(spec), duplicate_blocks(spec), lim,
         mom.zphi, mom.zy, mom.z, mom.phi, mom.y, mom.count, mom.status,
     )
     return mom

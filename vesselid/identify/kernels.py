@@ -45,27 +45,29 @@ PARALLEL_MIN_SAMPLES = 200_000
 
 @njit(cache=True, parallel=True)
 def _moments_parallel(
-    regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start, limit,
-    s_zphi, s_zy, s_z, s_phi, s_y, count, status,
+    regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start, block_src,
+    limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status,
 ):
     for s in prange(starts.shape[0] - 1):
         _moments_segment(s, regsig, target, u, starts, group, theta, active, mode, fac, eq,
-                         block_start, limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status)
+                         block_start, block_src, limit, s_zphi, s_zy, s_z, s_phi, s_y, count,
+                         status)
 
 
 @njit(cache=True)
 def _moments_serial(
-    regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start, limit,
-    s_zphi, s_zy, s_z, s_phi, s_y, count, status,
+    regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start, block_src,
+    limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status,
 ):
     for s in range(starts.shape[0] - 1):
         _moments_segment(s, regsig, target, u, starts, group, theta, active, mode, fac, eq,
-                         block_start, limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status)
+                         block_start, block_src, limit, s_zphi, s_zy, s_z, s_phi, s_y, count,
+                         status)
 
 
 def moments(
-    regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start, limit,
-    s_zphi, s_zy, s_z, s_phi, s_y, count, status,
+    regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start, block_src,
+    limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status,
 ):
     """Accumulate per-segment LS/IV moments (see module docstring).
 
@@ -80,7 +82,9 @@ def moments(
     mode : int, instruments: ``MODE_LS`` (z = φ), ``MODE_SIMULATED`` (auxiliary model
         ``theta``) or ``MODE_LAGGED`` (basic IV, ``ζ(k) = Φ([ỹ(k−2); u(k−1)])``)
     fac, eq : factor-coded terms (:func:`vesselid.terms.factor_codes`) and their equations;
-        ``block_start`` (n+1,) parameter offsets per equation
+        ``block_start`` (n+1,) parameter offsets per equation; ``block_src`` (n,): an
+        earlier equation with the same terms (whose ``S_zφ``, ``S_z``, ``S_φ`` block is
+        copied instead of accumulated again), or the equation itself
     limit : (S,) float, divergence limit of the auxiliary simulation per segment
     s_zphi (S,P,P), s_zy (S,P), s_z (S,P), s_phi (S,P), s_y (S,n), count (S,), status (S,)
         Outputs, overwritten for active segments.
@@ -90,13 +94,13 @@ def moments(
     parallel = starts.shape[0] > 2 and target.shape[0] >= PARALLEL_MIN_SAMPLES
     kernel = _moments_parallel if parallel else _moments_serial
     kernel(regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start,
-           limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status)
+           block_src, limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status)
 
 
 @njit(cache=True, inline="always")
 def _moments_segment(
-    s, regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start, limit,
-    s_zphi, s_zy, s_z, s_phi, s_y, count, status,
+    s, regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start, block_src,
+    limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status,
 ):
     n = regsig.shape[1]
     m = u.shape[1]
@@ -170,6 +174,10 @@ def _moments_segment(
         for i in range(n):
             yi = target[k, i]
             l_y[i] += yi
+            if block_src[i] != i:  # same terms as an earlier equation: only S_zy differs
+                for p in range(block_start[i], block_start[i + 1]):
+                    l_zy[p] += z[p] * yi
+                continue
             for p in range(block_start[i], block_start[i + 1]):
                 zp = z[p]
                 l_zy[p] += zp * yi
@@ -177,6 +185,15 @@ def _moments_segment(
                 l_phi[p] += phi[p]
                 for q in range(block_start[i], block_start[i + 1]):
                     l_zphi[p, q] += zp * phi[q]
+    for i in range(n):
+        j = block_src[i]
+        if j != i:
+            off = block_start[j] - block_start[i]
+            for p in range(block_start[i], block_start[i + 1]):
+                l_z[p] = l_z[p + off]
+                l_phi[p] = l_phi[p + off]
+                for q in range(block_start[i], block_start[i + 1]):
+                    l_zphi[p, q] = l_zphi[p + off, q + off]
     for p in range(n_par):
         s_zy[s, p] = l_zy[p]
         s_z[s, p] = l_z[p]
