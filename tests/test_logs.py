@@ -402,3 +402,15 @@ def test_concat_logs_errors(log: TrialLog) -> None:
         concat_logs([])
     with pytest.raises(LogValidationError, match=r"missing \['true_w'\]"):
         concat_logs([log, TrialLog(log.data.drop(columns="true_w"))])
+
+
+def test_atomic_write_uses_umask_mode(tmp_path):
+    import os
+
+    from vesselid._io import atomic_write_text
+
+    path = tmp_path / "f.txt"
+    atomic_write_text(path, "x")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert (path.stat().st_mode & 0o777) == (0o666 & ~umask)

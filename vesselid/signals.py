@@ -104,10 +104,18 @@ class AlternatingPulses(InputSignal):
             )
 
     def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        n_pulses = n // int(self.min_width) + 1
+        # Draw order: the starting level, then widths in blocks of about 1.1 n / mean
+        # width until they cover n samples (deterministic for a given generator).
+        lo, hi = int(self.min_width), int(self.max_width)
         first = int(rng.integers(0, 2))
-        widths = rng.integers(int(self.min_width), int(self.max_width) + 1, n_pulses)
-        levels = np.where((np.arange(n_pulses) + first) % 2 == 0, self.low, self.high)
+        block = int(1.1 * n / (0.5 * (lo + hi))) + 16
+        parts = [rng.integers(lo, hi + 1, block)]
+        total = int(parts[0].sum())
+        while total < n:
+            parts.append(rng.integers(lo, hi + 1, block))
+            total += int(parts[-1].sum())
+        widths = np.concatenate(parts) if len(parts) > 1 else parts[0]
+        levels = np.where((np.arange(widths.size) + first) % 2 == 0, self.low, self.high)
         return np.repeat(levels, widths)[:n]
 
     def to_dict(self) -> dict[str, Any]:

@@ -209,18 +209,19 @@ class System:
             "e2": np.zeros((n_runs, n, len(self.sensor_states))),
         }
 
-        def work(r: int) -> None:
-            ss = run_seeds[r]
-            self._draw_into(np.random.default_rng(ss), n,
-                            int(ss.spawn_key[-1]) if ss.spawn_key else 0, out, r)
+        def work(first: int, last: int) -> None:
+            for r in range(first, last):
+                ss = run_seeds[r]
+                self._draw_into(np.random.default_rng(ss), n,
+                                int(ss.spawn_key[-1]) if ss.spawn_key else 0, out, r)
 
         workers = min(os.cpu_count() or 1, n_runs)
         if workers > 1 and n_runs * n >= 100_000:
+            bounds = np.linspace(0, n_runs, workers + 1).astype(int)
             with ThreadPoolExecutor(workers) as pool:
-                list(pool.map(work, range(n_runs)))
+                list(pool.map(work, bounds[:-1], bounds[1:]))
         else:
-            for r in range(n_runs):
-                work(r)
+            work(0, n_runs)
         return out
 
     def simulate(
@@ -378,8 +379,10 @@ def heave(
         Add the current meter ``y2 = w_c + e2``, ``e2 ~ N(0, variance)`` (Table 2);
         default: on iff ``current_mean != 0``.
     xi_mean : float, optional
-        Mean of ξ. Default ``w̄c − 0.05``, §6 read literally; Table 2's published
-        plain-IV row is consistent with ``−0.05`` instead (see README).
+        Mean of ξ. Default ``w̄c − 0.05``, §6 read literally (ξ = w_c + ξ̃). With it
+        Table 2's published rows are reproduced when the relative measurement ỹ is
+        also the regression target; ``−0.05`` drives w_r through zero with these
+        pulses (evidence in :mod:`vesselid.reproduce`).
     variance : float
         Variance of the Gaussian noises (0.01 in the paper).
     pulse_low, pulse_high, pulse_min_width, pulse_max_width

@@ -1,0 +1,93 @@
+"""Benchmark of the paper reproduction (to be merged into ``scripts/bench.py``).
+
+``bench_reproduce(repeats=3)`` measures, after warm-up, the median wall time of
+Table 1 at paper size (1000 runs × 10⁴ samples, LS + IV + IV_E{ζ}=0 iterated to
+convergence) and of both tables; the JIT compile time (first call in a fresh
+process with empty numba and generated-kernel caches) and the time to load the
+cached kernels in a fresh process; and the plain-numpy baseline
+(``scripts/baseline_numpy.py``, run once at full size by default) with the
+speed-up ratio, measured in the same call. Targets on the 2-core machine: Table 1
+≤ 4 s, both tables ≤ 10 s.
+
+    python scripts/bench_reproduce.py [--repeats 3] [--baseline-runs 1000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+_WARM = ("import time; t=time.perf_counter(); from vesselid.reproduce import warm_up; "
+         "i=time.perf_counter(); warm_up(); print(i-t, time.perf_counter()-i)")
+
+
+def _fresh_process_warmup(env: dict[str, str]) -> tuple[float, float]:
+    """(import seconds, warm-up seconds) in a new interpreter with ``env``."""
+    out = subprocess.run([sys.executable, "-c", _WARM], env=env, capture_output=True,
+                         text=True, check=True)
+    imp, warm = (float(x) for x in out.stdout.split())
+    return imp, warm
+
+
+def bench_reproduce(repeats: int = 3, baseline_runs: int = 1000) -> dict:
+    """Median timings of the reproduction and the numpy-baseline ratio (see module doc)."""
+    from vesselid.montecarlo import run_study
+    from vesselid.reproduce import table_study, warm_up
+
+    with tempfile.TemporaryDirectory() as tmp:
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "numba"),
+                   VESSELID_KERNEL_DIR=str(Path(tmp) / "kernels"))
+        _, compile_s = _fresh_process_warmup(env)   # empty caches: compile everything
+        _, cached_s = _fresh_process_warmup(env)    # same caches: load compiled code
+    warm_up()
+    studies = {t: table_study(t) for t in (1, 2)}
+    t1, both = [], []
+    for _ in range(repeats):
+        a = time.perf_counter()
+        run_study(studies[1], progress=False)
+        b = time.perf_counter()
+        run_study(studies[2], progress=False)
+        c = time.perf_counter()
+        t1.append(b - a)
+        both.append(c - a)
+    sys.path.insert(0, str(HERE))
+    from baseline_numpy import table1_numpy
+
+    base = table1_numpy(baseline_runs, 10_000, 0)["total_s"]
+    base_full = base * 1000 / baseline_runs
+    table1 = statistics.median(t1)
+    return {
+        "reproduce_table1_1000x1e4_s": table1,
+        "reproduce_both_tables_1000x1e4_s": statistics.median(both),
+        "reproduce_table1_runs_s": t1,
+        "reproduce_both_runs_s": both,
+        "jit_compile_fresh_process_s": compile_s,
+        "jit_cached_load_fresh_process_s": cached_s,
+        "numpy_baseline_table1_s": base_full,
+        "numpy_baseline_runs": baseline_runs,
+        "numpy_baseline_scaled": baseline_runs != 1000,
+        "speedup_vs_numpy": base_full / table1,
+        "targets": {"table1_s": 4.0, "both_tables_s": 10.0},
+    }
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description="benchmark vesselid reproduce")
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--baseline-runs", type=int, default=1000,
+                   help="runs of the numpy baseline (scaled linearly to 1000 if fewer)")
+    args = p.parse_args()
+    print(json.dumps(bench_reproduce(args.repeats, args.baseline_runs), indent=2))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,162 @@
+"""Tests of the CyberShip II sea-trial pipeline (vesselid.seatrial)."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from vesselid.cli import main
+from vesselid.errors import VesselidError
+from vesselid.identify import identify
+from vesselid.seatrial import (
+    SeaTrialError,
+    design_sea_trial,
+    normalized_errors,
+    run_pipeline,
+    seatrial_spec,
+    simulate_sea_trial,
+)
+from vesselid.vessels import CyberShip2Sensors
+
+QUIET = dict(sensors=CyberShip2Sensors.noiseless(), current_speed=0.0, current_variation=0.0,
+             wind_speed=0.0, wind_gust=0.0, force_noise=(0.0, 0.0, 0.0))
+
+
+@pytest.fixture(scope="module")
+def design():
+    return design_sea_trial(6, 5000, seed=0)
+
+
+def test_design_margins_every_state_every_experiment(design):
+    m = design.margins
+    assert design.ok
+    assert len(m) == 6 * 3 and m["ok"].all()
+    assert (m["sign_changes"] == 0).all() and (m["share_within_eta"] == 0).all()
+    nom = design.nominal
+    assert np.all(nom[:, :, 0] > design.eta["u"])
+    for e, side in enumerate(design.table["side"]):
+        sgn = 1.0 if side == "starboard" else -1.0
+        assert np.all(sgn * nom[e, :, 2] > design.eta["r"])  # r keeps its sign
+        assert np.all(-sgn * nom[e, :, 1] > design.eta["v"])  # v opposite to r
+    assert set(design.table["side"]) == {"starboard", "port"}
+    assert np.all(np.abs(design.inputs) <= np.array([2.0, 1.5, 1.0]) + 1e-12)
+
+
+def test_design_violation_is_reported():
+    bad = [(0.4, 0.0, 0.4, 1), (0.4, 0.0, 0.4, -1)]
+    with pytest.raises(SeaTrialError, match="margin"):
+        design_sea_trial(2, 2000, levels=bad)
+    d = design_sea_trial(2, 2000, levels=bad, check=False)
+    assert not d.ok and not d.violations().empty
+
+
+def test_data_margins_in_identification_diagnostics():
+    log = simulate_sea_trial(6, 3000, seed=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = identify(log, method="ls")
+    assert res.diagnostics["design"]["ok"].all()
+    assert res.n_experiments == 6
+
+
+def test_noise_free_recovers_theta0():
+    log = simulate_sea_trial(6, 3000, seed=0, **QUIET)
+    spec = log.spec
+    assert spec.aggregate == {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for m in ("ls", "iv", "iv-zero-mean"):
+            res = identify(log, spec, method=m)
+            err = normalized_errors(res.params, spec.theta0_series())
+            assert np.max(np.abs(res.params.to_numpy() - spec.theta0_vector())) < 1e-8, m
+            assert np.all(np.isfinite(err))
+
+
+@pytest.mark.parametrize("agg", ["speed_log", "current_meter", "none"])
+def test_aggregate_specs_noise_free(agg):
+    log = simulate_sea_trial(4, 1500, seed=0, aggregate=agg, **QUIET)
+    assert log.metadata["aggregate"] == agg
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = identify(log, method="ls")
+    assert np.allclose(res.params.to_numpy(), log.spec.theta0_vector(), atol=1e-8)
+
+
+def test_merged_term_and_spec():
+    spec = seatrial_spec()
+    names = {eq: [str(t) for t in spec.equations[eq]] for eq in spec.states}
+    assert "v*|r|" not in names["v"] and "r*|v|" in names["v"]
+    with pytest.raises(VesselidError):
+        seatrial_spec(aggregate="sonar")
+
+
+def _errors(n: int, seed: int) -> dict[str, np.ndarray]:
+    log = simulate_sea_trial(6, n, seed=seed)
+    spec = log.spec
+    out = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for m in ("ls", "iv-zero-mean"):
+            r = identify(log, spec, method=m)
+            out[m] = np.abs(normalized_errors(r.params, spec.theta0_series()).to_numpy())
+    return out
+
+
+def test_consistency_trend_fixed_seeds():
+    """IV-zero-mean errors shrink with N; LS stays biased (well-identified parameters)."""
+    spec = seatrial_spec()
+    idx = [i for i, (eq, t) in enumerate(spec.param_index)
+           if (eq, str(t)) in {("u", "X"), ("v", "Y"), ("r", "N"), ("u", "v*r"),
+                               ("v", "v*|v|"), ("r", "u*v")}]
+    small, large = _errors(5_000, 3), _errors(50_000, 3)
+    zm_small, zm_large = np.median(small["iv-zero-mean"][idx]), np.median(
+        large["iv-zero-mean"][idx])
+    ls_large = np.median(large["ls"][idx])
+    assert zm_large < zm_small
+    assert zm_large < 0.05
+    assert ls_large > 5 * zm_large
+
+
+def test_pipeline_summary_and_validation():
+    res = run_pipeline(6, 4000, seed=0)
+    assert set(res.results) == {"ls", "iv", "iv-zero-mean"}
+    assert list(res.validation.index) == ["theta0", "ls", "iv", "iv-zero-mean"]
+    assert np.all(np.isfinite(res.validation.to_numpy()))
+    text = res.summary()
+    assert "Normalized errors" in text and "held-out" in text
+    assert set(res.thetas()) == {"theta0", "ls", "iv", "iv-zero-mean"}
+
+
+def test_cli_end_to_end(tmp_path, capsys):
+    out = tmp_path / "trial"
+    code = main(["sea-trial", "--vessel", "cybership2", "--experiments", "4", "--samples",
+                 "1500", "--seed", "0", "--out", str(out)])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "next: vesselid identify" in text
+    assert (out / "seatrial.csv").exists() and (out / "seatrial.json").exists()
+    assert (out / "cybership2.toml").exists()
+    code = main(["identify", str(out / "seatrial.csv"), "--model", str(out / "cybership2.toml"),
+                 "--method", "iv-zero-mean"])
+    assert code == 0
+    assert main(["identify", str(out / "seatrial.csv"), "--method", "ls"]) == 0
+
+
+def test_cli_bad_input_exit_2(tmp_path, capsys):
+    assert main(["sea-trial", "--experiments", "1", "--out", str(tmp_path / "x")]) == 2
+    assert "error" in capsys.readouterr().err
+    assert main(["sea-trial", "--experiments", "2", "--samples", "500", "--wind-speed", "-1",
+                 "--out", str(tmp_path / "y")]) == 2
+
+
+@pytest.mark.slow
+def test_env_source_matches_batch_physics():
+    """The environment + recorder path gives the same identification structure."""
+    log = simulate_sea_trial(2, 800, seed=0, source="env", **QUIET)
+    assert set(log.to_frame()["experiment"]) == {0, 1}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = identify(log, method="ls")
+    assert np.allclose(res.params.to_numpy(), log.spec.theta0_vector(), atol=1e-6)

@@ -1,0 +1,272 @@
+"""Figures from Monte Carlo results and trial logs (matplotlib, Agg backend).
+
+* :func:`error_histograms` — Figure 1 of the paper: histograms of the normalized
+  estimation errors ``(θ̂ − θ0)/θ0``, one row per estimator and one column per
+  parameter, shared bins per parameter, a line at zero and the mean marked.
+* :func:`estimate_vs_truth` — estimates of every run with mean ± sd per method,
+  against the true value θ0.
+* :func:`trial_timeseries` — states (measured and true), inputs and disturbance
+  sensors of a trial log.
+
+Figures are built with the object-oriented API on the Agg canvas: no display and
+no pyplot state are needed, and nothing is shown; save with ``fig.savefig``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
+
+from vesselid.errors import VesselidError
+
+__all__ = ["METHOD_LABELS", "error_histograms", "estimate_vs_truth", "trial_timeseries"]
+
+#: Display names of the estimators (the paper's notation).
+METHOD_LABELS = {"ls": "LS", "iv": "IV", "iv-zero-mean": r"IV$_{E\{\zeta\}=0}$"}
+
+
+def _figure(width: float, height: float) -> Figure:
+    fig = Figure(figsize=(width, height), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _params(df: pd.DataFrame) -> list[tuple[str, str]]:
+    return list(dict.fromkeys(zip(df["equation"].astype(str), df["term"].astype(str),
+                                  strict=True)))
+
+
+def _methods(df: pd.DataFrame, methods: Sequence[str] | None) -> list[str]:
+    present = list(dict.fromkeys(df["method"].astype(str)))
+    if methods is None:
+        return present
+    missing = [m for m in methods if m not in present]
+    if missing:
+        raise VesselidError(f"no results for methods {missing}; present: {present}")
+    return list(methods)
+
+
+def _param_label(eq: str, term: str, labels: Mapping[str, str] | None, multi: bool) -> str:
+    sym = (labels or {}).get(term)
+    if sym:
+        return rf"$(\hat{{{sym}}} - {sym}_0)/{sym}_0$"
+    return f"{eq}: {term}" if multi else term
+
+
+def error_histograms(
+    df: pd.DataFrame,
+    *,
+    methods: Sequence[str] | None = None,
+    labels: Mapping[str, str] | None = None,
+    bins: int = 40,
+    clip: float = 0.5,
+    title: str | None = None,
+    figsize: tuple[float, float] | None = None,
+) -> Figure:
+    """Histograms of normalized estimation errors (paper Figure 1).
+
+    Parameters
+    ----------
+    df : DataFrame
+        Tidy Monte Carlo results (:func:`vesselid.montecarlo.run_study`).
+    methods : sequence of str, optional
+        Estimators (rows), default all in ``df``.
+    labels : mapping term -> symbol, optional
+        Parameter symbols for the column titles, e.g. ``{"w": "a", "w*|w|": "n",
+        "tau": "f"}`` gives ``(â − a0)/a0``.
+    bins : int
+        Bins per parameter, shared by all estimators (same edges in a column).
+    clip : float
+        Bin range: the ``clip`` and ``100 − clip`` percentiles of all finite errors
+        of the parameter (runs outside are counted in the panel, not dropped silently).
+    title : str, optional
+        Figure title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Rows: estimators; columns: parameters. A dashed line marks zero (the true
+        value), a solid line the mean; each panel states mean ± sd and the number
+        of runs (and of non-finite or out-of-range runs, if any).
+    """
+    if df.empty:
+        raise VesselidError("no results to plot")
+    meths = _methods(df, methods)
+    params = _params(df)
+    multi = len({eq for eq, _ in params}) > 1
+    n_r, n_c = len(meths), len(params)
+    fig = _figure(*(figsize or (3.2 * n_c + 0.6, 1.9 * n_r + 0.8)))
+    axes = np.atleast_2d(fig.subplots(n_r, n_c, squeeze=False))
+    eq_col = df["equation"].astype(str).to_numpy()
+    term_col = df["term"].astype(str).to_numpy()
+    meth_col = df["method"].astype(str).to_numpy()
+    err_all = df["normalized_error"].to_numpy(float)
+    for j, (eq, term) in enumerate(params):
+        sel_p = (eq_col == eq) & (term_col == term)
+        vals = err_all[sel_p & np.isin(meth_col, meths)]
+        vals = vals[np.isfinite(vals)]
+        if vals.size:
+            lo, hi = np.percentile(vals, [clip, 100.0 - clip])
+            if not hi > lo:
+                lo, hi = lo - 0.5, hi + 0.5
+            pad = 0.05 * (hi - lo)
+            lo, hi = min(lo - pad, -pad), max(hi + pad, pad)
+        else:
+            lo, hi = -1.0, 1.0
+        edges = np.linspace(lo, hi, bins + 1)
+        for i, meth in enumerate(meths):
+            ax = axes[i, j]
+            e = err_all[sel_p & (meth_col == meth)]
+            fin = e[np.isfinite(e)]
+            inside = fin[(fin >= lo) & (fin <= hi)]
+            ax.hist(inside, bins=edges, color="C0", alpha=0.75)
+            ax.axvline(0.0, color="k", ls="--", lw=1.0)
+            note = [f"n = {fin.size}"]
+            if fin.size:
+                mean, sd = float(np.mean(fin)), float(np.std(fin, ddof=1)) if fin.size > 1 else 0.0
+                ax.axvline(mean, color="C3", lw=1.5)
+                note.insert(0, f"{mean:+.4f} ± {sd:.4f}")
+            if fin.size < e.size:
+                note.append(f"{e.size - fin.size} failed")
+            if inside.size < fin.size:
+                note.append(f"{fin.size - inside.size} off-scale")
+            ax.text(0.02, 0.96, "\n".join(note), transform=ax.transAxes, va="top", ha="left",
+                    fontsize=7, bbox={"boxstyle": "round", "fc": "white", "alpha": 0.7, "lw": 0})
+            ax.set_xlim(lo, hi)
+            ax.xaxis.set_major_locator(MaxNLocator(5))
+            ax.tick_params(labelsize=7)
+            if i == 0:
+                ax.set_title(_param_label(eq, term, labels, multi), fontsize=9)
+            if j == 0:
+                ax.set_ylabel(METHOD_LABELS.get(meth, meth), fontsize=9)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    return fig
+
+
+def estimate_vs_truth(
+    df: pd.DataFrame,
+    *,
+    methods: Sequence[str] | None = None,
+    labels: Mapping[str, str] | None = None,
+    max_points: int = 400,
+    seed: int = 0,
+    title: str | None = None,
+) -> Figure:
+    """Estimates against the true values: one panel per parameter.
+
+    Each method gets a column of (jittered) per-run estimates, at most
+    ``max_points`` of them, with the mean ± sd as an error bar; the horizontal
+    line is θ0.
+    """
+    if df.empty:
+        raise VesselidError("no results to plot")
+    meths = _methods(df, methods)
+    params = _params(df)
+    multi = len({eq for eq, _ in params}) > 1
+    fig = _figure(3.0 * len(params) + 0.5, 3.2)
+    axes = np.atleast_1d(fig.subplots(1, len(params), squeeze=False)[0])
+    rng = np.random.default_rng(seed)
+    for j, (eq, term) in enumerate(params):
+        ax = axes[j]
+        sub = df[(df["equation"].astype(str) == eq) & (df["term"].astype(str) == term)]
+        theta0 = float(sub["theta0"].iloc[0])
+        for i, meth in enumerate(meths):
+            est = sub.loc[sub["method"].astype(str) == meth, "estimate"].to_numpy(float)
+            est = est[np.isfinite(est)]
+            if est.size == 0:
+                continue
+            pts = est if est.size <= max_points else rng.choice(est, max_points, replace=False)
+            ax.scatter(i + rng.uniform(-0.2, 0.2, pts.size), pts, s=3, alpha=0.3, color=f"C{i}")
+            sd = float(np.std(est, ddof=1)) if est.size > 1 else 0.0
+            ax.errorbar(i, float(np.mean(est)), yerr=sd, fmt="o", color="k", capsize=4)
+        ax.axhline(theta0, color="k", ls="--", lw=1.0, label=r"$\theta_0$")
+        ax.set_xticks(range(len(meths)), [METHOD_LABELS.get(m, m) for m in meths], fontsize=8)
+        sym = (labels or {}).get(term)
+        ax.set_title(rf"${sym}$ ($\theta_0$ = {theta0:g})" if sym
+                     else f"{eq}: {term}" if multi else term, fontsize=9)
+        ax.tick_params(labelsize=7)
+    axes[0].set_ylabel("estimate")
+    axes[0].legend(fontsize=7, loc="best")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    return fig
+
+
+def trial_timeseries(
+    log: Any,
+    *,
+    experiment: Any = None,
+    max_samples: int | None = 2000,
+    title: str | None = None,
+) -> Figure:
+    """Time series of a trial log: states (measured, and true if simulated), inputs, sensors.
+
+    Parameters
+    ----------
+    log : TrialLog or DataFrame
+        A trial log (DESIGN.md columns); its spec, when present, tells states,
+        inputs and sensor columns apart, otherwise the ``true_*`` columns do.
+    experiment : optional
+        Experiment to plot (default the first).
+    max_samples : int, optional
+        Plot at most this many samples from the start.
+    """
+    from vesselid.logs import TrialLog
+
+    if isinstance(log, TrialLog):
+        frame, spec = log.to_frame(), log.spec
+    elif isinstance(log, pd.DataFrame):
+        frame, spec = log, None
+    else:
+        raise VesselidError(f"expected a TrialLog or DataFrame, got {type(log).__name__}")
+    if frame.empty:
+        raise VesselidError("the log is empty")
+    if "experiment" in frame.columns:
+        ids = list(dict.fromkeys(frame["experiment"]))
+        pick = ids[0] if experiment is None else experiment
+        if pick not in ids:
+            raise VesselidError(f"no experiment {experiment!r} in the log; have {ids[:10]}")
+        frame = frame[frame["experiment"] == pick]
+    if max_samples is not None:
+        frame = frame.iloc[: int(max_samples)]
+    t = frame["time"].to_numpy(float) if "time" in frame.columns else np.arange(len(frame))
+    if spec is not None:
+        states, inputs, sensors = list(spec.states), list(spec.inputs), list(spec.sensors)
+    else:
+        states = [c[5:] for c in frame.columns
+                  if c.startswith("true_") and not c.startswith(("true_current_",
+                                                                 "true_process_"))]
+        states = [s for s in states if s in frame.columns]
+        skip = {"experiment", "time", *states}
+        inputs = [c for c in frame.columns if c not in skip and not c.startswith("true_")]
+        sensors = []
+    groups: list[tuple[str, list[str]]] = [(s, [s]) for s in states]
+    if inputs:
+        groups.append(("inputs", inputs))
+    if sensors:
+        groups.append(("sensors", sensors))
+    fig = _figure(8.0, 1.7 * len(groups) + 0.6)
+    axes = np.atleast_1d(fig.subplots(len(groups), 1, sharex=True, squeeze=False)[:, 0])
+    for ax, (name, cols) in zip(axes, groups, strict=True):
+        for k, c in enumerate(cols):
+            if c not in frame.columns:
+                continue
+            ax.plot(t, frame[c].to_numpy(float), lw=0.7, color=f"C{k}",
+                    label=f"{c} (measured)" if name in states else c)
+            if name in states and f"true_{c}" in frame.columns:
+                ax.plot(t, frame[f"true_{c}"].to_numpy(float), lw=0.9, color="k", alpha=0.8,
+                        label=f"{c} (true)")
+        ax.set_ylabel(name, fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.legend(fontsize=7, loc="upper right", ncols=2)
+    axes[-1].set_xlabel("time")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    return fig

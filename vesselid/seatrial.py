@@ -1,0 +1,744 @@
+"""Sea-trial pipeline for CyberShip II: experiment design, consistent identification, CLI.
+
+The surge/sway/yaw vessel of :mod:`vesselid.vessels` is identified from a *multi-experiment*
+sea trial (paper eq. (6)/(10), ``N_E`` experiments):
+
+1. :func:`design_sea_trial` — one static operating point per experiment (a steady turn
+   to starboard or to port at a given thrust/sway-force/yaw-moment level) plus random
+   pulses of moderate amplitude for excitation. The static offsets keep ``u > 0`` and
+   ``v``, ``r`` of one sign in every experiment, away from zero by a margin (A10/A15);
+   turns to both sides at several levels make the experiments jointly informative (A8).
+   The margins are checked on a noise-free simulation (:func:`vesselid.diagnostics.
+   design_margins`).
+2. :func:`simulate_sea_trial` — the batch simulator (:func:`vesselid.vessels.
+   simulate_cybership2`, the same compiled physics as ``vesselid/Manoeuvring3DOF-v0``)
+   with current, wind, gusts and unmodelled forces, and a trial log whose metadata holds
+   the identification spec (θ0 and the aggregate relation), ready for ``vesselid identify``.
+3. :func:`run_pipeline` — simulate + identify with LS, IV and IV with zero-mean
+   instruments, plus free-run validation on a held-out experiment.
+
+Identification structure
+------------------------
+In every steady turn of this vessel ``v`` and ``r`` have opposite signs (checked over the
+whole force envelope, see the README), so ``v·|r| = −r·|v|`` on all such data and only
+the combination is identifiable. The spec used here folds ``v·|r|`` into ``r·|v|``
+(:meth:`ModelSpec.merge_terms`; θ0 of ``r·|v|`` becomes ``θ_r|v| − θ_v|r|``); the plant
+keeps the full physics.
+
+Current: the GNSS measures the absolute velocity ``x = ν`` and the hydrodynamics act on
+``ν_r = x + v`` with ``v = −ν_c`` (non-additive). With ``aggregate="speed_log"`` the
+regressors use the Doppler log (velocity through water, the aggregated state of
+Remark 4.3) and the target stays the GNSS velocity, i.e. the predictor (9) with the
+residual ``w(k) = ν_c(k+1) + dt M⁻¹ τ_wind + …``; ``"current_meter"`` forms
+``ỹ = y₁ − y₂`` from a current meter (eq. (9) literally); ``None`` uses the GNSS
+velocity itself in the regressors (predictor (3), biased by the current).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from vesselid.errors import VesselidError
+from vesselid.model import ModelSpec
+
+__all__ = [
+    "AGGREGATES",
+    "DEFAULT_LEVELS",
+    "SeaTrialDesign",
+    "SeaTrialResult",
+    "add_parser",
+    "design_sea_trial",
+    "free_run_nrmse",
+    "markdown_table",
+    "normalized_errors",
+    "run_pipeline",
+    "seatrial_spec",
+    "simulate_sea_trial",
+]
+
+#: Aggregate options: name -> aggregate relations of the spec (paper eq. (9), Remark 4.3).
+AGGREGATES: dict[str, dict[str, str] | None] = {
+    "relative": None,
+    "speed_log": {"u": "u_log", "v": "v_log"},
+    "current_meter": {"u": "u - u_c", "v": "v - v_c"},
+    "none": None,
+}
+
+#: Operating points ``(X [N], Y [N], N [N m], side)``; ``side`` +1 = starboard turn
+#: (``r > 0``, ``v < 0``), −1 = port (``Y`` and ``N`` mirrored). The vessel has no
+#: straight-running equilibrium to speak of — in every steady turn ``v·r < 0`` — so the
+#: experiments are steady turns to both sides with the sway force of either sign (different
+#: ``v/r`` ratios). With the default pulses (±0.45 N, ±0.5 N, ±0.1 N m) the nominal design
+#: keeps ``u ≥ 0.092`` m/s, ``|v| ≥ 0.13`` m/s and ``|r| ≥ 0.072`` rad/s even over 10⁶
+#: samples per experiment (seeds 0, 1), within the environment's force limits (2, 1.5, 1).
+DEFAULT_LEVELS: tuple[tuple[float, float, float, int], ...] = (
+    (1.55, 0.0, 0.22, +1),
+    (1.55, 0.0, 0.22, -1),
+    (1.55, 0.3, 0.25, +1),
+    (1.55, 0.3, 0.25, -1),
+    (1.55, -0.3, 0.20, +1),
+    (1.55, -0.3, 0.20, -1),
+    (1.55, 0.15, 0.23, +1),
+    (1.55, -0.15, 0.21, -1),
+)
+
+#: Default perturbation amplitudes ``(X, Y, N)`` of the random pulses. Large relative
+#: perturbations are needed: only the variation *within* an experiment informs the
+#: zero-mean-instrument estimator (the instruments are centred per experiment, A7).
+DEFAULT_PERTURBATION = (0.45, 0.5, 0.1)
+
+
+class SeaTrialError(VesselidError):
+    """Bad sea-trial settings (unknown aggregate, too few samples, violated margins...)."""
+
+
+# --------------------------------------------------------------------------------- spec
+def seatrial_spec(dt: float = 0.1, aggregate: str | None = "relative") -> ModelSpec:
+    """The identification spec of the sea trial.
+
+    :func:`vesselid.vessels.cybership2_spec` with ``v·|r|`` folded into ``r·|v|``
+    (``v·|r| = −r·|v|`` in every steady turn) and the aggregate relation of
+    ``aggregate`` (:data:`AGGREGATES`).
+
+    Parameters
+    ----------
+    dt : float
+        Sample time (s).
+    aggregate : {"relative", "speed_log", "current_meter", "none", None}
+        Signals of ``u`` and ``v`` (``r`` is not affected by an irrotational current):
+        ``"relative"`` — the log's ``u, v`` columns hold the speed log (velocity through
+        water) as target *and* regressors, so the current does not enter the equations;
+        ``"speed_log"`` — GNSS target, speed-log regressors (Remark 4.3 with (10));
+        ``"current_meter"`` — GNSS target, regressors ``GNSS − current meter`` (eq. (9));
+        ``"none"`` — GNSS everywhere (predictor (3)).
+
+    Returns
+    -------
+    ModelSpec
+    """
+    from vesselid.vessels import cybership2_spec
+
+    key = _aggregate_key(aggregate)
+    spec = cybership2_spec(dt).merge_terms("r*|v|", "v*|r|", -1.0)
+    rel = AGGREGATES[key]
+    return spec.with_aggregate(rel) if rel else spec
+
+
+def _aggregate_key(aggregate: str | None) -> str:
+    key = "none" if aggregate is None else str(aggregate).replace("-", "_")
+    if key not in AGGREGATES:
+        raise SeaTrialError(f"unknown aggregate {aggregate!r}; choose from {sorted(AGGREGATES)}")
+    return key
+
+
+# ------------------------------------------------------------------------------- design
+@dataclass
+class SeaTrialDesign:
+    """A multi-experiment sea-trial design (result of :func:`design_sea_trial`).
+
+    Attributes
+    ----------
+    inputs : ndarray (N_E, N, 3)
+        Generalised forces ``[X, Y, N]`` per experiment and sample.
+    table : DataFrame
+        One row per experiment: side, offsets, perturbation amplitudes and the nominal
+        (noise-free, no current) steady state ``u, v, r`` and its minima ``|·|``.
+    margins : DataFrame
+        :func:`vesselid.diagnostics.design_margins` of the nominal velocity through water
+        with the margins ``eta``; ``ok`` is False where a state comes within ``η`` of zero.
+    eta : dict
+        The margins used.
+    warmup : int
+        Samples of constant offset simulated (and discarded) before each experiment.
+    dt : float
+        Sample time (s).
+    nominal : ndarray (N_E, N, 3)
+        Noise-free velocity through water ``ν_r`` of the design.
+    """
+
+    inputs: np.ndarray
+    table: pd.DataFrame
+    margins: pd.DataFrame
+    eta: dict[str, float]
+    warmup: int
+    dt: float
+    nominal: np.ndarray = field(repr=False)
+
+    @property
+    def n_experiments(self) -> int:
+        return int(self.inputs.shape[0])
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.inputs.shape[1])
+
+    @property
+    def ok(self) -> bool:
+        """Every state of every experiment keeps its margin (A10/A15)."""
+        return bool(self.margins["ok"].all())
+
+    def violations(self) -> pd.DataFrame:
+        """Rows of :attr:`margins` that violate the margin."""
+        return self.margins[~self.margins["ok"]]
+
+    def warmup_inputs(self) -> np.ndarray:
+        """Inputs with the constant-offset warm-up prepended, ``(N_E, warmup + N, 3)``."""
+        offsets = self.table[["X", "Y", "N"]].to_numpy(float)
+        pre = np.repeat(offsets[:, None, :], self.warmup, axis=1)
+        return np.concatenate([pre, self.inputs], axis=1)
+
+
+def _pulses(rng: np.random.Generator, n: int, amplitude: float, width: tuple[int, int]):
+    """Random pulses: piecewise-constant ``U(−a, a)`` levels of ``U(width)`` samples."""
+    if amplitude == 0:
+        return np.zeros(n)
+    lo, hi = width
+    n_seg = n // max(lo, 1) + 2
+    widths = rng.integers(lo, hi + 1, n_seg)
+    levels = rng.uniform(-amplitude, amplitude, n_seg)
+    out = np.repeat(levels, widths)
+    while out.size < n:  # pragma: no cover - n_seg covers n with the minimum width
+        out = np.concatenate([out, np.repeat(rng.uniform(-amplitude, amplitude, n_seg), widths)])
+    return out[:n]
+
+
+def design_sea_trial(
+    experiments: int = 6,
+    samples: int = 20000,
+    *,
+    levels: Sequence[Sequence[float]] | None = None,
+    perturbation: Sequence[float] = DEFAULT_PERTURBATION,
+    pulse_width: tuple[float, float] = (5.0, 40.0),
+    dt: float = 0.1,
+    warmup: float = 60.0,
+    eta: Mapping[str, float] | None = None,
+    seed: int | np.random.SeedSequence | None = 0,
+    rng: np.random.Generator | None = None,
+    check: bool = True,
+) -> SeaTrialDesign:
+    """Design ``N_E`` sea-trial experiments with static offsets (A8, A10/A15).
+
+    Experiment ``e`` holds the operating point ``levels[e]`` — surge thrust ``X``, sway
+    force ``Y`` and yaw moment ``N`` of a steady turn; ``side = −1`` mirrors ``Y`` and
+    ``N`` into a port turn — plus independent random pulses on the three forces
+    (amplitudes ``perturbation``, widths ``pulse_width`` seconds). With ``len(levels) <
+    experiments`` the levels are reused with the thrust scaled by ``1 ± 0.1`` per cycle.
+
+    Parameters
+    ----------
+    experiments, samples : int
+        ``N_E`` and samples per experiment ``N_D``.
+    levels : sequence of (X, Y, N, side), optional
+        Operating points (default :data:`DEFAULT_LEVELS`).
+    perturbation : (float, float, float)
+        Pulse amplitudes for ``X, Y, N``.
+    pulse_width : (float, float)
+        Range of pulse widths (s).
+    dt : float
+        Sample time (s).
+    warmup : float
+        Constant-offset lead-in (s) simulated and discarded so every experiment starts in
+        its steady turn (no sign change of ``v``, ``r`` in the transient).
+    eta : mapping state -> float, optional
+        Margins for the check; default ``{"u": 0.08, "v": 0.08, "r": 0.02}``: the A15
+        margin ``η_e1 + η_e2 + η_v`` for the default sensors (3σ = 0.015 m/s each) and a
+        current of 0.05 m/s, and 3σ of the gyro plus slack for ``r``.
+    seed, rng
+        Randomness of the pulses (``rng`` wins when given).
+    check : bool
+        Raise :class:`SeaTrialError` when the nominal design violates a margin (the
+        violations are always in :attr:`SeaTrialDesign.margins`).
+
+    Returns
+    -------
+    SeaTrialDesign
+    """
+    from vesselid.diagnostics import design_margins
+    from vesselid.vessels import CyberShip2Sensors, simulate_cybership2
+
+    n_e, n_d = int(experiments), int(samples)
+    if n_e < 2:
+        raise SeaTrialError(f"need at least 2 experiments (turns to both sides), got {n_e}")
+    if n_d < 50:
+        raise SeaTrialError(f"need at least 50 samples per experiment, got {n_d}")
+    lv = [tuple(float(x) for x in row) for row in (levels or DEFAULT_LEVELS)]
+    if any(len(row) != 4 or row[3] not in (-1.0, 1.0) for row in lv):
+        raise SeaTrialError("levels must be rows (X, Y, N, side) with side = +1 or -1")
+    amp = tuple(float(a) for a in perturbation)
+    if len(amp) != 3 or any(not (a >= 0) for a in amp):
+        raise SeaTrialError(f"perturbation needs three non-negative amplitudes, got {perturbation}")
+    w_lo, w_hi = (max(1, round(float(w) / dt)) for w in pulse_width)
+    if w_hi < w_lo:
+        raise SeaTrialError(f"pulse_width must be (low, high), got {pulse_width}")
+    gen = rng if rng is not None else np.random.default_rng(seed)
+    rows, inputs = [], np.empty((n_e, n_d, 3))
+    for e in range(n_e):
+        x, y, n, side = lv[e % len(lv)]
+        cycle = e // len(lv)
+        if cycle:
+            x *= 1.0 + 0.1 * (cycle if cycle % 2 else -cycle) / 2.0
+        off = np.array([x, side * y, side * n])
+        inputs[e] = off
+        for j in range(3):
+            inputs[e, :, j] += _pulses(gen, n_d, amp[j], (w_lo, w_hi))
+        rows.append({"experiment": e, "side": "starboard" if side > 0 else "port",
+                     "X": off[0], "Y": off[1], "N": off[2],
+                     "pert_X": amp[0], "pert_Y": amp[1], "pert_N": amp[2]})
+    n_warm = max(0, round(float(warmup) / dt))
+    table = pd.DataFrame(rows)
+    design = SeaTrialDesign(inputs=inputs, table=table, margins=pd.DataFrame(), eta={},
+                            warmup=n_warm, dt=float(dt), nominal=np.empty(0))
+    sim = simulate_cybership2(design.warmup_inputs(), seed=0, dt=dt,
+                              sensors=CyberShip2Sensors.noiseless())
+    nominal = np.ascontiguousarray(sim.nu_r[:, n_warm:])
+    spec = seatrial_spec(dt, None)
+    eta_used = {"u": 0.08, "v": 0.08, "r": 0.02} if eta is None else {
+        s: float(eta.get(s, 0.0)) for s in spec.states}
+    starts = np.arange(n_e + 1, dtype=np.int64) * n_d
+    margins = design_margins(nominal.reshape(-1, 3), starts, spec, eta_used, list(range(n_e)),
+                             threshold=0.0)
+    for j, s in enumerate(spec.states):
+        table[f"mean_{s}"] = nominal[:, :, j].mean(axis=1)
+        table[f"min_abs_{s}"] = np.abs(nominal[:, :, j]).min(axis=1)
+    design.margins, design.eta, design.nominal = margins, eta_used, nominal
+    if check and not design.ok:
+        bad = design.violations().iloc[0]
+        raise SeaTrialError(
+            f"design violates the A10/A15 margin: state {bad['state']!r} of experiment "
+            f"{bad['experiment']} comes within η={bad['eta']:.3g} of zero (min |x| = "
+            f"{bad['min_abs']:.3g}, {bad['sign_changes']} sign changes); raise the offsets "
+            "or lower the perturbation"
+        )
+    return design
+
+
+# --------------------------------------------------------------------------- simulation
+def _disturbances(current_speed: float, current_direction: float, wind_speed: float,
+                  wind_direction: float, current_variation: float, wind_gust: float,
+                  force_noise: Sequence[float]):
+    from vesselid.vessels import CyberShip2Disturbances
+
+    for name, val in (("current_speed", current_speed), ("wind_speed", wind_speed),
+                      ("current_variation", current_variation), ("wind_gust", wind_gust)):
+        if not (math.isfinite(float(val)) and float(val) >= 0):
+            raise SeaTrialError(f"{name} must be a non-negative number, got {val!r}")
+    return CyberShip2Disturbances(
+        current_speed=float(current_speed),
+        current_direction=float(current_direction),
+        current_speed_std=float(current_variation),
+        current_direction_std=float(current_variation) / max(float(current_speed), 0.05)
+        if current_variation > 0 else 0.0,
+        wind_speed=float(wind_speed),
+        wind_direction=float(wind_direction),
+        gust_std=float(wind_gust),
+        wind_direction_std=0.1 if wind_gust > 0 else 0.0,
+        force_noise_std=tuple(float(f) for f in force_noise),
+    )
+
+
+def simulate_sea_trial(
+    experiments: int = 6,
+    samples: int = 20000,
+    seed: int | None = 0,
+    *,
+    design: SeaTrialDesign | None = None,
+    current_speed: float = 0.05,
+    current_direction: float = math.radians(30.0),
+    current_variation: float = 0.005,
+    wind_speed: float = 1.0,
+    wind_direction: float = math.radians(-60.0),
+    wind_gust: float = 0.1,
+    force_noise: Sequence[float] = (0.02, 0.02, 0.01),
+    sensors: Any = None,
+    aggregate: str | None = "relative",
+    source: str = "batch",
+    dt: float = 0.1,
+    **design_options: Any,
+):
+    """Simulate a multi-experiment CyberShip II sea trial and return its trial log.
+
+    Parameters
+    ----------
+    experiments, samples : int
+        ``N_E`` experiments of ``N_D`` samples (ignored when ``design`` is given).
+    seed : int, optional
+        One seed for everything: the design's pulses and all disturbances
+        (``SeedSequence(seed).spawn(2)``).
+    design : SeaTrialDesign, optional
+        A ready design (default :func:`design_sea_trial` with ``design_options``).
+    current_speed, current_direction : float
+        Mean earth-fixed current (m/s, going-to direction in rad). Default 0.05 m/s at
+        model scale (≈ 0.8 kn full scale, Froude scaling 1:70).
+    current_variation : float
+        Std of the bounded Gauss–Markov current-speed variation (m/s).
+    wind_speed, wind_direction, wind_gust : float
+        Mean true wind (m/s model scale; 1 m/s ≈ 8 m/s full scale), direction (rad) and
+        gust std (m/s).
+    force_noise : (float, float, float)
+        Std of unmodelled Gauss–Markov forces (N, N, N m).
+    sensors : CyberShip2Sensors or mapping, optional
+        Sensor noise (default: GNSS/speed log/current meter 0.005 m/s, gyro 0.002 rad/s).
+    aggregate : {"relative", "speed_log", "current_meter", "none", None}
+        Predictor (:func:`seatrial_spec`). With ``"relative"`` (default) the columns
+        ``u, v`` hold the speed-log readings and the GNSS moves to ``u_gnss, v_gnss``.
+    source : {"batch", "env"}
+        ``"batch"``: :func:`vesselid.vessels.simulate_cybership2`; ``"env"``: the same
+        forces played through ``vesselid/Manoeuvring3DOF-v0`` and recorded with
+        :class:`vesselid.envs.recorder.TrialRecorder` (same physics; slower, and the
+        current/wind directions are fixed per episode to the given values).
+    dt : float
+        Sample time (s).
+
+    Returns
+    -------
+    TrialLog
+        Columns ``experiment, time, u, v, r, X, Y, N, psi, u_log, v_log, r_log, u_c, v_c,
+        wind_speed, wind_angle, true_*``; metadata ``spec`` (identification spec with
+        θ0 and the aggregate relation), ``design`` (the experiment table), ``system``.
+    """
+    from vesselid.logs import TrialLog
+
+    key = _aggregate_key(aggregate)
+    root = np.random.SeedSequence(seed)
+    design_seed, sim_seed = root.spawn(2)
+    if design is None:
+        design = design_sea_trial(experiments, samples, dt=dt, seed=design_seed,
+                                  **design_options)
+    elif design_options:
+        raise SeaTrialError("design options are ignored when a design is given")
+    dist = _disturbances(current_speed, current_direction, wind_speed, wind_direction,
+                         current_variation, wind_gust, force_noise)
+    spec = seatrial_spec(design.dt, key)
+    if source == "batch":
+        log = _simulate_batch(design, dist, sensors, sim_seed)
+    elif source == "env":
+        log = _simulate_env(design, dist, sensors, sim_seed)
+    else:
+        raise SeaTrialError(f"source must be 'batch' or 'env', got {source!r}")
+    frame = log.to_frame()
+    if key == "relative":
+        frame = frame.rename(columns={"u": "u_gnss", "v": "v_gnss"})
+        frame["u"] = frame["u_log"]
+        frame["v"] = frame["v_log"]
+    meta = dict(log.metadata)
+    meta.update({
+        "spec": spec.to_dict(),
+        "aggregate": key,
+        "seed": seed,
+        "source": source,
+        "design": design.table.to_dict(orient="list"),
+        "design_eta": design.eta,
+        "warmup_samples_discarded": design.warmup,
+        "samples_per_experiment": design.n_samples,
+        "experiments": design.n_experiments,
+    })
+    return TrialLog(frame, meta)
+
+
+def _simulate_batch(design: SeaTrialDesign, dist, sensors, seed: np.random.SeedSequence):
+    from vesselid.logs import TrialLog
+    from vesselid.vessels import simulate_cybership2
+
+    sim = simulate_cybership2(design.warmup_inputs(), seed=seed, dt=design.dt,
+                              disturbances=dist, sensors=sensors)
+    log = sim.to_log()
+    frame = log.to_frame()
+    n_tot = design.warmup + design.n_samples
+    keep = np.tile(np.arange(n_tot) >= design.warmup, design.n_experiments)
+    frame = frame.loc[keep].reset_index(drop=True)
+    frame["time"] = np.tile(np.arange(design.n_samples) * design.dt, design.n_experiments)
+    return TrialLog(frame, log.metadata)
+
+
+def _simulate_env(design: SeaTrialDesign, dist, sensors, seed: np.random.SeedSequence):
+    import gymnasium as gym
+
+    import vesselid.envs  # noqa: F401  (registers the environments)
+    from vesselid.envs.recorder import TrialRecorder
+    from vesselid.logs import TrialLog
+
+    fmax = np.array([2.0, 1.5, 1.0])
+    if np.any(np.abs(design.inputs) > fmax + 1e-12):
+        raise SeaTrialError("the design exceeds the environment's force limits (2, 1.5, 1)")
+    env = TrialRecorder(gym.make(
+        "vesselid/Manoeuvring3DOF-v0", max_episode_steps=design.warmup + design.n_samples + 1,
+        dt=design.dt, current_speed=dist.current_speed,
+        current_direction=dist.current_direction, current_variation=dist.current_speed_std,
+        wind_speed=dist.wind_speed, wind_direction=dist.wind_direction,
+        wind_gust=dist.gust_std, force_noise=dist.force_noise_std, sensors=sensors,
+        force_max=tuple(fmax)))
+    frames = []
+    seeds = seed.generate_state(design.n_experiments)
+    inputs = design.warmup_inputs() / fmax
+    for e in range(design.n_experiments):
+        env.clear()
+        env.reset(seed=int(seeds[e]), options={"nu": [0.0, 0.0, 0.0], "eta": [0.0, 0.0, 0.0]})
+        for a in inputs[e]:
+            env.step(a)
+        fr = env.to_log().to_frame()
+        fr = fr.iloc[design.warmup:design.warmup + design.n_samples].reset_index(drop=True)
+        fr["experiment"] = e
+        fr["time"] = np.arange(len(fr)) * design.dt
+        frames.append(fr)
+        meta = env.to_log().metadata
+    env.close()
+    return TrialLog(pd.concat(frames, ignore_index=True), meta)
+
+
+# ------------------------------------------------------------------------------ results
+def markdown_table(df: pd.DataFrame, fmt: str = ".4f") -> str:
+    """A pipe (GitHub) markdown table of ``df`` with its index (no tabulate needed)."""
+    def cell(x: Any) -> str:
+        if isinstance(x, (float, np.floating)):
+            return format(float(x), fmt)
+        return str(x)
+
+    name = df.index.name or ""
+    head = [str(name)] + [str(c) for c in df.columns]
+    lines = ["| " + " | ".join(head) + " |", "|" + "|".join(["---"] * len(head)) + "|"]
+    for idx, row in df.iterrows():
+        lines.append("| " + " | ".join([cell(idx)] + [cell(x) for x in row]) + " |")
+    return "\n".join(lines)
+
+
+def normalized_errors(params: pd.Series | np.ndarray, theta0: pd.Series) -> pd.Series:
+    """``(θ̂ − θ0) / θ0`` per parameter (the paper's Tables 1–2)."""
+    est = np.asarray(params, dtype=float)
+    return pd.Series((est - theta0.to_numpy()) / theta0.to_numpy(), index=theta0.index)
+
+
+def free_run_nrmse(log, spec: ModelSpec, theta: np.ndarray) -> dict[str, float]:
+    """Free-run (simulation) error of ``theta`` on ``log``, NRMSE % per state.
+
+    ``100 ‖y − ŷ‖ / ‖y − ȳ‖`` over all experiments of ``log`` (0 = perfect), where ``ŷ``
+    is a simulation of the model from the measured inputs and initial state, with the
+    measured current (aggregate sensor) inside the nonlinearity when the spec has an
+    aggregate relation.
+    """
+    from vesselid.identify.data import from_log
+    from vesselid.simulate import simulate_states
+
+    data, spec = from_log(log, spec)
+    num = np.zeros(spec.n_states)
+    den = np.zeros(spec.n_states)
+    for s in range(data.n_segments):
+        sl = data.segment(s)
+        y = data.target[sl]
+        v = data.sensor[sl] if data.sensor is not None else None
+        x = simulate_states(spec, data.u[sl], theta=np.asarray(theta, float), x0=y[0], v=v,
+                            raise_on_divergence=False)
+        if not np.all(np.isfinite(x)):
+            return {st: float("inf") for st in spec.states}
+        num += np.sum((y - x) ** 2, axis=0)
+        den += np.sum((y - y.mean(axis=0)) ** 2, axis=0)
+    return {st: float(100.0 * np.sqrt(num[i] / den[i])) for i, st in enumerate(spec.states)}
+
+
+@dataclass
+class SeaTrialResult:
+    """Outcome of :func:`run_pipeline`.
+
+    Attributes
+    ----------
+    log, holdout : TrialLog
+        Estimation log (``N_E`` experiments) and the held-out validation experiment.
+    design : SeaTrialDesign
+    results : dict method -> IdentificationResult
+    comparison : DataFrame
+        Per parameter: ``theta0``, and per method the estimate and its normalized error.
+    validation : DataFrame
+        Free-run NRMSE % on the held-out experiment, methods × states (plus ``theta0``).
+    timings : dict
+        Wall times (s) of the stages.
+    """
+
+    log: Any
+    holdout: Any
+    design: SeaTrialDesign
+    spec: ModelSpec
+    results: dict[str, Any]
+    comparison: pd.DataFrame
+    validation: pd.DataFrame
+    timings: dict[str, float]
+
+    def errors(self) -> pd.DataFrame:
+        """Normalized errors, parameters × methods."""
+        return self.comparison[[c for c in self.comparison.columns if c.startswith("err ")]]
+
+    def thetas(self) -> dict[str, np.ndarray]:
+        """θ0 and every estimate as flat vectors (for :mod:`vesselid.control`)."""
+        out = {"theta0": self.spec.theta0_vector()}
+        out.update({m: r.params.to_numpy() for m, r in self.results.items()})
+        return out
+
+    def summary(self) -> str:
+        """Markdown tables: normalized errors, held-out NRMSE, design margins."""
+        lines = [f"Sea trial: {self.design.n_experiments} experiments x "
+                 f"{self.design.n_samples} samples, aggregate = "
+                 f"{self.log.metadata.get('aggregate')}", "",
+                 "Normalized errors (θ̂ − θ0)/θ0:", "",
+                 markdown_table(self.errors(), ".4f"), "",
+                 "Free-run NRMSE % on the held-out experiment:", "",
+                 markdown_table(self.validation, ".2f"), ""]
+        design = self.results[next(iter(self.results))].diagnostics["design"]
+        bad = design[~design["ok"]]
+        lines.append("Design margins (A10/A15) on the data: "
+                     + ("all experiments and states OK" if bad.empty else
+                        f"{len(bad)} violation(s):\n"
+                        + markdown_table(bad.set_index("experiment"), ".3g")))
+        lines.append("Timings (s): " + ", ".join(f"{k} {v:.2f}" for k, v in self.timings.items()))
+        return "\n".join(lines)
+
+
+def run_pipeline(
+    experiments: int = 6,
+    samples: int = 20000,
+    seed: int | None = 0,
+    *,
+    methods: Sequence[str] = ("ls", "iv", "iv-zero-mean"),
+    combine: str = "pooled",
+    aggregate: str | None = "relative",
+    holdout_samples: int | None = None,
+    **simulation_options: Any,
+) -> SeaTrialResult:
+    """Design, simulate and identify a sea trial; validate on a held-out experiment.
+
+    ``experiments + 1`` experiments are designed and simulated together; the last one (a
+    different operating point) is held out and the estimates are validated by free-run
+    simulation on it (:func:`free_run_nrmse`).
+
+    Parameters
+    ----------
+    experiments, samples, seed
+        As :func:`simulate_sea_trial`.
+    methods : sequence of {"ls", "iv", "iv-zero-mean"}
+    combine : {"pooled", "stacked"}
+        Multi-experiment equations (6)/(10).
+    aggregate : str or None
+        As :func:`simulate_sea_trial`.
+    holdout_samples : int, optional
+        Length of the validation experiment used (default ``min(samples, 5000)``).
+    **simulation_options
+        Passed to :func:`simulate_sea_trial` (current, wind, sensors, design options).
+
+    Returns
+    -------
+    SeaTrialResult
+    """
+    from vesselid.identify import identify
+    from vesselid.logs import TrialLog
+
+    t0 = time.perf_counter()
+    design_keys = {"levels", "perturbation", "pulse_width", "dt", "warmup", "eta", "check"}
+    design_opts = {k: simulation_options.pop(k) for k in list(simulation_options)
+                   if k in design_keys}
+    design_seed = np.random.SeedSequence(seed).spawn(2)[0]  # as simulate_sea_trial does
+    design = design_sea_trial(int(experiments) + 1, samples, seed=design_seed, **design_opts)
+    full = simulate_sea_trial(seed=seed, design=design, aggregate=aggregate,
+                              **simulation_options)
+    t1 = time.perf_counter()
+    frame = full.to_frame()
+    is_test = frame["experiment"].to_numpy() == int(experiments)
+    meta = dict(full.metadata, experiments=int(experiments))
+    log = TrialLog(frame.loc[~is_test].reset_index(drop=True), meta)
+    n_hold = min(int(samples), 5000) if holdout_samples is None else int(holdout_samples)
+    holdout = TrialLog(frame.loc[is_test].iloc[:n_hold].reset_index(drop=True), full.metadata)
+    spec = full.spec
+    results: dict[str, Any] = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for m in methods:
+            results[m] = identify(log, spec, method=m, combine=combine)
+    t2 = time.perf_counter()
+    theta0 = spec.theta0_series()
+    comp = pd.DataFrame({"theta0": theta0})
+    for m, r in results.items():
+        comp[f"est {m}"] = r.params.to_numpy()
+    for m, r in results.items():
+        comp[f"err {m}"] = normalized_errors(r.params, theta0).to_numpy()
+    comp.index = [f"{eq}: {term}" for eq, term in theta0.index]
+    val = {"theta0": free_run_nrmse(holdout, spec, theta0.to_numpy())}
+    for m, r in results.items():
+        val[m] = free_run_nrmse(holdout, spec, r.params.to_numpy())
+    validation = pd.DataFrame(val).T
+    validation.index.name = "model"
+    t3 = time.perf_counter()
+    return SeaTrialResult(
+        log=log, holdout=holdout, design=design, spec=spec, results=results,
+        comparison=comp, validation=validation,
+        timings={"simulate": t1 - t0, "identify": t2 - t1, "validate": t3 - t2,
+                 "total": t3 - t0},
+    )
+
+
+# ---------------------------------------------------------------------------------- CLI
+def add_parser(subparsers: Any) -> None:
+    """Register ``vesselid sea-trial`` (the CLI plugin contract of :mod:`vesselid.cli`)."""
+    p = subparsers.add_parser(
+        "sea-trial", help="design and simulate a multi-experiment sea trial",
+        description="Design a multi-experiment sea trial (steady turns to both sides at "
+                    "several levels plus pulses), simulate it with current and wind, and "
+                    "write the trial log and the model spec for `vesselid identify`.")
+    p.add_argument("--vessel", default="cybership2", choices=["cybership2"])
+    p.add_argument("--experiments", type=int, default=6)
+    p.add_argument("--samples", type=int, default=20000, help="samples per experiment")
+    p.add_argument("--current-speed", type=float, default=0.05, help="m/s (model scale)")
+    p.add_argument("--current-direction", type=float, default=30.0,
+                   help="going-to direction, degrees from north")
+    p.add_argument("--wind-speed", type=float, default=1.0, help="m/s (model scale)")
+    p.add_argument("--aggregate", default="relative",
+                   choices=["relative", "speed_log", "current_meter", "none"],
+                   help="signals for u, v: speed log as target and regressors (relative, "
+                        "default), GNSS target with speed-log regressors (Remark 4.3), GNSS "
+                        "target with GNSS - current meter regressors (eq. (9)), GNSS only")
+    p.add_argument("--source", default="batch", choices=["batch", "env"],
+                   help="batch simulator or Manoeuvring3DOF-v0 through the recorder")
+    p.add_argument("--format", default="csv", choices=["csv", "parquet"])
+    p.add_argument("--identify", action="store_true",
+                   help="also run LS, IV and IV-zero-mean and print the comparison")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True, help="output directory")
+    p.set_defaults(func=cmd_sea_trial)
+
+
+def cmd_sea_trial(args: argparse.Namespace) -> int:
+    """``vesselid sea-trial``: write DIR/seatrial.csv (+ .json) and DIR/cybership2.toml."""
+    if args.experiments < 2:
+        raise SeaTrialError(f"--experiments must be at least 2, got {args.experiments}")
+    if args.samples < 50:
+        raise SeaTrialError(f"--samples must be at least 50, got {args.samples}")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise SeaTrialError(f"--out must be a directory, got the file {out}")
+    out.mkdir(parents=True, exist_ok=True)
+    opts = {"current_speed": args.current_speed,
+            "current_direction": math.radians(args.current_direction),
+            "wind_speed": args.wind_speed}
+    log = simulate_sea_trial(args.experiments, args.samples, args.seed,
+                             aggregate=args.aggregate, source=args.source, **opts)
+    log.metadata["command"] = "vesselid " + " ".join(sys.argv[1:]) if sys.argv else ""
+    data = out / ("seatrial.csv" if args.format == "csv" else "seatrial.parquet")
+    spec_path = out / "cybership2.toml"
+    log.spec.save(spec_path)
+    log.save(data)
+    extra = f" and sidecar {data.with_suffix('.json')}" if args.format == "csv" else ""
+    print(f"wrote {data} ({len(log)} rows, {args.experiments} experiments){extra}, model spec "
+          f"{spec_path} (aggregate: {args.aggregate})")
+    print(f"next: vesselid identify {data} --model {spec_path} --method iv-zero-mean")
+    if args.identify:
+        res = run_pipeline(args.experiments, args.samples, args.seed, aggregate=args.aggregate,
+                           source=args.source, **opts)
+        print()
+        print(res.summary())
+    return 0
