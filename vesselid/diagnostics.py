@@ -114,6 +114,12 @@ def collinear_terms(
     keep = np.flatnonzero(norms > 0)
     if keep.size == 0:
         return groups
+    gram = phi[:, keep].T @ phi[:, keep] / np.outer(norms[keep], norms[keep])
+    eig = np.linalg.eigvalsh(gram)
+    if eig[0] > (1e3 * rtol) ** 2 * eig[-1]:
+        # Gram eigenvalues are accurate to ~1e-16 of the largest, so this proves the
+        # smallest singular value exceeds 1e3·rtol of the largest: surely full rank
+        return groups
     scaled = phi[:, keep] / norms[keep]
     # Φ = QR: the singular values and right vectors of R are those of Φ (cheap for tall Φ)
     r_factor = np.linalg.qr(scaled, mode="r")
