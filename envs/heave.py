@@ -32,6 +32,7 @@ from gymnasium.vector.utils import batch_space
 from numba import njit
 
 from vesselid.disturbances import Gaussian
+from vesselid.envs._render import FigureRenderer
 from vesselid.errors import VesselidError
 from vesselid.model import ModelSpec
 from vesselid.systems import System, heave
@@ -338,28 +339,12 @@ def _initial_velocity(options: dict[str, Any] | None) -> float | None:
 
 
 # ----------------------------------------------------------------------- rendering
-class _Plot:
+class _Plot(FigureRenderer):
     """Matplotlib plot of the recent window: velocity vs reference, thrust, current."""
 
     def __init__(self, mode: str, sensor: bool, fps: int) -> None:
-        self.mode = mode
-        self.fps = fps
+        super().__init__(mode, fps, (6.4, 4.8), 100)
         self.sensor = sensor
-        self.interactive = False
-        if mode == "human":
-            import matplotlib.pyplot as plt
-
-            self._plt = plt
-            self.interactive = _interactive_backend()
-            self.fig = plt.figure(figsize=(6.4, 4.8))
-            if self.interactive:
-                plt.ion()
-        else:
-            from matplotlib.backends.backend_agg import FigureCanvasAgg
-            from matplotlib.figure import Figure
-
-            self.fig = Figure(figsize=(6.4, 4.8), dpi=100)
-            FigureCanvasAgg(self.fig)
         ax_v, ax_t, ax_c = self.fig.subplots(3, 1, sharex=True)
         (self.l_w,) = ax_v.plot([], [], label="w_a (true)")
         (self.l_y,) = ax_v.plot([], [], ".", ms=2, label="y1 (measured)")
@@ -392,34 +377,9 @@ class _Plot:
         if k.size:
             self.axes[0].set_xlim(k[0], max(k[-1], k[0] + 1))
         self.axes[0].set_title(title, fontsize="small")
-        self.fig.canvas.draw()
-        if self.mode == "human":
-            if self.interactive:
-                self.fig.canvas.flush_events()
-                self._plt.pause(1.0 / self.fps)
-            return None
-        buf = np.asarray(self.fig.canvas.buffer_rgba())
-        return np.ascontiguousarray(buf[..., :3])
-
-    def close(self) -> None:
-        if self.mode == "human":
-            self._plt.close(self.fig)
-        self.fig = None
+        return self.present()
 
 
-def _interactive_backend() -> bool:
-    import matplotlib
-
-    backend = str(matplotlib.get_backend()).lower()
-    try:
-        from matplotlib.backends import BackendFilter, backend_registry
-
-        names = backend_registry.list_builtin(BackendFilter.INTERACTIVE)
-    except ImportError:  # pragma: no cover - matplotlib < 3.9
-        from matplotlib import rcsetup
-
-        names = rcsetup.interactive_bk
-    return backend in {n.lower() for n in names}
 
 
 _DOC_ARGS = """

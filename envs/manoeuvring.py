@@ -31,6 +31,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from vesselid.envs._render import FigureRenderer
 from vesselid.errors import VesselidError
 from vesselid.model import ModelSpec
 from vesselid.vessels import (
@@ -297,43 +298,14 @@ def _log_row(info: Mapping[str, Any], enabled: Sequence[str]) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------- rendering
-def _interactive_backend() -> bool:
-    import matplotlib
-
-    backend = str(matplotlib.get_backend()).lower()
-    try:
-        from matplotlib.backends import BackendFilter, backend_registry
-
-        names = backend_registry.list_builtin(BackendFilter.INTERACTIVE)
-    except ImportError:  # pragma: no cover - matplotlib < 3.9
-        from matplotlib import rcsetup
-
-        names = rcsetup.interactive_bk
-    return backend in {n.lower() for n in names}
 
 
-class _Plot:
+class _Plot(FigureRenderer):
     """Trajectory in the north-east plane with a heading arrow, and velocity time series."""
 
     def __init__(self, mode: str, fps: int, length: float) -> None:
-        self.mode = mode
-        self.fps = fps
+        super().__init__(mode, fps, (8.0, 4.0), 80)
         self.length = length
-        self.interactive = False
-        if mode == "human":
-            import matplotlib.pyplot as plt
-
-            self._plt = plt
-            self.interactive = _interactive_backend()
-            self.fig = plt.figure(figsize=(8.0, 4.0))
-            if self.interactive:
-                plt.ion()
-        else:
-            from matplotlib.backends.backend_agg import FigureCanvasAgg
-            from matplotlib.figure import Figure
-
-            self.fig = Figure(figsize=(8.0, 4.0), dpi=80)
-            FigureCanvasAgg(self.fig)
         self.ax_ne, self.ax_v = self.fig.subplots(1, 2)
         (self.l_traj,) = self.ax_ne.plot([], [], lw=1.0)
         self.arrow = None
@@ -365,19 +337,7 @@ class _Plot:
         self.ax_v.relim()
         self.ax_v.autoscale_view()
         self.ax_v.set_xlim(t[0], max(t[-1], t[0] + 1e-3))
-        self.fig.canvas.draw()
-        if self.mode == "human":
-            if self.interactive:
-                self.fig.canvas.flush_events()
-                self._plt.pause(1.0 / self.fps)
-            return None
-        buf = np.asarray(self.fig.canvas.buffer_rgba())
-        return np.ascontiguousarray(buf[..., :3])
-
-    def close(self) -> None:
-        if self.mode == "human":
-            self._plt.close(self.fig)
-        self.fig = None
+        return self.present()
 
 
 _DOC_ARGS = """

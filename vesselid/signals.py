@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from scipy import signal as sps
@@ -46,50 +46,10 @@ def _check_range(name: str, lo: float, hi: float) -> tuple[float, float]:
 
 
 @dataclass(frozen=True)
-class RandomPulses(InputSignal):
-    """Piecewise-constant pulses of random amplitude and random width (paper §6).
+class _Pulses(InputSignal):
+    """Piecewise-constant levels between ``low`` and ``high`` held for random widths."""
 
-    Levels are uniform on ``[low, high]``; each is held for a width drawn uniformly
-    from the integers ``min_width ... max_width`` samples.
-    """
-
-    low: float = 0.1
-    high: float = 0.3
-    min_width: int = 10
-    max_width: int = 100
-
-    def __post_init__(self) -> None:
-        _check_range("amplitude", self.low, self.high)
-        if not (1 <= int(self.min_width) <= int(self.max_width)):
-            raise VesselidError(
-                f"pulse widths need 1 <= min_width <= max_width, got {self.min_width}, "
-                f"{self.max_width}"
-            )
-
-    def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        # Enough pulses to cover n samples for certain (every width >= min_width).
-        n_pulses = n // int(self.min_width) + 1
-        widths = rng.integers(int(self.min_width), int(self.max_width) + 1, n_pulses)
-        levels = rng.uniform(self.low, self.high, n_pulses)
-        return np.repeat(levels, widths)[:n]
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"kind": "pulses", "low": self.low, "high": self.high,
-                "min_width": int(self.min_width), "max_width": int(self.max_width)}
-
-
-@dataclass(frozen=True)
-class AlternatingPulses(InputSignal):
-    """Pulses switching between two levels, each held for a random width.
-
-    The input alternates ``low, high, low, ...`` (starting level drawn at random);
-    every level is held for a width drawn uniformly from the integers
-    ``min_width ... max_width`` samples. With ``low=0.1, high=0.3`` and widths
-    1–20 this is the input design that best reproduces the spreads of the paper's
-    Tables 1–2 (§6: "a set of pulses with amplitudes between 0.1 and 0.3 ... of
-    varying width"); see :mod:`vesselid.reproduce`.
-    """
-
+    kind: ClassVar[str] = ""
     low: float = 0.1
     high: float = 0.3
     min_width: int = 1
@@ -102,6 +62,51 @@ class AlternatingPulses(InputSignal):
                 f"pulse widths need 1 <= min_width <= max_width, got {self.min_width}, "
                 f"{self.max_width}"
             )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"kind": self.kind, "low": self.low, "high": self.high,
+                "min_width": int(self.min_width), "max_width": int(self.max_width)}
+
+
+@dataclass(frozen=True)
+class RandomPulses(_Pulses):
+    """Piecewise-constant pulses of random amplitude and random width (paper §6).
+
+    Levels are uniform on ``[low, high]``; each is held for a width drawn uniformly
+    from the integers ``min_width ... max_width`` samples.
+    """
+
+    kind: ClassVar[str] = "pulses"
+    low: float = 0.1
+    high: float = 0.3
+    min_width: int = 10
+    max_width: int = 100
+
+    def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        # Enough pulses to cover n samples for certain (every width >= min_width).
+        n_pulses = n // int(self.min_width) + 1
+        widths = rng.integers(int(self.min_width), int(self.max_width) + 1, n_pulses)
+        levels = rng.uniform(self.low, self.high, n_pulses)
+        return np.repeat(levels, widths)[:n]
+
+
+@dataclass(frozen=True)
+class AlternatingPulses(_Pulses):
+    """Pulses switching between two levels, each held for a random width.
+
+    The input alternates ``low, high, low, ...`` (starting level drawn at random);
+    every level is held for a width drawn uniformly from the integers
+    ``min_width ... max_width`` samples. With ``low=0.1, high=0.3`` and widths
+    1–20 this is the input design that best reproduces the spreads of the paper's
+    Tables 1–2 (§6: "a set of pulses with amplitudes between 0.1 and 0.3 ... of
+    varying width"); see :mod:`vesselid.reproduce`.
+    """
+
+    kind: ClassVar[str] = "alternating_pulses"
+    low: float = 0.1
+    high: float = 0.3
+    min_width: int = 1
+    max_width: int = 20
 
     def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
         # Draw order: the starting level, then widths in blocks of about 1.1 n / mean
@@ -117,10 +122,6 @@ class AlternatingPulses(InputSignal):
         widths = np.concatenate(parts) if len(parts) > 1 else parts[0]
         levels = np.where((np.arange(widths.size) + first) % 2 == 0, self.low, self.high)
         return np.repeat(levels, widths)[:n]
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"kind": "alternating_pulses", "low": self.low, "high": self.high,
-                "min_width": int(self.min_width), "max_width": int(self.max_width)}
 
 
 @dataclass(frozen=True)
