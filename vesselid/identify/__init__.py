@@ -168,9 +168,13 @@ def identify(
         it = estimate(data, spec, method, combine=combine, theta_start=start,
                       max_iter=max_iter, tol=tol, keep_history=True)
         if not np.all(np.isfinite(it.theta[0])):
+            tried = ("the LS estimate and basic IV with delayed measurements"
+                     if it.start is not None and it.start[0] == "lagged-iv"
+                     else "the given start" if theta_start is not None else "the LS estimate")
             raise IdentificationError(
-                f"{method}: {it.reason[0]}; no instrument could be formed — supply "
-                "theta_start (a stable model) or instruments"
+                f"{method}: {it.reason[0]} (starts tried: {tried}); no instrument could be "
+                "formed — supply theta_start (a stable model) or instruments, or use longer "
+                "or better-excited experiments"
             )
         if method == "ls":
             z = phi
