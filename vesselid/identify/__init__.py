@@ -192,14 +192,15 @@ def identify(
 
     zero_mean = method == "iv-zero-mean"
     zc = _center(z, data) if zero_mean else z
-    resid = np.full((phi.shape[0], spec.n_states), np.nan)
-    pred = np.full_like(resid, np.nan)
+    # one-step predictions φᵀθ̂ of every equation at once (NaN at each experiment's first row)
+    weights = np.zeros((spec.n_params, spec.n_states))
+    weights[np.arange(spec.n_params), codes.equation] = theta
+    pred = phi @ weights
+    resid = data.target - pred
     cov = np.zeros((spec.n_params, spec.n_params))
     cond: dict[str, float] = {}
     for i, s in enumerate(spec.states):
         sl = slice(int(blocks[i]), int(blocks[i + 1]))
-        pred[rows, i] = phi[rows, sl] @ theta[sl]
-        resid[rows, i] = data.target[rows, i] - pred[rows, i]
         cov[sl, sl], cond[s] = _covariance(zc[:, sl], phi[:, sl], resid[:, i], data, combine)
         if method != "ls" and cond[s] > weak_instrument_cond:
             _warn(f"weak instruments in equation {s!r}: cond(ZᵀΦ) = {cond[s]:.3g}",
