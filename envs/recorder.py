@@ -243,12 +243,7 @@ class TrialRecorder(gym.Wrapper):
     def _row(self, info: dict[str, Any]) -> tuple[float, ...]:
         row = self.env.unwrapped.log_row(info)
         keys = tuple(row)
-        if keys != self._measured:
-            if self._measured is not None:
-                raise VesselidError(
-                    f"log_row returned columns {list(keys)}, earlier {list(self._measured)}"
-                )
-            self._measured = keys
+        self._measured = _same_columns(keys, self._measured)
         return tuple(row.values())
 
     def _close_episode(self) -> None:
@@ -403,12 +398,7 @@ class VectorTrialRecorder(gym.vector.VectorWrapper):
     def _row(self, info: dict[str, Any]) -> np.ndarray:
         row = self.env.unwrapped.log_row(info)
         keys = tuple(row)
-        if keys != self._measured:
-            if self._measured is not None:
-                raise VesselidError(
-                    f"log_row returned columns {list(keys)}, earlier {list(self._measured)}"
-                )
-            self._measured = keys
+        self._measured = _same_columns(keys, self._measured)
         n = self.num_envs
         out = np.empty((n, len(keys)))
         for j, v in enumerate(row.values()):
@@ -530,3 +520,10 @@ class VectorTrialRecorder(gym.vector.VectorWrapper):
     def save(self, path: str | Path, **kwargs: Any) -> Path:
         """Write :meth:`to_log` to ``path`` (``.csv`` + JSON sidecar, or ``.parquet``)."""
         return self.to_log(**kwargs).save(path)
+
+
+def _same_columns(keys: tuple[str, ...], earlier: tuple[str, ...] | None) -> tuple[str, ...]:
+    """``log_row`` must return the same columns on every call (recorder contract)."""
+    if earlier is not None and keys != earlier:
+        raise VesselidError(f"log_row returned columns {list(keys)}, earlier {list(earlier)}")
+    return keys

@@ -99,10 +99,9 @@ def cmd_identify(args: argparse.Namespace) -> int:
             print(f"\nwrote {args.json}")
     else:
         print(result.summary())
-    for w in caught:
-        if args.json != "-":
-            continue
-        print(f"warning: {w.message}", file=sys.stderr)
+    if args.json == "-":  # otherwise the summary already lists the warnings
+        for w in caught:
+            print(f"warning: {w.message}", file=sys.stderr)
     return 0
 
 

@@ -100,22 +100,24 @@ def design_margins(
 
 
 def collinear_terms(
-    phi: np.ndarray, names: Sequence[str], *, rtol: float = 1e-9
+    phi: np.ndarray, names: Sequence[str], *, rtol: float = 1e-9, gram: np.ndarray | None = None
 ) -> list[list[str]]:
     """Groups of terms that are (near) linearly dependent in the regressor matrix ``phi``.
 
     Columns are scaled to unit norm; every singular value below ``rtol`` times the
     largest gives a null-space direction, and the terms with a noticeable weight in
-    it are reported. An all-zero column is reported alone.
+    it are reported. An all-zero column is reported alone. ``gram`` (``ΦᵀΦ``, if the
+    caller has it) saves recomputing it for the cheap full-rank screen.
     """
     phi = np.asarray(phi, dtype=float)
-    norms = np.linalg.norm(phi, axis=0)
+    if gram is None:
+        gram = phi.T @ phi
+    norms = np.sqrt(np.diag(gram))
     groups: list[list[str]] = [[names[j]] for j in np.flatnonzero(norms == 0)]
     keep = np.flatnonzero(norms > 0)
     if keep.size == 0:
         return groups
-    gram = phi[:, keep].T @ phi[:, keep] / np.outer(norms[keep], norms[keep])
-    eig = np.linalg.eigvalsh(gram)
+    eig = np.linalg.eigvalsh(gram[np.ix_(keep, keep)] / np.outer(norms[keep], norms[keep]))
     if eig[0] > (1e3 * rtol) ** 2 * eig[-1]:
         # Gram eigenvalues are accurate to ~1e-16 of the largest, so this proves the
         # smallest singular value exceeds 1e3·rtol of the largest: surely full rank
