@@ -3,7 +3,7 @@
 ::
 
     vesselid simulate  --system heave --samples 10000 --seed 0 --out trial.csv
-    vesselid identify  trial.csv --model heave.toml --method ls|iv|iv-zero-mean [--json PATH|-]
+    vesselid identify  trial.csv --model heave.toml [--method NAME] [--cov NAME] [--json PATH|-]
     vesselid reproduce [--table 1|2|all] [--runs 1000] [--samples 10000] [--seed 0] [--out DIR]
     vesselid sea-trial --vessel cybership2 --experiments 6 --samples 20000 --seed 0 --out DIR
 
@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
 import sys
 import warnings
 from collections.abc import Sequence
@@ -69,7 +68,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     log.save(out)
     print(f"wrote {out} ({len(log)} rows, {args.experiments} experiment(s)) and model spec "
           f"{spec_path}")
-    print(f"next: vesselid identify {out} --model {spec_path} --method iv-zero-mean")
+    print(f"next: vesselid identify {out} --model {spec_path}")
     return 0
 
 
@@ -85,10 +84,9 @@ def cmd_identify(args: argparse.Namespace) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = identify(log, spec, method=args.method, combine=args.combine,
-                          max_iter=args.max_iter)
-    payload = result.to_dict()
+                          target=args.target, cov_type=args.cov, max_iter=args.max_iter)
     if args.json:
-        text = json.dumps(payload, indent=2)
+        text = result.to_json(indent=2)
         if args.json == "-":
             print(text)
         else:
@@ -105,7 +103,20 @@ def cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
+    from vesselid.identify import covariance_api
+    from vesselid.identify.registry import DEFAULT_METHOD, ESTIMATORS, method_labels
+
     parser = argparse.ArgumentParser(
         prog="vesselid",
         description="Simulate marine vessels under current, wind and sensor noise, and identify "
@@ -133,11 +144,18 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Identify θ from a trial log (CSV or Parquet).")
     p.add_argument("log", help="trial log (.csv with optional .json sidecar, or .parquet)")
     p.add_argument("--model", help="model spec TOML (default: the spec stored in the log)")
-    p.add_argument("--method", default="iv-zero-mean", choices=["ls", "iv", "iv-zero-mean"])
+    p.add_argument("--method", default=DEFAULT_METHOD, choices=list(ESTIMATORS),
+                   help=f"estimator (default {DEFAULT_METHOD}): "
+                        + "; ".join(f"{k}: {v}" for k, v in method_labels("long").items()))
+    p.add_argument("--cov", default=None, choices=covariance_api.available(),
+                   help=f"covariance estimator (default {covariance_api.default_cov_type()})")
+    p.add_argument("--target", default="measured", choices=["measured", "aggregated"],
+                   help="regression target with a current sensor: y1(k) as in eq. (10) "
+                        "(default) or the aggregated ỹ(k) (reproduce --table 2 uses it)")
     p.add_argument("--combine", default="pooled", choices=["pooled", "stacked"],
                    help="multi-experiment equations: pooled normal equations (default) or the "
                         "stacked least-squares form (6)")
-    p.add_argument("--max-iter", type=int, default=100)
+    p.add_argument("--max-iter", type=_positive_int, default=100)
     p.add_argument("--json", metavar="PATH|-", help="write the result as JSON ('-' = stdout)")
     p.set_defaults(func=cmd_identify)
 

@@ -33,6 +33,7 @@ import numpy as np
 import pandas as pd
 
 from vesselid._io import atomic_path
+from vesselid._json import dumps as strict_dumps
 from vesselid.errors import LogValidationError
 from vesselid.model import ModelSpec
 
@@ -86,7 +87,7 @@ def _json_default(obj: Any) -> Any:
 
 def _dumps(obj: Any) -> str:
     try:
-        return json.dumps(obj, default=_json_default, indent=2, sort_keys=False)
+        return strict_dumps(obj, default=_json_default, indent=2, sort_keys=False)
     except (TypeError, ValueError) as exc:
         raise LogValidationError(f"trial log metadata is not JSON-serialisable: {exc}") from exc
 

@@ -21,7 +21,7 @@ Execution
 ---------
 Runs are processed in chunks of ``batch_size``: one batch simulation
 (:meth:`~vesselid.systems.System.simulate` with the chunk's seeds) and one batched
-:func:`~vesselid.identify.estimators.estimate` call per method, which estimates all
+``estimate_parameters`` call per registered estimator, which estimates all
 runs of the chunk at once in the compiled kernels (parallel over runs on all local
 cores). With ``client`` (a :class:`dask.distributed.Client` or a scheduler
 address) every chunk is a task — a pure function of ``(study, first run, last
@@ -48,7 +48,8 @@ import pandas as pd
 from vesselid._io import atomic_write_with
 from vesselid.errors import VesselidError
 from vesselid.identify.data import RegressionData, from_arrays
-from vesselid.identify.estimators import COMBINE_MODES, METHODS, estimate
+from vesselid.identify.estimators import COMBINE_MODES
+from vesselid.identify.registry import ESTIMATORS, PAPER_METHODS, get_estimator
 from vesselid.model import ModelSpec
 from vesselid.systems import System, get_system
 
@@ -90,7 +91,8 @@ class Study:
     options : mapping
         Keyword options of the system factory (e.g. ``current_mean=0.1``).
     methods : sequence of str
-        Estimators: ``"ls"`` (16), ``"iv"`` (4)/(6), ``"iv-zero-mean"`` (A7).
+        Registered estimators (:data:`vesselid.identify.ESTIMATORS`); default the
+        paper's three: ``"ls"`` (16), ``"iv"`` (4)/(6), ``"iv-zero-mean"`` (A7).
     runs : int
         Monte Carlo runs.
     samples : int
@@ -113,7 +115,7 @@ class Study:
 
     system: str | Callable[..., System] = "heave"
     options: Mapping[str, Any] = field(default_factory=dict)
-    methods: Sequence[str] = METHODS
+    methods: Sequence[str] = PAPER_METHODS
     runs: int = 1000
     samples: int = 10_000
     experiments_per_run: int = 1
@@ -128,10 +130,13 @@ class Study:
     def __post_init__(self) -> None:
         object.__setattr__(self, "methods", tuple(self.methods))
         object.__setattr__(self, "options", dict(self.options))
-        unknown = [m for m in self.methods if m not in METHODS]
+        unknown = [m for m in self.methods if m not in ESTIMATORS]
         if unknown or not self.methods:
-            raise VesselidError(f"methods must be a non-empty subset of {METHODS}, got "
-                                f"{list(self.methods)}")
+            raise VesselidError(f"methods must be a non-empty subset of {list(ESTIMATORS)}, "
+                                f"got {list(self.methods)}")
+        for m in self.methods:
+            if self.combine not in get_estimator(m).multi_experiment:
+                raise VesselidError(f"method {m!r} does not support combine={self.combine!r}")
         if int(self.runs) < 1:
             raise VesselidError(f"need at least one run, got {self.runs}")
         if int(self.samples) < 10:
@@ -209,8 +214,9 @@ def run_chunk(study: Study, start: int, stop: int) -> pd.DataFrame:
     theta0 = spec.theta0_vector()
     frames = []
     for method in study.methods:
-        res = estimate(data, spec, method, combine=study.combine, max_iter=int(study.max_iter),
-                       tol=float(study.tol))
+        res = get_estimator(method).estimate_parameters(
+            data, spec, combine=study.combine, max_iter=int(study.max_iter),
+            tol=float(study.tol))
         frames.append(_tidy(res, method, spec, theta0, start))
     return pd.concat(frames, ignore_index=True)
 

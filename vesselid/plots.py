@@ -25,10 +25,16 @@ from matplotlib.ticker import MaxNLocator
 
 from vesselid.errors import VesselidError
 
-__all__ = ["METHOD_LABELS", "error_histograms", "estimate_vs_truth", "trial_timeseries"]
+__all__ = ["error_histograms", "estimate_vs_truth", "trial_timeseries"]
 
-#: Display names of the estimators (the paper's notation).
-METHOD_LABELS = {"ls": "LS", "iv": "IV", "iv-zero-mean": r"IV$_{E\{\zeta\}=0}$"}
+
+
+def _labels() -> dict[str, str]:
+    """Display names of the registered estimators (the paper's notation)."""
+    from vesselid.identify.registry import method_labels
+
+    return method_labels("plot")
+
 
 
 def _figure(width: float, height: float) -> Figure:
@@ -144,7 +150,7 @@ def error_histograms(
             if i == 0:
                 ax.set_title(_param_label(eq, term, labels, multi), fontsize=9)
             if j == 0:
-                ax.set_ylabel(METHOD_LABELS.get(meth, meth), fontsize=9)
+                ax.set_ylabel(_labels().get(meth, meth), fontsize=9)
     if title:
         fig.suptitle(title, fontsize=10)
     return fig
@@ -187,7 +193,7 @@ def estimate_vs_truth(
             sd = float(np.std(est, ddof=1)) if est.size > 1 else 0.0
             ax.errorbar(i, float(np.mean(est)), yerr=sd, fmt="o", color="k", capsize=4)
         ax.axhline(theta0, color="k", ls="--", lw=1.0, label=r"$\theta_0$")
-        ax.set_xticks(range(len(meths)), [METHOD_LABELS.get(m, m) for m in meths], fontsize=8)
+        ax.set_xticks(range(len(meths)), [_labels().get(m, m) for m in meths], fontsize=8)
         sym = (labels or {}).get(term)
         ax.set_title(rf"${sym}$ ($\theta_0$ = {theta0:g})" if sym
                      else f"{eq}: {term}" if multi else term, fontsize=9)

@@ -57,7 +57,6 @@ the extra term −w_c(k) is white and independent of the instruments).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -70,7 +69,9 @@ import numpy as np
 import pandas as pd
 
 from vesselid._io import atomic_write_text
+from vesselid._json import dumps, strict
 from vesselid.errors import VesselidError
+from vesselid.identify.registry import DEFAULT_METHOD, ESTIMATORS, PAPER_METHODS, method_labels
 from vesselid.montecarlo import Study, run_study, save_results, summary_table
 
 __all__ = [
@@ -88,8 +89,14 @@ __all__ = [
 #: Heave terms → the paper's parameter symbols.
 PARAMETER_LABELS = {"w": "a", "w*|w|": "n", "tau": "f"}
 _TERMS = ("w", "w*|w|", "tau")
-METHODS = ("ls", "iv", "iv-zero-mean")
-_NAMES = {"ls": "LS", "iv": "IV", "iv-zero-mean": "IV_E{ζ}=0"}
+#: The paper's rows (always reproduced and checked against the published numbers).
+METHODS = PAPER_METHODS
+#: Extra rows: the package default when it is not one of the paper's estimators.
+EXTRA_METHODS: tuple[str, ...] = () if DEFAULT_METHOD in PAPER_METHODS else (DEFAULT_METHOD,)
+
+
+def _name(method: str) -> str:
+    return method_labels("short").get(method, method)
 
 
 def _published(rows: Mapping[str, tuple[tuple[float, float], ...]]) -> pd.DataFrame:
@@ -116,6 +123,14 @@ PUBLISHED_TABLE_2 = _published({
 })
 
 PUBLISHED = {1: PUBLISHED_TABLE_1, 2: PUBLISHED_TABLE_2}
+
+#: How each Table-2 target relates to ``vesselid identify`` (one documented rule).
+_TARGET_TEXT = {
+    "aggregated": "ỹ(k) = y1(k) − y2(k) on both sides (the reading that reproduces Table 2; "
+                  "`vesselid identify --target aggregated` gives the same estimates, while "
+                  "identify's default target is y1(k) as in eq. (10))",
+    "measured": "y1(k) as in eq. (10) (identify's default target)",
+}
 CURRENT_MEAN = {1: 0.0, 2: 0.1}
 PULSES = ("alternating", "random")
 TARGETS = ("aggregated", "measured")
@@ -145,8 +160,12 @@ def table_study(
     pulses: str = "alternating",
     xi_mean: str | float = "literal",
     target: str = "aggregated",
+    extra_methods: tuple[str, ...] | None = None,
 ) -> Study:
     """The :class:`~vesselid.montecarlo.Study` of Table ``table`` (1 or 2).
+
+    The study runs the paper's three estimators plus ``extra_methods`` (default
+    :data:`EXTRA_METHODS`: the package default estimator as an extra row).
 
     Table 2 uses the seed ``seed + 1`` so the two tables draw independent noise.
     ``xi_mean`` and ``target`` only affect Table 2 (Table 1 always uses ξ̄ = −0.05
@@ -164,8 +183,13 @@ def table_study(
         xm = _xi_mean(xi_mean)
         if xm is not None:
             options["xi_mean"] = xm
+    extras = EXTRA_METHODS if extra_methods is None else tuple(extra_methods)
+    unknown = [m for m in extras if m not in ESTIMATORS]
+    if unknown:
+        raise VesselidError(f"unknown extra methods {unknown}; choose from {list(ESTIMATORS)}")
+    methods = METHODS + tuple(m for m in extras if m not in METHODS)
     return Study(
-        system="heave", options=options, methods=METHODS, runs=int(runs), samples=int(samples),
+        system="heave", options=options, methods=methods, runs=int(runs), samples=int(samples),
         seed=int(seed) + (table - 1), aggregate=table == 2,
         target="aggregated" if table == 2 and target == "aggregated" else "measured",
         name=f"table{table}",
@@ -197,6 +221,11 @@ def comparison_table(summary: pd.DataFrame, table: int) -> pd.DataFrame:
     rep = summary[["method", "term", "mean", "sd", "se", "z", "runs", "failed",
                    "not_converged", "mean_iterations"]]
     out = pub.merge(rep, on=["method", "term"], how="left")
+    extra = rep[~rep["method"].isin(list(METHODS))].assign(
+        parameter=lambda d: d["term"].map(PARAMETER_LABELS), published_mean=np.nan,
+        published_sd=np.nan)
+    if not extra.empty:
+        out = pd.concat([out, extra[out.columns]], ignore_index=True)
     out["diff_sd"] = (out["mean"] - out["published_mean"]) / out["published_sd"]
     out["sd_ratio"] = out["sd"] / out["published_sd"]
     return out
@@ -223,9 +252,10 @@ def check_claims(summary: pd.DataFrame, table: int, k: float = 3.0) -> list[Clai
                         bool(len(zm) and np.all(np.abs(zm["z"]) < k)), zs("iv-zero-mean")))
     for m in ("ls", "iv"):
         d = by[m]
-        claims.append(Claim(table, f"{_NAMES[m]} biased: |mean| > {k:g} SE for some parameter",
+        claims.append(Claim(table, f"{_name(m)} biased: |mean| > {k:g} SE for some parameter",
                             bool(len(d) and np.any(np.abs(d["z"]) > k)), zs(m)))
-    failed = int(summary.groupby("method")["failed"].max().sum())
+    paper = summary[summary["method"].isin(list(METHODS))]
+    failed = int(paper.groupby("method")["failed"].max().sum())
     claims.append(Claim(table, "every run gave a finite estimate", failed == 0,
                         f"{failed} failed run(s)"))
     return claims
@@ -259,17 +289,22 @@ class ReproductionResult:
             out.append(f"{head}  ({st.runs} runs × {st.samples} samples, seed {st.seed}, "
                        f"pulses {st.options.get('pulse_design')}"
                        + (f", target {st.target}, ξ̄ = {self._xi(t)}" if t == 2 else "") + ")")
+            if t == 2:
+                out.append(f"  regression target: {_TARGET_TEXT[st.target]}")
             cols = [f"({s}̂ − {s}0)/{s}0" for s in ("a", "n", "f")]
             out.append(f"{'':12s}{'':12s}" + "".join(f"{c:>22s}" for c in cols))
-            for m in METHODS:
+            for m in st.methods:
                 rows = comp[comp["method"] == m].set_index("term").loc[list(_TERMS)]
-                pub = "".join(f"{r.published_mean:>+13.4f} ± {r.published_sd:.4f}"
-                              for r in rows.itertuples())
                 rep = "".join(f"{r.mean:>+13.4f} ± {r.sd:.4f}" for r in rows.itertuples())
                 se = "".join(f"{'(SE ' + format(r.se, '.4f') + ')':>22s}"
                              for r in rows.itertuples())
-                out.append(f"{_NAMES[m]:12s}{'published':12s}{pub}")
-                out.append(f"{'':12s}{'reproduced':12s}{rep}")
+                if m in METHODS:
+                    pub = "".join(f"{r.published_mean:>+13.4f} ± {r.published_sd:.4f}"
+                                  for r in rows.itertuples())
+                    out.append(f"{_name(m):12s}{'published':12s}{pub}")
+                    out.append(f"{'':12s}{'reproduced':12s}{rep}")
+                else:
+                    out.append(f"{_name(m)[:11]:12s}{'(default)':12s}{rep}")
                 extra = ""
                 nc, fl = int(rows["not_converged"].max()), int(rows["failed"].max())
                 if m != "ls":
@@ -303,7 +338,7 @@ class ReproductionResult:
                          (v.item() if hasattr(v, "item") else v)) for k, v in r.items()}
                     for r in recs]
 
-        return {
+        return strict({
             "ok": self.ok,
             "settings": self.settings,
             "studies": {str(t): s.describe() for t, s in self.studies.items()},
@@ -311,7 +346,7 @@ class ReproductionResult:
             "claims": [c.to_dict() for c in self.claims],
             "timings": self.timings,
             "files": self.files,
-        }
+        })
 
 
 def warm_up() -> float:
@@ -436,7 +471,7 @@ def _write(res: ReproductionResult, out: Path, fmt: str, figures: bool) -> None:
             res.files.append(str(out / name))
     path = out / "summary.json"
     res.files.append(str(path))
-    atomic_write_text(path, json.dumps(res.to_dict(), indent=2) + "\n")
+    atomic_write_text(path, dumps(res.to_dict(), indent=2) + "\n")
 
 
 # -------------------------------------------------------------------------- CLI
@@ -484,11 +519,11 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     )
     payload = res.to_dict()
     if args.json == "-":
-        print(json.dumps(payload, indent=2))
+        print(dumps(payload, indent=2))
     else:
         print(res.to_text())
         if args.json:
-            atomic_write_text(args.json, json.dumps(payload, indent=2) + "\n")
+            atomic_write_text(args.json, dumps(payload, indent=2) + "\n")
             print(f"wrote {args.json}")
     if args.strict and not res.ok:
         return 1

@@ -11,15 +11,16 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from vesselid._json import dumps, strict
 from vesselid.model import ModelSpec
 
 __all__ = ["IdentificationResult"]
 
-METHOD_LABELS = {
-    "ls": "least squares (16)",
-    "iv": "refined instrumental variables (4)/(6)",
-    "iv-zero-mean": "refined IV, zero-mean instruments (IV_E{ζ}=0)",
-}
+
+def _label(method: str) -> str:
+    from vesselid.identify.registry import method_labels
+
+    return method_labels("long").get(method, method)
 
 
 @dataclass
@@ -31,10 +32,10 @@ class IdentificationResult:
     params : Series
         Estimates indexed by ``(equation, term)``.
     cov : DataFrame
-        Asymptotic covariance of the estimates (block-diagonal per equation),
-        computed under the usual white-equation-error assumption
-        (``σ² A⁻¹ ZᵀZ A⁻ᵀ`` for IV, ``σ² (ΦᵀΦ)⁻¹`` for LS; a sandwich for the
-        stacked multi-experiment form).
+        Asymptotic covariance of the estimates (block-diagonal per equation), from
+        the covariance estimator named in ``diagnostics["cov_type"]`` (``unadjusted``:
+        white equation error, ``σ² A⁻¹ ZᵀZ A⁻ᵀ`` for IV, ``σ² (ΦᵀΦ)⁻¹`` for LS, a
+        sandwich for the stacked multi-experiment form).
     residuals : DataFrame
         One-step prediction errors ``y(k) − φᵀ(k)θ̂`` per state (NaN at the first
         sample of each experiment, which has no predecessor).
@@ -107,9 +108,11 @@ class IdentificationResult:
             table["theta0"] = cmp["theta0"]
             table["norm_error"] = cmp["normalized_error"]
         lines = [
-            f"Model {self.spec.name!r} — {METHOD_LABELS.get(self.method, self.method)}",
+            f"Model {self.spec.name!r} — {_label(self.method)}",
             f"experiments: {self.n_experiments}   samples: {self.n_samples}   "
-            f"combine: {self.diagnostics.get('combine', 'pooled')}",
+            f"combine: {self.diagnostics.get('combine', 'pooled')}   "
+            f"covariance: {self.diagnostics.get('cov_type', 'unadjusted')}   "
+            f"target: {self.diagnostics.get('target', 'measured')}",
             f"converged: {self.converged}   iterations: {self.iterations}   "
             f"stop: {self.stop_reason}",
         ]
@@ -161,31 +164,20 @@ class IdentificationResult:
         }
         if isinstance(design, pd.DataFrame):
             diag["design"] = json.loads(design.to_json(orient="records"))
-        return {
+        return strict({
             "method": self.method,
             "params": self._per_state(self.params),
             "stderr": self._per_state(self.std_errors),
+            "cov_type": self.diagnostics.get("cov_type"),
             "converged": bool(self.converged),
             "iterations": int(self.iterations),
             "stop_reason": self.stop_reason,
             "experiments": int(self.n_experiments),
             "samples": int(self.n_samples),
-            "diagnostics": _jsonable(diag),
-        }
+            "diagnostics": diag,
+        })
 
     def to_json(self, **kwargs: Any) -> str:
-        return json.dumps(self.to_dict(), **({"indent": 2} | kwargs))
+        """Strict JSON (non-finite values as ``null``)."""
+        return dumps(self.to_dict(), **({"indent": 2} | kwargs))
 
-
-def _jsonable(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    return obj

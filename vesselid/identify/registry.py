@@ -1,0 +1,58 @@
+"""The one registry of estimators: ``--method`` names, labels, Monte Carlo, plots.
+
+Everything that lists or labels estimators (the CLI choices, ``identify``,
+:mod:`vesselid.montecarlo`, :mod:`vesselid.reproduce`, :mod:`vesselid.plots`)
+reads :data:`ESTIMATORS`. Adding an estimator is one subclass of
+:class:`~vesselid.identify.base.Estimator` and one :func:`register` call.
+"""
+
+from __future__ import annotations
+
+from vesselid.errors import IdentificationError
+from vesselid.identify.base import Estimator
+from vesselid.identify.methods import LeastSquares, RefinedIV
+
+__all__ = [
+    "DEFAULT_METHOD",
+    "ESTIMATORS",
+    "PAPER_METHODS",
+    "get_estimator",
+    "method_labels",
+    "register",
+]
+
+#: name -> estimator object (a configured instance).
+ESTIMATORS: dict[str, Estimator] = {}
+
+
+def register(estimator: Estimator) -> Estimator:
+    """Add ``estimator`` under ``estimator.name`` (replacing an earlier entry)."""
+    ESTIMATORS[estimator.name] = estimator
+    return estimator
+
+
+for _est in (LeastSquares(), RefinedIV(zero_mean=False), RefinedIV(zero_mean=True)):
+    register(_est)
+
+#: The three estimators of the paper's Tables 1–2, in the paper's order.
+PAPER_METHODS: tuple[str, ...] = ("ls", "iv", "iv-zero-mean")
+
+#: The package default (``identify`` and ``vesselid identify`` without ``--method``).
+DEFAULT_METHOD = "iv-zero-mean"
+
+
+def get_estimator(method: str | Estimator) -> Estimator:
+    """The registered estimator ``method`` (an :class:`Estimator` passes through)."""
+    if isinstance(method, Estimator):
+        return method
+    try:
+        return ESTIMATORS[method]
+    except (KeyError, TypeError):
+        raise IdentificationError(
+            f"unknown method {method!r}; choose from {list(ESTIMATORS)}") from None
+
+
+def method_labels(kind: str = "short") -> dict[str, str]:
+    """name -> label (``kind``: ``"short"`` table rows, ``"plot"``, ``"long"``)."""
+    attr = {"short": "short", "plot": "plot_label", "long": "label"}[kind]
+    return {name: getattr(est, attr) for name, est in ESTIMATORS.items()}
