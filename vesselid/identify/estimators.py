@@ -257,6 +257,8 @@ class IterationResult:
     oscillation: np.ndarray
     history: list[np.ndarray] = field(default_factory=list)
     start: np.ndarray | None = None
+    #: estimator-specific per-group results (instrument set used, J/C statistics, ...)
+    info: dict = field(default_factory=dict)
 
     @property
     def ok(self) -> np.ndarray:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from vesselid.errors import IdentificationError
 from vesselid.identify.base import Estimator
+from vesselid.identify.efficient import InstrumentalGMM, LaggedIV
 from vesselid.identify.methods import LeastSquares, RefinedIV
 
 __all__ = [
@@ -31,7 +32,21 @@ def register(estimator: Estimator) -> Estimator:
     return estimator
 
 
-for _est in (LeastSquares(), RefinedIV(zero_mean=False), RefinedIV(zero_mean=True)):
+for _est in (
+    LeastSquares(),
+    RefinedIV(zero_mean=False),
+    RefinedIV(zero_mean=True),
+    LaggedIV(),
+    InstrumentalGMM("simulated", noise_order=4, name="sriv",
+                    label="refined IV with an AR(4) noise-model prefilter (SRIV)",
+                    short="SRIV"),
+    InstrumentalGMM("combined", name="gmm",
+                    label="two-step GMM, simulated + delayed-measurement instruments",
+                    short="GMM"),
+    InstrumentalGMM("auto", noise_order=0, name="auto",
+                    label="GMM with the instrument set chosen by the C test",
+                    short="auto"),
+):
     register(_est)
 
 #: The three estimators of the paper's Tables 1–2, in the paper's order.

@@ -1,0 +1,303 @@
+"""Explicit-matrix IV/GMM, batched over parameter groups: instrument sets, noise-model
+prefiltering, two-step GMM with a HAC weight, Hansen's J.
+
+The paper's estimators (:mod:`vesselid.identify.estimators`) accumulate moments in
+one fused kernel pass. The estimators here need the instrument and regressor
+*rows* (to prefilter them with a noise model, to form a HAC weight, to stack
+several instrument sets), so they build them explicitly, still for all groups
+(Monte Carlo runs) at once and with compiled per-experiment helpers
+(:mod:`vesselid.identify._ivkernels`).
+
+Instrument sets (per state equation ``i`` with regressors ``φ_i``):
+
+* ``simulated`` — ``ζ(k) = Φ([x̂(k−1); u(k−1)])`` from the auxiliary model (§6).
+  Functions of the input only: valid whatever the colour of the disturbances.
+* ``lagged`` — the measured regressors delayed one and two samples (state taken at
+  ``k−2`` and ``k−3``) for every term that involves a state, plus the input-only
+  terms themselves (exogenous). Efficient when every disturbance is white, badly
+  biased when one is coloured (the delayed state then correlates with the equation
+  error).
+* ``combined`` — both (over-identified).
+
+Every set is used with per-experiment constants (zero-mean instruments, A7): all
+rows are centred per experiment, which is algebraically 2SLS/GMM with an
+experiment-specific constant among the regressors and the instruments.
+
+Estimation per group and equation: ``A = Σ z φᵀ``, ``b = Σ z y``; 2SLS
+``θ₁ = (AᵀM⁻¹A)⁻¹AᵀM⁻¹b`` with ``M = Σ z zᵀ``; two-step GMM ``θ₂`` with ``W = Ŝ⁻¹``,
+``Ŝ`` the Bartlett (Newey–West) long-run variance of ``z ε(θ₁)`` summed over
+experiments (never across a boundary). Hansen's ``J = ḡᵀŜ⁻¹ḡ`` with
+``ḡ = Σ z ε(θ₂)`` is χ²(K − P) under valid instruments; the difference-in-J (C)
+statistic of a subset is ``J(all) − J(without the subset)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vesselid.identify import _ivkernels as ivk
+from vesselid.identify import kernels, linalg
+from vesselid.identify.data import RegressionData, block_starts
+from vesselid.model import ModelSpec
+
+__all__ = [
+    "INSTRUMENT_SETS",
+    "GMMSolution",
+    "ar_coefficients",
+    "hac_lags",
+    "hac_sums",
+    "instrument_blocks",
+    "lagged_regressors",
+    "simulated_instruments",
+    "solve_equations",
+    "state_terms",
+]
+
+INSTRUMENT_SETS = ("simulated", "lagged", "combined")
+
+#: Delays of the measured state in the lagged instruments (regressors lagged 1 and 2).
+LAGS = (2, 3)
+
+
+def state_terms(spec: ModelSpec) -> np.ndarray:
+    """Boolean mask over θ: True for terms that involve a state (endogenous)."""
+    n, m = spec.n_states, len(spec.inputs)
+    fac = spec.codes.factors
+
+    def is_state(idx: int) -> bool:
+        return idx < n or n + m <= idx < 2 * n + m
+
+    return np.array([is_state(int(f0)) or is_state(int(f1)) for f0, f1 in fac])
+
+
+def hac_lags(n: int) -> int:
+    """Newey–West (1994) rule-of-thumb Bartlett bandwidth ``⌊4 (n/100)^{2/9}⌋``."""
+    return int(max(1, np.floor(4.0 * (max(n, 1) / 100.0) ** (2.0 / 9.0))))
+
+
+def lagged_regressors(data: RegressionData, spec: ModelSpec, lag: int) -> np.ndarray:
+    """``Φ([ỹ(k−lag); u(k−1)])`` for every row (NaN where ``k − lag`` is before the
+    experiment start). ``lag = 1`` gives the regressors themselves."""
+    shifted = np.full_like(data.regsig, np.nan)
+    d = lag - 1
+    for s in range(data.n_segments):
+        a, b = int(data.starts[s]), int(data.starts[s + 1])
+        if b - a > d:
+            shifted[a + d:b] = data.regsig[a:b - d]
+    return kernels.regressor_matrix(np.ascontiguousarray(shifted), data.u, data.starts,
+                                    spec.codes.factors)
+
+
+def simulated_instruments(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
+                          limit_factor: float = 1e3) -> tuple[np.ndarray, np.ndarray]:
+    """Instruments simulated from ``theta`` (G, P) per group; ``(z (T, P), ok (G,))``."""
+    codes = spec.codes
+    scale = np.array([np.max(np.abs(data.target[data.segment(s)]), initial=0.0)
+                      for s in range(data.n_segments)])
+    limit = limit_factor * np.maximum(scale, 1.0)
+    z, seg_ok = ivk.simulated_regressors(
+        data.target, data.u, data.starts, data.group,
+        np.ascontiguousarray(np.nan_to_num(theta), dtype=float), codes.factors,
+        codes.equation, limit)
+    ok = np.ones(data.n_groups, dtype=bool)
+    np.logical_and.at(ok, data.group, seg_ok)
+    ok &= np.all(np.isfinite(theta), axis=1)
+    return z, ok
+
+
+def instrument_blocks(spec: ModelSpec, kind: str, phi: np.ndarray, z_sim: np.ndarray | None,
+                      lagged: list[np.ndarray] | None) -> list[tuple[np.ndarray, int]]:
+    """Instrument matrix of every equation for instrument set ``kind``.
+
+    Returns a list ``[(Z_i (T, K_i), n_lagged_i)]``; the last ``n_lagged_i`` columns
+    are the lagged (measured-state) instruments.
+    """
+    blocks = block_starts(spec)
+    endo = state_terms(spec)
+    out = []
+    for i in range(spec.n_states):
+        cols = np.arange(int(blocks[i]), int(blocks[i + 1]))
+        d_cols = cols[endo[cols]]
+        lag_cols = [lg[:, d_cols] for lg in (lagged or [])]
+        if kind == "simulated":
+            out.append((z_sim[:, cols], 0))
+        elif kind == "lagged":
+            x_cols = cols[~endo[cols]]
+            out.append((np.column_stack([phi[:, x_cols], *lag_cols]),
+                        sum(c.shape[1] for c in lag_cols)))
+        elif kind == "combined":
+            out.append((np.column_stack([z_sim[:, cols], *lag_cols]),
+                        sum(c.shape[1] for c in lag_cols)))
+        else:  # pragma: no cover - validated by callers
+            raise ValueError(kind)
+    return out
+
+
+def ar_coefficients(data: RegressionData, resid: np.ndarray, valid: np.ndarray,
+                    order: int) -> np.ndarray:
+    """Yule–Walker AR(``order``) noise model ``C(q) = 1 + c₁q⁻¹ + …`` of ``resid`` per
+    group, pooled over the group's experiments. Returns ``(G, order + 1)``; always
+    minimum phase (Yule–Walker), so the prefilter ``C(q)`` is well defined."""
+    acv, cnt = ivk.autocov(np.nan_to_num(resid), data.starts, valid, int(order))
+    g_acv = np.zeros((data.n_groups, order + 1))
+    g_cnt = np.zeros(data.n_groups)
+    np.add.at(g_acv, data.group, acv)
+    np.add.at(g_cnt, data.group, cnt)
+    r = g_acv / np.maximum(g_cnt, 1)[:, None]
+    idx = np.abs(np.subtract.outer(np.arange(order), np.arange(order)))
+    toeplitz = r[:, idx]
+    coef, ok = linalg.solve(toeplitz, r[:, 1:])
+    out = np.zeros((data.n_groups, order + 1))
+    out[:, 0] = 1.0
+    out[ok, 1:] = -coef[ok]
+    return out
+
+
+@dataclass
+class GMMSolution:
+    """Estimates of one instrument set for every group.
+
+    ``theta`` (G, P), ``ok`` (G,), per equation ``j`` (G, n) Hansen's J, ``df`` (n,)
+    its degrees of freedom, ``c`` (G, n) the difference-in-J statistic of the
+    lagged subset and ``c_df`` (n,). ``designs`` (one group only, on request):
+    per equation ``(z, phi, y, valid, weight)`` after prefiltering and centring.
+    """
+
+    theta: np.ndarray
+    ok: np.ndarray
+    j: np.ndarray
+    df: np.ndarray
+    c: np.ndarray
+    c_df: np.ndarray
+    designs: list | None = None
+
+
+def hac_sums(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: np.ndarray,
+             lags: int) -> np.ndarray:
+    """Bartlett (Newey–West) long-run variance of the sum of ``g(k) = z(k) e(k)`` per
+    experiment: ``Γ0 + Σ_{l=1}^{L} (1 − l/(L+1)) (Γl + Γlᵀ)``, ``Γl = Σ_k g(k) g(k−l)ᵀ``,
+    ``g`` demeaned per experiment, invalid rows as zeros (time alignment kept).
+    Returns ``(S, K, K)``."""
+    k_cols = z.shape[1]
+    out = np.zeros((starts.size - 1, k_cols, k_cols))
+    g_all = np.where(valid[:, None], z * e[:, None], 0.0)
+    for s in range(starts.size - 1):
+        a, b = int(starts[s]), int(starts[s + 1])
+        v = valid[a:b]
+        cnt = int(v.sum())
+        if cnt == 0:
+            continue
+        g = g_all[a:b]
+        g = np.where(v[:, None], g - g.sum(axis=0) / cnt, 0.0)
+        acc = g.T @ g
+        for lag in range(1, min(lags, b - a - 1) + 1):
+            gam = g[lag:].T @ g[:-lag]
+            acc += (1.0 - lag / (lags + 1.0)) * (gam + gam.T)
+        out[s] = acc
+    return out
+
+
+def _group_sum(data: RegressionData, x: np.ndarray) -> np.ndarray:
+    out = np.zeros((data.n_groups, *x.shape[1:]))
+    np.add.at(out, data.group, x)
+    return out
+
+
+def _row_groups(data: RegressionData) -> np.ndarray:
+    return np.repeat(data.group, np.diff(data.starts))
+
+
+def solve_equations(
+    data: RegressionData,
+    spec: ModelSpec,
+    phi: np.ndarray,
+    z_blocks: list[tuple[np.ndarray, int]],
+    *,
+    weight: str = "hac",
+    ar: np.ndarray | None = None,
+    lags: int | None = None,
+    keep_designs: bool = False,
+) -> GMMSolution:
+    """IV / 2SLS / two-step GMM of every equation and group (see module docstring).
+
+    Parameters
+    ----------
+    phi : ndarray (T, P)
+        Regressors (:func:`vesselid.identify.kernels.regressor_matrix`).
+    z_blocks : list of (ndarray (T, K_i), int)
+        Instruments per equation and the number of trailing lagged columns.
+    weight : {"hac", "2sls"}
+        Over-identified equations: two-step GMM with a Bartlett HAC weight, or 2SLS.
+    ar : ndarray (G, n, p + 1), optional
+        Noise-model prefilter ``C(q)`` per group and equation (SRIV); applied to
+        target, regressors and instruments per experiment before centring.
+    lags : int, optional
+        HAC bandwidth (default :func:`hac_lags` of the median experiment length).
+    """
+    blocks = block_starts(spec)
+    n_groups = data.n_groups
+    theta = np.full((n_groups, spec.n_params), np.nan)
+    ok = np.ones(n_groups, dtype=bool)
+    j_stat = np.zeros((n_groups, spec.n_states))
+    c_stat = np.zeros((n_groups, spec.n_states))
+    df = np.zeros(spec.n_states, dtype=int)
+    c_df = np.zeros(spec.n_states, dtype=int)
+    rg = _row_groups(data)
+    bw = hac_lags(int(np.median(np.diff(data.starts)))) if lags is None else int(lags)
+    designs = [] if keep_designs else None
+    for i in range(spec.n_states):
+        sl = slice(int(blocks[i]), int(blocks[i + 1]))
+        z, n_lag = z_blocks[i]
+        p_i = sl.stop - sl.start
+        k_i = z.shape[1]
+        stack = np.column_stack([z, phi[:, sl], data.target[:, i]])
+        valid = np.all(np.isfinite(stack), axis=1)
+        stack = np.where(valid[:, None], stack, 0.0)
+        if ar is not None:
+            stack, valid = ivk.ar_filter(stack, data.starts, valid,
+                                         np.ascontiguousarray(ar[data.group, i]))
+        stack = ivk.center(stack, data.starts, valid)
+        zz = np.ascontiguousarray(stack[:, :k_i])
+        pp = np.ascontiguousarray(stack[:, k_i:k_i + p_i])
+        yy = np.ascontiguousarray(stack[:, -1])
+        a_s, b_s, m_s, _ = ivk.cross_sums(zz, pp, yy, data.starts, valid)
+        a, b, m = _group_sum(data, a_s), _group_sum(data, b_s), _group_sum(data, m_s)
+        w = None
+        if k_i > p_i:
+            w, ok_w = linalg.inv_sym(m)
+            ok &= ok_w
+            w = np.nan_to_num(w)
+        th, ok_i = linalg.gmm_solve(a, b, w)
+        s_mat = None
+        if k_i > p_i:
+            e = yy - np.einsum("tp,tp->t", pp, np.nan_to_num(th)[rg])
+            s_mat = _group_sum(data, hac_sums(zz, e, data.starts, valid, bw))
+            s_inv, ok_s = linalg.inv_sym(s_mat)
+            if weight == "hac":
+                th2, ok_2 = linalg.gmm_solve(a, b, np.nan_to_num(s_inv))
+                th, ok_i = th2, ok_i & ok_2 & ok_s
+                w = s_inv
+            gbar = b - np.einsum("gkp,gp->gk", a, np.nan_to_num(th))
+            j_stat[:, i] = np.einsum("gk,gkl,gl->g", gbar, np.nan_to_num(s_inv), gbar)
+            df[i] = k_i - p_i
+            if n_lag:
+                k_r = k_i - n_lag
+                if k_r > p_i:  # restricted set over-identified: J(all) − J(restricted)
+                    sr_inv, _ = linalg.inv_sym(s_mat[:, :k_r, :k_r])
+                    th_r, _ = linalg.gmm_solve(a[:, :k_r], b[:, :k_r], np.nan_to_num(sr_inv))
+                    g_r = b[:, :k_r] - np.einsum("gkp,gp->gk", a[:, :k_r], np.nan_to_num(th_r))
+                    j_r = np.einsum("gk,gkl,gl->g", g_r, np.nan_to_num(sr_inv), g_r)
+                else:
+                    j_r = 0.0
+                c_stat[:, i] = j_stat[:, i] - j_r
+                c_df[i] = n_lag
+        theta[:, sl] = th
+        ok &= ok_i
+        if designs is not None:
+            designs.append((zz[valid], pp[valid], yy[valid], valid,
+                            None if w is None else np.asarray(w)[0]))
+    theta[~ok] = np.nan
+    return GMMSolution(theta=theta, ok=ok, j=j_stat, df=df, c=c_stat, c_df=c_df,
+                       designs=designs)
