@@ -62,7 +62,8 @@ class EquationDesign:
     ``z`` (n, K) instruments as used (centred / prefiltered where the estimator does
     so), ``phi`` (n, P) regressors and ``resid`` (n,) residuals on the same footing,
     ``starts`` (S+1,) experiment boundaries into these rows, ``weight`` the GMM
-    weight (K, K) when ``K > P`` (None: just identified).
+    weight (K, K) when ``K > P`` (None: just identified), ``zero_mean`` whether the
+    rows carry per-experiment constants (centred instruments).
     """
 
     z: np.ndarray
@@ -70,6 +71,7 @@ class EquationDesign:
     resid: np.ndarray
     starts: np.ndarray
     weight: np.ndarray | None = None
+    zero_mean: bool = False
 
 
 def equation_rows(data: RegressionData) -> np.ndarray:
@@ -239,11 +241,12 @@ class Estimator:
         resid = data.target - pred
         cov = np.zeros((spec.n_params, spec.n_params))
         cond: dict[str, float] = {}
+        cov_label = cov_name
         for i, s in enumerate(spec.states):
             sl = slice(int(blocks[i]), int(blocks[i + 1]))
             d = designs[i]
             cond[s] = linalg.condition_number(d.z.T @ d.phi)
-            cov[sl, sl] = cov_fn(d, combine=combine)
+            cov[sl, sl], cov_label = cov_fn(d, combine=combine)
             if self.uses_instruments and cond[s] > weak_instrument_cond:
                 _warn(f"weak instruments in equation {s!r}: cond(ZᵀΦ) = {cond[s]:.3g}",
                       WeakInstrumentWarning)
@@ -281,6 +284,7 @@ class Estimator:
         diagnostics: dict[str, Any] = {
             "combine": combine,
             "cov_type": cov_name,
+            "cov_label": cov_label,
             "target": _target_rule(spec, target),
             "instrument_condition": cond,
             "fit_one_step": fit_one,
@@ -358,7 +362,8 @@ def square_designs(data: RegressionData, spec: ModelSpec, z: np.ndarray, phi: np
     for i in range(spec.n_states):
         sl = slice(int(blocks[i]), int(blocks[i + 1]))
         res = data.target[rows, i] - phi[rows, sl] @ theta[sl]
-        out.append(EquationDesign(z=zc[rows, sl], phi=phi[rows, sl], resid=res, starts=starts))
+        out.append(EquationDesign(z=zc[rows, sl], phi=phi[rows, sl], resid=res, starts=starts,
+                                  zero_mean=zero_mean))
     return out
 
 

@@ -76,25 +76,32 @@ def unadjusted(design: Any, *, combine: str = "pooled") -> np.ndarray:
 
 
 def resolve(cov_type: str | None, cov_config: Mapping[str, Any] | None = None
-            ) -> tuple[str, Callable[..., np.ndarray]]:
-    """``(name, function(design, combine=...) -> (P, P) covariance)`` for ``cov_type``."""
+            ) -> tuple[str, Callable[..., tuple[np.ndarray, str]]]:
+    """``(name, function(design, combine=...) -> (covariance (P, P), label))``."""
     name = default_cov_type() if cov_type is None else cov_type
     config = dict(cov_config or {})
-    reg = _registry()
-    if name == "unadjusted" and "unadjusted" not in reg:
-        if config:
-            raise IdentificationError(f"cov_type 'unadjusted' takes no options, got {config}")
-        return name, unadjusted
-    if name not in reg:
-        raise IdentificationError(f"unknown cov_type {name!r}; choose from {available()}")
-    entry = reg[name]
     try:
-        est = entry(**config)
-    except TypeError as exc:
-        raise IdentificationError(f"cov_type {name!r}: bad option ({exc})") from None
+        from vesselid.identify import covariance
+    except ImportError:
+        covariance = None  # type: ignore[assignment]
+    if covariance is None:
+        if name != "unadjusted" or config:
+            raise IdentificationError(f"unknown cov_type {name!r} or options; choose from "
+                                      f"{available()}")
+        return name, lambda design, combine="pooled": (unadjusted(design, combine=combine),
+                                                       "unadjusted")
+    if name not in covariance.COVARIANCE_ESTIMATORS:
+        raise IdentificationError(f"unknown cov_type {name!r}; choose from {available()}")
+    try:
+        est = covariance.get_covariance_estimator(name, **config)
+    except (TypeError, ValueError) as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise IdentificationError(f"cov_type {name!r}: {msg}") from None
 
-    def fn(design: Any, *, combine: str = "pooled") -> np.ndarray:
-        cov = est.cov(design.z, design.phi, design.resid, design.starts, weight=design.weight)
-        return np.asarray(cov, dtype=float)
+    def fn(design: Any, *, combine: str = "pooled") -> tuple[np.ndarray, str]:
+        res = est.estimate(design.z, design.phi, design.resid, design.starts,
+                           weight=design.weight, zero_mean=design.zero_mean, combine=combine,
+                           skip_first=False)
+        return np.asarray(res.cov, dtype=float), str(res.label)
 
     return name, fn

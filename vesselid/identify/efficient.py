@@ -51,7 +51,7 @@ def _designs_from(sol: gmm.GMMSolution, theta: np.ndarray, spec: ModelSpec
     for i, (z, phi, y, valid, w) in enumerate(sol.designs or []):
         sl = slice(int(blocks[i]), int(blocks[i + 1]))
         out.append(EquationDesign(z=z, phi=phi, resid=y - phi @ theta[sl],
-                                  starts=_starts_of(valid, sol), weight=w))
+                                  starts=_starts_of(valid, sol), weight=w, zero_mean=True))
     return out
 
 

@@ -111,11 +111,14 @@ class IdentificationResult:
             f"Model {self.spec.name!r} — {_label(self.method)}",
             f"experiments: {self.n_experiments}   samples: {self.n_samples}   "
             f"combine: {self.diagnostics.get('combine', 'pooled')}   "
-            f"covariance: {self.diagnostics.get('cov_type', 'unadjusted')}   "
             f"target: {self.diagnostics.get('target', 'measured')}",
+            f"covariance: {self.diagnostics.get('cov_label', 'unadjusted')}",
             f"converged: {self.converged}   iterations: {self.iterations}   "
             f"stop: {self.stop_reason}",
         ]
+        for key in ("instruments", "noise_model", "instrument_choice"):
+            if self.diagnostics.get(key) not in (None, "none"):
+                lines.append(f"{key.replace('_', ' ')}: {self.diagnostics[key]}")
         if self.spec.aggregate:
             lines.append("aggregated-state predictor (9): "
                          + ", ".join(str(a) for a in self.spec.aggregate.values()))
