@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -93,7 +95,7 @@ def test_per_experiment_hac_has_no_cross_experiment_lags(kernel):
     phi = np.vstack([p[1] for p in parts])
     y = np.concatenate([p[2] for p in parts])
     starts = np.concatenate([[0], np.cumsum(lengths)])
-    zc, theta, resid = _zero_mean_iv(z, phi, y, starts)
+    zc, _theta, resid = _zero_mean_iv(z, phi, y, starts)
     bw = 6
     res = iv_covariance(zc, phi, resid, starts, zero_mean=True, skip_first=False,
                         cov_type="hac", kernel=kernel, bandwidth=bw)
@@ -128,11 +130,11 @@ def test_two_equations_joint_covariance_blocks():
     z1, phi1, y1 = _problem(rng, n=n, p=2)
     z2, phi2, y2 = _problem(rng, n=n, p=3)
     y2 = y2 + 0.5 * (y1 - phi1 @ np.array([1.0, -2.0]))  # correlated errors
-    z = np.hstack([z1, z2])
+    np.hstack([z1, z2])
     phi = np.hstack([phi1, phi2])
     eq = np.array([0, 0, 1, 1, 1])
-    zc1, th1, r1 = _zero_mean_iv(z1, phi1, y1, [0, n])
-    zc2, th2, r2 = _zero_mean_iv(z2, phi2, y2, [0, n])
+    zc1, _th1, r1 = _zero_mean_iv(z1, phi1, y1, [0, n])
+    zc2, _th2, r2 = _zero_mean_iv(z2, phi2, y2, [0, n])
     zc = np.hstack([zc1, zc2])
     resid = np.column_stack([r1, r2])
     for cov_type, cfg in (("unadjusted", {}), ("hac", {"kernel": "bartlett", "bandwidth": 5})):
@@ -157,14 +159,14 @@ def test_stacked_unadjusted_is_the_sandwich_of_the_stacked_equations():
     y = np.concatenate([p[2] for p in parts])
     starts = np.array([0, 200, 500])
     zc, _, _ = _zero_mean_iv(z, phi, y, starts)
-    a = [zc[s:e].T @ phi[s:e] / (e - s) for s, e in zip(starts[:-1], starts[1:], strict=True)]
-    b = [zc[s:e].T @ y[s:e] / (e - s) for s, e in zip(starts[:-1], starts[1:], strict=True)]
+    a = [zc[s:e].T @ phi[s:e] / (e - s) for s, e in itertools.pairwise(starts)]
+    b = [zc[s:e].T @ y[s:e] / (e - s) for s, e in itertools.pairwise(starts)]
     theta = np.linalg.lstsq(np.vstack(a), np.concatenate(b), rcond=None)[0]
     resid = y - phi @ theta
     res = iv_covariance(zc, phi, resid, starts, zero_mean=True, combine="stacked",
                         skip_first=False, cov_type="unadjusted")
     eps = np.concatenate([resid[s:e] - resid[s:e].mean()
-                          for s, e in zip(starts[:-1], starts[1:], strict=True)])
+                          for s, e in itertools.pairwise(starts)])
     sigma2 = eps @ eps / eps.size
     h = sum(ai.T @ ai for ai in a)
     meat = sum(ai.T @ (zc[s:e].T @ zc[s:e]) @ ai / (e - s) ** 2
@@ -190,7 +192,8 @@ def test_kernel_weights_match_linearmodels(kernel, bandwidth):
 def test_bartlett_weights_match_statsmodels():
     sw = pytest.importorskip("statsmodels.stats.sandwich_covariance")
     for lags in (0, 1, 5, 12):
-        np.testing.assert_allclose(kernel_weights("bartlett", lags, lags), sw.weights_bartlett(lags))
+        np.testing.assert_allclose(kernel_weights("bartlett", lags, lags),
+                                   sw.weights_bartlett(lags))
 
 
 @pytest.mark.parametrize("kernel", ["bartlett", "parzen", "qs"])
