@@ -259,7 +259,7 @@ def test_registry_and_validation():
     res = iv_covariance(z, phi, y - y.mean(), np.array([0, 25, 50]), cov_type="cluster")
     assert res.config["clusters"] == 2 and "experiment" in res.label
     auto = iv_covariance(z, phi, y - y.mean())
-    assert auto.config["bandwidth_rule"] == "andrews" and "Bartlett" in auto.label
+    assert auto.config["bandwidth_rule"] == "newey-west" and "Bartlett" in auto.label
 
 
 @pytest.mark.parametrize(("cov_type", "lm_type", "cfg"),

@@ -520,8 +520,11 @@ class KernelCovariance(CovarianceEstimator):
     kernel : {"bartlett", "parzen", "qs"}
         Kernel (aliases ``"newey-west"``, ``"gallant"``, ``"quadratic-spectral"``,
         ``"andrews"`` as in linearmodels).
-    bandwidth : float or {"andrews", "newey-west"}
+    bandwidth : float or {"newey-west", "andrews"}
         Fixed bandwidth (:func:`kernel_weights` convention) or an automatic rule
+        (default ``"newey-west"``: the Andrews AR(1) plug-in misses the slow part of
+        scores that mix the white MA(1) sensor-noise error with a coloured current,
+        see README "Calibration")
         (:func:`automatic_bandwidth`), computed from the scores of all experiments
         (after pre-whitening if on).
     prewhiten : bool
@@ -532,7 +535,7 @@ class KernelCovariance(CovarianceEstimator):
 
     name = "hac"
 
-    def __init__(self, kernel: str = "bartlett", bandwidth: float | str = "andrews",
+    def __init__(self, kernel: str = "bartlett", bandwidth: float | str = "newey-west",
                  prewhiten: bool = False) -> None:
         self.kernel = _kernel_name(kernel)
         if isinstance(bandwidth, str):
