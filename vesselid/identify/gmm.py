@@ -179,23 +179,30 @@ def hac_sums(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: np.ndarray
     """Bartlett (Newey–West) long-run variance of the sum of ``g(k) = z(k) e(k)`` per
     experiment: ``Γ0 + Σ_{l=1}^{L} (1 − l/(L+1)) (Γl + Γlᵀ)``, ``Γl = Σ_k g(k) g(k−l)ᵀ``,
     ``g`` demeaned per experiment, invalid rows as zeros (time alignment kept).
-    Returns ``(S, K, K)``."""
+
+    Computed exactly through moving sums: with ``h(t) = Σ_{j=0}^{L} g(t − j)`` over the
+    zero-padded series, ``Σ_t h hᵀ = Σ_l (L + 1 − |l|) Γl``, so one ``K × K`` product
+    replaces ``L + 1`` of them. Returns ``(S, K, K)``.
+    """
     k_cols = z.shape[1]
     out = np.zeros((starts.size - 1, k_cols, k_cols))
-    g_all = np.where(valid[:, None], z * e[:, None], 0.0)
+    g_all = z * np.where(valid, e, 0.0)[:, None]
     for s in range(starts.size - 1):
         a, b = int(starts[s]), int(starts[s + 1])
         v = valid[a:b]
         cnt = int(v.sum())
         if cnt == 0:
             continue
-        g = g_all[a:b]
-        g = np.where(v[:, None], g - g.sum(axis=0) / cnt, 0.0)
-        acc = g.T @ g
-        for lag in range(1, min(lags, b - a - 1) + 1):
-            gam = g[lag:].T @ g[:-lag]
-            acc += (1.0 - lag / (lags + 1.0)) * (gam + gam.T)
-        out[s] = acc
+        g = np.ascontiguousarray(g_all[a:b].T)  # (K, n): time along contiguous rows
+        g -= (g.sum(axis=1) / cnt)[:, None]
+        g[:, ~v] = 0.0
+        n = b - a
+        lag = int(min(lags, n - 1))
+        c = np.zeros((k_cols, n + 2 * lag + 1))
+        np.cumsum(g, axis=1, out=c[:, lag + 1:n + lag + 1])
+        c[:, n + lag + 1:] = c[:, n + lag:n + lag + 1]
+        h = c[:, lag + 1:] - c[:, :-(lag + 1)]
+        out[s] = (h @ h.T) / (lag + 1.0)
     return out
 
 
