@@ -15,9 +15,10 @@ All work on concatenated rows with experiment boundaries ``starts`` and a row ma
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
-__all__ = ["ar_filter", "autocov", "center", "cross_sums", "simulated_regressors"]
+__all__ = ["ar_filter", "autocov", "center", "combined_moments", "cross_sums",
+           "simulated_regressors"]
 
 
 @njit(cache=True)
@@ -178,3 +179,181 @@ def cross_sums(z, phi, y, starts, valid):
                 m_out[s, i, j] = m_out[s, j, i]
     return a_out, b_out, m_out, cnt
 
+
+
+@njit(cache=True, inline="always")
+def _combined_row(k, regsig, u, xh, fac, ztype, zpar, f_dat, f_sim, f_l2, f_l3, phi, z):
+    n = regsig.shape[1]
+    m = u.shape[1]
+    for i in range(n):
+        d = regsig[k - 1, i]
+        f_dat[i] = d
+        f_dat[n + m + i] = abs(d)
+        f_sim[i] = xh[i]
+        f_sim[n + m + i] = abs(xh[i])
+        d2 = regsig[k - 2, i]
+        f_l2[i] = d2
+        f_l2[n + m + i] = abs(d2)
+        d3 = regsig[k - 3, i]
+        f_l3[i] = d3
+        f_l3[n + m + i] = abs(d3)
+    for j in range(m):
+        v = u[k - 1, j]
+        f_dat[n + j] = v
+        f_dat[2 * n + m + j] = abs(v)
+        f_sim[n + j] = v
+        f_sim[2 * n + m + j] = abs(v)
+        f_l2[n + j] = v
+        f_l2[2 * n + m + j] = abs(v)
+        f_l3[n + j] = v
+        f_l3[2 * n + m + j] = abs(v)
+    for p in range(fac.shape[0]):
+        phi[p] = f_dat[fac[p, 0]] * f_dat[fac[p, 1]]
+    for c in range(ztype.shape[0]):
+        p = zpar[c]
+        t = ztype[c]
+        if t == 0:
+            z[c] = f_sim[fac[p, 0]] * f_sim[fac[p, 1]]
+        elif t == 2:
+            z[c] = f_l2[fac[p, 0]] * f_l2[fac[p, 1]]
+        else:
+            z[c] = f_l3[fac[p, 0]] * f_l3[fac[p, 1]]
+
+
+@njit(cache=True, parallel=True)
+def combined_moments(regsig, target, u, starts, group, theta, active, fac, eq, ztype, zpar,
+                     zeq, limit, second, theta1, means_z, means_phi, means_y, means_g, lags,
+                     s_a, s_b, s_m, s_z, s_phi, s_y, count, status, s_hac):
+    """Fused pass of the combined (simulated + delayed) instrument set, per segment.
+
+    ``second = False``: raw sums over the rows ``k = a+3 … b−1`` — ``Σ z φᵀ`` (S, K, P),
+    ``Σ z y_eq(z)`` (S, K), ``Σ z zᵀ`` (S, K, K), ``Σ z``, ``Σ φ``, ``Σ y``, count.
+    ``second = True``: the Bartlett long-run variance (moving-sum form) of the scores
+    ``(z − z̄) ε − ḡ``, ``ε = (y − ȳ) − (φ − φ̄)ᵀθ₁`` of each column's equation, into
+    ``s_hac`` (S, K, K). Instrument column ``c`` is term ``zpar[c]`` of equation
+    ``zeq[c]`` evaluated on the simulated state (``ztype 0``) or the measured state
+    delayed 2 / 3 samples (``ztype 2 / 3``), inputs at ``k − 1``.
+    """
+    n = regsig.shape[1]
+    m = u.shape[1]
+    n_par = fac.shape[0]
+    k_tot = ztype.shape[0]
+    n_f = 2 * (n + m) + 1
+    for s in prange(starts.shape[0] - 1):
+        g = group[s]
+        if not active[g]:
+            continue
+        a = starts[s]
+        b = starts[s + 1]
+        th = theta[g]
+        f_dat = np.empty(n_f)
+        f_sim = np.empty(n_f)
+        f_l2 = np.empty(n_f)
+        f_l3 = np.empty(n_f)
+        f_dat[n_f - 1] = 1.0
+        f_sim[n_f - 1] = 1.0
+        f_l2[n_f - 1] = 1.0
+        f_l3[n_f - 1] = 1.0
+        xh = np.empty(n)
+        phi = np.empty(n_par)
+        z = np.empty(k_tot)
+        e = np.empty(n)
+        sc = np.empty(k_tot)
+        ring = np.zeros((lags + 1, k_tot))
+        h = np.zeros(k_tot)
+        l_a = np.zeros((k_tot, n_par))
+        l_b = np.zeros(k_tot)
+        l_m = np.zeros((k_tot, k_tot))
+        l_z = np.zeros(k_tot)
+        l_phi = np.zeros(n_par)
+        l_y = np.zeros(n)
+        l_h = np.zeros((k_tot, k_tot))
+        status[s] = 0
+        for i in range(n):
+            xh[i] = target[a, i]
+        # advance the auxiliary model to k = a + 3 (rows before have no delayed states)
+        cnt = 0
+        for k in range(a + 1, b):
+            if k >= a + 3:
+                _combined_row(k, regsig, u, xh, fac, ztype, zpar, f_dat, f_sim, f_l2,
+                              f_l3, phi, z)
+                if not second:
+                    cnt += 1
+                    for c in range(k_tot):
+                        zc = z[c]
+                        l_b[c] += zc * target[k, zeq[c]]
+                        l_z[c] += zc
+                        for p in range(n_par):
+                            l_a[c, p] += zc * phi[p]
+                        for c2 in range(c, k_tot):
+                            l_m[c, c2] += zc * z[c2]
+                    for p in range(n_par):
+                        l_phi[p] += phi[p]
+                    for i in range(n):
+                        l_y[i] += target[k, i]
+                else:
+                    th1 = theta1[g]
+                    for i in range(n):
+                        e[i] = target[k, i] - means_y[s, i]
+                    for p in range(n_par):
+                        e[eq[p]] -= (phi[p] - means_phi[s, p]) * th1[p]
+                    slot = cnt % (lags + 1)
+                    for c in range(k_tot):
+                        sc[c] = (z[c] - means_z[s, c]) * e[zeq[c]] - means_g[s, c]
+                        h[c] += sc[c] - ring[slot, c]
+                        ring[slot, c] = sc[c]
+                    cnt += 1
+                    for c in range(k_tot):
+                        hc = h[c]
+                        for c2 in range(c, k_tot):
+                            l_h[c, c2] += hc * h[c2]
+            # advance the auxiliary model: x̂(k) from x̂(k−1), u(k−1)
+            for i in range(n):
+                f_sim[i] = xh[i]
+                f_sim[n + m + i] = abs(xh[i])
+            for j in range(m):
+                v = u[k - 1, j]
+                f_sim[n + j] = v
+                f_sim[2 * n + m + j] = abs(v)
+            for i in range(n):
+                xh[i] = 0.0
+            for p in range(n_par):
+                xh[eq[p]] += th[p] * (f_sim[fac[p, 0]] * f_sim[fac[p, 1]])
+            bad = False
+            for i in range(n):
+                if not abs(xh[i]) <= limit[s]:
+                    bad = True
+            if bad:
+                status[s] = 1
+                break
+        if second:
+            # drain the window: the padded tail of the moving sums
+            for _ in range(lags):
+                slot = cnt % (lags + 1)
+                for c in range(k_tot):
+                    h[c] -= ring[slot, c]
+                    ring[slot, c] = 0.0
+                cnt += 1
+                for c in range(k_tot):
+                    hc = h[c]
+                    for c2 in range(c, k_tot):
+                        l_h[c, c2] += hc * h[c2]
+            for c in range(k_tot):
+                for c2 in range(c, k_tot):
+                    s_hac[s, c, c2] = l_h[c, c2] / (lags + 1.0)
+                    s_hac[s, c2, c] = s_hac[s, c, c2]
+        else:
+            count[s] = cnt
+            for c in range(k_tot):
+                s_b[s, c] = l_b[c]
+                s_z[s, c] = l_z[c]
+                for p in range(n_par):
+                    # only the column's own equation (block-diagonal A)
+                    s_a[s, c, p] = l_a[c, p] if eq[p] == zeq[c] else 0.0
+                for c2 in range(c, k_tot):
+                    s_m[s, c, c2] = l_m[c, c2]
+                    s_m[s, c2, c] = l_m[c, c2]
+            for p in range(n_par):
+                s_phi[s, p] = l_phi[p]
+            for i in range(n):
+                s_y[s, i] = l_y[i]

@@ -181,19 +181,22 @@ class InstrumentalGMM(Estimator):
         conv = np.zeros(n, dtype=bool)
         active = np.all(np.isfinite(theta), axis=1)
         sol = None
+        fused = kind == "combined" and not order and not keep
         for _ in range(int(self.refine)):
-            z_sim, ok_sim = gmm.simulated_instruments(data, spec, theta)
-            ar = None
-            if order:
-                ar = np.zeros((n, spec.n_states, order + 1))
-                pred = _predict(phi, theta, spec, data)
-                resid = data.target - pred
-                for i in range(spec.n_states):
-                    valid = np.isfinite(resid[:, i])
-                    ar[:, i] = gmm.ar_coefficients(data, resid[:, i], valid, order)
-            blocks = gmm.instrument_blocks(spec, kind, phi, z_sim, lagged)
-            sol = gmm.solve_equations(data, spec, phi, blocks, weight="hac", ar=ar,
-                                      keep_designs=keep)
+            if fused:  # Monte Carlo fast path: two compiled passes, no row matrices
+                sol, ok_sim = gmm.combined_solution(data, spec, theta)
+            else:
+                z_sim, ok_sim = gmm.simulated_instruments(data, spec, theta)
+                ar = None
+                if order:
+                    ar = np.zeros((n, spec.n_states, order + 1))
+                    resid = data.target - _predict(phi, theta, spec, data)
+                    for i in range(spec.n_states):
+                        valid = np.isfinite(resid[:, i])
+                        ar[:, i] = gmm.ar_coefficients(data, resid[:, i], valid, order)
+                blocks = gmm.instrument_blocks(spec, kind, phi, z_sim, lagged)
+                sol = gmm.solve_equations(data, spec, phi, blocks, weight="hac", ar=ar,
+                                          keep_designs=keep)
             new = np.where((sol.ok & ok_sim & active)[:, None], sol.theta, theta)
             step = np.linalg.norm(new - theta, axis=1) / np.maximum(
                 np.linalg.norm(theta, axis=1), 1e-300)
@@ -216,7 +219,7 @@ class InstrumentalGMM(Estimator):
         keep = keep_history and n == 1
         phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
         lagged = None
-        if self.instruments in ("combined", "auto"):
+        if self.instruments in ("combined", "auto") and keep:  # explicit rows (fit path)
             lagged = [gmm.lagged_regressors(data, spec, lag) for lag in gmm.LAGS]
         theta0 = base.theta.copy()
         used = np.full(n, self.instruments, dtype=object)

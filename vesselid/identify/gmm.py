@@ -46,6 +46,7 @@ __all__ = [
     "INSTRUMENT_SETS",
     "GMMSolution",
     "ar_coefficients",
+    "combined_solution",
     "hac_lags",
     "hac_sums",
     "instrument_blocks",
@@ -308,3 +309,103 @@ def solve_equations(
     theta[~ok] = np.nan
     return GMMSolution(theta=theta, ok=ok, j=j_stat, df=df, c=c_stat, c_df=c_df,
                        designs=designs)
+
+
+def _combined_layout(spec: ModelSpec):
+    """Column layout of the combined set, grouped by equation: per equation its
+    simulated columns, then its delayed-2 and delayed-3 state columns."""
+    blocks = block_starts(spec)
+    endo = state_terms(spec)
+    ztype, zpar, zeq, bounds, n_lag = [], [], [], [0], []
+    for i in range(spec.n_states):
+        cols = list(range(int(blocks[i]), int(blocks[i + 1])))
+        d_cols = [c for c in cols if endo[c]]
+        for t, group in ((0, cols), *((lag, d_cols) for lag in LAGS)):
+            ztype += [t] * len(group)
+            zpar += group
+            zeq += [i] * len(group)
+        bounds.append(len(ztype))
+        n_lag.append(len(d_cols) * len(LAGS))
+    as_int = [np.asarray(x, dtype=np.int64) for x in (ztype, zpar, zeq, bounds)]
+    return (*as_int, n_lag)
+
+
+def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, *,
+                      lags: int | None = None, limit_factor: float = 1e3
+                      ) -> tuple[GMMSolution, np.ndarray]:
+    """Two-step HAC GMM with the ``combined`` set for every group in two fused compiled
+    passes (no row matrices): the Monte Carlo fast path of :func:`solve_equations`
+    with ``instrument_blocks(spec, "combined", …)`` (same estimates to rounding).
+
+    Returns ``(solution, aux_ok)``; ``aux_ok`` is False where the auxiliary model of
+    ``theta`` diverged.
+    """
+    codes = spec.codes
+    ztype, zpar, zeq, bounds, n_lag = _combined_layout(spec)
+    n_seg, k_tot, n_par, n = data.n_segments, ztype.size, spec.n_params, spec.n_states
+    scale = np.array([np.max(np.abs(data.target[data.segment(s)]), initial=0.0)
+                      for s in range(n_seg)])
+    limit = limit_factor * np.maximum(scale, 1.0)
+    bw = hac_lags(int(np.median(np.diff(data.starts)))) if lags is None else int(lags)
+    th = np.ascontiguousarray(np.nan_to_num(theta), dtype=float)
+    active = np.all(np.isfinite(theta), axis=1)
+    s_a = np.zeros((n_seg, k_tot, n_par))
+    s_b = np.zeros((n_seg, k_tot))
+    s_m = np.zeros((n_seg, k_tot, k_tot))
+    s_z = np.zeros((n_seg, k_tot))
+    s_phi = np.zeros((n_seg, n_par))
+    s_y = np.zeros((n_seg, n))
+    count = np.zeros(n_seg, dtype=np.int64)
+    status = np.zeros(n_seg, dtype=np.int64)
+    s_hac = np.zeros((n_seg, k_tot, k_tot))
+    dummy = np.zeros((1, 1))
+    args = (data.regsig, data.target, data.u, data.starts, data.group, th, active,
+            codes.factors, codes.equation, ztype, zpar, zeq, limit)
+    ivk.combined_moments(*args, False, th, dummy, dummy, dummy, dummy, bw,
+                         s_a, s_b, s_m, s_z, s_phi, s_y, count, status, s_hac)
+    aux_ok = active.copy()
+    np.logical_and.at(aux_ok, data.group, status == 0)
+    cnt = np.maximum(count, 1).astype(float)
+    mz, mphi, my = s_z / cnt[:, None], s_phi / cnt[:, None], s_y / cnt[:, None]
+    same = zeq[:, None] == codes.equation[None, :]
+    a_c = s_a - np.einsum("sk,sp->skp", s_z, mphi) * same
+    b_c = s_b - s_z * my[:, zeq]
+    m_c = s_m - np.einsum("sk,sl->skl", s_z, mz)
+    a_g, b_g, m_g = _group_sum(data, a_c), _group_sum(data, b_c), _group_sum(data, m_c)
+    blocks = block_starts(spec)
+    theta1 = np.full((data.n_groups, n_par), np.nan)
+    ok = aux_ok.copy()
+    for i in range(n):
+        zs, ps = slice(int(bounds[i]), int(bounds[i + 1])), slice(int(blocks[i]),
+                                                                     int(blocks[i + 1]))
+        w, ok_w = linalg.inv_sym(m_g[:, zs, zs])
+        t1, ok_1 = linalg.gmm_solve(a_g[:, zs, ps], b_g[:, zs], np.nan_to_num(w))
+        theta1[:, ps] = t1
+        ok &= ok_w & ok_1
+    # mean score per segment, ḡ = (1/n) Σ (z − z̄)(y − ȳ − (φ − φ̄)ᵀθ₁)
+    t1s = np.nan_to_num(theta1)[data.group]
+    g_seg = (b_c - np.einsum("skp,sp->sk", a_c, t1s)) / cnt[:, None]
+    ivk.combined_moments(*args, True, np.ascontiguousarray(np.nan_to_num(theta1)), mz, mphi,
+                         my, np.ascontiguousarray(g_seg), bw, s_a * 0, s_b * 0, s_m * 0,
+                         s_z * 0, s_phi * 0, s_y * 0, count * 0, status * 0, s_hac)
+    s_g = _group_sum(data, s_hac)
+    theta2 = np.full_like(theta1, np.nan)
+    j_stat = np.zeros((data.n_groups, n))
+    c_stat = np.zeros((data.n_groups, n))
+    df = np.zeros(n, dtype=int)
+    c_df = np.zeros(n, dtype=int)
+    for i in range(n):
+        zs, ps = slice(int(bounds[i]), int(bounds[i + 1])), slice(int(blocks[i]),
+                                                                     int(blocks[i + 1]))
+        s_inv, ok_s = linalg.inv_sym(s_g[:, zs, zs])
+        a_i, b_i = a_g[:, zs, ps], b_g[:, zs]
+        t2, ok_2 = linalg.gmm_solve(a_i, b_i, np.nan_to_num(s_inv))
+        theta2[:, ps] = t2
+        ok &= ok_s & ok_2
+        gbar = b_i - np.einsum("gkp,gp->gk", a_i, np.nan_to_num(t2))
+        j_stat[:, i] = np.einsum("gk,gkl,gl->g", gbar, np.nan_to_num(s_inv), gbar)
+        df[i] = (zs.stop - zs.start) - (ps.stop - ps.start)
+        c_stat[:, i] = j_stat[:, i]  # the simulated subset alone is just identified
+        c_df[i] = n_lag[i]
+    theta2[~ok] = np.nan
+    return GMMSolution(theta=theta2, ok=ok, j=j_stat, df=df, c=c_stat, c_df=c_df), aux_ok
