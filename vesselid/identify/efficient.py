@@ -120,8 +120,11 @@ class InstrumentalGMM(Estimator):
     alpha : float
         Level of the C test of the lagged instruments (``auto``).
     refine : int
-        Refined iterations after the IV_{E{ζ}=0} start (each re-simulates the
-        instruments from the latest estimate and re-estimates the noise model).
+        Refinement steps after the converged IV_{E{ζ}=0} iteration (each re-simulates
+        the instruments from the latest estimate and re-estimates the noise model).
+        The start is consistent, so one step is already asymptotically efficient for
+        the chosen instruments (measured: 1 and 3 steps give the same spread to 1 %);
+        ``converged`` reports the IV_{E{ζ}=0} iteration.
     """
 
     multi_experiment: ClassVar[tuple[str, ...]] = ("pooled",)
@@ -174,11 +177,11 @@ class InstrumentalGMM(Estimator):
 
     # ------------------------------------------------------------------ core
     def _refine(self, data, spec, phi, lagged, theta, kind, order, keep, tol):
-        """Refined iterations of one instrument set from ``theta``; returns
-        ``(solution, theta, iterations, converged)``."""
+        """``refine`` refinement steps of one instrument set from the consistent start
+        ``theta`` (instruments re-simulated from, and the noise model re-estimated at,
+        the latest estimate); returns ``(solution, theta, steps)``."""
         n = data.n_groups
         iters = np.zeros(n, dtype=np.int64)
-        conv = np.zeros(n, dtype=bool)
         active = np.all(np.isfinite(theta), axis=1)
         sol = None
         fused = kind == "combined" and not order and not keep
@@ -197,16 +200,11 @@ class InstrumentalGMM(Estimator):
                 blocks = gmm.instrument_blocks(spec, kind, phi, z_sim, lagged)
                 sol = gmm.solve_equations(data, spec, phi, blocks, weight="hac", ar=ar,
                                           keep_designs=keep)
-            new = np.where((sol.ok & ok_sim & active)[:, None], sol.theta, theta)
-            step = np.linalg.norm(new - theta, axis=1) / np.maximum(
-                np.linalg.norm(theta, axis=1), 1e-300)
-            iters += active & ~conv
-            newly = active & ~conv & (step < max(tol, 1e-10) * 1e3)
-            conv |= newly
+            new = np.where((sol.ok & ok_sim & active)[:, None], sol.theta, np.nan)
+            iters += active
+            active &= np.all(np.isfinite(new), axis=1)
             theta = new
-            if (conv | ~active).all():
-                break
-        return sol, theta, iters, conv
+        return sol, theta, iters
 
     def estimate_parameters(self, data: RegressionData, spec: ModelSpec, *,
                             combine: str = "pooled", theta_start: np.ndarray | None = None,
@@ -225,11 +223,11 @@ class InstrumentalGMM(Estimator):
         used = np.full(n, self.instruments, dtype=object)
         info: dict[str, Any] = {}
         if self.instruments == "simulated":
-            sol, theta, iters, conv = self._refine(data, spec, phi, None, theta0, "simulated",
-                                                   self.noise_order, keep, tol)
+            sol, theta, iters = self._refine(data, spec, phi, None, theta0, "simulated",
+                                             self.noise_order, keep, tol)
         else:
-            sol, theta, iters, conv = self._refine(data, spec, phi, lagged, theta0, "combined",
-                                                   0, keep, tol)
+            sol, theta, iters = self._refine(data, spec, phi, lagged, theta0, "combined", 0,
+                                             keep, tol)
             pvals = np.ones((n, spec.n_states))
             for i in range(spec.n_states):
                 if sol.c_df[i]:
@@ -242,12 +240,11 @@ class InstrumentalGMM(Estimator):
                 reject = c_p < float(self.alpha)
                 if reject.any():
                     sub = _subset(data, reject)
-                    sol_s, th_s, it_s, cv_s = self._refine(
+                    sol_s, th_s, it_s = self._refine(
                         sub, spec, phi[_rows(data, reject)], None, theta0[reject], "simulated",
                         self.noise_order, keep, tol)
                     theta[reject] = th_s
                     iters[reject] = it_s
-                    conv[reject] = cv_s
                     used[reject] = "simulated"
                     if keep:
                         sol = sol_s
@@ -255,11 +252,11 @@ class InstrumentalGMM(Estimator):
         theta[~ok] = np.nan
         if sol is not None:
             sol.segment_starts = data.starts  # type: ignore[attr-defined]
-        reason = np.where(conv & base.converged, "converged",
-                          np.where(ok, "maximum iterations reached", base.reason)).astype(object)
+        reason = np.where(ok, base.reason, np.where(np.isfinite(base.theta).all(axis=1),
+                                                    SINGULAR, base.reason)).astype(object)
         info.update(solution=sol, instrument_set=used)
         return IterationResult(
-            theta=theta, theta_aux=theta.copy(), converged=conv & base.converged & ok,
+            theta=theta, theta_aux=theta.copy(), converged=base.converged & ok,
             iterations=base.iterations + iters, reason=reason, residual=base.residual,
             oscillation=base.oscillation, start=base.start, info=info,
             history=[theta.copy()] if keep_history else [],
