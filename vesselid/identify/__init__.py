@@ -14,7 +14,7 @@ an ``[aggregate]`` relation in the spec under Lemma 4.1 via the predictor (9)).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -32,6 +32,9 @@ from vesselid.identify.registry import (
 from vesselid.identify.results import IdentificationResult
 from vesselid.model import ModelSpec
 
+if TYPE_CHECKING:
+    import pandas as pd
+
 __all__ = [
     "COMBINE_MODES",
     "DEFAULT_COMBINE",
@@ -44,6 +47,7 @@ __all__ = [
     "Estimator",
     "IdentificationResult",
     "RegressionData",
+    "asymptotic_covariance",
     "estimate",
     "from_arrays",
     "from_log",
@@ -140,3 +144,31 @@ def identify(
         design_threshold=design_threshold, weak_instrument_cond=weak_instrument_cond,
         min_samples=min_samples,
     )
+
+
+def asymptotic_covariance(
+    log: Any,
+    spec: ModelSpec | None = None,
+    *,
+    method: str | Estimator = DEFAULT_METHOD,
+    cov_type: str | None = None,
+    cov_config: Mapping[str, Any] | None = None,
+    **fit_options: Any,
+) -> pd.DataFrame:
+    """Predicted covariance of ``method``'s estimate for a planned trial.
+
+    Simulate the planned trial (inputs, experiment lengths, the vessel's best-known
+    θ and disturbances) into ``log`` and call this: the estimator runs on it and the
+    sandwich ``(AᵀWA)⁻¹AᵀW Ŝ W A(AᵀWA)⁻¹`` (``A = Σ ζ φᵀ`` with the estimator's own
+    instruments — simulated from the auxiliary model, plus delayed measurements when
+    the C test keeps them — and ``Ŝ`` the ``cov_type`` long-run variance of ``ζ ε``)
+    is returned, indexed like ``identify(...).params``. Warnings of the fit are
+    silenced (a planning call, not an identification).
+    """
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = identify(log, spec, method, cov_type=cov_type, cov_config=cov_config,
+                       **fit_options)
+    return res.cov
