@@ -126,16 +126,18 @@ def _three_state_log(samples: int, experiments: int):
 
 
 def bench_identify(repeats: int = 7) -> dict:
-    from vesselid.identify import identify
+    from vesselid.identify import DEFAULT_METHOD, identify
     from vesselid.systems import heave
 
     warnings.simplefilter("ignore")
     log = heave().simulate(10_000, seed=0).to_log()
+    methods = dict.fromkeys(("ls", "iv", "iv-zero-mean", "lagged-2sls", "sriv", DEFAULT_METHOD))
     out = {
         f"identify_heave_1e4_{m}_ms": 1000 * median_time(lambda m=m: identify(log, method=m),
                                                           repeats)
-        for m in ("ls", "iv", "iv-zero-mean")
+        for m in methods
     }
+    out["default_method"] = DEFAULT_METHOD
     log3, spec3 = _three_state_log(100_000, 4)
     out["identify_3state_4x1e5_iv-zero-mean_s"] = median_time(
         lambda: identify(log3, spec3, method="iv-zero-mean"), 5)
