@@ -250,6 +250,7 @@ class Estimator:
             if self.uses_instruments and cond[s] > weak_instrument_cond:
                 _warn(f"weak instruments in equation {s!r}: cond(ZᵀΦ) = {cond[s]:.3g}",
                       WeakInstrumentWarning)
+        specification = _specification_tests(spec, designs, theta, blocks, cov_name)
         if not np.all(np.isfinite(cov)):
             _warn("the covariance of the estimates could not be computed (singular "
                   "instrument or moment matrix); standard errors are reported as null",
@@ -293,6 +294,7 @@ class Estimator:
             "oscillation": bool(it.oscillation[0]),
             "start": None if it.start is None else str(it.start[0]),
             **self.describe(it),
+            **({"specification": specification} if specification else {}),
             "design": design,
             "design_eta": eta_used,
             "design_eta_source": eta_source,
@@ -369,6 +371,28 @@ def square_designs(data: RegressionData, spec: ModelSpec, z: np.ndarray, phi: np
 
 #: Regression targets (the left-hand side of (4)/(10)); see :func:`_target_rule`.
 TARGETS = ("measured", "aggregated")
+
+
+def _specification_tests(spec: ModelSpec, designs: list[EquationDesign], theta: np.ndarray,
+                         blocks: np.ndarray, cov_type: str) -> dict[str, Any]:
+    """Instrument strength, endogeneity of LS and over-identification per equation
+    (:mod:`vesselid.identify.specification`, when available), on the estimator's own
+    final instruments and regressors."""
+    try:
+        from vesselid.identify import specification
+    except ImportError:
+        return {}
+    fn = getattr(specification, "equation_diagnostics", None)
+    if fn is None:  # pragma: no cover - older module
+        return {}
+    out: dict[str, Any] = {}
+    for i, s in enumerate(spec.states):
+        d = designs[i]
+        sl = slice(int(blocks[i]), int(blocks[i + 1]))
+        y = d.resid + d.phi @ theta[sl]
+        out[s] = fn(d.z, d.phi, y, d.starts, zero_mean=d.zero_mean, skip_first=False,
+                    names=[str(t) for t in spec.equations[s]], cov_type=cov_type)
+    return out
 
 
 def _target_rule(spec: ModelSpec, target: str) -> str:

@@ -133,6 +133,11 @@ class IdentificationResult:
             lines.append(f"fit {s}: one-step {fit1.get(s, float('nan')):.2f} %   "
                          f"free-run {fitf.get(s, float('nan')):.2f} %   "
                          f"cond(ZᵀΦ) {self.instrument_condition.get(s, float('nan')):.3g}")
+        spec_tests = self.diagnostics.get("specification")
+        if spec_tests:
+            from vesselid.identify import specification
+
+            lines.extend(specification.summary_lines(spec_tests))
         design = self.diagnostics.get("design")
         if isinstance(design, pd.DataFrame) and not design.empty:
             bad = design[~design["ok"]]
