@@ -123,19 +123,22 @@ def summarize(errors: dict[str, np.ndarray]) -> pd.DataFrame:
 
 
 def figure(tables: dict[str, pd.DataFrame], path: Path) -> None:
+    """Mean ± sd of the normalized error of n per estimator and design (bias and spread)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(9, 3.2), layout="constrained")
     FigureCanvasAgg(fig)
-    axes = fig.subplots(1, len(tables), sharey=False)
-    for ax, (name, tab) in zip(np.atleast_1d(axes), tables.items(), strict=True):
+    axes = np.atleast_1d(fig.subplots(1, len(tables)))
+    for ax, (name, tab) in zip(axes, tables.items(), strict=True):
         sub = tab[tab["param"] == "n"].set_index("method")
-        ax.bar(range(len(sub)), sub["mae"], color=[f"C{j}" for j in range(len(sub))])
-        ax.set_xticks(range(len(sub)), sub.index, rotation=45, ha="right", fontsize=7)
+        x = np.arange(len(sub))
+        ax.errorbar(x, sub["mean"], yerr=sub["sd"], fmt="o", capsize=3)
+        ax.axhline(0.0, color="0.5", lw=0.8)
+        ax.set_xticks(x, sub.index, rotation=45, ha="right", fontsize=7)
         ax.set_title(name, fontsize=7)
         ax.tick_params(labelsize=7)
-    np.atleast_1d(axes)[0].set_ylabel("median |n̂ − n0|/|n0|", fontsize=8)
+    axes[0].set_ylabel("(n̂ − n0)/n0: mean ± sd", fontsize=8)
     fig.savefig(path, dpi=80)
 
 
