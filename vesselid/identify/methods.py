@@ -70,7 +70,7 @@ class RefinedIV(_UserInstrumentMixin, Estimator):
 
     @property
     def plot_label(self) -> str:  # type: ignore[override]
-        return r"IV$_{E\{\zeta\}=0}$" if self.zero_mean else "IV"
+        return "IV, E{ζ}=0" if self.zero_mean else "IV"
 
     def estimate_parameters(self, data: RegressionData, spec: ModelSpec, *,
                             combine: str = "pooled", theta_start: np.ndarray | None = None,
