@@ -102,7 +102,11 @@ def test_comparison_and_text_format(small):
     comp = small.comparisons[1]
     assert {"published_mean", "published_sd", "mean", "sd", "se", "z", "diff_sd",
             "sd_ratio", "not_converged", "failed"} <= set(comp.columns)
-    assert len(comp) == 9
+    from vesselid.reproduce import EXTRA_METHODS
+
+    # the paper's 9 rows with published numbers, plus the package default as an extra row
+    assert len(comp) == 9 + 3 * len(EXTRA_METHODS)
+    assert comp["published_mean"].notna().sum() == 9
     text = small.to_text()
     lines = text.splitlines()
     for name in ("LS", "IV", "IV_E{ζ}=0"):
@@ -112,8 +116,10 @@ def test_comparison_and_text_format(small):
         assert lines[i].count("±") == 3 and lines[i + 1].count("±") == 3
     assert "-0.0586 ± 0.0082" in text and "+0.3413 ± 0.0627" in text
     assert "[PASS]" in text and "Timings:" in text
-    payload = json.loads(json.dumps(small.to_dict()))
-    assert payload["ok"] is True and len(payload["tables"]["2"]) == 9
+    for m in EXTRA_METHODS:
+        assert any("(default)" in ln for ln in lines), m
+    payload = json.loads(json.dumps(small.to_dict(), allow_nan=False))
+    assert payload["ok"] is True and len(payload["tables"]["2"]) == 9 + 3 * len(EXTRA_METHODS)
 
 
 def test_comparison_table_uses_published_rows(small):
@@ -129,8 +135,13 @@ def test_figures(small, tmp_path):
     fig = error_histograms(small.results[1], labels=PARAMETER_LABELS, title="t")
     # one axes per parameter, the estimators stacked inside it (one histogram polygon each)
     assert isinstance(fig, Figure) and len(fig.axes) == 3
-    assert all(len(ax.collections[0].get_paths()) == 3 for ax in fig.axes)
-    assert [t.get_text() for t in fig.axes[0].get_yticklabels()] == ["IV, E{ζ}=0", "IV", "LS"]
+    from vesselid.identify import method_labels
+
+    meths = list(dict.fromkeys(small.results[1]["method"].astype(str)))  # paper's 3 + default
+    assert all(len(ax.collections[0].get_paths()) == len(meths) for ax in fig.axes)
+    assert [t.get_text() for t in fig.axes[0].get_yticklabels()] == [
+        method_labels("plot")[m] for m in reversed(meths)]
+    assert meths[:3] == ["ls", "iv", "iv-zero-mean"]
     fig.savefig(tmp_path / "f.png")
     assert (tmp_path / "f.png").stat().st_size > 10_000
     fig2 = estimate_vs_truth(small.results[2], labels=PARAMETER_LABELS)
