@@ -239,8 +239,11 @@ def long_run_covariance(
     w = np.asarray(weights[: n_lags + 1], dtype=float)
     if n_lags == 0:
         return w[0] * g.T @ g
-    sym = np.concatenate([w[:0:-1], w])
-    kg = sps.convolve(g, sym[:, None], mode="same")
+    sym = np.concatenate([w[:0:-1], w])[:, None]
+    if n_lags <= 32:
+        kg = sps.convolve(g, sym, mode="same", method="direct")
+    else:
+        kg = sps.fftconvolve(g, sym, mode="same", axes=0)
     out = g.T @ kg
     return 0.5 * (out + out.T)
 
