@@ -37,11 +37,13 @@ __all__ = [
     "TestResult",
     "difference_in_j",
     "endogeneity_test",
+    "equation_diagnostics",
     "exogenous_columns",
     "first_stage",
     "hansen_j",
     "ljung_box",
     "residual_correlations",
+    "summary_lines",
 ]
 
 
@@ -81,7 +83,8 @@ class TestResult:
                 "null": self.null, "sentence": self.sentence}
 
     def __str__(self) -> str:
-        return f"{self.name}: {self.stat:.4g} ({self.distribution}({self.df})), p = {_p(self.pvalue)}"
+        return (f"{self.name}: {self.stat:.4g} ({self.distribution}({self.df})), "
+                f"{_p(self.pvalue)}")
 
 
 def _finite(x: float) -> float | None:
@@ -89,7 +92,8 @@ def _finite(x: float) -> float | None:
 
 
 def _p(p: float) -> str:
-    return "nan" if not np.isfinite(p) else ("< 1e-4" if p < 1e-4 else f"{p:.3g}")
+    """``"p = 0.034"`` / ``"p < 0.0001"``."""
+    return "p = nan" if not np.isfinite(p) else ("p < 0.0001" if p < 1e-4 else f"p = {p:.2g}")
 
 
 def _segs(starts: np.ndarray | None, t_len: int, skip_first: bool) -> list[slice]:
@@ -118,9 +122,11 @@ def exogenous_columns(z: np.ndarray, phi: np.ndarray, *, rtol: float = 1e-10) ->
     z = np.asarray(z, dtype=float)
     phi = np.asarray(phi, dtype=float)
     out = np.zeros(phi.shape[1], dtype=bool)
+    head = min(64, phi.shape[0])
     for j in range(phi.shape[1]):
         scale = np.max(np.abs(phi[:, j])) or 1.0
-        out[j] = bool(np.any(np.max(np.abs(z - phi[:, [j]]), axis=0) <= rtol * scale))
+        cand = np.flatnonzero(np.max(np.abs(z[:head] - phi[:head, [j]]), axis=0) <= rtol * scale)
+        out[j] = any(np.max(np.abs(z[:, k] - phi[:, j])) <= rtol * scale for k in cand)
     return out
 
 
@@ -141,7 +147,8 @@ def first_stage(
     every remaining (endogenous) regressor the partial F statistic of its
     regression on the excluded instruments is reported, and the Cragg–Donald
     minimum eigenvalue statistic of them jointly (homoskedastic form; compare it
-    with Stock–Yogo critical values, ≈ 10 and up for strong instruments).
+    with Stock–Yogo critical values, ≈ 10 and up for strong instruments). Both use
+    ``σ̂² = SSR/N`` (the Wald form, as linearmodels' first-stage ``f.stat``).
 
     Returns
     -------
@@ -174,8 +181,8 @@ def first_stage(
 
     x_t = resid_on(pp[:, endo], w)
     z_t = resid_on(zz[:, excl], w)
-    out: dict[str, Any] = {"partial_f": {}, "partial_r2": {}, "endogenous": [names[j] for j in endo],
-                           "df": (k_ex, n - k_total)}
+    out: dict[str, Any] = {"partial_f": {}, "partial_r2": {},
+                           "endogenous": [names[j] for j in endo], "df": (k_ex, n - k_total)}
     if endo.size == 0 or k_ex == 0:
         out["cragg_donald"] = float("inf") if endo.size == 0 else 0.0
         return out
@@ -186,10 +193,10 @@ def first_stage(
         ssr = float(v[:, i] @ v[:, i])
         sse = float(fitted[:, i] @ fitted[:, i])
         r2 = sse / (sse + ssr) if sse + ssr > 0 else float("nan")
-        f = (sse / k_ex) / (ssr / max(n - k_total, 1)) if ssr > 0 else float("inf")
+        f = (sse / k_ex) / (ssr / n) if ssr > 0 else float("inf")
         out["partial_f"][names[j]] = float(f)
         out["partial_r2"][names[j]] = float(r2)
-    s_vv = v.T @ v / max(n - k_total, 1)
+    s_vv = v.T @ v / n
     try:
         l_inv = np.linalg.inv(np.linalg.cholesky(s_vv))
         g = l_inv @ (fitted.T @ fitted) @ l_inv.T / k_ex
@@ -236,7 +243,8 @@ def hansen_j(
     z, phi, y, segs = _prepare(z, phi, y, starts, zero_mean, skip_first)
     k, p = z.shape[1], phi.shape[1]
     if k < p:
-        raise CovarianceError(f"J test needs at least as many instruments ({k}) as regressors ({p})")
+        raise CovarianceError(
+            f"J test needs at least as many instruments ({k}) as regressors ({p})")
     if long_run is None:
         w0 = np.linalg.pinv(sum(z[s].T @ z[s] for s in segs))
         th0 = _gmm(z, phi, y, segs, w0)
@@ -249,9 +257,9 @@ def hansen_j(
     j = float(gbar @ s_inv @ gbar)
     df = k - p
     pval = float(stats.chi2.sf(j, df)) if df > 0 else float("nan")
+    verdict = "rejected" if pval < 0.05 else "not rejected"
     sentence = ("the instruments are just-identified: no over-identification test" if df == 0
-                else f"over-identifying restrictions {'rejected' if pval < 0.05 else 'not rejected'}"
-                     f": J = {j:.3g}, p = {_p(pval)}")
+                else f"over-identifying restrictions {verdict}: J = {j:.3g}, {_p(pval)}")
     return TestResult("Hansen J", j, df, pval, "chi2",
                       "all instruments are uncorrelated with the equation error", sentence,
                       {"theta": theta, "long_run": long_run})
@@ -289,7 +297,7 @@ def difference_in_j(
     df = int(mask.sum())
     pval = float(stats.chi2.sf(c, df))
     sentence = (f"the tested instruments are {'rejected' if pval < 0.05 else 'not rejected'}: "
-                f"C = {c:.3g}, p = {_p(pval)}")
+                f"C = {c:.3g}, {_p(pval)}")
     return TestResult("difference-in-J (C)", c, df, pval, "chi2",
                       "the tested instruments are uncorrelated with the equation error", sentence,
                       {"j_full": full.stat, "j_subset": sub.stat})
@@ -359,9 +367,9 @@ def endogeneity_test(
     if not np.isfinite(pval):
         sentence = "endogeneity test not available"
     elif pval < level:
-        sentence = f"LS is biased on this log: p = {_p(pval)}"
+        sentence = f"LS is biased on this log: {_p(pval)}"
     else:
-        sentence = f"no evidence that LS is biased: p = {_p(pval)}"
+        sentence = f"no evidence that LS is biased: {_p(pval)}"
     return TestResult("Durbin-Wu-Hausman", stat, df, pval, "chi2",
                       "LS is consistent (the regressors are exogenous)", sentence,
                       {"cov_type": cov_type})
@@ -378,14 +386,14 @@ def ljung_box(
 ) -> dict[str, TestResult]:
     """Ljung–Box whiteness test of the residual of every equation.
 
-    statsmodels' ``acorr_ljungbox`` per experiment (``lags`` capped at a fifth of the
-    experiment), the independent experiments' Q statistics and degrees of freedom
-    summed. The one-step equation error of (3) is autocorrelated by construction
+    ``Q = n(n+2) Σ_{k≤m} r_k²/(n−k)`` per experiment (``lags`` capped at a fifth of
+    the experiment; equal to statsmodels' ``acorr_ljungbox``, checked in the tests,
+    computed here without importing statsmodels), the independent experiments' Q
+    statistics and degrees of freedom summed. The one-step equation error of (3) is
+    autocorrelated by construction
     (sensor noise enters ``y(k)`` and ``φ(k+1)``), so a rejection is expected with
     noisy sensors; it says why the covariance must be HAC, not that the model is wrong.
     """
-    from statsmodels.stats.diagnostic import acorr_ljungbox
-
     resid = np.asarray(resid, dtype=float)
     if resid.ndim == 1:
         resid = resid[:, None]
@@ -399,15 +407,23 @@ def ljung_box(
             m = int(min(lags, max(1, x.size // 5)))
             if x.size < 3 or np.std(x) == 0:
                 continue
-            tab = acorr_ljungbox(x - x.mean(), lags=[m])
-            q += float(tab["lb_stat"].iloc[-1])
+            q += _ljung_box_q(x - x.mean(), m)
             df += m
         pval = float(stats.chi2.sf(q, df)) if df else float("nan")
         sentence = (f"residual of {name} is {'not ' if pval < 0.05 else ''}white "
-                    f"(Ljung-Box Q = {q:.4g}, {df} lags, p = {_p(pval)})")
+                    f"(Ljung-Box Q = {q:.4g}, {df} lags, {_p(pval)})")
         out[name] = TestResult("Ljung-Box", q, df, pval, "chi2", "the residual is white",
                                sentence)
     return out
+
+
+def _ljung_box_q(x: np.ndarray, m: int) -> float:
+    n = x.size
+    den = float(x @ x)
+    if den == 0:
+        return 0.0
+    r = np.array([x[k:] @ x[: n - k] for k in range(1, m + 1)]) / den
+    return float(n * (n + 2) * np.sum(r**2 / (n - np.arange(1, m + 1))))
 
 
 @dataclass
@@ -497,12 +513,15 @@ def residual_correlations(
         n += m
         ee += np.sum(a**2, axis=0)
         u2 += np.sum(b**2, axis=0)
-        for tau in range(max_lag + 1):
-            acf[:, tau] += np.sum(a[tau:] * a[: m - tau], axis=0)
-            # τ ≥ 0: ε(k) with u(k − τ); τ < 0: ε(k) with u(k + |τ|)
-            ccf[:, :, max_lag + tau] += a[tau:].T @ b[: m - tau]
-            if tau:
-                ccf[:, :, max_lag - tau] += a[: m - tau].T @ b[tau:]
+        nfft = 1 << int(np.ceil(np.log2(m + max_lag + 1)))
+        fa = np.fft.rfft(a, nfft, axis=0)
+        fb = np.fft.rfft(b, nfft, axis=0)
+        # Σ_k a(k) x(k − τ) for τ ≥ 0 at index τ, τ < 0 at nfft + τ
+        auto = np.fft.irfft(fa * np.conj(fa), nfft, axis=0)
+        acf += auto[: max_lag + 1].T
+        cross = np.fft.irfft(fa[:, :, None] * np.conj(fb[:, None, :]), nfft, axis=0)
+        idx = np.r_[nfft - max_lag: nfft, 0: max_lag + 1]
+        ccf += np.moveaxis(cross[idx], 0, -1)  # τ ≥ 0: ε(k) with u(k − τ)
     with np.errstate(divide="ignore", invalid="ignore"):
         acf = acf / ee[:, None]
         ccf = ccf / np.sqrt(ee[:, None, None] * u2[None, :, None])
@@ -515,3 +534,67 @@ def residual_correlations(
         outputs=outputs or [f"e{i}" for i in range(n_o)],
         inputs=inputs or [f"u{j}" for j in range(n_i)], n=n,
     )
+
+
+# ----------------------------------------------------------------- one call per equation
+def equation_diagnostics(
+    z: np.ndarray,
+    phi: np.ndarray,
+    y: np.ndarray,
+    starts: np.ndarray | None = None,
+    *,
+    zero_mean: bool = True,
+    skip_first: bool = True,
+    names: list[str] | None = None,
+    cov_type: str = DEFAULT_COV_TYPE,
+    **cov_config: Any,
+) -> dict[str, Any]:
+    """Instrument strength, endogeneity (and J when over-identified) of one equation.
+
+    ``z`` are the instruments the estimator used (K ≥ P columns), ``phi`` the
+    regressors, ``y`` the target of the equation. Returns a JSON-ready dict:
+    ``first_stage`` (:func:`first_stage`), ``endogeneity`` and, for ``K > P``,
+    ``hansen_j`` (:meth:`TestResult.to_dict`). A test that cannot be computed
+    (singular matrices) is reported with ``None`` values and a reason, never raised.
+    """
+    out: dict[str, Any] = {}
+    try:
+        fs = first_stage(z, phi, starts, zero_mean=zero_mean, skip_first=skip_first, names=names)
+        out["first_stage"] = {k: (v if not isinstance(v, float) else _finite(v))
+                              for k, v in fs.items()}
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        out["first_stage"] = {"error": str(exc).splitlines()[0]}
+    for key, fn in (("endogeneity", endogeneity_test), ("hansen_j", hansen_j)):
+        if key == "hansen_j" and np.shape(z)[1] <= np.shape(phi)[1]:
+            continue
+        try:
+            out[key] = fn(z, phi, y, starts, zero_mean=zero_mean, skip_first=skip_first,
+                          cov_type=cov_type, **cov_config).to_dict()
+        except (np.linalg.LinAlgError, ValueError) as exc:
+            out[key] = {"stat": None, "pvalue": None, "sentence": f"{key} not available: "
+                        f"{str(exc).splitlines()[0]}"}
+    return out
+
+
+def summary_lines(per_equation: dict[str, dict[str, Any]]) -> list[str]:
+    """Plain lines for ``summary()`` from ``{state: equation_diagnostics(...)}``."""
+    lines = []
+    for s, d in per_equation.items():
+        fs = d.get("first_stage", {})
+        cd = fs.get("cragg_donald")
+        pf = fs.get("partial_f", {})
+        if pf:
+            weakest = min(pf, key=lambda k: pf[k] if pf[k] is not None else -1)
+            lines.append(f"instruments {s}: Cragg-Donald {_fmt(cd)}, weakest partial F "
+                         f"{_fmt(pf[weakest])} ({weakest})")
+        endo = d.get("endogeneity")
+        if endo:
+            lines.append(f"endogeneity {s}: {endo.get('sentence', '')}")
+        j = d.get("hansen_j")
+        if j:
+            lines.append(f"over-identification {s}: {j.get('sentence', '')}")
+    return lines
+
+
+def _fmt(x: Any) -> str:
+    return "n/a" if x is None or not np.isfinite(x) else f"{x:.3g}"
