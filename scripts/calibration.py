@@ -117,18 +117,22 @@ def _short(df: pd.DataFrame) -> str:
                   wilson=lambda d: [f"[{100 * a:.1f}, {100 * b:.1f}]"
                                     for a, b in zip(d["wilson_low"], d["wilson_high"],
                                                     strict=True)],
-                  ratio=lambda d: d["se_ratio"].round(2), bias_z=lambda d: d["bias_z"].round(1))
-    return t[["covariance", "parameter", "runs", "cov", "wilson", "ratio", "bias_z"]].to_string(
-        index=False)
+                  ratio=lambda d: d["se_ratio"].round(2),
+                  robust=lambda d: d["se_ratio_robust"].round(2),
+                  bias_z=lambda d: d["bias_z"].round(1))
+    return t[["covariance", "parameter", "runs", "cov", "wilson", "ratio", "robust",
+              "bias_z"]].to_string(index=False)
 
 
 def markdown(df: pd.DataFrame) -> str:
-    lines = ["| scenario | parameter | runs | coverage % | Wilson 95 % | SE / MC sd | bias (z) |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| scenario | parameter | runs | coverage % | Wilson 95 % | SE / MC sd "
+             "| median SE / robust sd | bias (z) |",
+             "|---|---|---|---|---|---|---|---|"]
     for _, r in df.iterrows():
         lines.append(f"| {r['scenario']} | {r['parameter']} | {r['runs']} | "
                      f"{100 * r['coverage']:.1f} | [{100 * r['wilson_low']:.1f}, "
-                     f"{100 * r['wilson_high']:.1f}] | {r['se_ratio']:.2f} | {r['bias_z']:.1f} |")
+                     f"{100 * r['wilson_high']:.1f}] | {r['se_ratio']:.2f} | "
+                     f"{r['se_ratio_robust']:.2f} | {r['bias_z']:.1f} |")
     return "\n".join(lines)
 
 

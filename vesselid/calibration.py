@@ -34,6 +34,7 @@ from vesselid.model import ModelSpec
 
 __all__ = [
     "SCENARIOS",
+    "coverage_identify",
     "coverage_study",
     "coverage_table",
     "group_covariances",
@@ -158,6 +159,10 @@ def coverage_table(
 ) -> pd.DataFrame:
     """Per parameter: coverage of ``θ̂ ± z SE`` with Wilson interval, SE / MC spread.
 
+    ``se_ratio`` is the RMS standard error over the Monte Carlo standard deviation;
+    ``se_ratio_robust`` the median SE over the IQR-based spread (``IQR/1.349``), which
+    a few runs with very large errors or SEs do not dominate.
+
     Runs with a non-finite estimate or standard error are left out (``runs`` counts
     the ones used).
     """
@@ -180,6 +185,9 @@ def coverage_table(
             "se_rms": float(np.sqrt(np.mean(se**2))) if n else np.nan,
             "mc_sd": sd,
             "se_ratio": float(np.sqrt(np.mean(se**2)) / sd) if n > 1 and sd > 0 else np.nan,
+            # robust to a few runs with huge errors / SEs: median SE over the IQR-based spread
+            "se_ratio_robust": float(np.median(se) / (np.subtract(*np.percentile(err, [75, 25]))
+                                                      / 1.349)) if n > 3 else np.nan,
             "bias_z": float(np.mean(err) / sd * math.sqrt(n)) if n > 1 and sd > 0 else np.nan,
         })
     return pd.DataFrame(rows)
@@ -191,7 +199,7 @@ def coverage_study(
     *,
     samples: int = 10_000,
     seed: int = 0,
-    method: str = "iv-zero-mean",
+    method: str | None = None,
     covariances: Mapping[str, tuple[str, Mapping[str, Any]]] | None = None,
     estimate_fn: Callable[..., Any] | None = None,
     batch: int = 200,
@@ -204,8 +212,10 @@ def coverage_study(
         Key of :data:`SCENARIOS`.
     runs, samples, seed : int
         Monte Carlo runs, samples per run, root seed (run ``r`` uses child ``r``).
-    method : str
-        Estimator of :func:`vesselid.identify.estimators.estimate`.
+    method : str, optional
+        Estimator (default: the package default, :func:`default_method`); with the
+        estimator registry its batched ``estimate_parameters`` and, per run, the
+        ``equation_designs`` its ``fit`` uses (:func:`registry_covariances`).
     covariances : mapping label -> (cov_type, cov_config)
         Default: the package default only.
     estimate_fn : callable, optional
@@ -219,6 +229,10 @@ def coverage_study(
     """
     from vesselid.identify.estimators import estimate
 
+    method = method or default_method()
+    registry = _has_registry() and estimate_fn is None
+    if registry:
+        from vesselid.identify.registry import get_estimator
     system, aggregate, target = heave_scenario(scenario)
     spec = system.identification_spec(aggregate=aggregate)
     covariances = covariances or {DEFAULT_COV_TYPE: (DEFAULT_COV_TYPE, {})}
@@ -231,6 +245,12 @@ def coverage_study(
         data = from_arrays(spec, sim.y, sim.u, y2=sim.y2 if aggregate else None)
         if target == "aggregated":
             data = dataclasses.replace(data, target=data.regsig)
+        if registry:
+            it = get_estimator(method).estimate_parameters(data, spec)
+            thetas.append(it.theta)
+            for label, se in registry_covariances(data, spec, it, method, covariances).items():
+                ses[label].append(se)
+            continue
         it = (estimate_fn(data, spec) if estimate_fn is not None
               else estimate(data, spec, method))
         thetas.append(it.theta)
@@ -245,6 +265,7 @@ def coverage_study(
         tab = coverage_table(theta, np.vstack(ses[label]), spec.theta0_vector(), names)
         tab.insert(0, "covariance", label)
         tab.insert(0, "scenario", scenario)
+        tab.insert(2, "method", method)
         frames.append(tab)
     return pd.concat(frames, ignore_index=True)
 
@@ -255,7 +276,7 @@ def seatrial_coverage(
     samples: int = 20_000,
     experiments: int = 6,
     seed: int = 0,
-    method: str = "iv-zero-mean",
+    method: str | None = None,
     covariances: Mapping[str, tuple[str, Mapping[str, Any]]] | None = None,
     estimate_fn: Callable[..., Any] | None = None,
     chunk: int = 5,
@@ -264,6 +285,11 @@ def seatrial_coverage(
     independent trials of ``experiments × samples`` with the study's current, wind,
     gusts and unmodelled forces, identified with the relative predictor (speed log)."""
     from vesselid.identify.estimators import estimate
+
+    method = method or default_method()
+    registry = _has_registry() and estimate_fn is None
+    if registry:
+        from vesselid.identify.registry import get_estimator
     from vesselid.seatrial import _disturbances, design_sea_trial, seatrial_spec
     from vesselid.vessels import SENSOR_CHANNELS, simulate_cybership2
 
@@ -289,6 +315,12 @@ def seatrial_coverage(
             tau[g * n_e:(g + 1) * n_e] = sim.tau[:, design.warmup:]
             del sim
         data = from_arrays(spec, y, tau, experiments_per_group=n_e)
+        if registry:
+            it = get_estimator(method).estimate_parameters(data, spec)
+            thetas.append(it.theta)
+            for label, se in registry_covariances(data, spec, it, method, covariances).items():
+                ses[label].append(se)
+            continue
         it = (estimate_fn(data, spec) if estimate_fn is not None
               else estimate(data, spec, method))
         thetas.append(it.theta)
@@ -303,5 +335,198 @@ def seatrial_coverage(
         tab = coverage_table(theta, np.vstack(ses[label]), spec.theta0_vector(), names)
         tab.insert(0, "covariance", label)
         tab.insert(0, "scenario", "seatrial")
+        tab.insert(2, "method", method)
         frames.append(tab)
     return pd.concat(frames, ignore_index=True)
+
+
+# ------------------------------------------------------------------ through identify()
+def _identify_runs(
+    frames: list[pd.DataFrame],
+    spec: ModelSpec,
+    covariances: Mapping[str, tuple[str, Mapping[str, Any]]],
+    method: str | None,
+    target: str,
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Fit every run's log with the public ``identify`` (the user's path), once per
+    covariance estimator. Failed fits give NaN rows."""
+    import inspect
+    import warnings
+
+    from vesselid.identify import identify
+
+    params = inspect.signature(identify).parameters
+    n_par = spec.n_params
+    theta = np.full((len(frames), n_par), np.nan)
+    ses = {k: np.full((len(frames), n_par), np.nan) for k in covariances}
+    for r, frame in enumerate(frames):
+        for first, (label, (cov_type, cfg)) in enumerate(covariances.items()):
+            kw: dict[str, Any] = {}
+            if method is not None:
+                kw["method"] = method
+            if "target" in params:
+                kw["target"] = target
+            if "cov_type" in params:
+                kw["cov_type"] = cov_type
+                kw["cov_config"] = dict(cfg)
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    res = identify(frame, spec, **kw)
+            except ValueError:
+                continue
+            if first == 0:
+                theta[r] = res.params.to_numpy()
+            ses[label][r] = res.std_errors.to_numpy()
+    return theta, ses
+
+
+def coverage_identify(
+    scenario: str,
+    runs: int,
+    *,
+    samples: int = 10_000,
+    seed: int = 0,
+    method: str | None = None,
+    covariances: Mapping[str, tuple[str, Mapping[str, Any]]] | None = None,
+    batch: int = 100,
+) -> pd.DataFrame:
+    """:func:`coverage_study` through the public :func:`vesselid.identify.identify`
+    (default method unless ``method``), one trial log per run; ``"seatrial"`` runs
+    the CyberShip II trial (6 × ``samples``)."""
+    covariances = covariances or {DEFAULT_COV_TYPE: (DEFAULT_COV_TYPE, {})}
+    theta_all, ses_all = [], {k: [] for k in covariances}
+    if scenario == "seatrial":
+        from vesselid.seatrial import _disturbances, design_sea_trial, seatrial_spec
+        from vesselid.vessels import SENSOR_CHANNELS, simulate_cybership2
+
+        spec = seatrial_spec()
+        design = design_sea_trial(6, samples, seed=seed)
+        dist = _disturbances(0.05, np.radians(30.0), 1.0, np.radians(-60.0), 0.005, 0.1,
+                             (0.02, 0.02, 0.01))
+        idx = [SENSOR_CHANNELS.index(c) for c in ("u_log", "v_log", "r")]
+        inputs = design.warmup_inputs()
+        seeds = np.random.SeedSequence(seed + 2000).spawn(int(runs))
+        target = "measured"
+        for ss in seeds:
+            sim = simulate_cybership2(inputs, run_seeds=ss.spawn(6), dt=design.dt,
+                                      disturbances=dist)
+            y = sim.sensors[:, design.warmup:, idx]
+            tau = sim.tau[:, design.warmup:]
+            n_e, n_k = y.shape[0], y.shape[1]
+            cols: dict[str, np.ndarray] = {"experiment": np.repeat(np.arange(n_e), n_k)}
+            for i, s in enumerate(spec.states):
+                cols[s] = y[:, :, i].ravel()
+            for j, s in enumerate(spec.inputs):
+                cols[s] = tau[:, :, j].ravel()
+            th, se = _identify_runs([pd.DataFrame(cols)], spec, covariances, method, target)
+            theta_all.append(th)
+            for k in covariances:
+                ses_all[k].append(se[k])
+    else:
+        system, aggregate, target = heave_scenario(scenario)
+        spec = system.identification_spec(aggregate=aggregate)
+        seeds = np.random.SeedSequence(seed).spawn(int(runs))
+        for c in range(0, int(runs), batch):
+            sim = system.simulate(int(samples), run_seeds=seeds[c:c + batch])
+            frames = []
+            for r in range(sim.n_runs):
+                cols = {s: sim.y[r, :, i] for i, s in enumerate(spec.states)}
+                cols |= {s: sim.u[r, :, j] for j, s in enumerate(spec.inputs)}
+                for j, s in enumerate(system.sensor_states):
+                    if aggregate:
+                        cols[system.sensor_name(s)] = sim.y2[r, :, j]
+                frames.append(pd.DataFrame(cols))
+            th, se = _identify_runs(frames, spec, covariances, method, target)
+            theta_all.append(th)
+            for k in covariances:
+                ses_all[k].append(se[k])
+    theta = np.vstack(theta_all)
+    names = [f"{eq}: {term}" for eq, term in spec.param_index]
+    out = []
+    for label in covariances:
+        tab = coverage_table(theta, np.vstack(ses_all[label]), spec.theta0_vector(), names)
+        tab.insert(0, "covariance", label)
+        tab.insert(0, "scenario", scenario)
+        out.append(tab)
+    return pd.concat(out, ignore_index=True)
+
+
+# ------------------------------------------------------------------ registry estimators
+def _has_registry() -> bool:
+    try:
+        import vesselid.identify.registry  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def default_method() -> str:
+    """The package's default estimator (``iv-zero-mean`` before the registry existed)."""
+    try:
+        from vesselid.identify.registry import DEFAULT_METHOD
+    except ImportError:  # pragma: no cover - older layout
+        return "iv-zero-mean"
+    return str(DEFAULT_METHOD)
+
+
+def _slice_group(obj: Any, g: int, n_groups: int) -> Any:
+    if isinstance(obj, np.ndarray) and obj.ndim and obj.shape[0] == n_groups:
+        return obj[g:g + 1]
+    if isinstance(obj, list) and len(obj) == n_groups and n_groups > 1:
+        return obj[g:g + 1]
+    if isinstance(obj, dict):
+        return {k: _slice_group(v, g, n_groups) for k, v in obj.items()}
+    return obj
+
+
+def registry_covariances(
+    data: RegressionData,
+    spec: ModelSpec,
+    it: Any,
+    method: str,
+    covariances: Mapping[str, tuple[str, Mapping[str, Any]]],
+    *,
+    combine: str = "pooled",
+) -> dict[str, np.ndarray]:
+    """Standard errors (G, P) of a registry estimator's batched estimates, computed as its
+    checked ``fit`` does: its ``equation_designs`` (final instruments, weight, residuals
+    of each equation) and one covariance call per equation."""
+    from vesselid.identify.data import block_starts
+    from vesselid.identify.registry import get_estimator
+
+    est = get_estimator(method)
+    blocks = block_starts(spec)
+    n_groups = data.n_groups
+    out = {k: np.full((n_groups, spec.n_params), np.nan) for k in covariances}
+    cov_est = {k: get_covariance_estimator(c, **dict(cfg)) for k, (c, cfg) in covariances.items()}
+    fields = {f.name for f in dataclasses.fields(it)}
+    for g in range(n_groups):
+        if not np.all(np.isfinite(it.theta[g])):
+            continue
+        segs = np.flatnonzero(data.group == g)
+        a, b = int(data.starts[segs[0]]), int(data.starts[segs[-1] + 1])
+        sl = slice(a, b)
+        sub = dataclasses.replace(
+            data, target=data.target[sl], regsig=data.regsig[sl], u=data.u[sl],
+            starts=data.starts[segs[0]: segs[-1] + 2] - a, group=np.zeros(segs.size, np.int64),
+            n_groups=1, experiment_ids=tuple(range(segs.size)),
+            sensor=None if data.sensor is None else data.sensor[sl])
+        it_g = dataclasses.replace(it, **{f: _slice_group(getattr(it, f), g, n_groups)
+                                          for f in fields if f != "history"})
+        phi = kernels.regressor_matrix(sub.regsig, sub.u, sub.starts, spec.codes.factors)
+        try:
+            designs = est.equation_designs(sub, spec, it_g, phi, combine)
+        except (ValueError, np.linalg.LinAlgError):
+            continue
+        for label, ce in cov_est.items():
+            for i in range(spec.n_states):
+                d = designs[i]
+                p_sl = slice(int(blocks[i]), int(blocks[i + 1]))
+                try:
+                    res = ce.estimate(d.z, d.phi, d.resid, d.starts, weight=d.weight,
+                                      zero_mean=d.zero_mean, combine=combine, skip_first=False)
+                except ValueError:
+                    continue
+                out[label][g, p_sl] = res.std_errors
+    return out
