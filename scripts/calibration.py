@@ -48,7 +48,7 @@ def plot(df: pd.DataFrame, path: Path) -> None:
 
     labels = list(dict.fromkeys(df["covariance"]))[:2]
     scen = list(dict.fromkeys(df["scenario"]))
-    fig = Figure(figsize=(10, 4.4), layout="constrained")
+    fig = Figure(figsize=(11, 4.6), layout="constrained")
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     x0 = 0
@@ -65,7 +65,7 @@ def plot(df: pd.DataFrame, path: Path) -> None:
                         fmt="o" if k == 0 else "s", ms=3, lw=1, capsize=1.5,
                         color="C0" if k == 0 else "0.6", label=lab if s == scen[0] else None)
         ticks.append(x0 + (len(params) - 1) / 2)
-        ticklabels.append(f"{s}\n({int(sub['runs'].max())} runs)")
+        ticklabels.append("\n".join(s.rsplit("-", 1)) + f"\n({int(sub['runs'].max())} runs)")
         x0 += len(params) + 1
     ax.axhspan(93, 97, color="C2", alpha=0.15, label="target 93–97 %")
     ax.axhline(95, color="C2", lw=0.8)
