@@ -96,7 +96,7 @@ class _Core:
         psi_ref: float,
         reward_weights: Sequence[float],
         initial_speed: Sequence[float],
-        velocity_limit: float,
+        velocity_limit: float | None,
         block: int,
     ) -> None:
         hull = vessel_module(str(vessel)).HULL
@@ -109,7 +109,7 @@ class _Core:
                           ("wind_gust", wind_gust)):
             if not (math.isfinite(float(val)) and float(val) >= 0):
                 raise VesselidError(f"{name} must be a non-negative number, got {val!r}")
-        vlim = float(velocity_limit)
+        vlim = float(hull.velocity_limit if velocity_limit is None else velocity_limit)
         if not (math.isfinite(vlim) and vlim > 0):
             raise VesselidError(f"velocity_limit must be positive, got {velocity_limit!r}")
         lo, hi = (float(x) for x in initial_speed)
@@ -336,7 +336,8 @@ _DOC_ARGS = """
     - ``reward_weights``: ``(w_u, w_ψ, w_a)`` of the reward (``(10, 1, 0.01)``).
     - ``initial_speed``: range of the uniform initial surge speed (``(0.0, 0.4)`` m/s).
     - ``velocity_limit``: the episode terminates when a component of ν exceeds it
-      (5 m/s; unreachable with the default forces); velocity channels are bounded by
+      (default the vessel's; CyberShip II: 5 m/s,
+      unreachable with its forces); velocity channels are bounded by
       ±2·velocity_limit, the apparent wind speed by ±2·(wind_speed + 3·wind_gust +
       velocity_limit), angles by ±π.
     - ``render_window``: number of recent samples plotted (600).
@@ -433,7 +434,7 @@ class Manoeuvring3DOFEnv(gym.Env[np.ndarray, np.ndarray]):
         psi_ref: float = 0.0,
         reward_weights: Sequence[float] = (10.0, 1.0, 0.01),
         initial_speed: Sequence[float] = (0.0, 0.4),
-        velocity_limit: float = 5.0,
+        velocity_limit: float | None = None,
         render_window: int = 600,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -580,7 +581,7 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
         psi_ref: float = 0.0,
         reward_weights: Sequence[float] = (10.0, 1.0, 0.01),
         initial_speed: Sequence[float] = (0.0, 0.4),
-        velocity_limit: float = 5.0,
+        velocity_limit: float | None = None,
         render_window: int = 600,
         parallel: bool | None = None,
     ) -> None:

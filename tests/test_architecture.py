@@ -26,6 +26,9 @@ def _imports() -> dict[str, set[str]]:
             targets: list[str] = []
             if isinstance(node, ast.Import):
                 targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module == "vesselid" and all(
+                    a.name == "__version__" for a in node.names):
+                continue  # a constant set before the package imports any module
             elif isinstance(node, ast.ImportFrom) and node.module:
                 # ``from pkg import submodule`` depends on the submodule, not on pkg's names
                 subs = [f"{node.module}.{a.name}" for a in node.names]

@@ -29,6 +29,7 @@ SYSTEMS: dict[str, str] = {
 #: Vessels: name -> data module (with ``HULL`` and ``system``).
 VESSELS: dict[str, str] = {
     "cybership2": "vesselid.vessels.cybership2",
+    "viknes830": "vesselid.vessels.viknes830",
 }
 
 

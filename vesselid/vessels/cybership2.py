@@ -356,3 +356,7 @@ def cybership2_system(
 
 #: Catalogue entry (:mod:`vesselid.catalogue`).
 system = cybership2_system
+
+#: Terms collinear in every steady turn (``v·|r| = −r·|v|`` since ``v·r < 0``): the sea
+#: trial folds ``v·|r|`` into ``r·|v|`` (:func:`vesselid.seatrial.seatrial_spec`).
+TRIAL_MERGES = (("r*|v|", "v*|r|", -1.0),)

@@ -71,6 +71,9 @@ class Hull:
     force_max : (float, float, float)
         Actuator limits ``|X|, |Y|, |N|`` (N, N, N m): the environment's action scale and
         the bound a sea-trial design must respect.
+    velocity_limit : float
+        Speed (m/s) beyond which a simulated velocity counts as diverged in the
+        environments (their default).
     wind : BlendermannWind
         Default wind-load model.
     description : str
@@ -88,6 +91,7 @@ class Hull:
     length: float = 1.0
     beam: float = 0.3
     force_max: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    velocity_limit: float = 5.0
     wind: BlendermannWind = field(default_factory=lambda: BLENDERMANN94)
     description: str = ""
     parameters: Mapping[str, float] = field(default_factory=dict)
