@@ -32,6 +32,7 @@ from gymnasium.vector.utils import batch_space
 
 from vesselid.catalogue import vessel_module
 from vesselid.envs._render import FigureRenderer
+from vesselid.envs._settings import triple
 from vesselid.errors import VesselidError
 from vesselid.model import ModelSpec
 from vesselid.vessels import (
@@ -61,13 +62,6 @@ def reward(u: np.ndarray, psi: np.ndarray, a: np.ndarray, u_ref: float, psi_ref:
     dpsi = wrap(psi - psi_ref)
     asq = a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1] + a[:, 2] * a[:, 2]
     return -(w_u * du * du + w_psi * dpsi * dpsi + w_a * asq)
-
-
-def _triple(name: str, value: Any) -> tuple[float, float, float]:
-    arr = np.broadcast_to(np.asarray(value, dtype=float), (3,))
-    if not np.all(np.isfinite(arr)):
-        raise VesselidError(f"{name} must be finite, got {value!r}")
-    return (float(arr[0]), float(arr[1]), float(arr[2]))
 
 
 class _Core:
@@ -100,10 +94,10 @@ class _Core:
         block: int,
     ) -> None:
         hull = vessel_module(str(vessel)).HULL
-        fmax = _triple("force_max", hull.force_max if force_max is None else force_max)
+        fmax = triple("force_max", hull.force_max if force_max is None else force_max)
         if min(fmax) <= 0:
             raise VesselidError(f"force_max must be positive, got {force_max!r}")
-        rw = _triple("reward_weights", reward_weights)
+        rw = triple("reward_weights", reward_weights)
         for name, val in (("current_speed", current_speed), ("current_variation",
                           current_variation), ("wind_speed", wind_speed),
                           ("wind_gust", wind_gust)):
@@ -126,7 +120,7 @@ class _Core:
             wind_direction=0.0 if wind_direction is None else float(wind_direction),
             gust_std=float(wind_gust),
             wind_direction_std=0.1 if wind_gust > 0 else 0.0,
-            force_noise_std=_triple("force_noise", force_noise),
+            force_noise_std=triple("force_noise", force_noise),
             cubic_surge=bool(cubic_surge),
         )
         self.model = VesselModel(hull=hull, dt=dt, disturbances=dist,
