@@ -12,13 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from vesselid.catalogue import get_system, names
 from vesselid.identify import _fastkernels as fk
 from vesselid.identify import estimators
 from vesselid.identify.data import block_starts, from_log
-from vesselid.systems import SYSTEMS, get_system
 
 #: Every catalogue system (the CyberShip II structure has 23 parameters).
-CATALOGUE = [*SYSTEMS, "cybership2"]
+CATALOGUE = names()
 
 POSIX = hasattr(os, "getuid")
 
