@@ -40,6 +40,7 @@ from vesselid.vessels import (
     VesselDisturbances,
     VesselModel,
     VesselSensors,
+    log_columns,
     wrap,
 )
 
@@ -62,6 +63,36 @@ def reward(u: np.ndarray, psi: np.ndarray, a: np.ndarray, u_ref: float, psi_ref:
     dpsi = wrap(psi - psi_ref)
     asq = a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1] + a[:, 2] * a[:, 2]
     return -(w_u * du * du + w_psi * dpsi * dpsi + w_a * asq)
+
+
+#: Settings of both environments and their defaults (see ``## Arguments``).
+DEFAULTS: dict[str, Any] = {
+    "vessel": "cybership2",
+    "dt": 0.1,
+    "current_speed": 0.05,
+    "current_direction": None,
+    "current_variation": 0.005,
+    "current_time_constant": 120.0,
+    "wind_speed": 1.0,
+    "wind_direction": None,
+    "wind_gust": 0.2,
+    "force_noise": 0.0,
+    "sensors": None,
+    "cubic_surge": False,
+    "force_max": None,
+    "u_ref": 0.3,
+    "psi_ref": 0.0,
+    "reward_weights": (10.0, 1.0, 0.01),
+    "initial_speed": (0.0, 0.4),
+    "velocity_limit": None,
+}
+
+
+def _settings(settings: Mapping[str, Any]) -> dict[str, Any]:
+    unknown = sorted(set(settings) - set(DEFAULTS))
+    if unknown:
+        raise VesselidError(f"unknown settings {unknown}; known: {sorted(DEFAULTS)}")
+    return {**DEFAULTS, **settings}
 
 
 class _Core:
@@ -230,32 +261,8 @@ class _Core:
 
 
 def _log_row(info: Mapping[str, Any], enabled: Sequence[str]) -> dict[str, Any]:
-    """Trial-log columns from an info dict (single or batched)."""
-    row: dict[str, Any] = {}
-
-    def col(key: str, i: int) -> Any:
-        return np.asarray(info[key])[..., i]
-
-    if "gnss" in enabled:
-        row["u"], row["v"] = col("gnss", 0), col("gnss", 1)
-    if "gyro" in enabled:
-        row["r"] = col("gyro", 0)
-    if "heading" in enabled:
-        row["psi"] = col("heading", 0)
-    if "speed_log" in enabled:
-        row["u_log"], row["v_log"] = col("speed_log", 0), col("speed_log", 1)
-        if "gyro" in enabled:
-            row["r_log"] = col("gyro", 0)
-    if "current_meter" in enabled:
-        row["u_c"], row["v_c"] = col("current_meter", 0), col("current_meter", 1)
-    if "anemometer" in enabled:
-        row["wind_speed"], row["wind_angle"] = col("anemometer", 0), col("anemometer", 1)
-    for i, c in enumerate(("u", "v", "r")):
-        row[f"true_{c}"] = col("nu", i)
-    row["true_u_r"], row["true_v_r"] = col("nu_r", 0), col("nu_r", 1)
-    row["true_u_c"], row["true_v_c"] = col("current", 0), col("current", 1)
-    for i, c in enumerate(("north", "east", "psi")):
-        row[f"true_{c}"] = col("eta", i)
+    """Trial-log columns from an info dict (single or batched): :func:`log_columns`."""
+    row = log_columns(lambda key, i: np.asarray(info[key])[..., i], enabled, inputs=False)
     if np.ndim(row["true_u"]) == 0:
         row = {k: float(v) for k, v in row.items()}
     return row
@@ -407,42 +414,12 @@ class Manoeuvring3DOFEnv(gym.Env[np.ndarray, np.ndarray]):
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"],
                                           "render_fps": 10}
 
-    def __init__(
-        self,
-        render_mode: str | None = None,
-        *,
-        vessel: str = "cybership2",
-        dt: float = 0.1,
-        current_speed: float = 0.05,
-        current_direction: float | None = None,
-        current_variation: float = 0.005,
-        current_time_constant: float = 120.0,
-        wind_speed: float = 1.0,
-        wind_direction: float | None = None,
-        wind_gust: float = 0.2,
-        force_noise: Sequence[float] | float = 0.0,
-        sensors: VesselSensors | Mapping[str, Any] | None = None,
-        cubic_surge: bool = False,
-        force_max: Sequence[float] | None = None,
-        u_ref: float = 0.3,
-        psi_ref: float = 0.0,
-        reward_weights: Sequence[float] = (10.0, 1.0, 0.01),
-        initial_speed: Sequence[float] = (0.0, 0.4),
-        velocity_limit: float | None = None,
-        render_window: int = 600,
-    ) -> None:
+    def __init__(self, render_mode: str | None = None, *, render_window: int = 600,
+                 **settings: Any) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise VesselidError(f"render_mode must be one of "
                                 f"{self.metadata['render_modes']} or None, got {render_mode!r}")
-        self._core = _Core(
-            1, parallel=False, vessel=vessel, dt=dt, current_speed=current_speed,
-            current_direction=current_direction, current_variation=current_variation,
-            current_time_constant=current_time_constant, wind_speed=wind_speed,
-            wind_direction=wind_direction, wind_gust=wind_gust, force_noise=force_noise,
-            sensors=sensors, cubic_surge=cubic_surge, force_max=force_max, u_ref=u_ref,
-            psi_ref=psi_ref, reward_weights=reward_weights, initial_speed=initial_speed,
-            velocity_limit=velocity_limit, block=SINGLE_BLOCK,
-        )
+        self._core = _Core(1, parallel=False, block=SINGLE_BLOCK, **_settings(settings))
         self.render_mode = render_mode
         self.action_space, self.observation_space = self._core.spaces()
         #: Identification structure of the recorded data (recorder contract).
@@ -552,33 +529,9 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
         "autoreset_mode": AutoresetMode.NEXT_STEP,
     }
 
-    def __init__(
-        self,
-        num_envs: int = 1,
-        max_episode_steps: int = 2000,
-        render_mode: str | None = None,
-        *,
-        vessel: str = "cybership2",
-        dt: float = 0.1,
-        current_speed: float = 0.05,
-        current_direction: float | None = None,
-        current_variation: float = 0.005,
-        current_time_constant: float = 120.0,
-        wind_speed: float = 1.0,
-        wind_direction: float | None = None,
-        wind_gust: float = 0.2,
-        force_noise: Sequence[float] | float = 0.0,
-        sensors: VesselSensors | Mapping[str, Any] | None = None,
-        cubic_surge: bool = False,
-        force_max: Sequence[float] | None = None,
-        u_ref: float = 0.3,
-        psi_ref: float = 0.0,
-        reward_weights: Sequence[float] = (10.0, 1.0, 0.01),
-        initial_speed: Sequence[float] = (0.0, 0.4),
-        velocity_limit: float | None = None,
-        render_window: int = 600,
-        parallel: bool | None = None,
-    ) -> None:
+    def __init__(self, num_envs: int = 1, max_episode_steps: int = 2000,
+                 render_mode: str | None = None, *, render_window: int = 600,
+                 parallel: bool | None = None, **settings: Any) -> None:
         if int(num_envs) < 1:
             raise VesselidError(f"num_envs must be >= 1, got {num_envs}")
         if int(max_episode_steps) < 1:
@@ -592,16 +545,8 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
         block = max(16, VECTOR_BLOCK_SAMPLES // self.num_envs)
         if parallel is None:
             parallel = numba.get_num_threads() >= 4 and self.num_envs >= 256
-        self._core = _Core(
-            self.num_envs, parallel=bool(parallel), vessel=vessel, dt=dt,
-            current_speed=current_speed,
-            current_direction=current_direction, current_variation=current_variation,
-            current_time_constant=current_time_constant, wind_speed=wind_speed,
-            wind_direction=wind_direction, wind_gust=wind_gust, force_noise=force_noise,
-            sensors=sensors, cubic_surge=cubic_surge, force_max=force_max, u_ref=u_ref,
-            psi_ref=psi_ref, reward_weights=reward_weights, initial_speed=initial_speed,
-            velocity_limit=velocity_limit, block=block,
-        )
+        self._core = _Core(self.num_envs, parallel=bool(parallel), block=block,
+                           **_settings(settings))
         self.single_action_space, self.single_observation_space = self._core.spaces()
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)

@@ -247,7 +247,7 @@ def trial_timeseries(
     Parameters
     ----------
     log : TrialLog or DataFrame
-        A trial log (DESIGN.md columns); its spec, when present, tells states,
+        A trial log (docs/architecture.md columns); its spec, when present, tells states,
         inputs and sensor columns apart, otherwise the ``true_*`` columns do.
     experiment : optional
         Experiment to plot (default the first).

@@ -173,7 +173,7 @@ class IdentificationResult:
         return out
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict (DESIGN.md ``identify --json`` contract)."""
+        """JSON-ready dict (docs/architecture.md ``identify --json`` contract)."""
         design = self.diagnostics.get("design")
         diag: dict[str, Any] = {
             k: v for k, v in self.diagnostics.items() if k not in ("design",)
