@@ -251,6 +251,7 @@ class Estimator:
                 _warn(f"weak instruments in equation {s!r}: cond(ZᵀΦ) = {cond[s]:.3g}",
                       WeakInstrumentWarning)
         specification = _specification_tests(spec, designs, theta, blocks, cov_name)
+        residual_checks = _residual_checks(spec, data, resid)
         if not np.all(np.isfinite(cov)):
             _warn("the covariance of the estimates could not be computed (singular "
                   "instrument or moment matrix); standard errors are reported as null",
@@ -299,6 +300,7 @@ class Estimator:
             "design_eta": eta_used,
             "design_eta_source": eta_source,
             "modulus_states": modulus_signals(spec),
+            **residual_checks,
             "warnings": warn_msgs,
         }
         results: dict[str, Any] = {
@@ -393,6 +395,20 @@ def _specification_tests(spec: ModelSpec, designs: list[EquationDesign], theta: 
         out[s] = fn(d.z, d.phi, y, d.starts, zero_mean=d.zero_mean, skip_first=False,
                     names=[str(t) for t in spec.equations[s]], cov_type=cov_type)
     return out
+
+
+def _residual_checks(spec: ModelSpec, data: RegressionData, resid: np.ndarray
+                     ) -> dict[str, Any]:
+    """Residual whiteness (Ljung–Box) and residual–input cross-correlation."""
+    try:
+        from vesselid.identify import specification
+    except ImportError:
+        return {}
+    corr = specification.residual_correlations(
+        resid, data.u, data.starts, outputs=list(spec.states), inputs=list(spec.inputs))
+    white = specification.ljung_box(resid, data.starts, names=list(spec.states))
+    return {"whiteness": {k: v.to_dict() for k, v in white.items()},
+            "residual_correlation": corr.to_dict()}
 
 
 def _target_rule(spec: ModelSpec, target: str) -> str:

@@ -133,11 +133,6 @@ class IdentificationResult:
             lines.append(f"fit {s}: one-step {fit1.get(s, float('nan')):.2f} %   "
                          f"free-run {fitf.get(s, float('nan')):.2f} %   "
                          f"cond(ZᵀΦ) {self.instrument_condition.get(s, float('nan')):.3g}")
-        spec_tests = self.diagnostics.get("specification")
-        if spec_tests:
-            from vesselid.identify import specification
-
-            lines.extend(specification.summary_lines(spec_tests))
         design = self.diagnostics.get("design")
         if isinstance(design, pd.DataFrame) and not design.empty:
             bad = design[~design["ok"]]
@@ -151,9 +146,28 @@ class IdentificationResult:
                         f"{r['experiment']} is within η={r['eta']:.3g} of zero in "
                         f"{100 * r['share_within_eta']:.1f} % of samples "
                         f"({r['sign_changes']} sign changes)")
+        from vesselid.identify.specification import summary_lines
+
+        lines.extend(summary_lines(self.diagnostics.get("specification", {})))
+        for s_name, lb in self.diagnostics.get("whiteness", {}).items():
+            lines.append(f"whiteness {s_name}: {lb.get('sentence', '')}")
         for w in self.diagnostics.get("warnings", []):
             lines.append(f"warning: {w}")
         return "\n".join(lines)
+
+    def plot_residuals(self, *, title: str | None = None):
+        """MATLAB ``resid``-style figure: residual autocorrelation and residual–input
+        cross-correlation with confidence bands (:func:`vesselid.plots.residual_analysis`).
+
+        Returns a matplotlib ``Figure`` (save it with ``fig.savefig``).
+        """
+        from vesselid.plots import residual_analysis
+
+        rc = self.diagnostics.get("residual_correlation")
+        if rc is None:
+            raise ValueError("this result holds no residual correlations "
+                             "(diagnostics['residual_correlation'])")
+        return residual_analysis(rc, title=title or f"Residual analysis — {self.method}")
 
     def __str__(self) -> str:
         return self.summary()
@@ -165,7 +179,7 @@ class IdentificationResult:
         return out
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict (DESIGN.md ``identify --json`` contract)."""
+        """JSON-ready dict (docs/architecture.md ``identify --json`` contract)."""
         design = self.diagnostics.get("design")
         diag: dict[str, Any] = {
             k: v for k, v in self.diagnostics.items() if k not in ("design",)
