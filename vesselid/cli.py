@@ -28,7 +28,7 @@ from vesselid.errors import VesselidError
 __all__ = ["main"]
 
 #: Modules that add their own subcommands (``add_parser(subparsers)``).
-PLUGIN_MODULES = ("vesselid.reproduce", "vesselid.seatrial")
+PLUGIN_MODULES = ("vesselid.reproduce", "vesselid.seatrial", "vesselid.ingest")
 
 
 class CLIError(VesselidError):
@@ -69,6 +69,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     log.save(out)
     print(f"wrote {out} ({len(log)} rows, {args.experiments} experiment(s)) and model spec "
           f"{spec_path}")
+    if args.raw:
+        from vesselid.rawstreams import write_raw_streams
+
+        manifest = write_raw_streams(log, args.raw, seed=args.seed)
+        n = sum(manifest["sentences"].values())
+        print(f"wrote raw sensor streams to {args.raw} ({n} NMEA sentences, actuators.csv, "
+              f"ingest.toml, {manifest['files'][-1]})")
+        print(f"next: vesselid ingest {args.raw} --dt {log.spec.dt} --out trial.csv")
     print(f"next: vesselid identify {out} --model {spec_path} --method iv-zero-mean")
     return 0
 
@@ -127,6 +135,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="log a current-meter reading and use the aggregated-state predictor")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="trial.csv or trial.parquet")
+    p.add_argument("--raw", metavar="DIR",
+                   help="also write the raw sensor streams (NMEA 0183, actuator CSV, spec) to DIR "
+                        "(surface vessels: cybership2)")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("identify", help="identify a model from a trial log",

@@ -709,6 +709,8 @@ def add_parser(subparsers: Any) -> None:
                    help="also run LS, IV and IV-zero-mean and print the comparison")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--raw", metavar="DIR",
+                   help="also write the raw sensor streams (NMEA 0183, actuator CSV, spec) to DIR")
     p.set_defaults(func=cmd_sea_trial)
 
 
@@ -736,6 +738,12 @@ def cmd_sea_trial(args: argparse.Namespace) -> int:
     print(f"wrote {data} ({len(log)} rows, {args.experiments} experiments){extra}, model spec "
           f"{spec_path} (aggregate: {args.aggregate})")
     print(f"next: vesselid identify {data} --model {spec_path} --method iv-zero-mean")
+    if getattr(args, "raw", None):
+        from vesselid.rawstreams import write_raw_streams
+
+        manifest = write_raw_streams(log, args.raw, seed=args.seed)
+        print(f"wrote raw sensor streams to {args.raw} ({sum(manifest['sentences'].values())} "
+              f"NMEA sentences, actuators.csv, ingest.toml, {manifest['files'][-1]})")
     if args.identify:
         res = run_pipeline(args.experiments, args.samples, args.seed, aggregate=args.aggregate,
                            source=args.source, **opts)
