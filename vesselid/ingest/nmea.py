@@ -15,7 +15,8 @@ ingest configuration: the sensor's latency minus the GNSS receiver's). Without r
 times, an untimed sentence takes the time of the last timed sentence before it (one
 burst per epoch).
 
-Speed. Parsing is vectorised: lines become a fixed-width byte matrix (in chunks); the
+Speed. Parsing is vectorised: lines become a fixed-width byte matrix (in chunks) gathered
+from the file's bytes; the
 checksum is a cumulative XOR per row, talker and formatter are byte columns, and the
 fields of each sentence type are split by :func:`pandas.read_csv` in one call. pynmea2
 supplies the field layout (:func:`vesselid.nmea.field_index`) and is the reference the
@@ -93,12 +94,17 @@ _STRING_FIELDS = {"lat_dir", "lon_dir", "status", "ref", "unit"}
 
 
 # ----------------------------------------------------------------------------- scanning
-def _scan_chunk(lines: list[bytes]) -> dict[str, np.ndarray]:
-    """Vectorised per-line analysis of a chunk of lines (all ≤ MAX_LINE bytes)."""
-    n = len(lines)
-    width = max(8, max(len(x) for x in lines) + 3)
-    arr = np.array(lines, dtype=f"S{width}")
-    b = arr.view(np.uint8).reshape(n, width)
+def _matrix(buf: np.ndarray, off: np.ndarray, ln: np.ndarray) -> np.ndarray:
+    """Lines ``buf[off:off+ln]`` as a zero-padded fixed-width byte matrix."""
+    width = max(8, int(ln.max()) + 3)
+    cols = np.arange(width)
+    idx = np.minimum(off[:, None] + cols[None, :], buf.size - 1)
+    return np.where(cols[None, :] < ln[:, None], buf[idx], 0).astype(np.uint8)
+
+
+def _scan_chunk(b: np.ndarray) -> dict[str, np.ndarray]:
+    """Vectorised per-line analysis of a chunk of lines (a byte matrix, one row a line)."""
+    n, width = b.shape
     cols = np.arange(width)
     is_start = (b == 36) | (b == 33)  # '$' or '!'
     has_start = is_start.any(axis=1)
@@ -162,10 +168,11 @@ def _decode(code: int, nbytes: int) -> str:
         "ascii", errors="replace")
 
 
-def _prefix_times(lines: list[bytes], idx: np.ndarray, start: np.ndarray) -> np.ndarray:
+def _prefix_times(raw: bytes, off: np.ndarray, idx: np.ndarray, start: np.ndarray) -> np.ndarray:
     """Receive times from a leading UNIX time or ISO stamp (lines without a TAG block)."""
-    text = pd.Series([lines[i][: start[i]].decode("ascii", "replace").strip(" ,;\t")
-                      for i in idx.tolist()], dtype=object)
+    text = pd.Series([raw[o:o + s].decode("ascii", "replace").strip(" ,;\t")
+                      for o, s in zip(off[idx].tolist(), start[idx].tolist(), strict=True)],
+                     dtype=object)
     num = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float)
     bad = ~np.isfinite(num)
     if bad.any():
@@ -177,14 +184,22 @@ def _prefix_times(lines: list[bytes], idx: np.ndarray, start: np.ndarray) -> np.
     return num
 
 
-def _split_fields(lines: list[bytes], idx: np.ndarray, start: np.ndarray, star: np.ndarray,
-                  n_fields: np.ndarray, kind: str) -> pd.DataFrame:
+def _split_fields(buf: np.ndarray, off: np.ndarray, idx: np.ndarray, start: np.ndarray,
+                  star: np.ndarray, n_fields: np.ndarray, kind: str) -> pd.DataFrame:
     """The fields of the given lines (one sentence type) as a DataFrame."""
     _mn, mx, names = _fields(kind)
-    pad = [b"," * k for k in range(mx + 1)]
-    text = b"\n".join(lines[i][s + 7:e] + pad[mx - k] for i, s, e, k in
-                      zip(idx.tolist(), start[idx].tolist(), star[idx].tolist(),
-                          n_fields[idx].tolist(), strict=True))
+    first = off[idx] + start[idx] + 7
+    stop = off[idx] + star[idx]
+    missing = mx - n_fields[idx]
+    # pad every body with commas to mx fields: gather with per-row padding lengths
+    ln = stop - first
+    seg = ln + missing + 1
+    out_start = np.concatenate([[0], np.cumsum(seg)[:-1]])
+    pos = np.arange(int(seg.sum())) - np.repeat(out_start, seg)
+    src = np.repeat(first, seg) + pos
+    data = np.where(pos < np.repeat(ln, seg), buf[np.minimum(src, buf.size - 1)], 44)
+    data[np.cumsum(seg) - 1] = 10
+    text = data.astype(np.uint8).tobytes()
     usecols = sorted(names.values())
     str_cols = {names[k] for k in names if k in _STRING_FIELDS}
     dtypes = {c: (str if c in str_cols else float) for c in usecols}
@@ -292,17 +307,25 @@ def read_nmea(
         raw = path.read_bytes()
     except OSError as exc:
         raise NmeaError(f"cannot read {path}: {exc.strerror or exc}") from exc
-    all_lines = raw.splitlines()
-    lines = [x for x in all_lines if x.strip()]
-    q: dict[str, Any] = {"file": str(path), "lines": len(lines)}
-    long = np.fromiter((len(x) > MAX_LINE for x in lines), dtype=bool, count=len(lines))
+    buf = np.frombuffer(raw, dtype=np.uint8)
+    nl = np.flatnonzero(buf == 10)
+    off = np.concatenate([[0], nl + 1]).astype(np.int64)
+    end = np.concatenate([nl, [buf.size]]).astype(np.int64)
+    cr = (end > off) & (buf[np.maximum(end - 1, 0)] == 13) if buf.size else end > off
+    end = end - cr
+    ln = end - off
+    keep = ln > 0
+    off, ln = off[keep], ln[keep]
+    q: dict[str, Any] = {"file": str(path), "lines": int(off.size)}
+    long = ln > MAX_LINE
     if long.any():
-        lines = [x for x, bad in zip(lines, long.tolist(), strict=True) if not bad]
-    parts = [_scan_chunk(lines[i:i + CHUNK]) for i in range(0, len(lines), CHUNK)]
+        off, ln = off[~long], ln[~long]
+    parts = [_scan_chunk(_matrix(buf, off[i:i + CHUNK], ln[i:i + CHUNK]))
+             for i in range(0, off.size, CHUNK)]
     if not parts:
         raise NmeaError(f"{path} holds no NMEA 0183 lines")
     sc = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-    n = len(lines)
+    n = int(off.size)
     bad_cs = sc["structure"] & ~sc["cs_ok"]
     corrupt = ~sc["structure"] | ~sc["sep_ok"]
     bad_tag = sc["tag"] & ~sc["tag_ok"]
@@ -314,7 +337,7 @@ def read_nmea(
     no_tag = good & ~sc["tag"] & (sc["start"] > 0)
     if no_tag.any():
         idx = np.flatnonzero(no_tag)
-        rx[idx] = _prefix_times(lines, idx, sc["start"])
+        rx[idx] = _prefix_times(raw, off, idx, sc["start"])
     has_rx = np.isfinite(rx)
     # clock jumps in the receive time itself are handled through the GNSS offsets below
     fmt = sc["fmt"]
@@ -339,7 +362,7 @@ def read_nmea(
         idx = np.flatnonzero(ok_count)
         if idx.size == 0:
             continue
-        frame = _split_fields(lines, idx, sc["start"], sc["star"], nf, kind)
+        frame = _split_fields(buf, off, idx, sc["start"], sc["star"], nf, kind)
         frames[kind] = (idx, frame)
         tk, cnt = np.unique(sc["talker"][idx], return_counts=True)
         talkers[kind] = {_decode(int(t), 2): int(c) for t, c in zip(tk, cnt, strict=True)}
