@@ -15,10 +15,8 @@ ingest configuration: the sensor's latency minus the GNSS receiver's). Without r
 times, an untimed sentence takes the time of the last timed sentence before it (one
 burst per epoch).
 
-Speed. Parsing is vectorised: lines become a fixed-width byte matrix (in chunks) gathered
-from the file's bytes; the
-checksum is a cumulative XOR per row, talker and formatter are byte columns, and the
-fields of each sentence type are split by :func:`pandas.read_csv` in one call. pynmea2
+Speed. Parsing is vectorised over the file's bytes (:func:`_scan`): checksums from one
+cumulative XOR, talker and formatter by byte gathers, and the fields of each sentence type are split by :func:`pandas.read_csv` in one call. pynmea2
 supplies the field layout (:func:`vesselid.nmea.field_index`) and is the reference the
 tests compare against; calling ``pynmea2.parse`` per line costs ~40 µs (≈ 40 s per
 10⁶ sentences), far over the 10 s budget.
@@ -40,7 +38,6 @@ from vesselid.nmea import KNOT, field_index
 
 __all__ = ["NmeaError", "read_nmea"]
 
-CHUNK = 1 << 17
 MAX_LINE = 255
 _HEXVAL = np.full(256, -1, dtype=np.int16)
 for _i, _c in enumerate(b"0123456789ABCDEF"):
@@ -94,66 +91,66 @@ _STRING_FIELDS = {"lat_dir", "lon_dir", "status", "ref", "unit"}
 
 
 # ----------------------------------------------------------------------------- scanning
-def _matrix(buf: np.ndarray, off: np.ndarray, ln: np.ndarray) -> np.ndarray:
-    """Lines ``buf[off:off+ln]`` as a zero-padded fixed-width byte matrix."""
-    width = max(8, int(ln.max()) + 3)
-    cols = np.arange(width)
-    idx = np.minimum(off[:, None] + cols[None, :], buf.size - 1)
-    return np.where(cols[None, :] < ln[:, None], buf[idx], 0).astype(np.uint8)
+def _first_at_or_after(positions: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+    """First element of sorted ``positions`` in ``[lo, hi)`` per row; (found, position)."""
+    j = np.searchsorted(positions, lo)
+    p = positions[np.minimum(j, max(positions.size - 1, 0))] if positions.size else lo
+    found = (j < positions.size) & (p < hi) if positions.size else np.zeros(lo.size, bool)
+    return found, np.where(found, p, lo)
 
 
-def _scan_chunk(b: np.ndarray) -> dict[str, np.ndarray]:
-    """Vectorised per-line analysis of a chunk of lines (a byte matrix, one row a line)."""
-    n, width = b.shape
-    cols = np.arange(width)
-    is_start = (b == 36) | (b == 33)  # '$' or '!'
-    has_start = is_start.any(axis=1)
-    start = is_start.argmax(axis=1)
-    after = cols[None, :] > start[:, None]
-    is_star = (b == 42) & after
-    has_star = is_star.any(axis=1)
-    star = is_star.argmax(axis=1)
-    rows = np.arange(n)
-    c1 = _HEXVAL[b[rows, np.minimum(star + 1, width - 1)]]
-    c2 = _HEXVAL[b[rows, np.minimum(star + 2, width - 1)]]
+def _scan(buf: np.ndarray, off: np.ndarray, ln: np.ndarray) -> dict[str, np.ndarray]:
+    """Vectorised per-line analysis on the flat file bytes (no per-line Python).
+
+    Positions of ``$``/``!``, ``*`` and ``c:`` are found once for the whole file and
+    assigned to lines with ``searchsorted``; checksums come from one cumulative XOR over
+    the file (the XOR of a byte range is ``cx[end] ^ cx[start]``), field counts from the
+    sorted comma positions.
+    """
+    n = off.size
+    end = off + ln
+    pad = np.concatenate([buf, np.zeros(8, dtype=np.uint8)])
+    cx = np.bitwise_xor.accumulate(pad)
+    comma_pos = np.flatnonzero(buf == 44)
+    dollars = np.flatnonzero((buf == 36) | (buf == 33))  # '$' or '!'
+    stars = np.flatnonzero(buf == 42)
+    has_start, st = _first_at_or_after(dollars, off, end)
+    has_star, sr = _first_at_or_after(stars, st + 1, end)
+    c1 = _HEXVAL[pad[sr + 1]]
+    c2 = _HEXVAL[pad[sr + 2]]
     given = (c1.astype(np.int32) << 4) | c2
-    cx = np.bitwise_xor.accumulate(b, axis=1)
-    body_xor = cx[rows, np.maximum(star - 1, 0)] ^ cx[rows, start]
-    structure = has_start & has_star & (star >= start + 7) & (c1 >= 0) & (c2 >= 0)
+    body_xor = cx[np.maximum(sr - 1, 0)] ^ cx[st]
+    structure = has_start & has_star & (sr >= st + 7) & (c1 >= 0) & (c2 >= 0) & \
+        (sr + 2 < end)
     cs_ok = structure & (body_xor == given)
-    # talker (2 bytes) and formatter (3 bytes) after '$'; field separator after them
-    s = np.minimum(start, width - 7)
-    talker = b[rows, s + 1].astype(np.int32) << 8 | b[rows, s + 2]
-    fmt = (b[rows, s + 3].astype(np.int32) << 16) | (b[rows, s + 4].astype(np.int32) << 8) \
-        | b[rows, s + 5]
-    sep_ok = b[rows, s + 6] == 44
-    commas = ((b == 44) & after & (cols[None, :] < star[:, None])).sum(axis=1)
+    talker = pad[st + 1].astype(np.int32) << 8 | pad[st + 2]
+    fmt = (pad[st + 3].astype(np.int32) << 16) | (pad[st + 4].astype(np.int32) << 8) | pad[st + 5]
+    sep_ok = pad[st + 6] == 44
+    commas = np.searchsorted(comma_pos, sr) - np.searchsorted(comma_pos, st + 1)
     # TAG block receive time: "\...c:<digits>...*hh\" before the '$'
-    tag = (b[:, 0] == 92) & has_start & (start > 0)
+    tag = (pad[off] == 92) & has_start & (st > off)
     rx = np.full(n, np.nan)
     tag_ok = np.zeros(n, dtype=bool)
     if tag.any():
-        before = cols[None, :] < start[:, None]
-        cpos_mask = (b[:, :-1] == 99) & (b[:, 1:] == 58) & before[:, :-1]
-        has_c = cpos_mask.any(axis=1) & tag
-        cpos = cpos_mask.argmax(axis=1)
+        cpairs = np.flatnonzero((buf[:-1] == 99) & (buf[1:] == 58))
+        has_c, cpos = _first_at_or_after(cpairs, off, st)
+        has_c &= tag
         val = np.zeros(n, dtype=np.int64)
         going = has_c.copy()
-        for j in range(16):
-            ch = b[rows, np.minimum(cpos + 2 + j, width - 1)].astype(np.int64)
+        for k in range(16):
+            ch = pad[np.minimum(cpos + 2 + k, pad.size - 1)].astype(np.int64)
             dig = (ch >= 48) & (ch <= 57) & going
             val = np.where(dig, val * 10 + (ch - 48), val)
             going &= dig
         # TAG checksum: XOR of the bytes between the leading '\' and the '*' in the tag
-        tstar_mask = (b == 42) & before & (cols[None, :] > 0)
-        tstar = tstar_mask.argmax(axis=1)
-        tc1 = _HEXVAL[b[rows, np.minimum(tstar + 1, width - 1)]]
-        tc2 = _HEXVAL[b[rows, np.minimum(tstar + 2, width - 1)]]
-        txor = cx[rows, np.maximum(tstar - 1, 0)] ^ cx[rows, 0]
-        tag_ok = has_c & tstar_mask.any(axis=1) & (tc1 >= 0) & (tc2 >= 0) & \
+        has_ts, ts = _first_at_or_after(stars, off + 1, st)
+        tc1 = _HEXVAL[pad[ts + 1]]
+        tc2 = _HEXVAL[pad[ts + 2]]
+        txor = cx[np.maximum(ts - 1, 0)] ^ cx[off]
+        tag_ok = has_c & has_ts & (tc1 >= 0) & (tc2 >= 0) & \
             (txor == ((tc1.astype(np.int32) << 4) | tc2))
         rx = np.where(tag_ok, np.where(val >= 100_000_000_000, val / 1000.0, val * 1.0), np.nan)
-    return {"start": start, "star": star, "cs_ok": cs_ok, "structure": structure,
+    return {"start": st - off, "star": sr - off, "cs_ok": cs_ok, "structure": structure,
             "talker": talker, "fmt": fmt, "sep_ok": sep_ok, "commas": commas,
             "tag": tag, "tag_ok": tag_ok, "rx": rx}
 
@@ -191,15 +188,16 @@ def _split_fields(buf: np.ndarray, off: np.ndarray, idx: np.ndarray, start: np.n
     first = off[idx] + start[idx] + 7
     stop = off[idx] + star[idx]
     missing = mx - n_fields[idx]
-    # pad every body with commas to mx fields: gather with per-row padding lengths
+    # every body padded with commas to mx fields, then a newline: one row copy per line
     ln = stop - first
-    seg = ln + missing + 1
-    out_start = np.concatenate([[0], np.cumsum(seg)[:-1]])
-    pos = np.arange(int(seg.sum())) - np.repeat(out_start, seg)
-    src = np.repeat(first, seg) + pos
-    data = np.where(pos < np.repeat(ln, seg), buf[np.minimum(src, buf.size - 1)], 44)
-    data[np.cumsum(seg) - 1] = 10
-    text = data.astype(np.uint8).tobytes()
+    width = int(ln.max()) + mx + 1 if ln.size else mx + 1
+    padded = np.concatenate([buf, np.zeros(width, dtype=np.uint8)])
+    m = np.lib.stride_tricks.sliding_window_view(padded, width)[first]
+    cols = np.arange(width)[None, :]
+    end = (ln + missing)[:, None]
+    m[(cols >= ln[:, None]) & (cols < end)] = 44  # ','
+    m[np.arange(ln.size), ln + missing] = 10  # '\n'
+    text = m[cols <= end].tobytes()
     usecols = sorted(names.values())
     str_cols = {names[k] for k in names if k in _STRING_FIELDS}
     dtypes = {c: (str if c in str_cols else float) for c in usecols}
@@ -320,11 +318,9 @@ def read_nmea(
     long = ln > MAX_LINE
     if long.any():
         off, ln = off[~long], ln[~long]
-    parts = [_scan_chunk(_matrix(buf, off[i:i + CHUNK], ln[i:i + CHUNK]))
-             for i in range(0, off.size, CHUNK)]
-    if not parts:
+    if off.size == 0:
         raise NmeaError(f"{path} holds no NMEA 0183 lines")
-    sc = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    sc = _scan(buf, off, ln)
     n = int(off.size)
     bad_cs = sc["structure"] & ~sc["cs_ok"]
     corrupt = ~sc["structure"] | ~sc["sep_ok"]

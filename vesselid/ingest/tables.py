@@ -22,6 +22,13 @@ __all__ = ["read_csv_streams"]
 _UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 
 
+def _numeric(col: pd.Series) -> np.ndarray:
+    """Float values; unparsable entries (a column pandas read as text) become NaN."""
+    if pd.api.types.is_numeric_dtype(col.dtype) and not pd.api.types.is_bool_dtype(col.dtype):
+        return col.to_numpy(dtype=float, na_value=np.nan)
+    return pd.to_numeric(col, errors="coerce").to_numpy(dtype=float)
+
+
 def read_csv_streams(path: str | Path, mapping: CsvMapping) -> tuple[list[Stream], dict[str, Any]]:
     """Read one mapped CSV file.
 
@@ -39,7 +46,7 @@ def read_csv_streams(path: str | Path, mapping: CsvMapping) -> tuple[list[Stream
     """
     path = Path(path)
     try:
-        frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
+        frame = pd.read_csv(path, skipinitialspace=True)
     except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise IngestError(f"cannot read CSV {path}: {str(exc).splitlines()[0]}") from exc
     need = [mapping.time, *(c.column for c in mapping.columns.values())]
@@ -53,7 +60,7 @@ def read_csv_streams(path: str | Path, mapping: CsvMapping) -> tuple[list[Stream
         t = ts.to_numpy(dtype="datetime64[ns]").astype(np.int64) / 1e9
         t[ts.isna().to_numpy()] = np.nan
     else:
-        t = pd.to_numeric(raw_t, errors="coerce").to_numpy(dtype=float) * _UNITS[mapping.time_unit]
+        t = _numeric(raw_t) * _UNITS[mapping.time_unit]
     t = t - mapping.clock_offset
     q: dict[str, Any] = {"file": str(path), "rows": len(frame),
                          "bad_time": int((~np.isfinite(t)).sum())}
@@ -63,7 +70,7 @@ def read_csv_streams(path: str | Path, mapping: CsvMapping) -> tuple[list[Stream
     streams = []
     bad: dict[str, int] = {}
     for name, col in mapping.columns.items():
-        x = pd.to_numeric(frame[col.column], errors="coerce").to_numpy(dtype=float)
+        x = _numeric(frame[col.column])
         x = x * col.scale + col.offset
         nbad = int((~np.isfinite(x) & np.isfinite(t)).sum())
         if nbad:
