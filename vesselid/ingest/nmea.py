@@ -16,9 +16,10 @@ times, an untimed sentence takes the time of the last timed sentence before it (
 burst per epoch).
 
 Speed. Parsing is vectorised over the file's bytes (:func:`_scan`): checksums from one
-cumulative XOR, talker and formatter by byte gathers, and the fields of each sentence type are split by :func:`pandas.read_csv` in one call. pynmea2
-supplies the field layout (:func:`vesselid.nmea.field_index`) and is the reference the
-tests compare against; calling ``pynmea2.parse`` per line costs ~40 µs (≈ 40 s per
+cumulative XOR, talker and formatter by byte gathers, and the fields of each sentence type
+are split by :func:`pandas.read_csv` in one call. pynmea2 supplies the field layout
+(:func:`vesselid.nmea.field_index`) and is the reference the tests compare against; calling
+``pynmea2.parse`` per line costs ~25-40 µs (25-40 s per
 10⁶ sentences), far over the 10 s budget.
 """
 
