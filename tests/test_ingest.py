@@ -14,7 +14,7 @@ from vesselid.cli import main
 from vesselid.ingest import IngestError, ingest
 from vesselid.ingest.nmea import read_nmea
 from vesselid.logs import TrialLog
-from vesselid.nmea import checksums, sentence_lines
+from vesselid.nmea import checksums, hex_checksums
 from vesselid.rawstreams import RawStreamConfig, write_raw_streams
 from vesselid.systems import get_system
 
@@ -134,14 +134,12 @@ def test_logger_clock_jump_is_absorbed_and_counted(trial, tmp_path):
     d = _copy(raw, tmp_path / "jump")
     text = (d / "nav.nmea").read_text().splitlines()
     half = len(text) // 3
-    out = []
-    for i, line in enumerate(text):
-        if i >= half:  # the logger clock jumps 37 s ahead
-            tag, _, sentence = line[1:].partition("\\")
-            ms = int(tag.split("*")[0][2:]) + 37_000
-            line = sentence_lines("XX", "XXX", [[""]], np.array([ms / 1000]))[0]
-            line = line[: line.index("$")] + sentence
-        out.append(line)
+    tail = text[half:]
+    # the logger clock jumps 37 s ahead: rewrite the TAG blocks (with valid checksums)
+    tags = [f"c:{int(x[3:x.index('*')]) + 37_000}" for x in tail]
+    sentences = [x[x.index("$"):] for x in tail]
+    out = text[:half] + [f"\\{t}*{c}\\{s}" for t, c, s in
+                         zip(tags, hex_checksums(tags), sentences, strict=True)]
     (d / "nav.nmea").write_text("\n".join(out) + "\n")
     ref = ingest(raw, 0.1)
     got = ingest(d, 0.1)
