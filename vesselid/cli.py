@@ -107,6 +107,10 @@ def cmd_identify(args: argparse.Namespace) -> int:
             print(f"\nwrote {args.json}")
     else:
         print(result.summary())
+    if getattr(args, "export", None):
+        path = result.export(args.export, source=str(args.log))
+        print(f"wrote {path} (spec with the estimate as theta0, its standard errors and "
+              "covariance)", file=sys.stderr if args.json == "-" else sys.stdout)
     if args.json == "-":  # otherwise the summary already lists the warnings
         for w in caught:
             print(f"warning: {w.message}", file=sys.stderr)
@@ -150,6 +154,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "stacked least-squares form (6)")
     p.add_argument("--max-iter", type=int, default=100)
     p.add_argument("--json", metavar="PATH|-", help="write the result as JSON ('-' = stdout)")
+    p.add_argument("--export", metavar="MODEL.toml",
+                   help="write the identified model (spec with θ̂ and its covariance) for reuse")
     p.set_defaults(func=cmd_identify)
 
     for name in PLUGIN_MODULES:

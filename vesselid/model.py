@@ -370,7 +370,8 @@ class ModelSpec:
         if not isinstance(data, Mapping):
             raise ModelSpecError("a model spec must be a table/mapping")
         allowed = {"name", "states", "inputs", "dt", "equations", "theta0", "aggregate"}
-        unknown = sorted(set(data) - allowed)
+        # "estimate": uncertainty of an exported identified model (vesselid.modelio)
+        unknown = sorted(set(data) - allowed - {"estimate"})
         if unknown:
             raise ModelSpecError(f"unknown model spec keys {unknown}; allowed {sorted(allowed)}")
         for key in ("states", "equations"):

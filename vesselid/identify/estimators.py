@@ -20,6 +20,7 @@ Equations (paper):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -276,6 +277,7 @@ def refined_iv(
     limit_factor: float = 1e3,
     keep_history: bool = False,
     groups: np.ndarray | None = None,
+    moment_source: Callable | None = None,
 ) -> IterationResult:
     """Refined instrumental variables: iterate ``θ ← θ + α (T(θ) − θ)``.
 
@@ -297,6 +299,10 @@ def refined_iv(
       come from the iterate with the smallest fixed-point residual — a genuine
       IV estimate even when the iteration did not converge.
 
+    ``moment_source(theta, active, out, limits)``, when given, fills the moments ``out``
+    instead of :func:`compute_moments` on ``data`` (which then only needs the attributes
+    the solvers read): :mod:`vesselid.streaming` sums them over streamed experiments.
+
     Returns
     -------
     IterationResult
@@ -311,7 +317,11 @@ def refined_iv(
     mom = _empty_moments(data.n_segments, n_par, spec.n_states)
 
     def evaluate(theta: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        compute_moments(data, spec, np.nan_to_num(theta), active=active, out=mom, limits=limits)
+        if moment_source is None:
+            compute_moments(data, spec, np.nan_to_num(theta), active=active, out=mom,
+                            limits=limits)
+        else:  # moments summed elsewhere (streamed experiments, a Dask cluster)
+            moment_source(theta, active, mom, limits)
         diverged = np.zeros(n_groups, dtype=bool)
         np.logical_or.at(diverged, data.group, mom.status != kernels.AUX_OK)
         t_theta, ok = solve_moments(mom, data, spec, zero_mean=zero_mean, combine=combine,

@@ -73,6 +73,24 @@ class IdentificationResult:
         return pd.DataFrame({"lower": self.params - q * self.std_errors,
                              "upper": self.params + q * self.std_errors})
 
+    def to_control(self, **kwargs: Any) -> Any:
+        """The identified model as a discrete-time python-control ``NonlinearIOSystem``.
+
+        See :func:`vesselid.modelio.to_control` (keyword arguments ``dt``, ``name``).
+        """
+        from vesselid.modelio import to_control
+
+        return to_control(self.spec, self.params, **kwargs)
+
+    def export(self, path: Any, **kwargs: Any) -> Any:
+        """Write the spec with θ̂ (as θ0), standard errors and covariance; atomic.
+
+        See :func:`vesselid.modelio.export_model`; ``ModelSpec.load`` reads it back.
+        """
+        from vesselid.modelio import export_model
+
+        return export_model(self, path, **kwargs)
+
     def compare(self, theta0: Any | None = None) -> pd.DataFrame:
         """Estimates against true values with the paper's normalised error ``(θ̂ − θ0)/θ0``.
 
