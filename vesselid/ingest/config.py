@@ -5,6 +5,8 @@
     origin = [63.4389, 10.3986, 0.0]   # local NED origin (lat, lon, h); default: first fix
     max_gap = 1.0                      # s; a longer gap in any channel splits the experiment
     min_duration = 30.0                # s; shorter experiments are dropped (reported)
+    epoch_tolerance = 0.02             # s; untimed NMEA sentences this close to a GNSS
+                                       # epoch take its time of validity (0: off)
 
     [relative_latency]                 # s, untimed NMEA sentences, minus the GNSS latency
     MWV = 0.14
@@ -69,6 +71,7 @@ class IngestConfig:
     origin: tuple[float, float, float] | None = None
     max_gap: float = 1.0
     min_duration: float = 30.0
+    epoch_tolerance: float = 0.02
     relative_latency: dict[str, float] = field(default_factory=dict)
     csv: tuple[CsvMapping, ...] = ()
     ros: dict[str, Any] = field(default_factory=dict)
@@ -97,7 +100,8 @@ def _column_map(name: str, raw: Any, where: str) -> ColumnMap:
 
 def config_from_dict(data: dict[str, Any], base: Path = Path(".")) -> IngestConfig:
     """Validate a parsed configuration."""
-    known = {"origin", "max_gap", "min_duration", "relative_latency", "csv", "ros"}
+    known = {"origin", "max_gap", "min_duration", "epoch_tolerance", "relative_latency", "csv",
+             "ros"}
     unknown = sorted(set(data) - known)
     if unknown:
         raise IngestError(f"unknown ingest configuration keys {unknown}; known: {sorted(known)}")
@@ -111,8 +115,10 @@ def config_from_dict(data: dict[str, Any], base: Path = Path(".")) -> IngestConf
         origin = (vals[0], vals[1], vals[2] if len(vals) == 3 else 0.0)
     max_gap = _num(data.get("max_gap", 1.0), "max_gap")
     min_duration = _num(data.get("min_duration", 30.0), "min_duration")
-    if max_gap <= 0 or min_duration < 0:
-        raise IngestError("max_gap must be positive and min_duration non-negative")
+    epoch_tolerance = _num(data.get("epoch_tolerance", 0.02), "epoch_tolerance")
+    if max_gap <= 0 or min_duration < 0 or epoch_tolerance < 0:
+        raise IngestError("max_gap must be positive, min_duration and epoch_tolerance "
+                          "non-negative")
     rel = data.get("relative_latency", {})
     if not isinstance(rel, dict):
         raise IngestError("[relative_latency] must be a table of sentence = seconds")
@@ -142,6 +148,7 @@ def config_from_dict(data: dict[str, Any], base: Path = Path(".")) -> IngestConf
     if not isinstance(ros, dict):
         raise IngestError("[ros] must be a table")
     return IngestConfig(origin=origin, max_gap=max_gap, min_duration=min_duration,
+                        epoch_tolerance=epoch_tolerance,
                         relative_latency=rel, csv=tuple(csv), ros=dict(ros), base=base)
 
 

@@ -274,6 +274,7 @@ def read_nmea(
     path: str | Path,
     *,
     relative_latency: dict[str, float] | None = None,
+    epoch_tolerance: float = 0.02,
 ) -> tuple[list[Stream], dict[str, Any]]:
     """Parse an NMEA 0183 log into channel streams.
 
@@ -282,6 +283,10 @@ def read_nmea(
     path : str or Path
     relative_latency : dict sentence -> s, optional
         Latency of untimed sentences relative to the GNSS time of validity.
+    epoch_tolerance : float
+        An untimed sentence whose aligned time is within this many seconds of a GNSS
+        epoch (a GGA/RMC time of validity) takes the epoch's time (burst association;
+        0 switches it off).
 
     Returns
     -------
@@ -454,8 +459,22 @@ def read_nmea(
             t = np.where(pos >= 0, line_time[good_t[np.clip(pos, 0, None)]], np.nan)
         return t - rel.get(kind, 0.0)
 
+    epochs = np.unique(line_time[timed_ok]) if timed_ok.size else np.zeros(0)
+    epochs = epochs[np.isfinite(epochs)]
+
     def times(kind: str, idx: np.ndarray) -> np.ndarray:
-        return line_time[idx] if kind in TIMED else untimed_times(kind, idx)
+        if kind in TIMED:
+            return line_time[idx]
+        t = untimed_times(kind, idx)
+        if epoch_tolerance > 0 and epochs.size:
+            # burst association: an untimed sentence within the tolerance of a GNSS epoch
+            # takes that epoch's time of validity (removes the receive jitter)
+            j = np.clip(np.searchsorted(epochs, t), 1, max(epochs.size - 1, 1))
+            lo, hi = epochs[j - 1], epochs[np.minimum(j, epochs.size - 1)]
+            near = np.where(np.abs(t - lo) <= np.abs(hi - t), lo, hi)
+            snap = np.abs(near - t) <= epoch_tolerance
+            t = np.where(snap, near, t)
+        return t
 
     # ------------------------------------------------------------------- streams
     streams: list[Stream] = []

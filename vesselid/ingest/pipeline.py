@@ -221,7 +221,8 @@ def ingest(
     for f in nmea_files:
         from vesselid.ingest.nmea import read_nmea
 
-        s, q = read_nmea(f, relative_latency=cfg.relative_latency)
+        s, q = read_nmea(f, relative_latency=cfg.relative_latency,
+                         epoch_tolerance=cfg.epoch_tolerance)
         streams += s
         sources.append({"type": "nmea0183", **q})
     jobs, unmapped = _csv_jobs(cfg, csv_files)
