@@ -22,6 +22,7 @@ import numpy as np
 
 from vesselid.errors import ModelSpecError, VesselidError
 from vesselid.model import ModelSpec
+from vesselid.regressors import predict
 
 __all__ = ["control_signals", "export_model", "load_model", "to_control"]
 
@@ -89,26 +90,13 @@ def to_control(spec: ModelSpec, theta: Any | None = None, *, dt: float | None = 
     th = np.asarray(th, dtype=float)
     if th.shape != (spec.n_params,) or not np.all(np.isfinite(th)):
         raise ModelSpecError(f"theta must be {spec.n_params} finite values")
-    codes = spec.codes
-    eq = np.asarray(codes.equation)
-    cc = np.asarray(codes.codes)
+    layout = spec.codes
     signals = _regressor_state(spec)
-    n = spec.n_states
-    left, lab = cc[:, 0], cc[:, 1] == 1
-    right, rab = cc[:, 2], cc[:, 3] == 1
-    has_right = right >= 0
-    right_i = np.where(has_right, right, 0)
 
     def update(t, x, u, params=None):
+        # the numpy twin of the compiled step: same term order, agrees bitwise
         s = signals(np.asarray(x, dtype=float), np.atleast_1d(np.asarray(u, dtype=float)))
-        a = s[left]
-        a = np.where(lab, np.abs(a), a)
-        b = s[right_i]
-        b = np.where(rab, np.abs(b), b)
-        phi = np.where(has_right, a * b, a)
-        out = np.zeros(n)
-        np.add.at(out, eq, phi * th)
-        return out
+        return predict(layout, th, s)
 
     states, inputs = control_signals(spec)
     return ct.nlsys(update, None, states=states, inputs=inputs, outputs=list(states), dt=dt,
