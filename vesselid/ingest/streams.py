@@ -149,8 +149,14 @@ def resample(stream: Stream, grid: np.ndarray, dt: float) -> tuple[np.ndarray, d
         xf = np.interp(fine, t, x)
         from scipy import signal
 
-        y = signal.resample_poly(xf, 1, m, padtype="line")
-        values = y[: grid.size]
+        # odd reflection about the segment ends (keeps value and slope, as filtfilt pads),
+        # a whole number of output samples long, so the FIR sees no artificial edge step
+        k = 12
+        pad = min(k * m, xf.size - 1)
+        pad -= pad % m
+        xp = np.pad(xf, pad, mode="reflect", reflect_type="odd") if pad else xf
+        y = signal.resample_poly(xp, 1, m, padtype="constant")
+        values = y[pad // m: pad // m + grid.size]
         method = f"anti-aliased decimation x{m} (resample_poly)"
     else:
         values = np.interp(grid, t, x)
