@@ -28,7 +28,7 @@ from vesselid.errors import VesselidError
 __all__ = ["main"]
 
 #: Modules that add their own subcommands (``add_parser(subparsers)``).
-PLUGIN_MODULES = ("vesselid.reproduce", "vesselid.seatrial")
+PLUGIN_MODULES = ("vesselid.reproduce", "vesselid.seatrial", "vesselid.planner")
 
 
 class CLIError(VesselidError):
