@@ -6,7 +6,7 @@ The plant is the heave system of :func:`vesselid.systems.heave`,
 
 with θ0 = [a0, n0, f0] = [0.99, −0.1, 1], measured by ``y1 = w_a + e1`` and, optionally,
 a current meter ``y2 = w_c + e2``. The one-step map is evaluated by a compiled kernel from
-the system's term codes and θ0 (:func:`vesselid.terms.term_value`), the same encoding the
+the system's factor layout and θ0 (:func:`vesselid.regressors.advance`), the same encoding the
 simulator and the estimators use; nothing here re-implements the model by hand.
 
 :class:`HeaveEnv` is the single environment, :class:`HeaveVectorEnv` the batched one
@@ -35,8 +35,8 @@ from vesselid.disturbances import Gaussian
 from vesselid.envs._render import FigureRenderer
 from vesselid.errors import VesselidError
 from vesselid.model import ModelSpec
+from vesselid.regressors import advance, kernel
 from vesselid.systems import System, heave
-from vesselid.terms import term_value
 
 __all__ = ["HeaveEnv", "HeaveVectorEnv"]
 
@@ -129,17 +129,19 @@ def _start(par, st, i, z, u):
 
 
 @njit(cache=True, inline="always")
-def _advance(codes, theta, par, sig, st, i, a, z, u):
+def _advance(codes, eq, theta, par, sig, st, i, a, z, u):
     """One transition of environment ``i``; returns (τ, reward, terminated).
 
-    ``w_a(k+1) = Φᵀ([w_a(k) + sign·w_c(k); τ(k)]) θ0 + ξ(k)`` with the system's term codes.
+    ``w_a(k+1) = Φᵀ([w_a(k) + sign·w_c(k); τ(k)]) θ0 + ξ(k)`` with the system's factor
+    layout ``codes, eq``; ``sig`` is a work buffer of length ``8 + P``.
     """
     tau = _thrust(par, a)
     sig[0] = st[_WA, i] + par[_SIGN] * st[_WC, i]
     sig[1] = tau
-    nxt = st[_XI, i]
-    for p in range(codes.shape[0]):
-        nxt += theta[p] * term_value(codes, p, sig)
+    out = sig[7:8]
+    out[0] = st[_XI, i]
+    advance(codes, eq, theta, sig[:2], sig[2:7], sig[8:], out)
+    nxt = out[0]
     err = nxt - st[_REF, i]
     reward = -(err * err) - par[_COST] * tau * tau
     st[_WA, i] = nxt
@@ -156,9 +158,9 @@ def _single_reset(par, st, z, u):
     _start(par, st, 0, z, u)
 
 
-@njit(cache=True)
-def _single_step(codes, theta, par, sig, st, z, u, a):
-    tau, reward, terminated = _advance(codes, theta, par, sig, st, 0, a, z, u)
+@kernel()
+def _single_step(codes, eq, theta, par, sig, st, z, u, a):
+    tau, reward, terminated = _advance(codes, eq, theta, par, sig, st, 0, a, z, u)
     return (tau, reward, terminated, st[_WA, 0], st[_WC, 0], st[_XI, 0], st[_Y1, 0],
             st[_Y2, 0], st[_REF, 0])
 
@@ -182,8 +184,8 @@ def _vector_reset(par, st, steps, prev_done, z, u, obs, sensor):
         _write_obs(st, i, obs, sensor)
 
 
-@njit(cache=True)
-def _vector_step(codes, theta, par, sig, st, steps, prev_done, a, z, u, max_steps, obs, rew,
+@kernel()
+def _vector_step(codes, eq, theta, par, sig, st, steps, prev_done, a, z, u, max_steps, obs, rew,
                  term, trunc, tau, sensor):
     """Step every sub-environment; those done at the previous step are reset instead."""
     for i in range(st.shape[1]):
@@ -195,7 +197,7 @@ def _vector_step(codes, theta, par, sig, st, steps, prev_done, a, z, u, max_step
             trunc[i] = False
             tau[i] = np.nan
         else:
-            t_i, r_i, d_i = _advance(codes, theta, par, sig, st, i, a[i], z[i], u[i])
+            t_i, r_i, d_i = _advance(codes, eq, theta, par, sig, st, i, a[i], z[i], u[i])
             steps[i] += 1
             rew[i] = r_i
             term[i] = d_i
@@ -289,13 +291,14 @@ class _HeaveConfig:
             current_sensor_noise={"w": Gaussian(0.0, e2)} if sensor else {},
         )
         spec = system.spec
-        if spec.signals != ("w", "tau") or spec.n_params != spec.codes.codes.shape[0]:
+        if spec.signals != ("w", "tau") or spec.n_params != spec.codes.n_params:
             raise VesselidError("the heave system must have signals ['w', 'tau']")  # guard
         self.system: System = system
         self.model_spec: ModelSpec = system.identification_spec()
         self.sensor = sensor
         self.sensor_column = system.sensor_name("w")
-        self.codes = np.ascontiguousarray(spec.codes.codes)
+        self.codes = np.ascontiguousarray(spec.codes.factors)
+        self.eq = np.ascontiguousarray(spec.codes.equation)
         self.theta = np.ascontiguousarray(spec.theta0_vector())
         self.velocity_limit = vlim
         self.reference = reference
@@ -522,8 +525,8 @@ class HeaveEnv(gym.Env[np.ndarray, np.ndarray]):
         #: Sample time.
         self.dt: float = float(cfg.model_spec.dt or 1.0)
         self.current_sensor: bool = cfg.sensor
-        self._codes, self._theta, self._par = cfg.codes, cfg.theta, cfg.par
-        self._sig = np.zeros(2)
+        self._codes, self._eq, self._theta, self._par = cfg.codes, cfg.eq, cfg.theta, cfg.par
+        self._sig = np.zeros(8 + cfg.theta.shape[0])
         self._st = np.zeros((_NST, 1))
         self._z = np.zeros((SINGLE_BLOCK, _NZ))
         self._u = np.zeros((SINGLE_BLOCK, _NU))
@@ -588,7 +591,8 @@ class HeaveEnv(gym.Env[np.ndarray, np.ndarray]):
         except (TypeError, IndexError):
             a = float(action)
         tau, reward, terminated, w_a, w_c, xi, y1, y2, ref = _single_step(
-            self._codes, self._theta, self._par, self._sig, self._st, self._z[k], self._u[k], a
+            self._codes, self._eq, self._theta, self._par, self._sig, self._st, self._z[k],
+            self._u[k], a
         )
         self._k = k + 1
         self._t += 1
@@ -734,8 +738,8 @@ class HeaveVectorEnv(VectorEnv):
         #: Sample time.
         self.dt: float = float(cfg.model_spec.dt or 1.0)
         self.current_sensor: bool = cfg.sensor
-        self._codes, self._theta, self._par = cfg.codes, cfg.theta, cfg.par
-        self._sig = np.zeros(2)
+        self._codes, self._eq, self._theta, self._par = cfg.codes, cfg.eq, cfg.theta, cfg.par
+        self._sig = np.zeros(8 + cfg.theta.shape[0])
         self._st = np.zeros((_NST, num_envs))
         self._steps = np.zeros(num_envs, dtype=np.int64)
         self._prev_done = np.zeros(num_envs, dtype=np.bool_)
@@ -800,9 +804,9 @@ class HeaveVectorEnv(VectorEnv):
         if self.render_mode is not None:
             self._hist[(self._hist_len - 1) % self._window, 4] = _applied(a, self._par,
                                                                          self._prev_done)
-        _vector_step(self._codes, self._theta, self._par, self._sig, self._st, self._steps,
-                     self._prev_done, a, self._z[k], self._u[k], self.max_episode_steps, obs,
-                     rew, term, trunc, self._tau, self.current_sensor)
+        _vector_step(self._codes, self._eq, self._theta, self._par, self._sig, self._st,
+                     self._steps, self._prev_done, a, self._z[k], self._u[k],
+                     self.max_episode_steps, obs, rew, term, trunc, self._tau, self.current_sensor)
         self._k = k + 1
         self._t += 1
         if self.render_mode is not None:

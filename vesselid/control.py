@@ -140,12 +140,10 @@ class FeedbackLinearizingController:
 
     def _free_response(self, nu_r: np.ndarray) -> np.ndarray:
         """Model prediction of ``ν_r(k+1)`` with zero input, per state."""
-        from vesselid.terms import evaluate_terms
+        from vesselid.regressors import predict
 
-        sig = np.concatenate([nu_r, np.zeros(3)])[None, :]
-        phi = evaluate_terms(self._codes.codes, sig)[0]
-        contrib = np.where(self._input_cols, 0.0, phi * self.theta)
-        return np.bincount(self._eq, weights=contrib, minlength=3)
+        free_theta = np.where(self._input_cols, 0.0, self.theta)
+        return predict(self._codes, free_theta, np.concatenate([nu_r, np.zeros(3)]))
 
     def forces(self, u: float, nu_r: Sequence[float], psi: float, t: float) -> np.ndarray:
         """Forces ``[X, Y, N]`` for the measured surge speed over ground ``u``, velocity

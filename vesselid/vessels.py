@@ -35,8 +35,8 @@ Kinematics ``η = [north, east, ψ]``: ``η(k+1) = η(k) + dt R(ψ(k)) ν(k)``.
 
 One implementation of the physics
 ---------------------------------
-The compiled kernels below evaluate the hydrodynamics only through the spec's term codes
-and θ0 (:func:`vesselid.terms.term_value`), exactly like
+The compiled kernels below evaluate the hydrodynamics only through the spec's factor
+layout and θ0 (:func:`vesselid.regressors.advance`), exactly like
 :func:`vesselid.simulate.simulate_states`; they add the heading-dependent current, wind,
 force noise and sensors around it. :func:`simulate_cybership2` (offline trials) and the
 gymnasium environments in :mod:`vesselid.envs.manoeuvring` share them.
@@ -56,8 +56,8 @@ from scipy import signal as sps
 from vesselid.disturbances import GaussMarkov
 from vesselid.errors import SimulationDivergedError, VesselidError
 from vesselid.model import ModelSpec
+from vesselid.regressors import advance, kernel
 from vesselid.simulate import DEFAULT_DIVERGENCE_LIMIT
-from vesselid.terms import term_value
 
 __all__ = [
     "BLENDERMANN94",
@@ -700,8 +700,9 @@ def _advance(st, i, i1, dist, b, j, codes, eq, theta, par, s):
 
     ``ν(k+1) = Φᵀ([ν(k) − ν_c(k); τ(k)]) θ0 + w(k)`` with
     ``w(k) = ν_c(k+1) + dt M⁻¹ (τ_wind + τ_noise [+ X_uuu u_r³])``: the hydrodynamics are
-    evaluated only through the term codes and θ (one physics). Needs ``_observe`` of row
-    ``i`` first (current and wind at time k).
+    evaluated only through the factor layout ``codes, eq`` and θ (one physics). Needs
+    ``_observe`` of row ``i`` first (current and wind at time k). ``s`` is a work buffer
+    of length ``19 + P``: signals ``[x + v; τ]``, factor vector, regressors.
     """
     dt = par[P_DT]
     u = st[i, S_NU]
@@ -746,8 +747,7 @@ def _advance(st, i, i1, dist, b, j, codes, eq, theta, par, s):
     st[i1, S_NU] = w0
     st[i1, S_NU + 1] = w1
     st[i1, S_NU + 2] = w2
-    for p in range(codes.shape[0]):
-        st[i1, S_NU + eq[p]] += theta[p] * term_value(codes, p, s)
+    advance(codes, eq, theta, s[:6], s[6:19], s[19:], st[i1, S_NU:S_NU + 3])
     c = math.cos(psi)
     sn = math.sin(psi)
     st[i1, S_ETA] = n0 + dt * (c * u - sn * v)
@@ -767,7 +767,7 @@ def _advance(st, i, i1, dist, b, j, codes, eq, theta, par, s):
     return status
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _rollout_kernel(st, dist, codes, eq, theta, par, fail_at):
     """Roll out ``R`` vessels for ``N`` samples (parallel over vessels).
 
@@ -776,7 +776,7 @@ def _rollout_kernel(st, dist, codes, eq, theta, par, fail_at):
     """
     n_runs, n_samples = st.shape[0], st.shape[1]
     for b in prange(n_runs):
-        s = np.empty(6)
+        s = np.empty(19 + theta.shape[0])
         x = st[b]
         fail_at[b] = -1
         _observe(x, 0, dist, b, 0, par)
@@ -793,7 +793,7 @@ def _rollout_kernel(st, dist, codes, eq, theta, par, fail_at):
             x[n_samples - 1, S_W + q] = 0.0
 
 
-@njit(cache=True)
+@kernel()
 def _env_chunk(st, dist, j, codes, eq, theta, par, obs_idx, obs, skip, lo, hi, s):
     for b in range(lo, hi):
         if skip[b]:
@@ -809,22 +809,22 @@ def _env_chunk(st, dist, j, codes, eq, theta, par, obs_idx, obs, skip, lo, hi, s
             obs[b, q] = st[b, S_SENS + obs_idx[q]]
 
 
-@njit(cache=True)
+@kernel()
 def _env_step_serial(st, dist, j, codes, eq, theta, par, obs_idx, obs, skip):
     """Advance a batch of vessels one step in place (serial; for single envs).
 
     Vessels with ``skip`` set are only observed (next-step autoreset).
     """
-    s = np.empty(6)
+    s = np.empty(19 + theta.shape[0])
     _env_chunk(st, dist, j, codes, eq, theta, par, obs_idx, obs, skip, 0, st.shape[0], s)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _env_step_parallel(st, dist, j, codes, eq, theta, par, obs_idx, obs, skip, n_chunks):
     """Advance a batch of vessels one step in place, in ``n_chunks`` parallel chunks."""
     n_b = st.shape[0]
     for c in prange(n_chunks):
-        s = np.empty(6)
+        s = np.empty(19 + theta.shape[0])
         _env_chunk(st, dist, j, codes, eq, theta, par, obs_idx, obs, skip,
                    c * n_b // n_chunks, (c + 1) * n_b // n_chunks, s)
 
@@ -866,7 +866,7 @@ class VesselModel:
         self.disturbances = _coerce(CyberShip2Disturbances, self.disturbances, "disturbances")
         self.sensors = _coerce(CyberShip2Sensors, self.sensors, "sensors")
         self.spec = cybership2_spec(self.dt, self.coefficients)
-        self.codes = np.ascontiguousarray(self.spec.codes.codes)
+        self.codes = np.ascontiguousarray(self.spec.codes.factors)
         self.eq = np.ascontiguousarray(self.spec.codes.equation)
         self.theta = np.ascontiguousarray(self.spec.theta0_vector())
         c, wm = self.coefficients, self.disturbances.wind_model
