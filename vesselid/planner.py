@@ -378,11 +378,15 @@ def design_information(
     a_fn = math.exp(-dt / levels.force_noise_time_constant)
     a_g = math.exp(-dt / levels.gust_time_constant)
     a_d = math.exp(-dt / levels.wind_direction_time_constant)
-    wave_acov = None
-    if levels.waves is not None:
-        from vesselid.waves import equation_error_autocovariance
+    wave_lines = None
+    if levels.waves is not None and levels.waves.height > 0:
+        from vesselid.waves import velocity_lines
 
-        wave_acov = equation_error_autocovariance(levels.waves, dt, psi=psi, speed=xs[:, 0])
+        c, sn = np.cos(psi), np.sin(psi)
+        north = dt * np.concatenate([[0.0], np.cumsum(c * xs[:, 0] - sn * xs[:, 1])[:-1]])
+        east = dt * np.concatenate([[0.0], np.cumsum(sn * xs[:, 0] + c * xs[:, 1])[:-1]])
+        g = velocity_lines(levels.waves, dt, psi, north, east)
+        wave_lines = g[:, 1:, :] - g[:, :-1, :]  # ε(row k) ≈ ξ(k+1) − ξ(k)
     a_list, s_list, b_list = [], [], []
     start = 0
     ar_cache: dict[Any, np.ndarray] = {}
@@ -410,8 +414,10 @@ def design_information(
                 meat += levels.gust_std**2 * _ar1_meat(z * g_speed[:, i:i + 1], a_g)
             if levels.wind_direction_std > 0:
                 meat += levels.wind_direction_std**2 * _ar1_meat(z * g_dir[:, i:i + 1], a_d)
-        if wave_acov is not None:
-            meat += _stationary_meat(z, wave_acov[i])
+        if wave_lines is not None:
+            # random-phase lines: E[(Σ z ε)(Σ z ε)ᵀ] = ½ Re(W Wᴴ), W = Σ_k z_k ε-lines
+            w = z.T @ wave_lines[i]
+            meat += 0.5 * (w.real @ w.real.T + w.imag @ w.imag.T)
         s_list.append(meat)
         b_list.append(b)
         start += len(cols)
