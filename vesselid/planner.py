@@ -68,7 +68,8 @@ from vesselid.manoeuvres import (
     ZigZag,
 )
 from vesselid.model import ModelSpec
-from vesselid.terms import factor_codes
+from vesselid.regressors import evaluate as evaluate_regressors
+from vesselid.regressors import predict as predict_regressors
 
 __all__ = [
     "DisturbanceLevels",
@@ -154,14 +155,16 @@ class _Vessel:
 
     @classmethod
     def cybership2(cls, dt: float = 0.1, structure: str = "full") -> _Vessel:
-        from vesselid.seatrial import seatrial_spec
-        from vesselid.vessels import CYBERSHIP2, blendermann_wind_force, cybership2_spec
+        from vesselid.vessels import blendermann_wind_force, cybership2
 
         if structure not in STRUCTURES:
             raise PlannerError(f"unknown structure {structure!r}; choose from {STRUCTURES}")
-        ident = cybership2_spec(dt) if structure == "full" else seatrial_spec(dt, "relative")
+        ident = cybership2.HULL.spec(dt)
+        if structure == "merged":
+            for keep, drop, factor in cybership2.TRIAL_MERGES:
+                ident = ident.merge_terms(keep, drop, factor)
         return cls(NominalVessel.cybership2(dt), ident,
-                   dt * CYBERSHIP2.mass_matrix_inverse(), blendermann_wind_force)
+                   dt * cybership2.HULL.mass_matrix_inverse(), blendermann_wind_force)
 
 
 def _wind_load(vessel: _Vessel, x: np.ndarray, psi: np.ndarray, speed: float,
@@ -269,42 +272,22 @@ def _stationary_meat(y: np.ndarray, acov: np.ndarray) -> np.ndarray:
     return (out.real + out.real.T) / (2.0 * m)
 
 
-def evaluate_terms(codes: np.ndarray, sig: np.ndarray) -> np.ndarray:
-    """Regressors ``(N, P)`` of term codes at signal rows ``sig`` (factor form)."""
+def _jacobian(factors: np.ndarray, eq: np.ndarray, theta: np.ndarray, sig: np.ndarray,
+              n: int) -> np.ndarray:
+    """``J[k, i, j] = ∂(Φᵀθ)_i/∂x_j`` at the signal rows ``sig`` (analytic, vectorised).
+
+    Term ``p`` is ``F[f0]·F[f1]`` with ``F = [s, |s|, 1]``."""
     n_s = sig.shape[1]
     f = np.hstack([sig, np.abs(sig), np.ones((sig.shape[0], 1))])
-    fac = factor_codes(codes, n_s)
-    return f[:, fac[:, 0]] * f[:, fac[:, 1]]
-
-
-def _one_step(spec: ModelSpec, sig: np.ndarray) -> np.ndarray:
-    """``Φᵀ(s)θ0`` per equation for signal rows ``sig`` ``(N, n + m)``."""
-    phi = evaluate_terms(spec.codes.codes, sig) * spec.theta0_vector()
-    out = np.zeros((sig.shape[0], spec.n_states))
-    for i in range(spec.n_states):
-        out[:, i] = phi[:, spec.codes.equation == i].sum(axis=1)
-    return out
-
-
-def _jacobian(cd: np.ndarray, eq: np.ndarray, theta: np.ndarray, sig: np.ndarray,
-              n: int) -> np.ndarray:
-    """``J[k, i, j] = ∂(Φᵀθ)_i/∂x_j`` at the signal rows ``sig`` (analytic, vectorised)."""
     jac = np.zeros((sig.shape[0], n, n))
-    for p in range(cd.shape[0]):
-        left, l_abs, right, r_abs = (int(c) for c in cd[p])
-        a = sig[:, left]
-        fa = np.abs(a) if l_abs else a
-        da = np.sign(a) if l_abs else np.ones_like(a)
-        if right >= 0:
-            b = sig[:, right]
-            fb = np.abs(b) if r_abs else b
-            db = np.sign(b) if r_abs else np.ones_like(b)
-        else:
-            fb, db = np.ones_like(a), None
-        if left < n:
-            jac[:, eq[p], left] += theta[p] * da * fb
-        if right >= 0 and right < n:
-            jac[:, eq[p], right] += theta[p] * fa * db
+    for p in range(factors.shape[0]):
+        for this, other in ((int(factors[p, 0]), int(factors[p, 1])),
+                            (int(factors[p, 1]), int(factors[p, 0]))):
+            j = this % n_s if this < 2 * n_s else -1
+            if j < 0 or j >= n:
+                continue
+            d = f[:, other] if this < n_s else np.sign(sig[:, j]) * f[:, other]
+            jac[:, eq[p], j] += theta[p] * d
     return jac
 
 
@@ -351,15 +334,15 @@ def design_information(
     xi = simulate_states(spec, tau, x0=xs[0])
     sig_i = np.hstack([xi, tau])
     sig_t = np.hstack([xs, tau])
-    zeta = evaluate_terms(codes.codes, sig_i[:-1])  # row k predicts sample k+1
-    phi = evaluate_terms(codes.codes, sig_t[:-1])
+    zeta = evaluate_regressors(codes, sig_i[:-1])  # row k predicts sample k+1
+    phi = evaluate_regressors(codes, sig_t[:-1])
     # Jacobian of the one-step map of the identification model along the trajectory
-    jac = _jacobian(codes.codes, codes.equation, spec.theta0_vector(), sig_t[:-1],
+    jac = _jacobian(codes.factors, codes.equation, spec.theta0_vector(), sig_t[:-1],
                     spec.n_states)
     # deterministic equation error: the structure's misspecification (merged terms)
     full = nom.spec
-    pred_full = _one_step(full, sig_t[:-1])
-    eps_det = pred_full - _one_step(spec, sig_t[:-1])
+    pred_full = predict_regressors(full.codes, full.theta0_vector(), sig_t[:-1])
+    eps_det = pred_full - predict_regressors(codes, spec.theta0_vector(), sig_t[:-1])
     # wind: mean load (deterministic bias) and gains of gust / direction changes
     wind_on = levels.wind_speed > 0 or levels.gust_std > 0
     if wind_on:
@@ -404,7 +387,7 @@ def design_information(
         cross = (z[:-1] * c1[:, None]).T @ z[1:]
         meat += cross + cross.T
         if w_var[i] > 0:
-            key = tuple(map(tuple, codes.codes[cols].tolist()))
+            key = tuple(map(tuple, codes.factors[cols].tolist()))
             if key not in ar_cache:
                 ar_cache[key] = _ar1_meat(z, a_fn)
             meat += w_var[i] * ar_cache[key]
@@ -568,8 +551,6 @@ class TrialPlan:
         }
 
     def summary(self) -> str:
-        from vesselid.seatrial import markdown_table
-
         lines = [f"Trial plan: {self.experiments} experiments x {self.samples} samples "
                  f"(+{self.warmup} approach samples each), dt = {self.dt:g} s", ""]
         for e, p in enumerate(self.programmes):
@@ -577,7 +558,7 @@ class TrialPlan:
         t = self.table().copy()
         t.index = [f"{eq}: {term}" for eq, term in t.index]
         lines += ["", "Predicted standard errors (asymptotic IV, zero-mean instruments):", "",
-                  markdown_table(t, ".4g"), "",
+                  _markdown(t), "",
                   f"worst relative SE over |θ0| ≥ {self.relevance:g}: "
                   f"{100 * self.worst_relative_se():.2f} % (target {100 * self.target:.1f} %)"]
         if self.identifiability:
@@ -588,6 +569,18 @@ class TrialPlan:
         for _, row in infeasible.iterrows():
             lines.append(f"candidate skipped: {row['label']}: {row['reason']}")
         return "\n".join(lines)
+
+
+def _markdown(df: pd.DataFrame) -> str:
+    """A pipe table of ``df`` with its index."""
+    def cell(x: Any) -> str:
+        return format(float(x), ".4g") if isinstance(x, (float, np.floating)) else str(x)
+
+    head = ["", *map(str, df.columns)]
+    lines = ["| " + " | ".join(head) + " |", "|" + "|".join(["---"] * len(head)) + "|"]
+    for idx, row in df.iterrows():
+        lines.append("| " + " | ".join([cell(idx), *(cell(x) for x in row)]) + " |")
+    return "\n".join(lines)
 
 
 def _finite(obj: Any) -> Any:

@@ -114,7 +114,7 @@ class SeaTrialError(VesselidError):
 
 # --------------------------------------------------------------------------------- spec
 def seatrial_spec(dt: float = 0.1, aggregate: str | None = "relative",
-                  structure: str = "merged") -> ModelSpec:
+                  structure: str = "merged", *, vessel: str = "cybership2") -> ModelSpec:
     """The identification spec of the sea trial.
 
     :func:`vesselid.vessels.cybership2_spec` — with ``structure="merged"`` (the
@@ -134,20 +134,25 @@ def seatrial_spec(dt: float = 0.1, aggregate: str | None = "relative",
         ``"current_meter"`` — GNSS target, regressors ``GNSS − current meter`` (eq. (9));
         ``"none"`` — GNSS everywhere (predictor (3)).
     structure : {"merged", "full"}
-        Whether ``v·|r|`` is folded into ``r·|v|``.
+        ``"merged"``: the vessel data module's ``TRIAL_MERGES`` (terms collinear in steady
+        turns) are folded; ``"full"``: no merges.
+    vessel : str
+        Catalogue vessel.
 
     Returns
     -------
     ModelSpec
     """
-    from vesselid.vessels import cybership2_spec
+    from vesselid.catalogue import vessel_module
 
     key = _aggregate_key(aggregate)
     if structure not in ("merged", "full"):
         raise SeaTrialError(f"unknown structure {structure!r}; choose 'merged' or 'full'")
-    spec = cybership2_spec(dt)
+    module = vessel_module(vessel)
+    spec = module.HULL.spec(dt)
     if structure == "merged":
-        spec = spec.merge_terms("r*|v|", "v*|r|", -1.0)
+        for keep, drop, factor in getattr(module, "TRIAL_MERGES", ()):
+            spec = spec.merge_terms(keep, drop, factor)
     rel = AGGREGATES[key]
     return spec.with_aggregate(rel) if rel else spec
 
@@ -182,6 +187,8 @@ class SeaTrialDesign:
         Sample time (s).
     nominal : ndarray (N_E, N, 3)
         Noise-free velocity through water ``ν_r`` of the design.
+    vessel : str
+        Catalogue vessel the design is for.
     """
 
     inputs: np.ndarray
@@ -191,6 +198,7 @@ class SeaTrialDesign:
     warmup: int
     dt: float
     nominal: np.ndarray = field(repr=False)
+    vessel: str = "cybership2"
     name: str = "static-offset"
     structure: str = "merged"
     warmup_forces: np.ndarray | None = field(default=None, repr=False)
@@ -250,6 +258,7 @@ def design_sea_trial(
     seed: int | np.random.SeedSequence | None = 0,
     rng: np.random.Generator | None = None,
     check: bool = True,
+    vessel: str = "cybership2",
 ) -> SeaTrialDesign:
     """Design ``N_E`` sea-trial experiments with static offsets (A8, A10/A15).
 
@@ -283,14 +292,25 @@ def design_sea_trial(
     check : bool
         Raise :class:`SeaTrialError` when the nominal design violates a margin (the
         violations are always in :attr:`SeaTrialDesign.margins`).
+    vessel : str
+        Catalogue vessel. A vessel other than CyberShip II brings its own defaults for
+        ``levels``, ``perturbation`` and ``eta`` (``TRIAL_LEVELS``, ``TRIAL_PERTURBATION``,
+        ``TRIAL_ETA`` of its data module).
 
     Returns
     -------
     SeaTrialDesign
     """
+    from vesselid.catalogue import vessel_module
     from vesselid.diagnostics import design_margins
-    from vesselid.vessels import CyberShip2Sensors, simulate_cybership2
+    from vesselid.vessels import VesselSensors, simulate_vessel
 
+    module = vessel_module(vessel)
+    if vessel != "cybership2":
+        levels = levels or module.TRIAL_LEVELS
+        if perturbation is DEFAULT_PERTURBATION:
+            perturbation = module.TRIAL_PERTURBATION
+        eta = module.TRIAL_ETA if eta is None else eta
     n_e, n_d = int(experiments), int(samples)
     if n_e < 2:
         raise SeaTrialError(f"need at least 2 experiments (turns to both sides), got {n_e}")
@@ -322,11 +342,11 @@ def design_sea_trial(
     n_warm = max(0, round(float(warmup) / dt))
     table = pd.DataFrame(rows)
     design = SeaTrialDesign(inputs=inputs, table=table, margins=pd.DataFrame(), eta={},
-                            warmup=n_warm, dt=float(dt), nominal=np.empty(0))
-    sim = simulate_cybership2(design.warmup_inputs(), seed=0, dt=dt,
-                              sensors=CyberShip2Sensors.noiseless())
+                            warmup=n_warm, dt=float(dt), nominal=np.empty(0), vessel=vessel)
+    sim = simulate_vessel(module.HULL, design.warmup_inputs(), seed=0, dt=dt,
+                          sensors=VesselSensors.noiseless())
     nominal = np.ascontiguousarray(sim.nu_r[:, n_warm:])
-    spec = seatrial_spec(dt, None)
+    spec = seatrial_spec(dt, None, vessel=vessel)
     eta_used = {"u": 0.08, "v": 0.08, "r": 0.02} if eta is None else {
         s: float(eta.get(s, 0.0)) for s in spec.states}
     starts = np.arange(n_e + 1, dtype=np.int64) * n_d
@@ -419,11 +439,21 @@ def planned_sea_trial_design(
         structure="full", warmup_forces=np.ascontiguousarray(forces[:, :n_warm]), plan=plan)
 
 
-def _make_design(name: str, experiments: int, samples: int, dt: float, seed: Any,
+def _make_design(name: str | None, experiments: int, samples: int, dt: float, seed: Any,
                  options: Mapping[str, Any]) -> SeaTrialDesign:
+    """Design by name; ``None``: planned for CyberShip II (the planner's vessel), else
+    static-offset."""
+    options = dict(options)
+    vessel = options.get("vessel", "cybership2")
+    if name is None:
+        name = "planned" if vessel == "cybership2" else "static-offset"
     if name == "static-offset":
         return design_sea_trial(experiments, samples, dt=dt, seed=seed, **options)
     if name == "planned":
+        if vessel != "cybership2":
+            raise SeaTrialError(f"the trial planner knows CyberShip II only, not {vessel!r}; "
+                                "use design='static-offset'")
+        options.pop("vessel", None)
         allowed = {"warmup", "levels", "plan"}
         bad = set(options) - allowed
         if bad:
@@ -473,6 +503,7 @@ def simulate_sea_trial(
     aggregate: str | None = "relative",
     source: str = "batch",
     dt: float = 0.1,
+    vessel: str = "cybership2",
     waves: Any = None,
     **design_options: Any,
 ):
@@ -511,6 +542,8 @@ def simulate_sea_trial(
         current/wind directions are fixed per episode to the given values).
     dt : float
         Sample time (s).
+    vessel : str
+        Catalogue vessel (ignored when ``design`` is given: the design's vessel).
     waves : vesselid.waves.WaveConditions, optional
         Sea state: first-order wave-induced motion (JONSWAP, :mod:`vesselid.waves`) added
         to the measured velocities (GNSS, speed log, gyro) and heading as a coloured
@@ -530,13 +563,13 @@ def simulate_sea_trial(
     root = np.random.SeedSequence(seed)
     design_seed, sim_seed = root.spawn(2)
     if design is None or isinstance(design, str):
-        design = _make_design(design or "planned", experiments, samples, dt, design_seed,
-                              design_options)
+        design = _make_design(design, experiments, samples, dt, design_seed,
+                              dict(design_options, vessel=vessel))
     elif design_options:
         raise SeaTrialError("design options are ignored when a design is given")
     dist = _disturbances(current_speed, current_direction, wind_speed, wind_direction,
                          current_variation, wind_gust, force_noise)
-    spec = seatrial_spec(design.dt, key, design.structure)
+    spec = seatrial_spec(design.dt, key, design.structure, vessel=design.vessel)
     if source == "batch":
         log = _simulate_batch(design, dist, sensors, sim_seed)
     elif source == "env":
@@ -556,6 +589,7 @@ def simulate_sea_trial(
         "aggregate": key,
         "seed": seed,
         "source": source,
+        "vessel": design.vessel,
         "design": design.table.to_dict(orient="list"),
         "design_name": design.name,
         "structure": design.structure,
@@ -599,11 +633,12 @@ def _add_waves(frame: pd.DataFrame, waves: Any, dt: float, seed: np.random.SeedS
 
 
 def _simulate_batch(design: SeaTrialDesign, dist, sensors, seed: np.random.SeedSequence):
+    from vesselid.catalogue import vessel_module
     from vesselid.logs import TrialLog
-    from vesselid.vessels import simulate_cybership2
+    from vesselid.vessels import simulate_vessel
 
-    sim = simulate_cybership2(design.warmup_inputs(), seed=seed, dt=design.dt,
-                              disturbances=dist, sensors=sensors)
+    sim = simulate_vessel(vessel_module(design.vessel).HULL, design.warmup_inputs(),
+                          seed=seed, dt=design.dt, disturbances=dist, sensors=sensors)
     log = sim.to_log()
     frame = log.to_frame()
     n_tot = design.warmup + design.n_samples
@@ -617,14 +652,16 @@ def _simulate_env(design: SeaTrialDesign, dist, sensors, seed: np.random.SeedSeq
     import gymnasium as gym
 
     import vesselid.envs  # noqa: F401  (registers the environments)
+    from vesselid.catalogue import vessel_module
     from vesselid.envs.recorder import TrialRecorder
     from vesselid.logs import TrialLog
 
-    fmax = np.array([2.0, 1.5, 1.0])
+    fmax = np.array(vessel_module(design.vessel).HULL.force_max)
     if np.any(np.abs(design.inputs) > fmax + 1e-12):
-        raise SeaTrialError("the design exceeds the environment's force limits (2, 1.5, 1)")
+        raise SeaTrialError(f"the design exceeds the vessel's force limits {tuple(fmax)}")
     env = TrialRecorder(gym.make(
-        "vesselid/Manoeuvring3DOF-v0", max_episode_steps=design.warmup + design.n_samples + 1,
+        "vesselid/Manoeuvring3DOF-v0", vessel=design.vessel,
+        max_episode_steps=design.warmup + design.n_samples + 1,
         dt=design.dt, current_speed=dist.current_speed,
         current_direction=dist.current_direction, current_variation=dist.current_speed_std,
         wind_speed=dist.wind_speed, wind_direction=dist.wind_direction,
@@ -762,7 +799,7 @@ def run_pipeline(
     combine: str = "pooled",
     aggregate: str | None = "relative",
     holdout_samples: int | None = None,
-    design: str = "planned",
+    design: str | None = None,
     **simulation_options: Any,
 ) -> SeaTrialResult:
     """Design, simulate and identify a sea trial; validate on a held-out experiment.
@@ -782,8 +819,8 @@ def run_pipeline(
         As :func:`simulate_sea_trial`.
     holdout_samples : int, optional
         Length of the validation experiment used (default ``min(samples, 5000)``).
-    design : {"planned", "static-offset"}
-        Input design (:data:`DESIGNS`).
+    design : {"planned", "static-offset"}, optional
+        Input design (:data:`DESIGNS`; default planned for CyberShip II).
     **simulation_options
         Passed to :func:`simulate_sea_trial` (current, wind, sensors, design options).
 
@@ -795,7 +832,8 @@ def run_pipeline(
     from vesselid.logs import TrialLog
 
     t0 = time.perf_counter()
-    design_keys = {"levels", "perturbation", "pulse_width", "warmup", "eta", "check", "plan"}
+    design_keys = {"levels", "perturbation", "pulse_width", "warmup", "eta", "check", "plan",
+                   "vessel"}
     design_opts = {k: simulation_options.pop(k) for k in list(simulation_options)
                    if k in design_keys}
     dt = float(simulation_options.pop("dt", 0.1))
@@ -847,7 +885,9 @@ def add_parser(subparsers: Any) -> None:
         description="Design a multi-experiment sea trial (steady turns to both sides at "
                     "several levels plus pulses), simulate it with current and wind, and "
                     "write the trial log and the model spec for `vesselid identify`.")
-    p.add_argument("--vessel", default="cybership2", choices=["cybership2"])
+    from vesselid.catalogue import vessel_names
+
+    p.add_argument("--vessel", default="cybership2", choices=vessel_names())
     p.add_argument("--experiments", type=int, default=6)
     p.add_argument("--samples", type=int, default=20000, help="samples per experiment")
     p.add_argument("--current-speed", type=float, default=0.05, help="m/s (model scale)")
@@ -859,10 +899,11 @@ def add_parser(subparsers: Any) -> None:
                    help="signals for u, v: speed log as target and regressors (relative, "
                         "default), GNSS target with speed-log regressors (Remark 4.3), GNSS "
                         "target with GNSS - current meter regressors (eq. (9)), GNSS only")
-    p.add_argument("--design", default="planned", choices=list(DESIGNS),
+    p.add_argument("--design", default=None, choices=list(DESIGNS),
                    help="input design: standard manoeuvres chosen by the trial planner "
                         "(planned, default; see `vesselid plan-trial`) or the original "
-                        "steady turns with random pulses (static-offset)")
+                        "steady turns with random pulses (static-offset; the default for vessels "
+                        "other than cybership2)")
     p.add_argument("--sea-state", default=None, choices=["none", "calm", "smooth", "slight",
                                                           "moderate", "rough"],
                    help="waves (JONSWAP, Froude-scaled 1:70): first-order wave-induced "
@@ -908,7 +949,7 @@ def waves_from_args(args: argparse.Namespace) -> Any:
 
 
 def cmd_sea_trial(args: argparse.Namespace) -> int:
-    """``vesselid sea-trial``: write DIR/seatrial.parquet (or .csv + .json), DIR/cybership2.toml."""
+    """``vesselid sea-trial``: write DIR/seatrial.parquet (or .csv + .json), DIR/<vessel>.toml."""
     if args.format is None:
         args.format = default_log_format()
     if args.experiments < 2:
@@ -922,12 +963,13 @@ def cmd_sea_trial(args: argparse.Namespace) -> int:
     opts = {"current_speed": args.current_speed,
             "current_direction": math.radians(args.current_direction),
             "wind_speed": args.wind_speed, "waves": waves_from_args(args)}
+    opts["vessel"] = args.vessel
     log = simulate_sea_trial(args.experiments, args.samples, args.seed,
                              aggregate=args.aggregate, source=args.source,
                              design=args.design, **opts)
     log.metadata["command"] = "vesselid " + " ".join(sys.argv[1:]) if sys.argv else ""
     data = out / ("seatrial.csv" if args.format == "csv" else "seatrial.parquet")
-    spec_path = out / "cybership2.toml"
+    spec_path = out / f"{args.vessel}.toml"
     log.spec.save(spec_path)
     log.save(data)
     extra = f" and sidecar {data.with_suffix('.json')}" if args.format == "csv" else ""
