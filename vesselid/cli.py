@@ -7,7 +7,8 @@
     vesselid reproduce [--table 1|2|all] [--runs 1000] [--samples 10000] [--seed 0] [--out DIR]
     vesselid sea-trial --vessel cybership2 --experiments 6 --samples 20000 --seed 0 --out DIR
 
-Exit code 0 on success, 2 on bad input with a one-line reason on stderr.
+Exit code 0 on success, 2 on bad input (:class:`~vesselid.errors.VesselidError`, ``OSError``)
+with a one-line reason on stderr; anything else is a bug (traceback, exit code 1).
 Subcommands living in other modules register themselves through an
 ``add_parser(subparsers)`` function that sets ``func`` (returning an exit code).
 """
@@ -23,16 +24,22 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from vesselid import __version__
-from vesselid.errors import VesselidError
+from vesselid.errors import CLIError, VesselidError
 
 __all__ = ["main"]
 
 #: Modules that add their own subcommands (``add_parser(subparsers)``).
 PLUGIN_MODULES = ("vesselid.reproduce", "vesselid.seatrial", "vesselid.planner")
 
+#: Plugin commands imported only when they are run (or their own ``--help`` is asked
+#: for): command -> (module, one-line help). ``vesselid --help`` lists them without
+#: importing the module, so it loads neither pandas nor numba. A module listed only in
+#: :data:`PLUGIN_MODULES` is imported for every command line (correct, but slower).
+LAZY_COMMANDS = {
+    "reproduce": ("vesselid.reproduce", "reproduce the paper's Tables 1-2 and Figure 1"),
+    "sea-trial": ("vesselid.seatrial", "design and simulate a multi-experiment sea trial"),
+}
 
-class CLIError(VesselidError):
-    """Bad command-line input (exit code 2)."""
 
 
 def _spec_path_for(out: Path) -> Path:
@@ -74,7 +81,6 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_identify(args: argparse.Namespace) -> int:
-    from vesselid.identify import identify
     from vesselid.logs import TrialLog
     from vesselid.model import ModelSpec
 
@@ -82,6 +88,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
     log = TrialLog.load(args.log, spec=spec)
     if spec is None and log.spec is None:
         raise CLIError(f"{args.log} carries no model spec; pass --model SPEC.toml")
+    from vesselid.identify import identify  # after the input checks: bad input loads no kernels
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = identify(log, spec, method=args.method, combine=args.combine,
@@ -105,7 +112,19 @@ def cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _command_word(argv: Sequence[str] | None) -> str | None:
+    """The subcommand named on the command line (the first non-option word), if any."""
+    for arg in argv or ():
+        if not arg.startswith("-"):
+            return arg
+    return None
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The command-line parser; a lazy plugin's module is imported only if ``argv`` runs it.
+
+    Without ``argv`` every plugin module is imported (complete parser, e.g. for docs).
+    """
     parser = argparse.ArgumentParser(
         prog="vesselid",
         description="Simulate marine vessels under current, wind and sensor noise, and identify "
@@ -143,7 +162,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", metavar="PATH|-", help="write the result as JSON ('-' = stdout)")
     p.set_defaults(func=cmd_identify)
 
-    for name in PLUGIN_MODULES:
+    wanted = _command_word(argv) if argv is not None else None
+    lazy_modules = {module for module, _ in LAZY_COMMANDS.values()}
+    modules = [m for m in PLUGIN_MODULES if m not in lazy_modules]
+    for command, (module, help_text) in LAZY_COMMANDS.items():
+        if argv is None or command == wanted:
+            modules.append(module)
+        else:  # listed in the help; never parsed in this run
+            sub.add_parser(command, help=help_text, add_help=False)
+    for name in dict.fromkeys(modules):
         try:
             module = importlib.import_module(name)
         except ModuleNotFoundError as exc:
@@ -156,14 +183,17 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code."""
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
     try:
         return int(args.func(args) or 0)
-    except (VesselidError, ValueError, FileNotFoundError) as exc:
+    except (VesselidError, OSError) as exc:
+        # bad input (domain errors, unreadable/unwritable files): exit 2, one line; any
+        # other exception is a bug and propagates with its traceback (exit 1)
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"vesselid {args.command}: error: {msg}", file=sys.stderr)
         return 2
