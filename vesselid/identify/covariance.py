@@ -65,7 +65,7 @@ from typing import Any, ClassVar
 import numpy as np
 from scipy import signal as sps
 
-from vesselid.errors import VesselidError
+from vesselid.errors import CovarianceError
 
 __all__ = [
     "BANDWIDTH_RULES",
@@ -86,9 +86,6 @@ __all__ = [
     "scores",
 ]
 
-
-class CovarianceError(VesselidError):
-    """Invalid covariance estimator or configuration."""
 
 
 #: Kernels of the HAC estimator (linearmodels' names and bandwidth convention).
