@@ -7,7 +7,8 @@
     vesselid reproduce [--table 1|2|all] [--runs 1000] [--samples 10000] [--seed 0] [--out DIR]
     vesselid sea-trial --vessel cybership2 --experiments 6 --samples 20000 --seed 0 --out DIR
 
-Exit code 0 on success, 2 on bad input with a one-line reason on stderr.
+Exit code 0 on success, 2 on bad input (:class:`~vesselid.errors.VesselidError`, ``OSError``)
+with a one-line reason on stderr; anything else is a bug (traceback, exit code 1).
 Subcommands living in other modules register themselves through an
 ``add_parser(subparsers)`` function that sets ``func`` (returning an exit code).
 """
@@ -23,12 +24,12 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from vesselid import __version__
-from vesselid.errors import VesselidError
+from vesselid.errors import CLIError, VesselidError
 
 __all__ = ["main"]
 
 #: Modules that add their own subcommands (``add_parser(subparsers)``).
-PLUGIN_MODULES = ("vesselid.reproduce", "vesselid.seatrial")
+PLUGIN_MODULES = ("vesselid.reproduce", "vesselid.seatrial", "vesselid.planner")
 
 #: Plugin commands imported only when they are run (or their own ``--help`` is asked
 #: for): command -> (module, one-line help). ``vesselid --help`` lists them without
@@ -39,9 +40,6 @@ LAZY_COMMANDS = {
     "sea-trial": ("vesselid.seatrial", "design and simulate a multi-experiment sea trial"),
 }
 
-
-class CLIError(VesselidError):
-    """Bad command-line input (exit code 2)."""
 
 
 def _spec_path_for(out: Path) -> Path:
@@ -193,7 +191,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     try:
         return int(args.func(args) or 0)
-    except (VesselidError, ValueError, FileNotFoundError) as exc:
+    except (VesselidError, OSError) as exc:
+        # bad input (domain errors, unreadable/unwritable files): exit 2, one line; any
+        # other exception is a bug and propagates with its traceback (exit 1)
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"vesselid {args.command}: error: {msg}", file=sys.stderr)
         return 2

@@ -64,7 +64,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from vesselid.errors import VesselidError
+from vesselid.errors import CovarianceError
 
 __all__ = [
     "BANDWIDTH_RULES",
@@ -85,9 +85,6 @@ __all__ = [
     "scores",
 ]
 
-
-class CovarianceError(VesselidError):
-    """Invalid covariance estimator or configuration."""
 
 
 #: Kernels of the HAC estimator (linearmodels' names and bandwidth convention).

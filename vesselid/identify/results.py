@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from vesselid.errors import IdentificationError
 from vesselid.model import ModelSpec
 
 __all__ = ["IdentificationResult"]
@@ -67,7 +68,7 @@ class IdentificationResult:
     def conf_int(self, level: float = 0.95) -> pd.DataFrame:
         """Normal-approximation confidence intervals."""
         if not 0 < level < 1:
-            raise ValueError("level must be in (0, 1)")
+            raise IdentificationError("level must be in (0, 1)")
         from scipy.special import ndtri  # = stats.norm.ppf, without importing scipy.stats
 
         q = ndtri(0.5 + level / 2)
@@ -160,8 +161,8 @@ class IdentificationResult:
 
         rc = self.diagnostics.get("residual_correlation")
         if rc is None:
-            raise ValueError("this result holds no residual correlations "
-                             "(diagnostics['residual_correlation'])")
+            raise IdentificationError("this result holds no residual correlations "
+                                      "(diagnostics['residual_correlation'])")
         return residual_analysis(rc, title=title or f"Residual analysis — {self.method}")
 
     def __str__(self) -> str:
