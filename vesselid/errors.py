@@ -13,6 +13,7 @@ __all__ = [
     "LogValidationError",
     "ModelSpecError",
     "RankDeficientError",
+    "ResourceLimitError",
     "SimulationDivergedError",
     "VesselidError",
     "WeakInstrumentWarning",
@@ -53,3 +54,7 @@ class ConvergenceWarning(UserWarning):
 
 class ExperimentDesignWarning(UserWarning):
     """A state comes too close to zero for the modulus to be treated as smooth (A10/A15)."""
+
+
+class ResourceLimitError(VesselidError):
+    """A request would need more memory, disk or time than this machine allows."""
