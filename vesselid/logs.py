@@ -588,13 +588,15 @@ def estimate_shape(path: str | Path) -> tuple[int, int]:
         return int(meta.num_rows), int(meta.num_columns)
     size = path.stat().st_size
     with open(path, "rb") as fh:
-        header = fh.readline()
-        sample = fh.readlines(1 << 16)
+        block = fh.read(1 << 16)  # never more: a file may be one endless line
+    lines = block.split(b"\n")
+    header = lines[0]
     cols = header.count(b",") + 1
-    if not sample:
-        return 0, cols
-    per_line = max(1.0, sum(len(line) for line in sample) / len(sample))
-    return int((size - len(header)) / per_line) + 1, cols
+    sample = lines[1:-1]  # complete data lines
+    if not sample:  # no complete line in the first 64 kB: count bytes as values
+        return (max(0, size - len(header)) // 8 if size > len(block) else 0), cols
+    per_line = max(1.0, sum(len(line) + 1 for line in sample) / len(sample))
+    return int((size - len(header) - 1) / per_line) + 1, cols
 
 
 def _positions_by_experiment(data: pd.DataFrame) -> list[tuple[object, np.ndarray]]:
@@ -735,9 +737,9 @@ def _read_csv(path: Path) -> tuple[pd.DataFrame, dict]:
         header = pd.read_csv(path, nrows=0)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise LogValidationError(f"{path}: cannot read CSV: {exc}") from exc
-    if dtypes and list(header.columns) != list(envelope.get("columns", dtypes)):
+    if dtypes and list(header.columns) != list(envelope.get("columns") or dtypes):
         warnings.warn(
-            f"{sidecar} describes columns {list(envelope.get('columns', dtypes))} but "
+            f"{sidecar} describes columns {list(envelope.get('columns') or dtypes)} but "
             f"{path} has {list(header.columns)}; ignoring the recorded dtypes",
             UserWarning,
             stacklevel=3,
