@@ -1,0 +1,699 @@
+"""Covariance estimators for the LS / IV estimates of (4), (6) and (10), as a registry.
+
+After linearmodels' ``iv/covariance.py``: ``fit(cov_type=..., **cov_config)`` looks up
+a class in :data:`COVARIANCE_ESTIMATORS`, builds it from ``cov_config`` (validated
+there) and calls :meth:`CovarianceEstimator.estimate` with plain arrays. Nothing here
+needs a trial log or a results object, so a trial planner can predict the covariance
+of a design from simulated instruments and residuals.
+
+The estimators and their sandwich
+---------------------------------
+Every estimator of the package solves, per state equation ``i`` and experiment
+``E``, moment equations ``Σ_k z(k) [y_i(k) − φᵀ(k) θ_i] = 0`` (LS: ``z = φ``; IV:
+the instruments ζ; zero-mean IV: ζ centred per experiment, A7), combined over the
+experiments in one of two ways (``combine``):
+
+* ``"pooled"``: ``(Σ_E A_E) θ = Σ_E b_E`` with ``A_E = Σ_k z φᵀ``;
+* ``"stacked"``: (6)/(10) in the least-squares sense, ``min_θ Σ_E ‖(b_E − A_E θ)/N_E‖²``.
+
+Both are ``H θ̂ = Σ_E G_E b_E`` with ``G_E = I`` (pooled) or ``A_Eᵀ / N_E²`` (stacked)
+and ``H = Σ_E G_E A_E``. With the scores ``g(k) = z(k) ε(k)`` (one column per
+parameter, ``ε`` the residual of that parameter's equation),
+
+``θ̂ − θ0 ≈ H⁻¹ Σ_E G_E Σ_k g_E(k)``  and  ``Cov θ̂ = H⁻¹ (Σ_E G_E S_E G_Eᵀ) H⁻ᵀ``,
+
+where ``S_E`` is the long-run covariance of the scores *within* experiment ``E``
+(experiments are independent; no lag ever crosses an experiment boundary). The
+estimators differ only in ``S_E``:
+
+* ``unadjusted`` — white, homoskedastic equation errors: ``S_E = Σ_k z zᵀ ⊙ Σ_ε``
+  with the residual (co)variance ``Σ_ε`` pooled over the experiments;
+* ``hac`` — kernel-weighted (heteroskedasticity and autocorrelation consistent)
+  ``S_E = Σ_j w_j Γ_E(j)``, Bartlett / Parzen / quadratic-spectral kernels, fixed or
+  automatic bandwidth (Andrews 1991 AR(1) plug-in, Newey & West 1994), optionally
+  pre-whitened with a VAR(1) (Andrews & Monahan 1992);
+* ``cluster`` — one cluster per experiment, ``S_E = (Σ_k g)(Σ_k g)ᵀ`` (needs many
+  experiments).
+
+The joint covariance of all equations is returned (cross-equation blocks from the
+cross-products of the scores), not only the per-equation blocks.
+
+Zero-mean instruments equal adding one constant per experiment to the regressors
+and the instruments (the instruments are then the centred ζ, the residual loses its
+per-experiment mean), so with ``zero_mean=True`` the scores use the residual
+centred per experiment: ``unadjusted`` then equals linearmodels
+``IV2SLS(y, experiment dummies, Φ, ζ).fit(cov_type="unadjusted")`` and ``hac`` with
+one experiment ``cov_type="kernel"`` (tests check both to 1e-10).
+
+Why the default is HAC
+----------------------
+The equation error of (3) is autocorrelated by construction: the sensor noise ``e``
+enters ``y(k)`` and, through the regressors, ``φ(k+1)`` (an MA(1) with a negative
+lag-1 correlation around ``−(a + 2n|x|)``), and slowly varying currents are
+coloured. A white-noise formula overstates the standard errors on the paper's
+white designs and understates them under coloured currents; the calibration study
+(``scripts/calibration.py``, README) measures it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+from scipy import signal as sps
+
+from vesselid.errors import VesselidError
+
+__all__ = [
+    "BANDWIDTH_RULES",
+    "COVARIANCE_ESTIMATORS",
+    "DEFAULT_COV_TYPE",
+    "KERNELS",
+    "ClusterCovariance",
+    "CovarianceError",
+    "CovarianceEstimator",
+    "CovarianceResult",
+    "KernelCovariance",
+    "UnadjustedCovariance",
+    "automatic_bandwidth",
+    "get_covariance_estimator",
+    "iv_covariance",
+    "kernel_weights",
+    "long_run_covariance",
+    "scores",
+]
+
+
+class CovarianceError(VesselidError):
+    """Invalid covariance estimator or configuration."""
+
+
+#: Kernels of the HAC estimator (linearmodels' names and bandwidth convention).
+KERNELS = ("bartlett", "parzen", "qs")
+_KERNEL_ALIASES = {
+    "bartlett": "bartlett", "newey-west": "bartlett",
+    "parzen": "parzen", "gallant": "parzen",
+    "qs": "qs", "quadratic-spectral": "qs", "andrews": "qs",
+}
+_KERNEL_LABELS = {"bartlett": "Bartlett", "parzen": "Parzen", "qs": "quadratic-spectral"}
+
+#: Automatic bandwidth rules.
+BANDWIDTH_RULES = ("andrews", "newey-west")
+
+#: The package's default covariance (chosen from the calibration study; see README).
+DEFAULT_COV_TYPE = "hac"
+
+
+# --------------------------------------------------------------------------- kernels
+def kernel_weights(kernel: str, bandwidth: float, n_lags: int) -> np.ndarray:
+    """Kernel weights ``w_0 … w_{n_lags}`` (``w_0 = 1``).
+
+    The bandwidth follows linearmodels / Newey–West: Bartlett ``w_j = 1 − j/(⌊b⌋+1)``
+    (``⌊b⌋`` lags with non-zero weight, as statsmodels' ``weights_bartlett(⌊b⌋)``),
+    Parzen on ``x = j/(⌊b⌋+1)``, quadratic-spectral ``w_j = 3/z² (sin z / z − cos z)``,
+    ``z = 6π (j/b)/5`` (Andrews 1991, eq. (2.7), real ``b``, every lag); ``b = 0``
+    keeps lag 0 only.
+    """
+    kernel = _kernel_name(kernel)
+    b = float(bandwidth)
+    if not (b >= 0 and math.isfinite(b)):
+        raise CovarianceError(f"bandwidth must be finite and non-negative, got {bandwidth}")
+    j = np.arange(int(n_lags) + 1, dtype=float)
+    if kernel == "bartlett":
+        w = np.clip(1.0 - j / (math.floor(b) + 1.0), 0.0, None)
+    elif kernel == "parzen":
+        x = j / (math.floor(b) + 1.0)
+        w = np.where(x <= 0.5, 1 - 6 * x**2 + 6 * x**3, np.where(x <= 1, 2 * (1 - x) ** 3, 0.0))
+    else:
+        w = np.zeros_like(j)
+        w[0] = 1.0
+        if b > 0:
+            z = 6 * np.pi * j[1:] / b / 5
+            w[1:] = 3.0 / z**2 * (np.sin(z) / z - np.cos(z))
+    return w
+
+
+def _kernel_name(kernel: str) -> str:
+    key = str(kernel).lower()
+    if key not in _KERNEL_ALIASES:
+        raise CovarianceError(f"unknown kernel {kernel!r}; choose from {list(KERNELS)}")
+    return _KERNEL_ALIASES[key]
+
+
+def _segments(starts: np.ndarray, skip_first: bool) -> list[slice]:
+    off = 1 if skip_first else 0
+    return [slice(int(starts[s]) + off, int(starts[s + 1])) for s in range(starts.size - 1)]
+
+
+def automatic_bandwidth(
+    g: np.ndarray,
+    starts: np.ndarray | None = None,
+    *,
+    kernel: str = "bartlett",
+    rule: str = "andrews",
+    skip_first: bool = False,
+) -> float:
+    """Automatic bandwidth for :func:`long_run_covariance` of the series ``g`` (T, q).
+
+    ``rule="andrews"``: Andrews (1991, §6) with an AR(1) plug-in for every column,
+    each column weighted by ``1/σ_a⁴`` (scale free), autocorrelations estimated
+    within experiments and pooled, ``|ρ| ≤ 0.97``; the optimal ``S_T`` for the total
+    sample size is converted to the Newey–West bandwidth convention of
+    :func:`kernel_weights` (``b = S_T − 1`` for Bartlett and Parzen, ``b = S_T`` for QS).
+
+    ``rule="newey-west"``: the nonparametric rule of Newey & West (1994) on the sum
+    of the standardised columns (experiments pooled); on one column and one
+    experiment it is linearmodels' ``kernel_optimal_bandwidth`` (rounded up).
+
+    The result never exceeds the shortest experiment minus one.
+    """
+    kernel = _kernel_name(kernel)
+    g = np.asarray(g, dtype=float)
+    if g.ndim == 1:
+        g = g[:, None]
+    starts = np.array([0, g.shape[0]]) if starts is None else np.asarray(starts)
+    segs = _segments(starts, skip_first)
+    lengths = np.array([s.stop - s.start for s in segs])
+    t_total = int(lengths.sum())
+    cap = float(max(int(lengths.min()) - 1, 0))
+    if rule == "andrews":
+        num = np.zeros(g.shape[1])
+        den = np.zeros(g.shape[1])
+        for s in segs:
+            x = g[s]
+            num += np.einsum("ta,ta->a", x[1:], x[:-1])
+            den += np.einsum("ta,ta->a", x[:-1], x[:-1])
+        ok = den > 0
+        if not ok.any():
+            return 0.0
+        rho = np.clip(num[ok] / den[ok], -0.97, 0.97)
+        if kernel == "bartlett":
+            a = np.sum(4 * rho**2 / ((1 - rho) ** 6 * (1 + rho) ** 2)) / np.sum(1 / (1 - rho) ** 4)
+            s_t = 1.1447 * (a * t_total) ** (1 / 3)
+        else:
+            a = np.sum(4 * rho**2 / (1 - rho) ** 8) / np.sum(1 / (1 - rho) ** 4)
+            s_t = (2.6614 if kernel == "parzen" else 1.3221) * (a * t_total) ** (1 / 5)
+        b = s_t if kernel == "qs" else max(s_t - 1.0, 0.0)
+        return float(min(b, cap))
+    if rule == "newey-west":
+        return float(min(_newey_west_bandwidth(g, segs, kernel, t_total), cap))
+    raise CovarianceError(f"unknown bandwidth rule {rule!r}; choose from {list(BANDWIDTH_RULES)}")
+
+
+def _newey_west_bandwidth(g: np.ndarray, segs: list[slice], kernel: str, t_total: int) -> float:
+    # Newey & West (1994): pilot lags n, exponent q, constant c per kernel
+    q, c, n_exp = {"bartlett": (1, 1.1447, 2 / 9), "parzen": (2, 2.6614, 4 / 25),
+                   "qs": (2, 1.3221, 2 / 25)}[kernel]
+    n = math.ceil(4 * (t_total / 100) ** n_exp)
+    scale = np.sqrt(np.mean(np.concatenate([g[s] for s in segs]) ** 2, axis=0))
+    scale[scale == 0] = 1.0
+    x = [np.sum(g[s] / scale, axis=1) for s in segs] if g.shape[1] > 1 else [g[s, 0] for s in segs]
+    sig = np.zeros(n + 1)
+    for xs in x:
+        for j in range(min(n, xs.size - 1) + 1):
+            sig[j] += xs[j:] @ xs[: xs.size - j]
+    sig /= t_total
+    s0 = sig[0] + 2 * sig[1:].sum()
+    sq = 2 * np.sum(np.arange(1, n + 1) ** q * sig[1:])
+    if s0 == 0:
+        return 0.0
+    gamma = c * ((sq / s0) ** 2) ** (1 / (2 * q + 1))
+    return float(math.ceil(gamma * t_total ** (1 / (2 * q + 1))))
+
+
+def long_run_covariance(
+    g: np.ndarray,
+    weights: np.ndarray,
+) -> np.ndarray:
+    """``Σ_j w_|j| Γ(j)`` of one experiment's scores ``g`` (T, q), summed (not averaged).
+
+    ``Γ(j) = Σ_k g(k) g(k−j)ᵀ``; computed as ``gᵀ (K g)`` with ``K`` the Toeplitz
+    kernel matrix applied by (FFT) convolution, so every lag up to ``len(weights) − 1``
+    is included exactly at ``O(q T log T)`` cost.
+    """
+    g = np.asarray(g, dtype=float)
+    n_lags = min(len(weights) - 1, g.shape[0] - 1)
+    w = np.asarray(weights[: n_lags + 1], dtype=float)
+    if n_lags == 0:
+        return w[0] * g.T @ g
+    sym = np.concatenate([w[:0:-1], w])
+    kg = sps.convolve(g, sym[:, None], mode="same")
+    out = g.T @ kg
+    return 0.5 * (out + out.T)
+
+
+# --------------------------------------------------------------------------- scores
+def scores(
+    z: np.ndarray,
+    resid: np.ndarray,
+    starts: np.ndarray,
+    equation: np.ndarray,
+    *,
+    zero_mean: bool = False,
+    skip_first: bool = True,
+) -> np.ndarray:
+    """Scores ``g(k) = z(k) ε_eq(k)`` (T, P); with ``zero_mean`` the residual is centred
+    per experiment (the constant that zero-mean instruments absorb). Skipped rows are 0."""
+    resid = np.asarray(resid, dtype=float)
+    if resid.ndim == 1:
+        resid = resid[:, None]
+    segs = _segments(np.asarray(starts), skip_first)
+    eps = _residual(resid, segs, zero_mean)
+    out = np.zeros(np.shape(z))
+    for s in segs:
+        out[s] = z[s] * eps[s][:, np.asarray(equation)]
+    return out
+
+
+def _residual(resid: np.ndarray, segs: list[slice], zero_mean: bool) -> np.ndarray:
+    eps = np.zeros_like(resid)
+    for s in segs:
+        eps[s] = resid[s] - resid[s].mean(axis=0) if zero_mean else resid[s]
+    return eps
+
+
+# --------------------------------------------------------------------------- results
+@dataclass
+class CovarianceResult:
+    """Covariance of the estimates and how it was computed.
+
+    Attributes
+    ----------
+    cov : ndarray (P, P)
+        Joint covariance of all parameters (all equations).
+    cov_type : str
+        Registry name (``"unadjusted"``, ``"hac"``, ``"cluster"``).
+    config : dict
+        Estimator settings as used (kernel, bandwidth, rule, prewhiten …).
+    label : str
+        One line for ``summary()``.
+    condition : ndarray (n_eq,)
+        Condition number of each equation's column-equilibrated ``Σ_E A_E``.
+    long_run : ndarray (K, K)
+        ``Σ_E S_E``, the summed long-run covariance of the scores ``z ε`` (for J tests
+        and optimal GMM weights).
+    """
+
+    cov: np.ndarray
+    cov_type: str
+    config: dict[str, Any] = field(default_factory=dict)
+    label: str = ""
+    condition: np.ndarray | None = None
+    long_run: np.ndarray | None = None
+
+    @property
+    def std_errors(self) -> np.ndarray:
+        return np.sqrt(np.clip(np.diag(self.cov), 0, None))
+
+
+# --------------------------------------------------------------------------- estimators
+class CovarianceEstimator:
+    """Base class: the IV sandwich of (4)/(6)/(10); subclasses supply ``S_E``.
+
+    Subclasses set :attr:`name` and implement :meth:`meat` (the sum over experiments
+    of ``G_E S_E G_Eᵀ`` is formed here). ``__init__`` takes the ``cov_config``
+    keywords and validates them.
+    """
+
+    name: ClassVar[str] = ""
+
+    def config(self) -> dict[str, Any]:
+        return {}
+
+    def label(self, config: Mapping[str, Any]) -> str:
+        return self.name
+
+    def meat(
+        self, g: np.ndarray, z: np.ndarray, eps: np.ndarray, segs: list[slice],
+        equation: np.ndarray,
+    ) -> tuple[list[np.ndarray], dict[str, Any]]:
+        """Per-experiment long-run score covariances ``S_E`` (summed, not averaged)."""
+        raise NotImplementedError
+
+    def estimate(
+        self,
+        z: np.ndarray,
+        phi: np.ndarray,
+        resid: np.ndarray,
+        starts: np.ndarray | None = None,
+        equation: np.ndarray | None = None,
+        *,
+        z_equation: np.ndarray | None = None,
+        weight: np.ndarray | None = None,
+        zero_mean: bool = False,
+        combine: str = "pooled",
+        skip_first: bool = True,
+    ) -> CovarianceResult:
+        """Covariance of the estimates from instruments, regressors and residuals.
+
+        Parameters
+        ----------
+        z : ndarray (T, K)
+            Instruments (LS: the regressors), ``K ≥ P``, rows of all experiments
+            concatenated. With ``zero_mean``, ``z`` must already be centred per
+            experiment (as the estimator used it).
+        phi : ndarray (T, P)
+            Regressors, one column per parameter.
+        resid : ndarray (T, n) or (T,)
+            Residual ``y_i(k) − φ_iᵀ(k) θ̂_i`` of every equation.
+        starts : ndarray (S+1,), optional
+            Experiment boundaries into the rows (default: one experiment).
+        equation : ndarray (P,), optional
+            Equation (column of ``resid``) of each parameter (default all 0).
+        z_equation : ndarray (K,), optional
+            Equation of each instrument column (default ``equation`` when ``K == P``,
+            else all 0).
+        weight : ndarray (K, K), optional
+            GMM weight ``W`` of an over-identified estimate ``θ̂ = argmin ḡᵀ W ḡ``:
+            the covariance is ``(AᵀWA)⁻¹ AᵀW S W A (AᵀWA)⁻¹`` (``A = Σ zφᵀ``,
+            ``S`` the summed long-run covariance of ``z ε``). Default: identity when
+            ``K == P`` (IV), else the 2SLS weight ``(Σ zzᵀ)⁻¹`` (within equations).
+        zero_mean : bool
+            The instruments were centred per experiment (IV_E{ζ}=0): the scores
+            use the residual centred per experiment.
+        combine : {"pooled", "stacked"}
+            How the estimator combined experiments (module docstring).
+        skip_first : bool
+            Ignore the first row of every experiment (the package's convention: the
+            one-step predictor has no regressors there). ``False`` when the caller
+            already dropped those rows.
+
+        Returns
+        -------
+        CovarianceResult
+            ``cov`` is the covariance of θ̂ itself (sums, not means, inside).
+
+        Raises
+        ------
+        CovarianceError
+            Inconsistent shapes, NaN/inf in the rows used, experiments with fewer
+            than two rows.
+        """
+        z = np.asarray(z, dtype=float)
+        phi = np.asarray(phi, dtype=float)
+        resid = np.asarray(resid, dtype=float)
+        if resid.ndim == 1:
+            resid = resid[:, None]
+        if z.ndim != 2 or phi.ndim != 2:
+            raise CovarianceError("z and phi must be 2-d arrays (rows × columns)")
+        t_len, n_par = phi.shape
+        n_ins = z.shape[1]
+        if z.shape[0] != t_len or resid.shape[0] != t_len or n_ins < n_par:
+            raise CovarianceError(f"z {z.shape}, phi {phi.shape} and resid {resid.shape} "
+                                  "must have the same rows and z at least phi's columns")
+        starts = np.array([0, t_len]) if starts is None else np.asarray(starts, dtype=np.int64)
+        if starts[0] != 0 or starts[-1] != t_len or np.any(np.diff(starts) < 0):
+            raise CovarianceError("starts must rise from 0 to the number of rows")
+        equation = (np.zeros(n_par, dtype=np.int64) if equation is None
+                    else np.asarray(equation, dtype=np.int64))
+        if z_equation is None:
+            z_equation = equation if n_ins == n_par else np.zeros(n_ins, dtype=np.int64)
+        z_equation = np.asarray(z_equation, dtype=np.int64)
+        if (equation.shape != (n_par,) or z_equation.shape != (n_ins,)
+                or max(equation.max(initial=0), z_equation.max(initial=0)) >= resid.shape[1]):
+            raise CovarianceError("equation / z_equation must give a residual column for every "
+                                  "regressor / instrument column")
+        if combine not in ("pooled", "stacked"):
+            raise CovarianceError(f"combine must be 'pooled' or 'stacked', got {combine!r}")
+        segs = _segments(starts, skip_first)
+        if any(s.stop - s.start < 2 for s in segs):
+            raise CovarianceError("every experiment needs at least two usable rows")
+        rows = np.zeros(t_len, dtype=bool)
+        for s in segs:
+            rows[s] = True
+        for name, arr in (("z", z), ("phi", phi), ("resid", resid)):
+            if not np.all(np.isfinite(arr[rows])):
+                raise CovarianceError(f"{name} holds NaN or inf in the rows used")
+        same = z_equation[:, None] == equation[None, :]
+        same_z = z_equation[:, None] == z_equation[None, :]
+        eps = _residual(resid, segs, zero_mean)
+        g = np.zeros((t_len, n_ins))
+        for s in segs:
+            g[s] = z[s] * eps[s][:, z_equation]
+        a_list = [(z[s].T @ phi[s]) * same for s in segs]
+        a_sum = sum(a_list)
+        if weight is None:
+            if n_ins == n_par:
+                w_mat = np.eye(n_ins)
+            else:
+                w_mat = _block_inverse(sum(z[s].T @ z[s] for s in segs) * same_z, z_equation)
+        else:
+            w_mat = np.asarray(weight, dtype=float)
+            if w_mat.shape != (n_ins, n_ins) or not np.all(np.isfinite(w_mat)):
+                raise CovarianceError(f"weight must be a finite ({n_ins}, {n_ins}) matrix")
+        if combine == "pooled" or len(segs) == 1:
+            g_list = [a_sum.T @ w_mat] * len(segs)
+        else:
+            g_list = [a.T @ w_mat / (s.stop - s.start) ** 2
+                      for a, s in zip(a_list, segs, strict=True)]
+        h = sum(gm @ a for gm, a in zip(g_list, a_list, strict=True))
+        s_list, used = self.meat(g, z, eps, segs, z_equation)
+        middle = sum(gm @ s_e @ gm.T for gm, s_e in zip(g_list, s_list, strict=True))
+        n_eq = int(equation.max()) + 1 if n_par else 0
+        cond = np.array([_condition(a_sum[np.ix_(z_equation == i, equation == i)])
+                         for i in range(n_eq)])
+        try:
+            h_inv = np.linalg.inv(h)
+            cov = h_inv @ middle @ h_inv.T
+            cov = 0.5 * (cov + cov.T)
+        except np.linalg.LinAlgError:
+            cov = np.full((n_par, n_par), np.inf)
+        if not np.all(np.isfinite(cov)):
+            cov = np.full((n_par, n_par), np.inf)
+        config = {**self.config(), **used}
+        return CovarianceResult(cov=cov, cov_type=self.name, config=config,
+                                label=self.label(config), condition=cond,
+                                long_run=sum(s_list))
+
+    def cov(self, z: np.ndarray, phi: np.ndarray, resid: np.ndarray,
+            starts: np.ndarray | None = None, **options: Any) -> np.ndarray:
+        """Shortcut: ``estimate(...).cov``."""
+        return self.estimate(z, phi, resid, starts, **options).cov
+
+
+def _block_inverse(m: np.ndarray, eq: np.ndarray) -> np.ndarray:
+    out = np.zeros_like(m)
+    for i in np.unique(eq):
+        idx = np.flatnonzero(eq == i)
+        out[np.ix_(idx, idx)] = np.linalg.pinv(m[np.ix_(idx, idx)])
+    return out
+
+
+def _condition(a: np.ndarray) -> float:
+    from vesselid.diagnostics import condition_number
+
+    return condition_number(a)
+
+
+class UnadjustedCovariance(CovarianceEstimator):
+    """White, homoskedastic equation errors: ``S_E = Σ_k z(k) z(k)ᵀ ⊙ Σ_ε``.
+
+    ``Σ_ε`` is the residual (co)variance over all experiments (centred per
+    experiment when ``zero_mean``), divided by the number of rows (no degrees-of-
+    freedom correction, as linearmodels' ``debiased=False``).
+    """
+
+    name = "unadjusted"
+
+    def __init__(self, **config: Any) -> None:
+        if config:
+            raise CovarianceError(f"cov_type 'unadjusted' takes no options, got {sorted(config)}")
+
+    def label(self, config: Mapping[str, Any]) -> str:
+        return "unadjusted (white, homoskedastic equation error)"
+
+    def meat(self, g, z, eps, segs, equation):
+        n_rows = sum(s.stop - s.start for s in segs)
+        sig = sum(eps[s].T @ eps[s] for s in segs) / n_rows
+        sig_p = sig[np.ix_(equation, equation)]  # equation of each instrument column
+        return [(z[s].T @ z[s]) * sig_p for s in segs], {}
+
+
+class KernelCovariance(CovarianceEstimator):
+    """HAC: kernel-weighted long-run covariance of the scores within each experiment.
+
+    Parameters (``cov_config``)
+    ---------------------------
+    kernel : {"bartlett", "parzen", "qs"}
+        Kernel (aliases ``"newey-west"``, ``"gallant"``, ``"quadratic-spectral"``,
+        ``"andrews"`` as in linearmodels).
+    bandwidth : float or {"newey-west", "andrews"}
+        Fixed bandwidth (:func:`kernel_weights` convention) or an automatic rule
+        (default ``"newey-west"``: the Andrews AR(1) plug-in misses the slow part of
+        scores that mix the white MA(1) sensor-noise error with a coloured current,
+        see README "Calibration")
+        (:func:`automatic_bandwidth`), computed from the scores of all experiments
+        (after pre-whitening if on).
+    prewhiten : bool
+        Fit a VAR(1) ``g(k) = B g(k−1) + u(k)`` within experiments, apply the kernel
+        to ``u`` and recolour with ``(I − B)⁻¹`` (Andrews & Monahan 1992; the
+        eigenvalues of ``B`` are shrunk to at most 0.97).
+    """
+
+    name = "hac"
+
+    def __init__(self, kernel: str = "bartlett", bandwidth: float | str = "newey-west",
+                 prewhiten: bool = False) -> None:
+        self.kernel = _kernel_name(kernel)
+        if isinstance(bandwidth, str):
+            if bandwidth not in BANDWIDTH_RULES:
+                raise CovarianceError(f"bandwidth must be a number or one of "
+                                      f"{list(BANDWIDTH_RULES)}, got {bandwidth!r}")
+        else:
+            try:
+                value = float(bandwidth)
+            except (TypeError, ValueError):
+                raise CovarianceError(f"bandwidth must be a number or one of "
+                                      f"{list(BANDWIDTH_RULES)}, got {bandwidth!r}") from None
+            if not (value >= 0 and math.isfinite(value)):
+                raise CovarianceError(f"bandwidth must be finite and non-negative, got {value}")
+            bandwidth = value
+        self.bandwidth = bandwidth
+        if not isinstance(prewhiten, bool | np.bool_):
+            raise CovarianceError(f"prewhiten must be True or False, got {prewhiten!r}")
+        self.prewhiten = bool(prewhiten)
+
+    def config(self) -> dict[str, Any]:
+        return {"kernel": self.kernel, "prewhiten": self.prewhiten,
+                "bandwidth_rule": self.bandwidth if isinstance(self.bandwidth, str) else "fixed"}
+
+    def label(self, config: Mapping[str, Any]) -> str:
+        rule = config.get("bandwidth_rule")
+        how = {"andrews": "Andrews (1991) AR(1) rule", "newey-west": "Newey-West (1994) rule",
+               "fixed": "fixed"}.get(str(rule), str(rule))
+        pw = ", VAR(1) pre-whitened" if config.get("prewhiten") else ""
+        return (f"HAC ({_KERNEL_LABELS[self.kernel]} kernel, bandwidth "
+                f"{config.get('bandwidth', float('nan')):.3g} by {how}{pw}, within experiments)")
+
+    def meat(self, g, z, eps, segs, equation):
+        q = g.shape[1]
+        recolour = np.eye(q)
+        series = g
+        used: dict[str, Any] = {}
+        if self.prewhiten:
+            series, recolour, b_mat = _prewhiten(g, segs)
+            used["var1_spectral_radius"] = float(np.max(np.abs(np.linalg.eigvals(b_mat))))
+        if isinstance(self.bandwidth, str):
+            bw = automatic_bandwidth(_compact(series, segs), _compact_starts(segs),
+                                     kernel=self.kernel, rule=self.bandwidth)
+        else:
+            bw = float(self.bandwidth)
+        used["bandwidth"] = bw
+        longest = max(s.stop - s.start for s in segs)
+        n_lags = (longest - 1 if self.kernel == "qs" else min(math.floor(bw) + 1, longest - 1))
+        w = kernel_weights(self.kernel, bw, n_lags)
+        out = []
+        for s in segs:
+            s_u = long_run_covariance(series[s], w)
+            out.append(recolour @ s_u @ recolour.T)
+        return out, used
+
+
+def _compact(x: np.ndarray, segs: list[slice]) -> np.ndarray:
+    return np.concatenate([x[s] for s in segs])
+
+
+def _compact_starts(segs: list[slice]) -> np.ndarray:
+    return np.concatenate([[0], np.cumsum([s.stop - s.start for s in segs])])
+
+
+def _prewhiten(g: np.ndarray, segs: list[slice]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """VAR(1) pre-whitening within experiments; returns (u, (I − B)⁻¹, B)."""
+    q = g.shape[1]
+    xx = np.zeros((q, q))
+    xy = np.zeros((q, q))
+    for s in segs:
+        x = g[s]
+        xx += x[:-1].T @ x[:-1]
+        xy += x[:-1].T @ x[1:]
+    b_t, *_ = np.linalg.lstsq(xx, xy, rcond=None)
+    b_mat = b_t.T
+    # shrink to a spectral norm ≤ 0.97 (Andrews & Monahan's adjustment, via the SVD)
+    u_, sv, vt = np.linalg.svd(b_mat)
+    if sv.max() > 0.97:
+        b_mat = u_ @ np.diag(np.minimum(sv, 0.97)) @ vt
+    out = np.zeros_like(g)
+    for s in segs:
+        x = g[s]
+        out[s.start] = x[0]
+        out[s.start + 1 : s.stop] = x[1:] - x[:-1] @ b_mat.T
+    recolour = np.linalg.inv(np.eye(q) - b_mat)
+    return out, recolour, b_mat
+
+
+class ClusterCovariance(CovarianceEstimator):
+    """One cluster per experiment: ``S_E = (Σ_k g_E)(Σ_k g_E)ᵀ``.
+
+    Robust to any dependence within an experiment, but it needs many experiments
+    (its ``S`` has rank at most the number of experiments); no small-sample
+    correction.
+    """
+
+    name = "cluster"
+
+    def __init__(self, **config: Any) -> None:
+        if config:
+            raise CovarianceError(f"cov_type 'cluster' takes no options, got {sorted(config)}")
+
+    def label(self, config: Mapping[str, Any]) -> str:
+        return "clustered by experiment"
+
+    def meat(self, g, z, eps, segs, equation):
+        if len(segs) < 2:
+            raise CovarianceError("cov_type 'cluster' needs at least two experiments")
+        out = []
+        for s in segs:
+            tot = g[s].sum(axis=0)
+            out.append(np.outer(tot, tot))
+        return out, {"clusters": len(segs)}
+
+
+#: Covariance estimators by name (``cov_type``).
+COVARIANCE_ESTIMATORS: dict[str, type[CovarianceEstimator]] = {
+    "unadjusted": UnadjustedCovariance,
+    "hac": KernelCovariance,
+    "cluster": ClusterCovariance,
+}
+
+
+def get_covariance_estimator(cov_type: str = DEFAULT_COV_TYPE, **cov_config: Any
+                             ) -> CovarianceEstimator:
+    """The estimator registered as ``cov_type``, built (and validated) from ``cov_config``.
+
+    Raises
+    ------
+    CovarianceError
+        Unknown ``cov_type`` or invalid options (a ``ValueError``).
+    """
+    if cov_type not in COVARIANCE_ESTIMATORS:
+        raise CovarianceError(f"unknown cov_type {cov_type!r}; choose from "
+                              f"{list(COVARIANCE_ESTIMATORS)}")
+    try:
+        return COVARIANCE_ESTIMATORS[cov_type](**cov_config)
+    except TypeError as exc:
+        raise CovarianceError(f"invalid options for cov_type {cov_type!r}: {exc}") from None
+
+
+def iv_covariance(
+    z: np.ndarray,
+    phi: np.ndarray,
+    resid: np.ndarray,
+    starts: np.ndarray | None = None,
+    equation: np.ndarray | None = None,
+    *,
+    cov_type: str = DEFAULT_COV_TYPE,
+    z_equation: np.ndarray | None = None,
+    weight: np.ndarray | None = None,
+    zero_mean: bool = False,
+    combine: str = "pooled",
+    skip_first: bool = True,
+    **cov_config: Any,
+) -> CovarianceResult:
+    """One call: :func:`get_covariance_estimator` then
+    :meth:`CovarianceEstimator.estimate` (see there for the arguments)."""
+    est = get_covariance_estimator(cov_type, **cov_config)
+    return est.estimate(z, phi, resid, starts, equation, z_equation=z_equation, weight=weight,
+                        zero_mean=zero_mean, combine=combine, skip_first=skip_first)
