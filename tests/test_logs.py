@@ -185,11 +185,13 @@ def test_unserialisable_metadata_writes_nothing(tmp_path: Path, log: TrialLog) -
 def test_atomic_csv_writer_raises(
     tmp_path: Path, log: TrialLog, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    def boom(self: pd.DataFrame, path: object, *args: object, **kwargs: object) -> None:
+    def boom(data: pd.DataFrame, path: object, *args: object, **kwargs: object) -> None:
         Path(str(path)).write_text("experiment,time,w\n0,0.0,")  # half written
         raise OSError("disk full")
 
-    monkeypatch.setattr(pd.DataFrame, "to_csv", boom)
+    import vesselid.logs
+
+    monkeypatch.setattr(vesselid.logs, "_write_csv", boom)
     with pytest.raises(OSError, match="disk full"):
         log.save(tmp_path / "trial.csv")
     assert list(tmp_path.iterdir()) == []
@@ -416,3 +418,15 @@ def test_atomic_write_uses_umask_mode(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert (path.stat().st_mode & 0o777) == (0o666 & ~umask)
+
+
+def test_csv_floats_shortest_round_trip_text(tmp_path: Path) -> None:
+    data = pd.DataFrame({"experiment": [0, 0], "time": [0.0, 0.1], "w": [0.1, 1 / 3],
+                         "label": ["a", "b"]})
+    for frame in (data, data.drop(columns="label")):  # pandas path and the numeric fast path
+        TrialLog(frame, {}).save(tmp_path / "t.csv")
+        rows = (tmp_path / "t.csv").read_text().splitlines()
+        assert rows[0] == ",".join(frame.columns)
+        assert rows[2].startswith("0,0.1,0.3333333333333333")
+        back = TrialLog.load(tmp_path / "t.csv", validate=False).data
+        pd.testing.assert_frame_equal(back, frame)

@@ -130,18 +130,27 @@ def test_pipeline_summary_and_validation():
 
 
 def test_cli_end_to_end(tmp_path, capsys):
+    pytest.importorskip("pyarrow")
     out = tmp_path / "trial"
     code = main(["sea-trial", "--vessel", "cybership2", "--experiments", "4", "--samples",
                  "1500", "--seed", "0", "--out", str(out)])
     assert code == 0
     text = capsys.readouterr().out
     assert "next: vesselid identify" in text
-    assert (out / "seatrial.csv").exists() and (out / "seatrial.json").exists()
+    # Parquet (metadata inside) is the default when pyarrow is there; CSV on request
+    assert (out / "seatrial.parquet").exists() and not (out / "seatrial.csv").exists()
     assert (out / "cybership2.toml").exists()
-    code = main(["identify", str(out / "seatrial.csv"), "--model", str(out / "cybership2.toml"),
-                 "--method", "iv-zero-mean"])
+    code = main(["identify", str(out / "seatrial.parquet"), "--model",
+                 str(out / "cybership2.toml"), "--method", "iv-zero-mean"])
     assert code == 0
+    assert main(["sea-trial", "--experiments", "4", "--samples", "1500", "--seed", "0",
+                 "--format", "csv", "--out", str(out)]) == 0
+    assert (out / "seatrial.csv").exists() and (out / "seatrial.json").exists()
+    capsys.readouterr()
     assert main(["identify", str(out / "seatrial.csv"), "--method", "ls"]) == 0
+    from_csv = capsys.readouterr().out
+    assert main(["identify", str(out / "seatrial.parquet"), "--method", "ls"]) == 0
+    assert capsys.readouterr().out == from_csv  # same data, same estimates
 
 
 def test_cli_bad_input_exit_2(tmp_path, capsys):

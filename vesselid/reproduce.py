@@ -426,14 +426,16 @@ def _write(res: ReproductionResult, out: Path, fmt: str, figures: bool) -> None:
         from vesselid._io import atomic_write_with
         from vesselid.plots import error_histograms
 
+        t0 = time.perf_counter()
         for t, df in res.results.items():
             st = res.studies[t]
             name = "figure1.png" if t == 1 else "figure1_table2.png"
             title = (f"Table {t} setting: normalized estimation errors "
                      f"({st.runs} runs × {st.samples} samples)")
             fig = error_histograms(df, labels=PARAMETER_LABELS, title=title)
-            atomic_write_with(out / name, lambda p, f=fig: f.savefig(p, dpi=110, format="png"))
+            atomic_write_with(out / name, lambda p, f=fig: f.savefig(p, dpi=90, format="png"))
             res.files.append(str(out / name))
+        res.timings["figures_s"] = time.perf_counter() - t0
     path = out / "summary.json"
     res.files.append(str(path))
     atomic_write_text(path, json.dumps(res.to_dict(), indent=2) + "\n")

@@ -707,7 +707,9 @@ def add_parser(subparsers: Any) -> None:
                         "target with GNSS - current meter regressors (eq. (9)), GNSS only")
     p.add_argument("--source", default="batch", choices=["batch", "env"],
                    help="batch simulator or Manoeuvring3DOF-v0 through the recorder")
-    p.add_argument("--format", default="csv", choices=["csv", "parquet"])
+    p.add_argument("--format", default=None, choices=["csv", "parquet"],
+                   help="trial log format: parquet (default when pyarrow is installed; "
+                        "metadata in the file) or csv (+ JSON sidecar)")
     p.add_argument("--identify", action="store_true",
                    help="also run LS, IV and IV-zero-mean and print the comparison")
     p.add_argument("--seed", type=int_at_least(0), default=0)
@@ -731,8 +733,17 @@ def _guard(args: argparse.Namespace) -> None:
         disk=limits.file_bytes(rows, cols, fmt), disk_path=Path(args.out) / "seatrial.csv")
 
 
+def default_log_format() -> str:
+    """``"parquet"`` with pyarrow installed (smaller, faster, metadata inside), else ``"csv"``."""
+    import importlib.util
+
+    return "parquet" if importlib.util.find_spec("pyarrow") is not None else "csv"
+
+
 def cmd_sea_trial(args: argparse.Namespace) -> int:
-    """``vesselid sea-trial``: write DIR/seatrial.csv (+ .json) and DIR/cybership2.toml."""
+    """``vesselid sea-trial``: write DIR/seatrial.parquet (or .csv + .json), DIR/cybership2.toml."""
+    if args.format is None:
+        args.format = default_log_format()
     if args.experiments < 2:
         raise SeaTrialError(f"--experiments must be at least 2, got {args.experiments}")
     if args.samples < 50:

@@ -1,0 +1,213 @@
+"""Whole-process benchmarks of the command line (issue 14: fast start).
+
+Every figure is a *whole process* (interpreter start, imports, kernel loading, work,
+exit), timed from outside with ``subprocess``. The commands are run alternately —
+``python -c "import numpy, pandas"`` (the reference every ratio is taken against),
+``vesselid --help``, ``vesselid identify`` on a 10⁴-sample heave log and
+``vesselid reproduce --table 1`` (1000 runs × 10⁴ samples) — so that a busy machine
+slows all of them alike, and medians are reported.
+
+* ``help_ratio`` and ``identify_ratio``: medians over the reference's median
+  (targets ≤ 1.0 and ≤ 2.0).
+* ``reproduce_table1_process_s`` and its Monte Carlo part (``table1_s`` of
+  ``summary.json``, target ≤ 1.0 s), against the plain-numpy baseline
+  (``scripts/baseline_numpy.py``) run once in the same call: ``speedup_vs_numpy``
+  (target ≥ 15).
+* :func:`bench_cold_start`: the first run after a fresh install — a new virtual
+  environment, a wheel of this checkout installed into it, empty numba and
+  generated-kernel caches (``NUMBA_CACHE_DIR``, ``VESSELID_KERNEL_DIR``) — of
+  ``vesselid reproduce`` (both tables; target ≤ 15 s), then a second run with the
+  caches the first one left.
+
+    python scripts/bench_startup.py [--repeats 5] [--baseline-runs 1000] [--cold]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+
+REFERENCE = [sys.executable, "-c", "import numpy, pandas"]
+
+
+def vesselid_command() -> list[str]:
+    """The installed ``vesselid`` console script next to this interpreter (else ``-m``)."""
+    exe = Path(sys.executable).with_name("vesselid")
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "vesselid"]
+
+
+def user_env(**extra: str) -> dict[str, str]:
+    """The environment of a user's shell: bytecode caching on (a development shell may
+    set ``PYTHONDONTWRITEBYTECODE``, which makes every process recompile the package)."""
+    env = dict(os.environ, **extra)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    return env
+
+
+def run_timed(cmd: list[str], env: dict[str, str] | None = None, check: bool = True,
+              cwd: str | Path | None = None) -> tuple[float, subprocess.CompletedProcess]:
+    """Wall time (s) of one whole process and its completed-process record."""
+    env = user_env() if env is None else env
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=cwd)
+    dt = time.perf_counter() - t0
+    if check and proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} exited {proc.returncode}: {proc.stderr[-2000:]}")
+    return dt, proc
+
+
+def modules_loaded(code: str) -> dict[str, bool]:
+    """Which heavy modules a snippet leaves in ``sys.modules`` (fresh interpreter)."""
+    heavy = ("numba", "scipy", "matplotlib", "dask", "gymnasium", "pyarrow", "pandas")
+    probe = (code + "\nimport sys, json\n"
+             f"print(json.dumps({{m: m in sys.modules for m in {heavy!r}}}))")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         check=True, env=user_env())
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def import_times(module: str = "vesselid") -> dict[str, float]:
+    """``python -X importtime -c 'import module'``: the slowest top-level imports (ms)."""
+    out = subprocess.run([sys.executable, "-X", "importtime", "-c", f"import {module}"],
+                         capture_output=True, text=True, check=True, env=user_env()).stderr
+    rows = []
+    for line in out.splitlines():
+        if not line.startswith("import time:") or "|" not in line:
+            continue
+        _, cum, name = (p.strip() for p in line[len("import time:"):].split("|"))
+        if cum.isdigit():
+            rows.append((name, int(cum) / 1000))
+    top = {name: ms for name, ms in rows if not name.startswith(" ")}
+    return dict(sorted(top.items(), key=lambda kv: -kv[1])[:8])
+
+
+def bench_startup(repeats: int = 5, baseline_runs: int = 1000,
+                  reproduce_repeats: int = 3) -> dict:
+    """Alternated whole-process medians and ratios (see the module docstring)."""
+    vid = vesselid_command()
+    with tempfile.TemporaryDirectory() as tmp:
+        log = Path(tmp) / "heave.csv"
+        run_timed([*vid, "simulate", "--system", "heave", "--samples", "10000", "--seed", "0",
+                   "--out", str(log)])
+        cmds = {
+            "numpy_pandas_import": REFERENCE,
+            "help": [*vid, "--help"],
+            "identify": [*vid, "identify", str(log)],
+        }
+        for cmd in cmds.values():  # page the files in; load or compile cached kernels
+            run_timed(cmd)
+        times: dict[str, list[float]] = {k: [] for k in cmds}
+        repro, mc = [], []
+        for i in range(repeats):
+            for key, cmd in cmds.items():
+                times[key].append(run_timed(cmd)[0])
+            if i < reproduce_repeats:
+                out = Path(tmp) / f"repro{i}"
+                dt, _ = run_timed([*vid, "reproduce", "--table", "1", "--out", str(out)])
+                repro.append(dt)
+                summary = json.loads((out / "summary.json").read_text())
+                mc.append(summary["timings"]["table1_s"])
+                times["numpy_pandas_import"].append(run_timed(REFERENCE)[0])
+    med = {k: statistics.median(v) for k, v in times.items()}
+    ref = med["numpy_pandas_import"]
+    sys.path.insert(0, str(HERE))
+    from baseline_numpy import table1_numpy
+
+    base = table1_numpy(baseline_runs, 10_000, 0)["total_s"] * 1000 / baseline_runs
+    repro_med = statistics.median(repro)
+    return {
+        "numpy_pandas_import_s": ref,
+        "help_s": med["help"],
+        "identify_heave_1e4_process_s": med["identify"],
+        "help_ratio": med["help"] / ref,
+        "identify_ratio": med["identify"] / ref,
+        "reproduce_table1_process_s": repro_med,
+        "reproduce_table1_monte_carlo_s": statistics.median(mc),
+        "numpy_baseline_table1_s": base,
+        "numpy_baseline_runs": baseline_runs,
+        "speedup_vs_numpy": base / repro_med,
+        "help_loads": modules_loaded("from vesselid.cli import build_parser; build_parser()"),
+        "import_vesselid_top_ms": import_times("vesselid"),
+        "all_times_s": {**times, "reproduce": repro, "monte_carlo": mc},
+        "targets": {"help_ratio": 1.0, "identify_ratio": 2.0, "speedup_vs_numpy": 15.0,
+                    "reproduce_table1_monte_carlo_s": 1.0},
+    }
+
+
+def _fresh_venv(tmp: Path) -> Path:
+    """A new virtual environment with a wheel of this checkout; dependencies shared."""
+    wheels = tmp / "wheels"
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps",
+                    "--no-build-isolation", "-w", str(wheels), str(ROOT)], check=True,
+                   capture_output=True)
+    venv = tmp / "venv"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
+    py = venv / "bin" / "python"
+    site = subprocess.run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()"
+                           "['purelib'])"], capture_output=True, text=True, check=True)
+    import numpy
+
+    deps = Path(numpy.__file__).resolve().parent.parent  # where the dependencies live
+    Path(site.stdout.strip(), "_deps.pth").write_text(str(deps) + "\n")
+    wheel = next(wheels.glob("vesselid-*.whl"))
+    subprocess.run([sys.executable, "-m", "pip", "--python", str(py), "install", "-q",
+                    "--no-deps", str(wheel)], check=True, capture_output=True)
+    return venv
+
+
+def bench_cold_start(table: str = "all") -> dict:
+    """First ``vesselid reproduce`` after a fresh install (empty caches), then a second."""
+    with tempfile.TemporaryDirectory() as tmpdir:
+        tmp = Path(tmpdir)
+        venv = _fresh_venv(tmp)
+        env = user_env(NUMBA_CACHE_DIR=str(tmp / "numba"),
+                       VESSELID_KERNEL_DIR=str(tmp / "kernels"), MPLBACKEND="Agg")
+        env.pop("PYTHONPATH", None)
+        cmd = [str(venv / "bin" / "vesselid"), "reproduce", "--table", table]
+        # run outside the checkout, so that the installed copy is the one imported
+        first, _ = run_timed([*cmd, "--out", str(tmp / "first")], env=env, cwd=tmp)
+        timings = json.loads((tmp / "first" / "summary.json").read_text())["timings"]
+        second, _ = run_timed([*cmd, "--out", str(tmp / "second")], env=env, cwd=tmp)
+        where = subprocess.run([str(venv / "bin" / "python"), "-c",
+                                "import vesselid; print(vesselid.__file__)"], env=env,
+                               capture_output=True, text=True, check=True,
+                               cwd=tmp).stdout.strip()
+        shutil.rmtree(venv, ignore_errors=True)
+    return {
+        f"cold_first_reproduce_{table}_s": first,
+        f"cold_first_reproduce_{table}_timings": timings,
+        f"second_reproduce_{table}_s": second,
+        "installed_from": where,
+        "target_first_run_s": 15.0,
+    }
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description="whole-process benchmarks of the command line")
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--reproduce-repeats", type=int, default=3)
+    p.add_argument("--baseline-runs", type=int, default=1000,
+                   help="runs of the numpy baseline (scaled linearly to 1000 if fewer)")
+    p.add_argument("--cold", action="store_true", help="also the fresh-install first run")
+    p.add_argument("--only-cold", action="store_true", help="only the fresh-install first run")
+    args = p.parse_args()
+    res = {} if args.only_cold else bench_startup(args.repeats, args.baseline_runs,
+                                                  args.reproduce_repeats)
+    if args.cold or args.only_cold:
+        res.update(bench_cold_start())
+    print(json.dumps(res, indent=2))
+
+
+if __name__ == "__main__":
+    main()
