@@ -142,18 +142,15 @@ def parquet_setup(kind: str):
             for k in range(200, 1200, 97):
                 raw[k] ^= 0x5A
             p.write_bytes(bytes(raw))
-        elif kind == "corrupt-plain":  # a file written without page checksums (old writer)
-            table = pq.read_table(p)
-            pq.write_table(table, p, compression="none")
-            raw = bytearray(p.read_bytes())
-            meta = pq.read_metadata(p)
-            col = meta.row_group(0).column(2)  # the 'w' column chunk
-            start = col.data_page_offset + 40
-            rng = np.random.default_rng(0)
-            for k in range(start, start + 4000, 8):
-                raw[k + 7] = 0x7F  # huge exponents, still finite
-                raw[k + 6] = int(rng.integers(0, 0xEF))
-            p.write_bytes(bytes(raw))
+        elif kind == "corrupt-plain":  # garbage that decodes to huge finite values, as in
+            # a file without page checksums (the issue saw values up to 3.7e306)
+            df = pd.read_parquet(p)
+            rows = np.random.default_rng(0).choice(len(df), 40, replace=False)
+            df.loc[rows, "w"] = 3.7e306 * np.random.default_rng(1).uniform(-1, 1, 40)
+            table = pa.Table.from_pandas(df, preserve_index=False)
+            meta = dict(table.schema.metadata)
+            meta[b"vesselid"] = pq.read_schema(p).metadata[b"vesselid"]
+            pq.write_table(table.replace_schema_metadata(meta), p)
         elif kind == "truncated":
             p.write_bytes(p.read_bytes()[:-100])
         elif kind == "not-parquet":
@@ -482,7 +479,7 @@ def cases() -> list[Case]:
              setup=edit_csv(set_cell(10, "w", "abc"))),
         Case("log: time not increasing", ident,
              setup=edit_csv(lambda ls: [*ls[:5], ls[6], ls[5], *ls[7:]])),
-        Case("log: missing column tau", ident,
+        Case("log: missing column tau", [*ident, "--model", "t.toml"],
              setup=edit_csv(lambda ls: [",".join(x.split(",")[:3] + x.split(",")[4:])
                                         for x in ls], sidecar=False)),
         Case("log: header only", ident, setup=edit_csv(lambda ls: ls[:1])),
@@ -603,7 +600,11 @@ def run_case(case: Case, root: Path) -> Outcome:
     t0 = time.perf_counter()
     try:
         if case.setup is not None:
-            case.setup(d)
+            try:
+                case.setup(d)
+            except Exception as exc:
+                return Outcome(case, "setup", f"setup failed: {exc!r:.200}",
+                               time.perf_counter() - t0)
         if case.python in ("KILL", "TERM"):
             problem = killed_write(d) if case.python == "KILL" else terminated_write(d)
             verdict = "ok" if problem is None else (
@@ -663,7 +664,7 @@ def main(argv: list[str] | None = None) -> int:
         print("\n".join(c.name for c in selected))
         return 0
     root = Path(tempfile.mkdtemp(prefix="vesselid-hostile-"))
-    counts = {"ok": 0, "traceback": 0, "silent": 0, "slow": 0}
+    counts = {"ok": 0, "traceback": 0, "silent": 0, "slow": 0, "setup": 0}
     sizes = {"refused": 0, "max_s": 0.0}
     failures = []
     try:
@@ -686,7 +687,8 @@ def main(argv: list[str] | None = None) -> int:
     n_size = sum(c.expect == "fast-refuse" for c in selected)
     print()
     print(f"cases: {len(selected)}   ok: {counts['ok']}   tracebacks: {counts['traceback']}   "
-          f"silent wrong answers: {counts['silent']}   slow refusals: {counts['slow']}")
+          f"silent wrong answers: {counts['silent']}   slow refusals: {counts['slow']}   "
+          f"setup failures: {counts['setup']}")
     print(f"absurd sizes refused in < {REFUSE_SECONDS:.0f} s: {sizes['refused']} of {n_size} "
           f"(slowest {sizes['max_s']:.1f} s)")
     return 1 if failures else 0

@@ -10,6 +10,7 @@ __all__ = [
     "ConvergenceWarning",
     "ExperimentDesignWarning",
     "IdentificationError",
+    "InvalidActionError",
     "LogValidationError",
     "ModelSpecError",
     "RankDeficientError",
@@ -58,3 +59,7 @@ class ExperimentDesignWarning(UserWarning):
 
 class ResourceLimitError(VesselidError):
     """A request would need more memory, disk or time than this machine allows."""
+
+
+class InvalidActionError(VesselidError):
+    """An environment action is not finite or does not have the action space's shape."""
