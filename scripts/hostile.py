@@ -303,6 +303,23 @@ def terminated_write(d: Path) -> str | None:
     return f"terminated write left {left}" if left else None
 
 
+def streamed_write(d: Path) -> str | None:
+    """A 10^7-sample log (3 time chunks) written with bounded memory (``--long`` only)."""
+    import resource
+
+    import pyarrow.parquet as pq
+
+    r = run_cli(["simulate", "--samples", "10000000", "--out", "big.parquet"], d, timeout=3600)
+    if r.returncode != 0:
+        return f"failed: {r.stderr.strip()[-200:]}"
+    rows = pq.read_metadata(d / "big.parquet").num_rows
+    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
+    if rows != 10_000_000:
+        return f"wrote {rows} rows"
+    # the whole log in memory would be 10^7 x 7 x 8 B = 560 MB of data (~2 GB peak before)
+    return None if peak < 1.5e9 else f"peak memory {peak / 1e9:.2f} GB"
+
+
 def sparse_csv(d: Path) -> None:
     """A 200 GB sparse CSV (no disk used) with a plausible header and first lines."""
     make_log(d)
@@ -364,9 +381,11 @@ def env_case(cls: str, kind: str, vector: bool) -> Case:
 
 
 # ----------------------------------------------------------------------------- cases
-def cases() -> list[Case]:
+def cases(long: bool = False) -> list[Case]:
     ident = ["identify", "t.csv"]
     c: list[Case] = []
+    if long:
+        c.append(Case("size: simulate 1e7 samples streams to disk in chunks", python="STREAM"))
     # -- absurd sizes: refused before allocation, in < 10 s
     for name, argv in [
         ("simulate 1e11 experiments", ["simulate", "--samples", "100", "--experiments",
@@ -605,8 +624,9 @@ def run_case(case: Case, root: Path) -> Outcome:
             except Exception as exc:
                 return Outcome(case, "setup", f"setup failed: {exc!r:.200}",
                                time.perf_counter() - t0)
-        if case.python in ("KILL", "TERM"):
-            problem = killed_write(d) if case.python == "KILL" else terminated_write(d)
+        if case.python in ("KILL", "TERM", "STREAM"):
+            problem = {"KILL": killed_write, "TERM": terminated_write,
+                       "STREAM": streamed_write}[case.python](d)
             verdict = "ok" if problem is None else (
                 "traceback" if problem.startswith("traceback") else "silent")
             return Outcome(case, verdict, problem or "no temporary files remain",
@@ -658,8 +678,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("-k", default="", help="run only cases whose name contains this")
     parser.add_argument("--list", action="store_true")
     parser.add_argument("--keep", action="store_true", help="keep the scratch directories")
+    parser.add_argument("--long", action="store_true",
+                        help="also stream a 10^7-sample log to disk and check its peak memory")
     args = parser.parse_args(argv)
-    selected = [c for c in cases() if args.k in c.name]
+    selected = [c for c in cases(args.long) if args.k in c.name]
     if args.list:
         print("\n".join(c.name for c in selected))
         return 0

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from vesselid._io import atomic_group
+from vesselid._io import atomic_group, finite_or_none
 from vesselid.errors import LogValidationError, ModelSpecError
 from vesselid.model import ModelSpec
 
@@ -120,7 +120,8 @@ def _json_default(obj: Any) -> Any:
 
 def _dumps(obj: Any) -> str:
     try:
-        return json.dumps(obj, default=_json_default, indent=2, sort_keys=False)
+        return json.dumps(finite_or_none(obj), default=_json_default, indent=2, sort_keys=False,
+                          allow_nan=False)
     except (TypeError, ValueError) as exc:
         raise LogValidationError(f"trial log metadata is not JSON-serialisable: {exc}") from exc
 

@@ -57,7 +57,6 @@ the extra term −w_c(k) is white and independent of the instruments).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -69,7 +68,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from vesselid._io import atomic_write_text
+from vesselid._io import atomic_write_text, strict_json
 from vesselid.errors import VesselidError
 from vesselid.montecarlo import Study, run_study, save_results, summary_table
 
@@ -438,7 +437,7 @@ def _write(res: ReproductionResult, out: Path, fmt: str, figures: bool) -> None:
         res.timings["figures_s"] = time.perf_counter() - t0
     path = out / "summary.json"
     res.files.append(str(path))
-    atomic_write_text(path, json.dumps(res.to_dict(), indent=2) + "\n")
+    atomic_write_text(path, strict_json(res.to_dict(), indent=2) + "\n")
 
 
 # -------------------------------------------------------------------------- CLI
@@ -521,11 +520,11 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     )
     payload = res.to_dict()
     if args.json == "-":
-        print(json.dumps(payload, indent=2))
+        print(strict_json(payload, indent=2))
     else:
         print(res.to_text())
         if args.json:
-            atomic_write_text(args.json, json.dumps(payload, indent=2) + "\n")
+            atomic_write_text(args.json, strict_json(payload, indent=2) + "\n")
             print(f"wrote {args.json}")
     if args.strict and not res.ok:
         return 1
