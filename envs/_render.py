@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["FigureRenderer", "interactive_backend"]
+__all__ = ["FigureRenderer", "HeavePlot", "interactive_backend"]
 
 
 def interactive_backend() -> bool:
@@ -65,3 +65,83 @@ class FigureRenderer:
         if self.mode == "human":
             self._plt.close(self.fig)
         self.fig = None
+
+
+class _HeaveFigure(FigureRenderer):
+    """Velocity vs reference, thrust and current of the recent window."""
+
+    def __init__(self, mode: str, sensor: bool, fps: int) -> None:
+        super().__init__(mode, fps, (6.4, 4.8), 100)
+        self.sensor = sensor
+        ax_v, ax_t, ax_c = self.fig.subplots(3, 1, sharex=True)
+        (self.l_w,) = ax_v.plot([], [], label="w_a (true)")
+        (self.l_y,) = ax_v.plot([], [], ".", ms=2, label="y1 (measured)")
+        (self.l_r,) = ax_v.plot([], [], "--", label="w_ref")
+        ax_v.set_ylabel("heave velocity")
+        ax_v.legend(loc="upper left", fontsize="small")
+        (self.l_tau,) = ax_t.step([], [], where="post")
+        ax_t.set_ylabel("thrust τ")
+        (self.l_c,) = ax_c.plot([], [], label="w_c (true)")
+        (self.l_y2,) = ax_c.plot([], [], ".", ms=2, label="y2 (meter)")
+        ax_c.set_ylabel("current")
+        ax_c.set_xlabel("step")
+        if sensor:
+            ax_c.legend(loc="upper left", fontsize="small")
+        self.axes = (ax_v, ax_t, ax_c)
+        self.fig.tight_layout()
+
+    def draw(self, hist: np.ndarray, title: str = "") -> np.ndarray | None:
+        """``hist`` columns: k, w_a, y1, ref, tau, w_c, y2."""
+        k, wa, y1, ref, tau, wc, y2 = hist.T
+        self.l_w.set_data(k, wa)
+        self.l_y.set_data(k, y1)
+        self.l_r.set_data(k, ref)
+        self.l_tau.set_data(k, tau)
+        self.l_c.set_data(k, wc)
+        self.l_y2.set_data(k, y2 if self.sensor else np.full_like(y2, np.nan))
+        for ax in self.axes:
+            ax.relim()
+            ax.autoscale_view()
+        if k.size:
+            self.axes[0].set_xlim(k[0], max(k[-1], k[0] + 1))
+        self.axes[0].set_title(title, fontsize="small")
+        return self.present()
+
+
+class HeavePlot:
+    """The heave environments' recent history (a ring buffer per sub-environment) and its
+    figure (created at the first :meth:`frames`)."""
+
+    def __init__(self, mode: str, sensor: bool, fps: int, window: int, n: int) -> None:
+        self.mode, self.sensor, self.fps = mode, sensor, fps
+        self.hist = np.full((int(window), 7, n), np.nan)
+        self.length = 0
+        self.figure: _HeaveFigure | None = None
+
+    def clear(self) -> None:
+        self.length = 0
+
+    def record(self, t: float, w_a, y1, ref, w_c, y2, tau=None) -> None:
+        """Append the readings at step ``t``; ``tau`` is the thrust applied to the
+        previous row."""
+        window = self.hist.shape[0]
+        if tau is not None and self.length:
+            self.hist[(self.length - 1) % window, 4] = tau
+        h = self.hist[self.length % window]
+        h[0], h[1], h[2], h[3], h[4], h[5], h[6] = t, w_a, y1, ref, np.nan, w_c, y2
+        self.length += 1
+
+    def frames(self, title: str) -> list[np.ndarray | None]:
+        """One frame per sub-environment (``None`` in ``human`` mode)."""
+        if self.figure is None:
+            self.figure = _HeaveFigure(self.mode, self.sensor, self.fps)
+        window = self.hist.shape[0]
+        n = min(self.length, window)
+        hist = self.hist[np.arange(self.length - n, self.length) % window]
+        return [self.figure.draw(np.ascontiguousarray(hist[:, :, i]), f"{title} env {i}")
+                for i in range(hist.shape[2])]
+
+    def close(self) -> None:
+        if self.figure is not None:
+            self.figure.close()
+            self.figure = None

@@ -21,7 +21,6 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict
 from typing import Any, ClassVar, SupportsFloat
 
 import gymnasium as gym
@@ -31,61 +30,50 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from vesselid.catalogue import vessel_module
 from vesselid.envs._render import FigureRenderer
+from vesselid.envs._settings import triple
 from vesselid.errors import VesselidError
 from vesselid.model import ModelSpec
 from vesselid.vessels import (
-    CYBERSHIP2,
-    N_DIST,
-    N_GM,
-    N_ST,
-    S_ACT,
-    S_CUR,
-    S_ENV,
-    S_ETA,
-    S_INFO,
-    S_NU,
-    S_NUR,
-    S_REW,
-    S_SENS,
-    S_STAT,
-    S_TAU,
-    S_WF,
-    S_WIND,
-    SENSOR_GROUPS,
-    STATUS_OK,
-    CyberShip2Disturbances,
-    CyberShip2Sensors,
+    VesselBatch,
+    VesselDisturbances,
     VesselModel,
-    _env_observe,
-    _env_step_parallel,
-    _env_step_serial,
+    VesselSensors,
+    wrap,
 )
 
-__all__ = ["Manoeuvring3DOFEnv", "Manoeuvring3DOFVectorEnv"]
+__all__ = ["Manoeuvring3DOFEnv", "Manoeuvring3DOFVectorEnv", "reward"]
 
 _ANGLE_CHANNELS = {"psi", "wind_angle"}
 SINGLE_BLOCK = 1024  # disturbance rows drawn at once by a single env
 VECTOR_BLOCK_SAMPLES = 1 << 16  # rows x envs drawn at once by a vector env
-_INFO_KEYS = (("nu", S_NU, 3), ("nu_r", S_NUR, 3), ("eta", S_ETA, 3), ("current", S_CUR, 3),
-              ("wind", S_WIND, 2), ("wind_force", S_WF, 3), ("tau", S_TAU, 3))
 
 
-def _triple(name: str, value: Any) -> tuple[float, float, float]:
-    arr = np.broadcast_to(np.asarray(value, dtype=float), (3,))
-    if not np.all(np.isfinite(arr)):
-        raise VesselidError(f"{name} must be finite, got {value!r}")
-    return (float(arr[0]), float(arr[1]), float(arr[2]))
+def reward(u: np.ndarray, psi: np.ndarray, a: np.ndarray, u_ref: float, psi_ref: float,
+           weights: Sequence[float]) -> np.ndarray:
+    """``−(w_u (u − u_ref)² + w_ψ wrap(ψ − ψ_ref)² + w_a ‖a‖²)`` per vessel.
+
+    ``u``, ``psi`` true surge speed and heading after the step, ``a`` ``(B, 3)`` clipped
+    actions.
+    """
+    w_u, w_psi, w_a = weights
+    du = u - u_ref
+    dpsi = wrap(psi - psi_ref)
+    asq = a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1] + a[:, 2] * a[:, 2]
+    return -(w_u * du * du + w_psi * dpsi * dpsi + w_a * asq)
 
 
 class _Core:
-    """State, buffers and kernel calls for ``B`` vessels (shared by both envs)."""
+    """A :class:`~vesselid.vessels.VesselBatch` of ``B`` vessels plus the environment's
+    action scaling, references and reward (shared by both envs)."""
 
     def __init__(
         self,
         n: int,
         *,
         parallel: bool,
+        vessel: str,
         dt: float,
         current_speed: float,
         current_direction: float | None,
@@ -95,32 +83,33 @@ class _Core:
         wind_direction: float | None,
         wind_gust: float,
         force_noise: Sequence[float] | float,
-        sensors: CyberShip2Sensors | Mapping[str, Any] | None,
+        sensors: VesselSensors | Mapping[str, Any] | None,
         cubic_surge: bool,
-        force_max: Sequence[float],
+        force_max: Sequence[float] | None,
         u_ref: float,
         psi_ref: float,
         reward_weights: Sequence[float],
         initial_speed: Sequence[float],
-        velocity_limit: float,
+        velocity_limit: float | None,
         block: int,
     ) -> None:
-        fmax = _triple("force_max", force_max)
+        hull = vessel_module(str(vessel)).HULL
+        fmax = triple("force_max", hull.force_max if force_max is None else force_max)
         if min(fmax) <= 0:
             raise VesselidError(f"force_max must be positive, got {force_max!r}")
-        rw = _triple("reward_weights", reward_weights)
+        rw = triple("reward_weights", reward_weights)
         for name, val in (("current_speed", current_speed), ("current_variation",
                           current_variation), ("wind_speed", wind_speed),
                           ("wind_gust", wind_gust)):
             if not (math.isfinite(float(val)) and float(val) >= 0):
                 raise VesselidError(f"{name} must be a non-negative number, got {val!r}")
-        vlim = float(velocity_limit)
+        vlim = float(hull.velocity_limit if velocity_limit is None else velocity_limit)
         if not (math.isfinite(vlim) and vlim > 0):
             raise VesselidError(f"velocity_limit must be positive, got {velocity_limit!r}")
         lo, hi = (float(x) for x in initial_speed)
         if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
             raise VesselidError(f"initial_speed must be a range (low, high), got {initial_speed}")
-        dist = CyberShip2Disturbances(
+        dist = VesselDisturbances(
             current_speed=float(current_speed),
             current_direction=0.0 if current_direction is None else float(current_direction),
             current_speed_std=float(current_variation),
@@ -131,40 +120,33 @@ class _Core:
             wind_direction=0.0 if wind_direction is None else float(wind_direction),
             gust_std=float(wind_gust),
             wind_direction_std=0.1 if wind_gust > 0 else 0.0,
-            force_noise_std=_triple("force_noise", force_noise),
+            force_noise_std=triple("force_noise", force_noise),
             cubic_surge=bool(cubic_surge),
         )
-        sens = CyberShip2Sensors() if sensors is None else sensors
-        self.model = VesselModel(
-            dt=dt, disturbances=dist, sensors=sens, tau_scale=fmax, normalized_inputs=True,
-            u_ref=float(u_ref), psi_ref=float(psi_ref), reward_weights=rw, limit=vlim,
-        )
+        self.model = VesselModel(hull=hull, dt=dt, disturbances=dist,
+                                 sensors=VesselSensors() if sensors is None else sensors,
+                                 limit=vlim)
+        self.force_max = np.asarray(fmax)
+        self.u_ref, self.psi_ref, self.reward_weights = float(u_ref), float(psi_ref), rw
         self.velocity_limit = vlim
         self.random_current_direction = current_direction is None
         self.random_wind_direction = wind_direction is None
         self.initial_speed = (lo, hi)
         self.n = int(n)
-        self.parallel = parallel
-        self.kernel = _env_step_parallel if parallel else _env_step_serial
-        self.block = int(block)
-        m = self.model
-        self.channels = m.sensors.channels
+        self.batch = VesselBatch(self.model, self.n, block=block, parallel=parallel,
+                                 n_chunks=max(1, min(self.n // 128, numba.get_num_threads())))
+        self.channels = self.model.sensors.channels
         self.n_obs = len(self.channels)
-        self.st = np.zeros((n, N_ST))
-        self.dist = np.zeros((n, self.block + 1, N_DIST))
-        self.latent = np.zeros((n, N_GM))
-        self.obs = np.zeros((n, self.n_obs), dtype=np.float32)
-        self.no_skip = np.zeros(n, dtype=np.bool_)
-        self.n_chunks = max(1, min(n // 128, numba.get_num_threads()))
-        self.j = 0
-        self.rng: np.random.Generator | None = None
-        # sensor slices for info
-        self.slices: list[tuple[str, slice]] = [(k, slice(i, i + w)) for k, i, w in _INFO_KEYS]
-        i = S_SENS
-        for g, chans in SENSOR_GROUPS.items():
-            if g in m.sensors.enabled:
-                self.slices.append((g, slice(i, i + len(chans))))
-            i += len(chans)
+        self.no_skip = np.zeros(self.n, dtype=np.bool_)
+        self.rewards = np.zeros(self.n)
+
+    @property
+    def obs(self) -> np.ndarray:
+        return self.batch.obs
+
+    @property
+    def rng(self) -> np.random.Generator | None:
+        return self.batch.rng
 
     # -- spaces -----------------------------------------------------------------
     def spaces(self) -> tuple[spaces.Box, spaces.Box]:
@@ -206,62 +188,44 @@ class _Core:
                           ("wind_direction", wdir)):
             if not np.all(np.isfinite(arr)):
                 raise VesselidError(f"reset option {name} must be finite")
-        st = self.st
-        st[idx] = 0.0
-        st[idx, S_NU:S_NU + 3] = nu
-        st[idx, S_ETA:S_ETA + 3] = eta
-        st[idx, S_ENV] = d.current_speed
-        st[idx, S_ENV + 1] = cdir
-        st[idx, S_ENV + 2] = d.wind_speed
-        st[idx, S_ENV + 3] = wdir
+        self.batch.set_state(idx, nu, eta, cdir, wdir)
 
     def reset_all(self, rng: np.random.Generator, options: Mapping[str, Any] | None) -> None:
-        self.rng = rng
         self._initial(rng, np.arange(self.n), options)
-        self.model.start_block(rng, self.dist, self.latent)
-        self.j = 0
-        mask = np.ones(self.n, dtype=np.bool_)
-        m = self.model
-        _env_observe(self.st, self.dist, 0, m.par, m.obs_idx, self.obs, mask)
+        self.batch.start(rng)
 
     # -- step ---------------------------------------------------------------------
-    def step(self, skip: np.ndarray) -> None:
-        if self.j >= self.block:
-            self.model.continue_block(self.rng, self.dist, self.latent)
-            self.j = 0
-        m = self.model
-        if self.parallel:
-            _env_step_parallel(self.st, self.dist, self.j, m.codes, m.eq, m.theta, m.par,
-                               m.obs_idx, self.obs, skip, self.n_chunks)
-        else:
-            _env_step_serial(self.st, self.dist, self.j, m.codes, m.eq, m.theta, m.par,
-                             m.obs_idx, self.obs, skip)
-        self.j += 1
+    def step(self, actions: Any, skip: np.ndarray) -> None:
+        """Scale the actions to forces, step the plant, compute the rewards."""
+        a = np.empty((self.n, 3))
+        a[:] = actions
+        np.clip(a, -1.0, 1.0, out=a)
+        self.batch.step(a * self.force_max, skip)
+        nu, eta = self.batch.block_of("nu"), self.batch.block_of("eta")
+        self.rewards = reward(nu[:, 0], eta[:, 2], a, self.u_ref, self.psi_ref,
+                              self.reward_weights)
+        self.rewards[skip] = 0.0
 
-    # -- info -----------------------------------------------------------------------
+    @property
+    def terminated(self) -> np.ndarray:
+        return self.batch.diverged
+
     def info(self, row: int | None = None) -> dict[str, np.ndarray]:
-        """Info dict (views into one fresh copy); ``row`` selects a single vessel."""
-        buf = self.st[row if row is not None else slice(None), :S_INFO].copy()
-        return {k: buf[..., sl] for k, sl in self.slices}
+        return self.batch.info(row)
 
     def tau(self, actions: Any) -> np.ndarray:
         a = np.clip(np.asarray(actions, dtype=np.float64), -1.0, 1.0)
-        return a * np.asarray(self.model.tau_scale)
+        return a * self.force_max
 
     def metadata(self) -> dict[str, Any]:
-        m = self.model
         return {
-            "system": "cybership2",
-            "dt": m.dt,
-            "coefficients": asdict(m.coefficients),
-            "disturbances": m.disturbances.to_dict(),
+            **{"system": self.model.hull.name}, **self.model.describe(),
             "random_current_direction": self.random_current_direction,
             "random_wind_direction": self.random_wind_direction,
-            "sensors": m.sensors.to_dict(),
-            "force_max": list(m.tau_scale),
-            "u_ref": m.u_ref,
-            "psi_ref": m.psi_ref,
-            "reward_weights": list(m.reward_weights),
+            "force_max": self.force_max.tolist(),
+            "u_ref": self.u_ref,
+            "psi_ref": self.psi_ref,
+            "reward_weights": list(self.reward_weights),
         }
 
 
@@ -359,12 +323,15 @@ _DOC_ARGS = """
       (noise std per sensor, ``None`` switches a sensor off). Default: all six sensors.
     - ``cubic_surge``: add the published cubic surge damping ``X_uuu u_r³`` (then the
       identification spec is misspecified).
-    - ``force_max``: physical ``[X, Y, N]`` at action ±1 (``(2.0, 1.5, 1.0)`` N, N, N m).
+    - ``vessel``: catalogue vessel (:func:`vesselid.catalogue.vessel_names`; ``"cybership2"``).
+    - ``force_max``: physical ``[X, Y, N]`` at action ±1; default the vessel's actuator
+      limits (CyberShip II: ``(2.0, 1.5, 1.0)`` N, N, N m).
     - ``u_ref``, ``psi_ref``: reference surge speed (0.3 m/s) and heading (0 rad).
     - ``reward_weights``: ``(w_u, w_ψ, w_a)`` of the reward (``(10, 1, 0.01)``).
     - ``initial_speed``: range of the uniform initial surge speed (``(0.0, 0.4)`` m/s).
     - ``velocity_limit``: the episode terminates when a component of ν exceeds it
-      (5 m/s; unreachable with the default forces); velocity channels are bounded by
+      (default the vessel's; CyberShip II: 5 m/s,
+      unreachable with its forces); velocity channels are bounded by
       ±2·velocity_limit, the apparent wind speed by ±2·(wind_speed + 3·wind_gust +
       velocity_limit), angles by ±π.
     - ``render_window``: number of recent samples plotted (600).
@@ -444,6 +411,7 @@ class Manoeuvring3DOFEnv(gym.Env[np.ndarray, np.ndarray]):
         self,
         render_mode: str | None = None,
         *,
+        vessel: str = "cybership2",
         dt: float = 0.1,
         current_speed: float = 0.05,
         current_direction: float | None = None,
@@ -453,21 +421,21 @@ class Manoeuvring3DOFEnv(gym.Env[np.ndarray, np.ndarray]):
         wind_direction: float | None = None,
         wind_gust: float = 0.2,
         force_noise: Sequence[float] | float = 0.0,
-        sensors: CyberShip2Sensors | Mapping[str, Any] | None = None,
+        sensors: VesselSensors | Mapping[str, Any] | None = None,
         cubic_surge: bool = False,
-        force_max: Sequence[float] = (2.0, 1.5, 1.0),
+        force_max: Sequence[float] | None = None,
         u_ref: float = 0.3,
         psi_ref: float = 0.0,
         reward_weights: Sequence[float] = (10.0, 1.0, 0.01),
         initial_speed: Sequence[float] = (0.0, 0.4),
-        velocity_limit: float = 5.0,
+        velocity_limit: float | None = None,
         render_window: int = 600,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise VesselidError(f"render_mode must be one of "
                                 f"{self.metadata['render_modes']} or None, got {render_mode!r}")
         self._core = _Core(
-            1, parallel=False, dt=dt, current_speed=current_speed,
+            1, parallel=False, vessel=vessel, dt=dt, current_speed=current_speed,
             current_direction=current_direction, current_variation=current_variation,
             current_time_constant=current_time_constant, wind_speed=wind_speed,
             wind_direction=wind_direction, wind_gust=wind_gust, force_noise=force_noise,
@@ -481,7 +449,6 @@ class Manoeuvring3DOFEnv(gym.Env[np.ndarray, np.ndarray]):
         self.model_spec: ModelSpec = self._core.model.spec
         #: Sample time (s).
         self.dt: float = self._core.model.dt
-        self._act = self._core.st[0, S_ACT:S_ACT + 3]
         self._skip = self._core.no_skip
         self._t = 0
         self._hist: deque | None = deque(maxlen=int(render_window)) if render_mode else None
@@ -506,21 +473,19 @@ class Manoeuvring3DOFEnv(gym.Env[np.ndarray, np.ndarray]):
         core = self._core
         if core.rng is None:
             raise gym.error.ResetNeeded("call reset() before step()")
-        self._act[:] = action
-        core.step(self._skip)
+        core.step(np.reshape(action, (1, 3)), self._skip)
         self._t += 1
         if self._hist is not None:
             self._record()
             if self.render_mode == "human":
                 self.render()
-        st = core.st[0]
-        terminated = bool(st[S_STAT] != STATUS_OK)
-        return core.obs[0].copy(), float(st[S_REW]), terminated, False, core.info(0)
+        terminated = bool(core.terminated[0])
+        return core.obs[0].copy(), float(core.rewards[0]), terminated, False, core.info(0)
 
     def _record(self) -> None:
         c = self._core
-        self._hist.append((self._t * self.dt, *c.st[0, S_ETA:S_ETA + 3],
-                           *c.st[0, S_NU:S_NU + 3]))
+        b = c.batch
+        self._hist.append((self._t * self.dt, *b.block_of("eta")[0], *b.block_of("nu")[0]))
 
     def render(self) -> np.ndarray | None:
         if self.render_mode is None:
@@ -528,7 +493,8 @@ class Manoeuvring3DOFEnv(gym.Env[np.ndarray, np.ndarray]):
                             "e.g. gym.make('vesselid/Manoeuvring3DOF-v0', render_mode='rgb_array')")
             return None
         if self._plot is None:
-            self._plot = _Plot(self.render_mode, self.metadata["render_fps"], CYBERSHIP2.L)
+            self._plot = _Plot(self.render_mode, self.metadata["render_fps"],
+                               self._core.model.hull.length)
         if not self._hist:
             self._record()
         return self._plot.draw(np.asarray(self._hist))
@@ -592,6 +558,7 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
         max_episode_steps: int = 2000,
         render_mode: str | None = None,
         *,
+        vessel: str = "cybership2",
         dt: float = 0.1,
         current_speed: float = 0.05,
         current_direction: float | None = None,
@@ -601,14 +568,14 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
         wind_direction: float | None = None,
         wind_gust: float = 0.2,
         force_noise: Sequence[float] | float = 0.0,
-        sensors: CyberShip2Sensors | Mapping[str, Any] | None = None,
+        sensors: VesselSensors | Mapping[str, Any] | None = None,
         cubic_surge: bool = False,
-        force_max: Sequence[float] = (2.0, 1.5, 1.0),
+        force_max: Sequence[float] | None = None,
         u_ref: float = 0.3,
         psi_ref: float = 0.0,
         reward_weights: Sequence[float] = (10.0, 1.0, 0.01),
         initial_speed: Sequence[float] = (0.0, 0.4),
-        velocity_limit: float = 5.0,
+        velocity_limit: float | None = None,
         render_window: int = 600,
         parallel: bool | None = None,
     ) -> None:
@@ -626,7 +593,8 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
         if parallel is None:
             parallel = numba.get_num_threads() >= 4 and self.num_envs >= 256
         self._core = _Core(
-            self.num_envs, parallel=bool(parallel), dt=dt, current_speed=current_speed,
+            self.num_envs, parallel=bool(parallel), vessel=vessel, dt=dt,
+            current_speed=current_speed,
             current_direction=current_direction, current_variation=current_variation,
             current_time_constant=current_time_constant, wind_speed=wind_speed,
             wind_direction=wind_direction, wind_gust=wind_gust, force_noise=force_noise,
@@ -664,14 +632,13 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
         core = self._core
         if core.rng is None:
             raise gym.error.ResetNeeded("call reset() before step()")
-        core.st[:, S_ACT:S_ACT + 3] = actions
         skip = self._prev_done
         if skip.any():
             core._initial(core.rng, np.flatnonzero(skip), None)
-        core.step(skip)
+        core.step(actions, skip)
         self._steps += 1
         self._steps[skip] = 0
-        terminated = core.st[:, S_STAT] != STATUS_OK
+        terminated = core.terminated.copy()
         truncated = self._steps >= self.max_episode_steps
         terminated[skip] = False
         truncated[skip] = False
@@ -680,12 +647,13 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
             if skip[0]:
                 self._hist.clear()
             self._record()
-        return core.obs.copy(), core.st[:, S_REW].copy(), terminated, truncated, core.info()
+        return core.obs.copy(), core.rewards.copy(), terminated, truncated, core.info()
 
     def _record(self) -> None:
         c = self._core
-        self._hist.append((self._steps[0] * self.dt, *c.st[0, S_ETA:S_ETA + 3],
-                           *c.st[0, S_NU:S_NU + 3]))
+        b = c.batch
+        self._hist.append((self._steps[0] * self.dt, *b.block_of("eta")[0],
+                           *b.block_of("nu")[0]))
 
     def render(self) -> np.ndarray | None:
         """RGB frame of sub-environment 0."""
@@ -693,7 +661,8 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
             gym.logger.warn("render() called without a render_mode")
             return None
         if self._plot is None:
-            self._plot = _Plot(self.render_mode, self.metadata["render_fps"], CYBERSHIP2.L)
+            self._plot = _Plot(self.render_mode, self.metadata["render_fps"],
+                               self._core.model.hull.length)
         if not self._hist:
             self._record()
         return self._plot.draw(np.asarray(self._hist))

@@ -49,19 +49,15 @@ def median_time(fn: Callable[[], object], repeats: int = 5, warmup: int = 1) -> 
 
 def numpy_simulate(spec, u, x0, v, w):
     """Plain-numpy baseline: Python loop over samples, vectorised across runs, same terms."""
-    from vesselid.terms import evaluate_terms
+    from vesselid.regressors import predict
 
-    codes = spec.codes
     theta = spec.theta0_vector()
     n_runs, n_samples, n = v.shape
     x = np.empty((n_runs, n_samples, n))
     x[:, 0] = x0
-    onehot = np.zeros((codes.n_params, n))
-    onehot[np.arange(codes.n_params), codes.equation] = 1.0
-    weights = theta[:, None] * onehot
     for k in range(n_samples - 1):
         s = np.concatenate([x[:, k] + v[:, k], u[:, k]], axis=1)
-        x[:, k + 1] = evaluate_terms(codes.codes, s) @ weights + w[:, k]
+        x[:, k + 1] = predict(spec.codes, theta, s) + w[:, k]
     return x
 
 

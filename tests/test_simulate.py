@@ -58,7 +58,7 @@ def test_step_states_matches_simulation():
     out = np.empty((1, 1))
     xk = np.array([[1.0]])
     for k in range(19):
-        step_states(SPEC.codes.codes, SPEC.codes.equation, SPEC.theta0_vector(), xk,
+        step_states(SPEC.codes.factors, SPEC.codes.equation, SPEC.theta0_vector(), xk,
                     np.zeros((1, 1)), u[k : k + 1], np.zeros((1, 1)), out)
         xk = out.copy()
         assert xk[0, 0] == x[k + 1, 0]

@@ -162,7 +162,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("simulate", help="simulate a catalogue system and write a trial log",
                        description="Simulate a catalogue system; writes the trial log and the "
                                    "matching model spec (<out stem>.toml).")
-    p.add_argument("--system", default="heave", help="heave (paper §6), siso (§5), cybership2")
+    p.add_argument("--system", default="heave",
+                   help="catalogue name: heave (paper §6), siso (§5) or a vessel "
+                        "(vesselid.catalogue: cybership2, ...)")
     p.add_argument("--samples", type=int_at_least(2), default=10000,
                    help="samples per experiment")
     p.add_argument("--experiments", type=int_at_least(1), default=None,

@@ -47,9 +47,6 @@ __all__ = [
     "run_control_experiment",
 ]
 
-FORCE_MAX = (2.0, 1.5, 1.0)
-
-
 class ControlError(VesselidError):
     """Bad controller settings (unknown terms, zero input gain, ...)."""
 
@@ -85,8 +82,9 @@ class FeedbackLinearizingController:
         water.
     theta : array-like
         Parameter vector in ``spec`` order (θ0 or an estimate).
-    force_max : (float, float, float)
-        Force limits of the actuators (N, N, N m); actions are ``τ / force_max``.
+    force_max : (float, float, float), optional
+        Force limits of the actuators (N, N, N m); actions are ``τ / force_max``. Default
+        the limits of the catalogue vessel named by ``spec.name``.
     t_u, t_r : float
         Desired closed-loop time constants of surge speed and yaw rate (s).
     k_psi, ki_psi, r_max : float
@@ -99,7 +97,7 @@ class FeedbackLinearizingController:
 
     spec: ModelSpec
     theta: Any
-    force_max: Sequence[float] = FORCE_MAX
+    force_max: Sequence[float] | None = None
     t_u: float = 5.0
     t_r: float = 1.0
     k_psi: float = 0.4
@@ -131,6 +129,10 @@ class FeedbackLinearizingController:
             raise ControlError("the model has no (or a zero) X → u or N → r input gain")
         self._input_cols = np.array([names[p] in ("X", "Y", "N") for p in range(spec.n_params)])
         self._eq = eq
+        if self.force_max is None:
+            from vesselid.catalogue import vessel_module
+
+            self.force_max = vessel_module(spec.name).HULL.force_max
         self.fmax = np.asarray(self.force_max, dtype=float)
         self.reset()
 
@@ -140,12 +142,10 @@ class FeedbackLinearizingController:
 
     def _free_response(self, nu_r: np.ndarray) -> np.ndarray:
         """Model prediction of ``ν_r(k+1)`` with zero input, per state."""
-        from vesselid.terms import evaluate_terms
+        from vesselid.regressors import predict
 
-        sig = np.concatenate([nu_r, np.zeros(3)])[None, :]
-        phi = evaluate_terms(self._codes.codes, sig)[0]
-        contrib = np.where(self._input_cols, 0.0, phi * self.theta)
-        return np.bincount(self._eq, weights=contrib, minlength=3)
+        free_theta = np.where(self._input_cols, 0.0, self.theta)
+        return predict(self._codes, free_theta, np.concatenate([nu_r, np.zeros(3)]))
 
     def forces(self, u: float, nu_r: Sequence[float], psi: float, t: float) -> np.ndarray:
         """Forces ``[X, Y, N]`` for the measured surge speed over ground ``u``, velocity
@@ -244,6 +244,7 @@ def run_control_experiment(
     reference: Callable[[float], tuple[float, float]] = default_reference,
     controller_options: Mapping[str, Any] | None = None,
     env_options: Mapping[str, Any] | None = None,
+    initial_speed: float = 0.3,
 ) -> ControlExperiment:
     """Run the feedback-linearising controller for each θ in ``Manoeuvring3DOF-v0``.
 
@@ -268,6 +269,10 @@ def run_control_experiment(
         ``t -> (u_ref, ψ_ref)``.
     controller_options, env_options : mapping, optional
         Extra arguments of :class:`FeedbackLinearizingController` and of the environment.
+    initial_speed : float
+        Surge speed at the start (m/s).
+
+    The vessel is the catalogue vessel named by ``spec.name``.
 
     Returns
     -------
@@ -284,11 +289,12 @@ def run_control_experiment(
         ctrl = FeedbackLinearizingController(spec, theta, reference=reference,
                                              **dict(controller_options or {}))
         env = gym.make("vesselid/Manoeuvring3DOF-v0", max_episode_steps=steps + 1,
-                       dt=ctrl.dt, current_speed=current_speed,
+                       vessel=spec.name, dt=ctrl.dt, current_speed=current_speed,
                        current_direction=current_direction, wind_speed=wind_speed,
                        wind_direction=wind_direction, wind_gust=wind_gust,
                        force_max=tuple(ctrl.fmax), **dict(env_options or {}))
-        _, info = env.reset(seed=seed, options={"nu": [0.3, 0.0, 0.0], "eta": [0.0, 0.0, 0.0]})
+        _, info = env.reset(seed=seed, options={"nu": [initial_speed, 0.0, 0.0],
+                                                "eta": [0.0, 0.0, 0.0]})
         rec = np.zeros((steps, 7))
         diverged = False
         for k in range(steps):

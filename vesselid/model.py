@@ -33,14 +33,17 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
 from vesselid._io import atomic_write_text
 from vesselid.errors import ModelSpecError
-from vesselid.terms import Term, TermCodes, encode_terms
+from vesselid.terms import Term
+
+if TYPE_CHECKING:  # pragma: no cover
+    from vesselid.regressors import RegressorLayout
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -274,8 +277,13 @@ class ModelSpec:
         return len(self.inputs)
 
     @cached_property
-    def codes(self) -> TermCodes:
-        """Compiled encoding of all terms (see :mod:`vesselid.terms`)."""
+    def codes(self) -> RegressorLayout:
+        """Factor layout of all terms over :attr:`signals` (see :mod:`vesselid.regressors`).
+
+        Imports the compiled kernel module on first use (parsing a spec does not).
+        """
+        from vesselid.regressors import encode_terms
+
         return encode_terms([self.equations[s] for s in self.states], self.signals)
 
     @property

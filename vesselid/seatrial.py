@@ -104,7 +104,8 @@ class SeaTrialError(VesselidError):
 
 
 # --------------------------------------------------------------------------------- spec
-def seatrial_spec(dt: float = 0.1, aggregate: str | None = "relative") -> ModelSpec:
+def seatrial_spec(dt: float = 0.1, aggregate: str | None = "relative", *,
+                  vessel: str = "cybership2") -> ModelSpec:
     """The identification spec of the sea trial.
 
     :func:`vesselid.vessels.cybership2_spec` with ``v·|r|`` folded into ``r·|v|``
@@ -122,15 +123,21 @@ def seatrial_spec(dt: float = 0.1, aggregate: str | None = "relative") -> ModelS
         ``"speed_log"`` — GNSS target, speed-log regressors (Remark 4.3 with (10));
         ``"current_meter"`` — GNSS target, regressors ``GNSS − current meter`` (eq. (9));
         ``"none"`` — GNSS everywhere (predictor (3)).
+    vessel : str
+        Catalogue vessel; its data module's ``TRIAL_MERGES`` (terms collinear in steady
+        turns) are folded.
 
     Returns
     -------
     ModelSpec
     """
-    from vesselid.vessels import cybership2_spec
+    from vesselid.catalogue import vessel_module
 
     key = _aggregate_key(aggregate)
-    spec = cybership2_spec(dt).merge_terms("r*|v|", "v*|r|", -1.0)
+    module = vessel_module(vessel)
+    spec = module.HULL.spec(dt)
+    for keep, drop, factor in getattr(module, "TRIAL_MERGES", ()):
+        spec = spec.merge_terms(keep, drop, factor)
     rel = AGGREGATES[key]
     return spec.with_aggregate(rel) if rel else spec
 
@@ -165,6 +172,8 @@ class SeaTrialDesign:
         Sample time (s).
     nominal : ndarray (N_E, N, 3)
         Noise-free velocity through water ``ν_r`` of the design.
+    vessel : str
+        Catalogue vessel the design is for.
     """
 
     inputs: np.ndarray
@@ -174,6 +183,7 @@ class SeaTrialDesign:
     warmup: int
     dt: float
     nominal: np.ndarray = field(repr=False)
+    vessel: str = "cybership2"
 
     @property
     def n_experiments(self) -> int:
@@ -226,6 +236,7 @@ def design_sea_trial(
     seed: int | np.random.SeedSequence | None = 0,
     rng: np.random.Generator | None = None,
     check: bool = True,
+    vessel: str = "cybership2",
 ) -> SeaTrialDesign:
     """Design ``N_E`` sea-trial experiments with static offsets (A8, A10/A15).
 
@@ -259,14 +270,25 @@ def design_sea_trial(
     check : bool
         Raise :class:`SeaTrialError` when the nominal design violates a margin (the
         violations are always in :attr:`SeaTrialDesign.margins`).
+    vessel : str
+        Catalogue vessel. A vessel other than CyberShip II brings its own defaults for
+        ``levels``, ``perturbation`` and ``eta`` (``TRIAL_LEVELS``, ``TRIAL_PERTURBATION``,
+        ``TRIAL_ETA`` of its data module).
 
     Returns
     -------
     SeaTrialDesign
     """
+    from vesselid.catalogue import vessel_module
     from vesselid.diagnostics import design_margins
-    from vesselid.vessels import CyberShip2Sensors, simulate_cybership2
+    from vesselid.vessels import VesselSensors, simulate_vessel
 
+    module = vessel_module(vessel)
+    if vessel != "cybership2":
+        levels = levels or module.TRIAL_LEVELS
+        if perturbation is DEFAULT_PERTURBATION:
+            perturbation = module.TRIAL_PERTURBATION
+        eta = module.TRIAL_ETA if eta is None else eta
     n_e, n_d = int(experiments), int(samples)
     if n_e < 2:
         raise SeaTrialError(f"need at least 2 experiments (turns to both sides), got {n_e}")
@@ -298,11 +320,11 @@ def design_sea_trial(
     n_warm = max(0, round(float(warmup) / dt))
     table = pd.DataFrame(rows)
     design = SeaTrialDesign(inputs=inputs, table=table, margins=pd.DataFrame(), eta={},
-                            warmup=n_warm, dt=float(dt), nominal=np.empty(0))
-    sim = simulate_cybership2(design.warmup_inputs(), seed=0, dt=dt,
-                              sensors=CyberShip2Sensors.noiseless())
+                            warmup=n_warm, dt=float(dt), nominal=np.empty(0), vessel=vessel)
+    sim = simulate_vessel(module.HULL, design.warmup_inputs(), seed=0, dt=dt,
+                          sensors=VesselSensors.noiseless())
     nominal = np.ascontiguousarray(sim.nu_r[:, n_warm:])
-    spec = seatrial_spec(dt, None)
+    spec = seatrial_spec(dt, None, vessel=vessel)
     eta_used = {"u": 0.08, "v": 0.08, "r": 0.02} if eta is None else {
         s: float(eta.get(s, 0.0)) for s in spec.states}
     starts = np.arange(n_e + 1, dtype=np.int64) * n_d
@@ -364,6 +386,7 @@ def simulate_sea_trial(
     aggregate: str | None = "relative",
     source: str = "batch",
     dt: float = 0.1,
+    vessel: str = "cybership2",
     **design_options: Any,
 ):
     """Simulate a multi-experiment CyberShip II sea trial and return its trial log.
@@ -399,6 +422,8 @@ def simulate_sea_trial(
         current/wind directions are fixed per episode to the given values).
     dt : float
         Sample time (s).
+    vessel : str
+        Catalogue vessel (ignored when ``design`` is given: the design's vessel).
 
     Returns
     -------
@@ -414,12 +439,12 @@ def simulate_sea_trial(
     design_seed, sim_seed = root.spawn(2)
     if design is None:
         design = design_sea_trial(experiments, samples, dt=dt, seed=design_seed,
-                                  **design_options)
+                                  vessel=vessel, **design_options)
     elif design_options:
         raise SeaTrialError("design options are ignored when a design is given")
     dist = _disturbances(current_speed, current_direction, wind_speed, wind_direction,
                          current_variation, wind_gust, force_noise)
-    spec = seatrial_spec(design.dt, key)
+    spec = seatrial_spec(design.dt, key, vessel=design.vessel)
     if source == "batch":
         log = _simulate_batch(design, dist, sensors, sim_seed)
     elif source == "env":
@@ -437,6 +462,7 @@ def simulate_sea_trial(
         "aggregate": key,
         "seed": seed,
         "source": source,
+        "vessel": design.vessel,
         "design": design.table.to_dict(orient="list"),
         "design_eta": design.eta,
         "warmup_samples_discarded": design.warmup,
@@ -447,11 +473,12 @@ def simulate_sea_trial(
 
 
 def _simulate_batch(design: SeaTrialDesign, dist, sensors, seed: np.random.SeedSequence):
+    from vesselid.catalogue import vessel_module
     from vesselid.logs import TrialLog
-    from vesselid.vessels import simulate_cybership2
+    from vesselid.vessels import simulate_vessel
 
-    sim = simulate_cybership2(design.warmup_inputs(), seed=seed, dt=design.dt,
-                              disturbances=dist, sensors=sensors)
+    sim = simulate_vessel(vessel_module(design.vessel).HULL, design.warmup_inputs(),
+                          seed=seed, dt=design.dt, disturbances=dist, sensors=sensors)
     log = sim.to_log()
     frame = log.to_frame()
     n_tot = design.warmup + design.n_samples
@@ -465,14 +492,16 @@ def _simulate_env(design: SeaTrialDesign, dist, sensors, seed: np.random.SeedSeq
     import gymnasium as gym
 
     import vesselid.envs  # noqa: F401  (registers the environments)
+    from vesselid.catalogue import vessel_module
     from vesselid.envs.recorder import TrialRecorder
     from vesselid.logs import TrialLog
 
-    fmax = np.array([2.0, 1.5, 1.0])
+    fmax = np.array(vessel_module(design.vessel).HULL.force_max)
     if np.any(np.abs(design.inputs) > fmax + 1e-12):
-        raise SeaTrialError("the design exceeds the environment's force limits (2, 1.5, 1)")
+        raise SeaTrialError(f"the design exceeds the vessel's force limits {tuple(fmax)}")
     env = TrialRecorder(gym.make(
-        "vesselid/Manoeuvring3DOF-v0", max_episode_steps=design.warmup + design.n_samples + 1,
+        "vesselid/Manoeuvring3DOF-v0", vessel=design.vessel,
+        max_episode_steps=design.warmup + design.n_samples + 1,
         dt=design.dt, current_speed=dist.current_speed,
         current_direction=dist.current_direction, current_variation=dist.current_speed_std,
         wind_speed=dist.wind_speed, wind_direction=dist.wind_direction,
@@ -640,7 +669,8 @@ def run_pipeline(
     from vesselid.logs import TrialLog
 
     t0 = time.perf_counter()
-    design_keys = {"levels", "perturbation", "pulse_width", "dt", "warmup", "eta", "check"}
+    design_keys = {"levels", "perturbation", "pulse_width", "dt", "warmup", "eta", "check",
+                   "vessel"}
     design_opts = {k: simulation_options.pop(k) for k in list(simulation_options)
                    if k in design_keys}
     design_seed = np.random.SeedSequence(seed).spawn(2)[0]  # as simulate_sea_trial does
@@ -692,7 +722,9 @@ def add_parser(subparsers: Any) -> None:
         description="Design a multi-experiment sea trial (steady turns to both sides at "
                     "several levels plus pulses), simulate it with current and wind, and "
                     "write the trial log and the model spec for `vesselid identify`.")
-    p.add_argument("--vessel", default="cybership2", choices=["cybership2"])
+    from vesselid.catalogue import vessel_names
+
+    p.add_argument("--vessel", default="cybership2", choices=vessel_names())
     p.add_argument("--experiments", type=int_at_least(2), default=6)
     p.add_argument("--samples", type=int_at_least(50), default=20000,
                    help="samples per experiment")
@@ -741,7 +773,7 @@ def default_log_format() -> str:
 
 
 def cmd_sea_trial(args: argparse.Namespace) -> int:
-    """``vesselid sea-trial``: write DIR/seatrial.parquet (or .csv + .json), DIR/cybership2.toml."""
+    """``vesselid sea-trial``: write DIR/seatrial.parquet (or .csv + .json), DIR/<vessel>.toml."""
     if args.format is None:
         args.format = default_log_format()
     if args.experiments < 2:
@@ -756,11 +788,12 @@ def cmd_sea_trial(args: argparse.Namespace) -> int:
     opts = {"current_speed": args.current_speed,
             "current_direction": math.radians(args.current_direction),
             "wind_speed": args.wind_speed}
+    opts["vessel"] = args.vessel
     log = simulate_sea_trial(args.experiments, args.samples, args.seed,
                              aggregate=args.aggregate, source=args.source, **opts)
     log.metadata["command"] = "vesselid " + " ".join(sys.argv[1:]) if sys.argv else ""
     data = out / ("seatrial.csv" if args.format == "csv" else "seatrial.parquet")
-    spec_path = out / "cybership2.toml"
+    spec_path = out / f"{args.vessel}.toml"
     log.save(data, extra={spec_path: log.spec.to_toml()})  # all files appear together
     extra = f" and sidecar {data.with_suffix('.json')}" if args.format == "csv" else ""
     print(f"wrote {data} ({len(log)} rows, {args.experiments} experiments){extra}, model spec "

@@ -12,11 +12,11 @@ sample.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from vesselid.errors import SimulationDivergedError
 from vesselid.model import ModelSpec
-from vesselid.terms import fill_factors, term_value
+from vesselid.regressors import advance, kernel
 
 __all__ = ["DEFAULT_DIVERGENCE_LIMIT", "simulate_states", "step_states"]
 
@@ -28,14 +28,7 @@ STATUS_NONFINITE = 1
 STATUS_LIMIT = 2
 
 
-@njit(cache=True, inline="always")
-def _step(codes, eq, theta, s, out):
-    """``out[i] += Σ_{p in eq i} θ_p φ_p(s)`` for one time step."""
-    for p in range(codes.shape[0]):
-        out[eq[p]] += theta[p] * term_value(codes, p, s)
-
-
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _simulate_run(r, x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at):
     n_samples, n = x_out.shape[1], x_out.shape[2]
     m = u.shape[2]
@@ -43,6 +36,7 @@ def _simulate_run(r, x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at)
     th = theta[r] if theta.shape[0] > 1 else theta[0]
     s = np.empty(n + m)
     f = np.empty(2 * (n + m) + 1)
+    phi = np.empty(n_par)
     nxt = np.empty(n)
     for i in range(n):
         x_out[r, 0, i] = x0[r, i]
@@ -55,9 +49,7 @@ def _simulate_run(r, x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at)
             s[n + j] = u[r, k, j]
         for i in range(n):
             nxt[i] = w[r, k, i]
-        fill_factors(s, f)
-        for p in range(n_par):
-            nxt[eq[p]] += th[p] * (f[fac[p, 0]] * f[fac[p, 1]])
+        advance(fac, eq, th, s, f, phi, nxt)
         bad = STATUS_OK
         for i in range(n):
             xi = nxt[i]
@@ -75,13 +67,13 @@ def _simulate_run(r, x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at)
             break
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _simulate_parallel(x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at):
     for r in prange(x_out.shape[0]):
         _simulate_run(r, x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at)
 
 
-@njit(cache=True)
+@kernel()
 def _simulate_serial(x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at):
     for r in range(x_out.shape[0]):
         _simulate_run(r, x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at)
@@ -91,23 +83,26 @@ def _simulate_serial(x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at)
 PARALLEL_MIN_SAMPLES = 200_000
 
 
-@njit(cache=True)
-def step_states(codes, eq, theta, x, v, u, w, out):
+@kernel()
+def step_states(fac, eq, theta, x, v, u, w, out):
     """One compiled step ``out = Φᵀ([x + v; u]) θ + w`` for a batch of systems.
 
-    Used by the vectorised gymnasium environments; ``x, v, w, out`` have shape
-    ``(B, n)``, ``u`` ``(B, m)``, ``theta`` ``(P,)``.
+    ``fac, eq`` are the factor layout of ``ModelSpec.codes`` (``factors``,
+    ``equation``); ``x, v, w, out`` have shape ``(B, n)``, ``u`` ``(B, m)``, ``theta``
+    ``(P,)``.
     """
     n_b, n = x.shape
     m = u.shape[1]
     s = np.empty(n + m)
+    f = np.empty(2 * (n + m) + 1)
+    phi = np.empty(fac.shape[0])
     for b in range(n_b):
         for i in range(n):
             s[i] = x[b, i] + v[b, i]
             out[b, i] = w[b, i]
         for j in range(m):
             s[n + j] = u[b, j]
-        _step(codes, eq, theta, s, out[b])
+        advance(fac, eq, theta, s, f, phi, out[b])
 
 
 def _as_batch(name: str, arr, n_runs: int, n_samples: int, width: int) -> np.ndarray:
@@ -185,8 +180,8 @@ def simulate_states(
     fail_at = np.empty(n_runs, dtype=np.int64)
     codes = spec.codes
     parallel = n_runs > 1 and n_runs * n_samples >= PARALLEL_MIN_SAMPLES
-    kernel = _simulate_parallel if parallel else _simulate_serial
-    kernel(x0_arr, u_b, v_b, w_b, codes.factors, codes.equation, np.ascontiguousarray(th),
+    run = _simulate_parallel if parallel else _simulate_serial
+    run(x0_arr, u_b, v_b, w_b, codes.factors, codes.equation, np.ascontiguousarray(th),
            float(limit), x, status, fail_at)
     if raise_on_divergence and np.any(status != STATUS_OK):
         bad = np.flatnonzero(status != STATUS_OK)

@@ -9,7 +9,7 @@ state measurement ``y = x + e`` (1b), and optionally a disturbance sensor
 aggregate relation.
 
 Catalogue: :func:`heave` (paper §6, Tables 1–2) and :func:`siso_example` (paper §5).
-The surge/sway/yaw vessel lives in :mod:`vesselid.vessels`.
+Vessels live in :mod:`vesselid.vessels`; every entry is listed in :mod:`vesselid.catalogue`.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from vesselid.catalogue import get_system
 from vesselid.disturbances import Gaussian, Process, Uniform, Zero
 from vesselid.errors import VesselidError
 from vesselid.model import ModelSpec
@@ -484,14 +485,3 @@ def siso_example(
 
 
 SYSTEMS = {"heave": heave, "siso": siso_example}
-
-
-def get_system(name: str, **options: Any) -> System:
-    """Build a catalogue system by name (``heave``, ``siso``, ``cybership2``)."""
-    if name == "cybership2":
-        from vesselid.vessels import cybership2_system
-
-        return cybership2_system(**options)
-    if name not in SYSTEMS:
-        raise VesselidError(f"unknown system {name!r}; known: {[*SYSTEMS, 'cybership2']}")
-    return SYSTEMS[name](**options)

@@ -3,33 +3,19 @@
 A second-order modulus function is ``f(x, θ) = Φᵀ(x) θ`` where every regressor is
 one of ``x_i``, ``|x_i|``, ``x_i x_j`` or ``x_i |x_j|`` over the signals ``x``
 (states and inputs). This module parses such terms from text (``"u"``, ``"|u|"``,
-``"u*r"``, ``"u*|u|"``, ``"|r|*v"``), prints them back, and evaluates them, both
-vectorised with numpy and inside compiled (numba) kernels through a small integer
-encoding shared by simulation, estimation, instrument generation and the
-gymnasium environments.
+``"u*r"``, ``"u*|u|"``, ``"|r|*v"``) and prints them back; it is plain Python (no
+numba). Their encoding over a signal vector and every evaluation — vectorised,
+compiled, generated — belong to :mod:`vesselid.regressors`.
 """
 
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
 from dataclasses import dataclass
-
-import numpy as np
-from numba import njit
 
 from vesselid.errors import ModelSpecError
 
-__all__ = [
-    "ALLOWED_FORMS",
-    "Term",
-    "TermCodes",
-    "encode_terms",
-    "evaluate_terms",
-    "factor_codes",
-    "fill_factors",
-    "term_value",
-]
+__all__ = ["ALLOWED_FORMS", "Term"]
 
 ALLOWED_FORMS = "x, |x|, x*y, x*|y|, |x|*y (x, y signal names; y may equal x)"
 
@@ -113,114 +99,3 @@ class Term:
             return left
         right = f"|{self.right}|" if self.right_abs else self.right
         return f"{left}*{right}"
-
-    def evaluate(self, values: dict[str, np.ndarray]) -> np.ndarray:
-        """Evaluate the term on named signal arrays (vectorised)."""
-        a = np.asarray(values[self.left], dtype=float)
-        if self.left_abs:
-            a = np.abs(a)
-        if self.right is None:
-            return a
-        b = np.asarray(values[self.right], dtype=float)
-        if self.right_abs:
-            b = np.abs(b)
-        return a * b
-
-
-@dataclass(frozen=True)
-class TermCodes:
-    """Integer encoding of a list of terms over an ordered signal vector.
-
-    ``codes[p] = (left_index, left_abs, right_index or -1, right_abs)`` and
-    ``equation[p]`` is the state equation the ``p``-th parameter belongs to.
-    """
-
-    codes: np.ndarray
-    equation: np.ndarray
-
-    @property
-    def n_params(self) -> int:
-        return int(self.codes.shape[0])
-
-    @property
-    def factors(self) -> np.ndarray:
-        """Branch-free form: term ``p`` is ``F[f[p, 0]] * F[f[p, 1]]`` with
-        ``F = [s, |s|, 1]`` (length ``2 S + 1``) filled by :func:`fill_factors`."""
-        return factor_codes(self.codes, self.n_signals)
-
-    n_signals: int = 0
-
-
-def encode_terms(
-    terms_per_equation: Sequence[Sequence[Term]], signal_names: Sequence[str]
-) -> TermCodes:
-    """Encode per-equation term lists against an ordered list of signal names."""
-    index = {name: i for i, name in enumerate(signal_names)}
-    rows: list[tuple[int, int, int, int]] = []
-    equation: list[int] = []
-    for eq, terms in enumerate(terms_per_equation):
-        for term in terms:
-            for name in term.signals:
-                if name not in index:
-                    raise ModelSpecError(
-                        f"term {term} uses unknown signal {name!r}; known: {list(signal_names)}"
-                    )
-            right = -1 if term.right is None else index[term.right]
-            rows.append((index[term.left], int(term.left_abs), right, int(term.right_abs)))
-            equation.append(eq)
-    codes = np.asarray(rows, dtype=np.int64).reshape(-1, 4)
-    return TermCodes(codes=codes, equation=np.asarray(equation, dtype=np.int64),
-                     n_signals=len(signal_names))
-
-
-def factor_codes(codes: np.ndarray, n_signals: int) -> np.ndarray:
-    """Convert ``(P, 4)`` term codes to ``(P, 2)`` indices into ``F = [s, |s|, 1]``."""
-    one = 2 * n_signals
-    left = codes[:, 0] + n_signals * codes[:, 1]
-    right = np.where(codes[:, 2] >= 0, codes[:, 2] + n_signals * codes[:, 3], one)
-    return np.ascontiguousarray(np.column_stack([left, right]).astype(np.int64))
-
-
-@njit(cache=True, inline="always")
-def fill_factors(s: np.ndarray, f: np.ndarray) -> None:
-    """Fill ``f = [s, |s|, 1]`` (``len(f) == 2 len(s) + 1``) for factor-coded terms."""
-    n_s = s.shape[0]
-    for i in range(n_s):
-        f[i] = s[i]
-        f[n_s + i] = abs(s[i])
-    f[2 * n_s] = 1.0
-
-
-@njit(cache=True, inline="always")
-def term_value(codes: np.ndarray, p: int, s: np.ndarray) -> float:
-    """Value of encoded term ``p`` at the signal vector ``s`` (compiled)."""
-    a = s[codes[p, 0]]
-    a = abs(a) if codes[p, 1] == 1 else a
-    j = codes[p, 2]
-    b = s[j] if j >= 0 else 1.0
-    b = abs(b) if codes[p, 3] == 1 else b
-    return a * b
-
-
-def evaluate_terms(codes: np.ndarray, signals: np.ndarray) -> np.ndarray:
-    """Evaluate encoded terms on an array of signal vectors (vectorised numpy).
-
-    Parameters
-    ----------
-    codes : ndarray, shape (P, 4)
-        Encoded terms from :func:`encode_terms`.
-    signals : ndarray, shape (..., S)
-        Signal vectors, last axis ordered as at encoding.
-
-    Returns
-    -------
-    ndarray, shape (..., P)
-        The regressor values Φ.
-    """
-    signals = np.asarray(signals, dtype=float)
-    left = signals[..., codes[:, 0]]
-    left = np.where(codes[:, 1] == 1, np.abs(left), left)
-    has_right = codes[:, 2] >= 0
-    right = signals[..., np.where(has_right, codes[:, 2], 0)]
-    right = np.where(codes[:, 3] == 1, np.abs(right), right)
-    return np.where(has_right, left * right, left)

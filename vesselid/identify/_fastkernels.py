@@ -33,6 +33,8 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from vesselid.regressors import SALT, factor_source
+
 __all__ = ["MAX_SPECIALISED_PARAMS", "kernel_dir", "specialised_moments"]
 
 #: Larger structures use the generic kernel (unrolled code grows as P²).
@@ -59,16 +61,14 @@ def kernel_dir() -> Path:
 
 
 def _factor(idx: int, n: int, m: int, sig: str) -> str | None:
-    """Source of factor ``idx`` of ``F = [s, u, |s|, |u|, 1]``; None for the constant 1."""
-    if idx < n:
-        return f"{sig}{idx}"
-    if idx < n + m:
-        return f"v{idx - n}"
-    if idx < 2 * n + m:
-        return f"a{sig}{idx - n - m}"
-    if idx < 2 * n + 2 * m:
-        return f"av{idx - 2 * n - m}"
-    return None
+    """Variable name of factor ``idx`` of the layout ``F = [s, |s|, 1]`` with ``s = [x; u]``
+    (:func:`vesselid.regressors.factor_source`); None for the constant 1."""
+    src = factor_source(idx, n + m)
+    if src is None:
+        return None
+    j, modulus = src
+    name = f"{sig}{j}" if j < n else f"v{j - n}"
+    return "a" + name if modulus else name
 
 
 def _product(f0: str | None, f1: str | None) -> str:
@@ -181,7 +181,7 @@ def _source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.ndarray)
 
 def _load(source: str) -> tuple[Callable, Callable]:
     digest = hashlib.sha1(
-        (source + numba.__version__ + sys.version).encode()).hexdigest()[:16]
+        (source + numba.__version__ + sys.version + SALT).encode()).hexdigest()[:16]
     name = f"vesselid_moments_{digest}"
     if name in sys.modules:
         mod = sys.modules[name]

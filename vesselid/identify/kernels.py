@@ -24,10 +24,10 @@ whole Monte Carlo study is one pass over the data.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from vesselid.identify._fastkernels import specialised_moments
-from vesselid.terms import fill_factors
+from vesselid.regressors import fill_factors_xu, kernel, one_step, regressors
 
 __all__ = ["AUX_DIVERGED", "AUX_OK", "instrument_matrix", "moments", "regressor_matrix"]
 
@@ -44,7 +44,7 @@ MODE_LAGGED = 2
 PARALLEL_MIN_SAMPLES = 200_000
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _moments_parallel(
     regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start, block_src,
     limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status,
@@ -55,7 +55,7 @@ def _moments_parallel(
                          status)
 
 
-@njit(cache=True)
+@kernel()
 def _moments_serial(
     regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start, block_src,
     limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status,
@@ -82,7 +82,7 @@ def moments(
     active : (G,) bool, groups to process (others are left untouched)
     mode : int, instruments: ``MODE_LS`` (z = φ), ``MODE_SIMULATED`` (auxiliary model
         ``theta``) or ``MODE_LAGGED`` (basic IV, ``ζ(k) = Φ([ỹ(k−2); u(k−1)])``)
-    fac, eq : factor-coded terms (:func:`vesselid.terms.factor_codes`) and their equations;
+    fac, eq : factor-coded terms (:class:`vesselid.regressors.RegressorLayout`) and their equations;
         ``block_start`` (n+1,) parameter offsets per equation; ``block_src`` (n,): an
         earlier equation with the same terms (whose ``S_zφ``, ``S_z``, ``S_φ`` block is
         copied instead of accumulated again), or the equation itself
@@ -106,7 +106,7 @@ def moments(
            block_src, limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _moments_segment(
     s, regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start, block_src,
     limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status,
@@ -122,8 +122,6 @@ def _moments_segment(
     b = starts[s + 1]
     f_dat = np.empty(n_f)
     f_sim = np.empty(n_f)
-    f_dat[n_f - 1] = 1.0
-    f_sim[n_f - 1] = 1.0
     xh = np.empty(n)
     phi = np.empty(n_par)
     z = np.empty(n_par)
@@ -139,37 +137,20 @@ def _moments_segment(
     count[s] = b - a - 1
     th = theta[g]
     for k in range(a + 1, b):
-        for i in range(n):
-            val = regsig[k - 1, i]
-            f_dat[i] = val
-            f_dat[n + m + i] = abs(val)
-        for j in range(m):
-            val = u[k - 1, j]
-            f_dat[n + j] = val
-            f_dat[2 * n + m + j] = abs(val)
-            f_sim[n + j] = val
-            f_sim[2 * n + m + j] = abs(val)
-        for p in range(n_par):
-            phi[p] = f_dat[fac[p, 0]] * f_dat[fac[p, 1]]
+        fill_factors_xu(regsig[k - 1], u[k - 1], f_dat)
+        regressors(fac, f_dat, phi)
         if mode == MODE_LAGGED:
             # basic IV: regressors of the measurements two samples back
             kk = k - 2 if k - 2 >= a else a
-            for i in range(n):
-                val = regsig[kk, i]
-                f_sim[i] = val
-                f_sim[n + m + i] = abs(val)
-            for p in range(n_par):
-                z[p] = f_sim[fac[p, 0]] * f_sim[fac[p, 1]]
+            fill_factors_xu(regsig[kk], u[k - 1], f_sim)
+            regressors(fac, f_sim, z)
         elif mode == MODE_SIMULATED:
-            for i in range(n):
-                f_sim[i] = xh[i]
-                f_sim[n + m + i] = abs(xh[i])
-                xh[i] = 0.0
             # advance the auxiliary model: x̂(k) = Φᵀ([x̂(k−1); u(k−1)]) θ
-            for p in range(n_par):
-                zp = f_sim[fac[p, 0]] * f_sim[fac[p, 1]]
-                z[p] = zp
-                xh[eq[p]] += th[p] * zp
+            fill_factors_xu(xh, u[k - 1], f_sim)
+            regressors(fac, f_sim, z)
+            for i in range(n):
+                xh[i] = 0.0
+            one_step(eq, th, z, xh)
             bad = False
             for i in range(n):
                 if not np.isfinite(xh[i]) or abs(xh[i]) > limit[s]:
@@ -213,7 +194,7 @@ def _moments_segment(
         s_y[s, i] = l_y[i]
 
 
-@njit(cache=True)
+@kernel()
 def regressor_matrix(regsig, u, starts, fac):
     """Φ rows for every equation: row ``k`` of the output uses ``[ỹ(k−1); u(k−1)]``.
 
@@ -223,21 +204,15 @@ def regressor_matrix(regsig, u, starts, fac):
     m = u.shape[1]
     n_par = fac.shape[0]
     out = np.full((t_len, n_par), np.nan)
-    sig = np.empty(n + m)
     f = np.empty(2 * (n + m) + 1)
     for s in range(starts.shape[0] - 1):
         for k in range(starts[s] + 1, starts[s + 1]):
-            for i in range(n):
-                sig[i] = regsig[k - 1, i]
-            for j in range(m):
-                sig[n + j] = u[k - 1, j]
-            fill_factors(sig, f)
-            for p in range(n_par):
-                out[k, p] = f[fac[p, 0]] * f[fac[p, 1]]
+            fill_factors_xu(regsig[k - 1], u[k - 1], f)
+            regressors(fac, f, out[k])
     return out
 
 
-@njit(cache=True)
+@kernel()
 def instrument_matrix(target, u, starts, theta, fac, eq, n):
     """Instruments ``ζ(k) = Φ([x̂(k−1); u(k−1)])`` and the auxiliary states ``x̂``.
 
@@ -249,24 +224,15 @@ def instrument_matrix(target, u, starts, theta, fac, eq, n):
     n_par = fac.shape[0]
     z_out = np.full((t_len, n_par), np.nan)
     x_out = np.empty((t_len, n))
-    sim = np.empty(n + m)
     f = np.empty(2 * (n + m) + 1)
-    nxt = np.empty(n)
     for s in range(starts.shape[0] - 1):
         a = starts[s]
         for i in range(n):
             x_out[a, i] = target[a, i]
         for k in range(a + 1, starts[s + 1]):
+            fill_factors_xu(x_out[k - 1], u[k - 1], f)
+            regressors(fac, f, z_out[k])
             for i in range(n):
-                sim[i] = x_out[k - 1, i]
-                nxt[i] = 0.0
-            for j in range(m):
-                sim[n + j] = u[k - 1, j]
-            fill_factors(sim, f)
-            for p in range(n_par):
-                zp = f[fac[p, 0]] * f[fac[p, 1]]
-                z_out[k, p] = zp
-                nxt[eq[p]] += theta[p] * zp
-            for i in range(n):
-                x_out[k, i] = nxt[i]
+                x_out[k, i] = 0.0
+            one_step(eq, theta, z_out[k], x_out[k])
     return z_out, x_out
