@@ -53,7 +53,7 @@ def check_action(action: Any, shape: tuple[int, ...], *, name: str = "action") -
     if bad.any():
         idx = tuple(int(i) for i in np.argwhere(bad)[0])
         raise InvalidActionError(
-            f"{name} must be finite, got {arr[idx]!r} at index {idx}")
+            f"{name} must be finite, got {float(arr[idx])!r} at index {idx}")
     return arr
 
 
