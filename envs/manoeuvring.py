@@ -41,6 +41,7 @@ from vesselid.vessels import (
     VesselDisturbances,
     VesselModel,
     VesselSensors,
+    log_columns,
     wrap,
 )
 
@@ -63,6 +64,36 @@ def reward(u: np.ndarray, psi: np.ndarray, a: np.ndarray, u_ref: float, psi_ref:
     dpsi = wrap(psi - psi_ref)
     asq = a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1] + a[:, 2] * a[:, 2]
     return -(w_u * du * du + w_psi * dpsi * dpsi + w_a * asq)
+
+
+#: Settings of both environments and their defaults (see ``## Arguments``).
+DEFAULTS: dict[str, Any] = {
+    "vessel": "cybership2",
+    "dt": 0.1,
+    "current_speed": 0.05,
+    "current_direction": None,
+    "current_variation": 0.005,
+    "current_time_constant": 120.0,
+    "wind_speed": 1.0,
+    "wind_direction": None,
+    "wind_gust": 0.2,
+    "force_noise": 0.0,
+    "sensors": None,
+    "cubic_surge": False,
+    "force_max": None,
+    "u_ref": 0.3,
+    "psi_ref": 0.0,
+    "reward_weights": (10.0, 1.0, 0.01),
+    "initial_speed": (0.0, 0.4),
+    "velocity_limit": None,
+}
+
+
+def _settings(settings: Mapping[str, Any]) -> dict[str, Any]:
+    unknown = sorted(set(settings) - set(DEFAULTS))
+    if unknown:
+        raise VesselidError(f"unknown settings {unknown}; known: {sorted(DEFAULTS)}")
+    return {**DEFAULTS, **settings}
 
 
 class _Core:
@@ -231,32 +262,8 @@ class _Core:
 
 
 def _log_row(info: Mapping[str, Any], enabled: Sequence[str]) -> dict[str, Any]:
-    """Trial-log columns from an info dict (single or batched)."""
-    row: dict[str, Any] = {}
-
-    def col(key: str, i: int) -> Any:
-        return np.asarray(info[key])[..., i]
-
-    if "gnss" in enabled:
-        row["u"], row["v"] = col("gnss", 0), col("gnss", 1)
-    if "gyro" in enabled:
-        row["r"] = col("gyro", 0)
-    if "heading" in enabled:
-        row["psi"] = col("heading", 0)
-    if "speed_log" in enabled:
-        row["u_log"], row["v_log"] = col("speed_log", 0), col("speed_log", 1)
-        if "gyro" in enabled:
-            row["r_log"] = col("gyro", 0)
-    if "current_meter" in enabled:
-        row["u_c"], row["v_c"] = col("current_meter", 0), col("current_meter", 1)
-    if "anemometer" in enabled:
-        row["wind_speed"], row["wind_angle"] = col("anemometer", 0), col("anemometer", 1)
-    for i, c in enumerate(("u", "v", "r")):
-        row[f"true_{c}"] = col("nu", i)
-    row["true_u_r"], row["true_v_r"] = col("nu_r", 0), col("nu_r", 1)
-    row["true_u_c"], row["true_v_c"] = col("current", 0), col("current", 1)
-    for i, c in enumerate(("north", "east", "psi")):
-        row[f"true_{c}"] = col("eta", i)
+    """Trial-log columns from an info dict (single or batched): :func:`log_columns`."""
+    row = log_columns(lambda key, i: np.asarray(info[key])[..., i], enabled, inputs=False)
     if np.ndim(row["true_u"]) == 0:
         row = {k: float(v) for k, v in row.items()}
     return row
@@ -340,7 +347,66 @@ _DOC_ARGS = """
 
 
 # --------------------------------------------------------------------------- single env
-class Manoeuvring3DOFEnv(gym.Env[np.ndarray, np.ndarray]):
+class _ManoeuvringBase:
+    """Rendering and the recorder contract shared by both environments (sub-env 0 is
+    rendered)."""
+
+    metadata: ClassVar[dict[str, Any]]
+    _core: _Core
+    render_mode: str | None
+
+    def _attach(self, render_mode: str | None, render_window: int) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise VesselidError(f"render_mode must be one of "
+                                f"{self.metadata['render_modes']} or None, got {render_mode!r}")
+        self.render_mode = render_mode
+        #: Identification structure of the recorded data (recorder contract).
+        self.model_spec: ModelSpec = self._core.model.spec
+        #: Sample time (s).
+        self.dt: float = self._core.model.dt
+        self._hist: deque | None = deque(maxlen=int(render_window)) if render_mode else None
+        self._plot: _Plot | None = None
+
+    def _append(self, step: int) -> None:
+        b = self._core.batch
+        self._hist.append((step * self.dt, *b.block_of("eta")[0], *b.block_of("nu")[0]))
+
+    def _frame(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; "
+                            "e.g. gym.make('vesselid/Manoeuvring3DOF-v0', render_mode='rgb_array')")
+            return None
+        if self._plot is None:
+            self._plot = _Plot(self.render_mode, self.metadata["render_fps"],
+                               self._core.model.hull.length)
+        if not self._hist:
+            self._record()
+        return self._plot.draw(np.asarray(self._hist))
+
+    def close_extras(self, **kwargs: Any) -> None:
+        if self._plot is not None:
+            self._plot.close()
+            self._plot = None
+
+    def log_row(self, info: dict[str, Any]) -> dict[str, Any]:
+        """Trial-log columns at the time of ``info`` (recorder contract; floats, or arrays
+        ``(num_envs,)``): :func:`vesselid.vessels.log_columns` without the inputs."""
+        return _log_row(info, self._core.model.sensors.enabled)
+
+    def log_inputs(self, action: Any) -> dict[str, Any]:
+        """Physical inputs ``{"X", "Y", "N"}`` applied for ``action``."""
+        n = self._core.n
+        tau = self._core.tau(np.asarray(action, dtype=np.float64).reshape(n, 3))
+        cols = {c: tau[:, j] for j, c in enumerate(("X", "Y", "N"))}
+        return {c: float(v[0]) for c, v in cols.items()} if isinstance(
+            self, Manoeuvring3DOFEnv) else cols
+
+    def log_metadata(self) -> dict[str, Any]:
+        """Disturbance and sensor settings (JSON-serialisable), for log metadata."""
+        return self._core.metadata()
+
+
+class Manoeuvring3DOFEnv(_ManoeuvringBase, gym.Env[np.ndarray, np.ndarray]):
     """Surge/sway/yaw manoeuvring of CyberShip II in current and wind.
 
     ## Description
@@ -408,52 +474,13 @@ class Manoeuvring3DOFEnv(gym.Env[np.ndarray, np.ndarray]):
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"],
                                           "render_fps": 10}
 
-    def __init__(
-        self,
-        render_mode: str | None = None,
-        *,
-        vessel: str = "cybership2",
-        dt: float = 0.1,
-        current_speed: float = 0.05,
-        current_direction: float | None = None,
-        current_variation: float = 0.005,
-        current_time_constant: float = 120.0,
-        wind_speed: float = 1.0,
-        wind_direction: float | None = None,
-        wind_gust: float = 0.2,
-        force_noise: Sequence[float] | float = 0.0,
-        sensors: VesselSensors | Mapping[str, Any] | None = None,
-        cubic_surge: bool = False,
-        force_max: Sequence[float] | None = None,
-        u_ref: float = 0.3,
-        psi_ref: float = 0.0,
-        reward_weights: Sequence[float] = (10.0, 1.0, 0.01),
-        initial_speed: Sequence[float] = (0.0, 0.4),
-        velocity_limit: float | None = None,
-        render_window: int = 600,
-    ) -> None:
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise VesselidError(f"render_mode must be one of "
-                                f"{self.metadata['render_modes']} or None, got {render_mode!r}")
-        self._core = _Core(
-            1, parallel=False, vessel=vessel, dt=dt, current_speed=current_speed,
-            current_direction=current_direction, current_variation=current_variation,
-            current_time_constant=current_time_constant, wind_speed=wind_speed,
-            wind_direction=wind_direction, wind_gust=wind_gust, force_noise=force_noise,
-            sensors=sensors, cubic_surge=cubic_surge, force_max=force_max, u_ref=u_ref,
-            psi_ref=psi_ref, reward_weights=reward_weights, initial_speed=initial_speed,
-            velocity_limit=velocity_limit, block=SINGLE_BLOCK,
-        )
-        self.render_mode = render_mode
+    def __init__(self, render_mode: str | None = None, *, render_window: int = 600,
+                 **settings: Any) -> None:
+        self._core = _Core(1, parallel=False, block=SINGLE_BLOCK, **_settings(settings))
         self.action_space, self.observation_space = self._core.spaces()
-        #: Identification structure of the recorded data (recorder contract).
-        self.model_spec: ModelSpec = self._core.model.spec
-        #: Sample time (s).
-        self.dt: float = self._core.model.dt
+        self._attach(render_mode, render_window)
         self._skip = self._core.no_skip
         self._t = 0
-        self._hist: deque | None = deque(maxlen=int(render_window)) if render_mode else None
-        self._plot: _Plot | None = None
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -483,50 +510,17 @@ class Manoeuvring3DOFEnv(gym.Env[np.ndarray, np.ndarray]):
         return core.obs[0].copy(), float(core.rewards[0]), terminated, False, core.info(0)
 
     def _record(self) -> None:
-        c = self._core
-        b = c.batch
-        self._hist.append((self._t * self.dt, *b.block_of("eta")[0], *b.block_of("nu")[0]))
+        self._append(self._t)
 
     def render(self) -> np.ndarray | None:
-        if self.render_mode is None:
-            gym.logger.warn("render() called without a render_mode; "
-                            "e.g. gym.make('vesselid/Manoeuvring3DOF-v0', render_mode='rgb_array')")
-            return None
-        if self._plot is None:
-            self._plot = _Plot(self.render_mode, self.metadata["render_fps"],
-                               self._core.model.hull.length)
-        if not self._hist:
-            self._record()
-        return self._plot.draw(np.asarray(self._hist))
+        return self._frame()
 
     def close(self) -> None:
-        if self._plot is not None:
-            self._plot.close()
-            self._plot = None
-
-    # --------------------------------------------------------- recorder contract
-    def log_row(self, info: dict[str, Any]) -> dict[str, float]:
-        """Trial-log columns at the time of ``info`` (recorder contract).
-
-        Measured ``u, v`` (GNSS), ``r`` (gyro), ``psi``, speed log ``u_log, v_log,
-        r_log``, current meter ``u_c, v_c``, anemometer ``wind_speed, wind_angle`` (enabled
-        sensors only) and ground truth ``true_*`` (as
-        :meth:`vesselid.vessels.CyberShip2Simulation.to_frame`).
-        """
-        return _log_row(info, self._core.model.sensors.enabled)
-
-    def log_inputs(self, action: Any) -> dict[str, float]:
-        """Physical inputs ``{"X", "Y", "N"}`` applied for ``action``."""
-        tau = self._core.tau(np.asarray(action, dtype=np.float64).reshape(3))
-        return {"X": float(tau[0]), "Y": float(tau[1]), "N": float(tau[2])}
-
-    def log_metadata(self) -> dict[str, Any]:
-        """Disturbance and sensor settings (JSON-serialisable), for log metadata."""
-        return self._core.metadata()
+        self.close_extras()
 
 
 # --------------------------------------------------------------------------- vector env
-class Manoeuvring3DOFVectorEnv(VectorEnv):
+class Manoeuvring3DOFVectorEnv(_ManoeuvringBase, VectorEnv):
     """``num_envs`` CyberShip II vessels stepped by one parallel compiled kernel.
 
     Same dynamics, spaces, rewards and info keys as :class:`Manoeuvring3DOFEnv` (info
@@ -552,67 +546,26 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
         "autoreset_mode": AutoresetMode.NEXT_STEP,
     }
 
-    def __init__(
-        self,
-        num_envs: int = 1,
-        max_episode_steps: int = 2000,
-        render_mode: str | None = None,
-        *,
-        vessel: str = "cybership2",
-        dt: float = 0.1,
-        current_speed: float = 0.05,
-        current_direction: float | None = None,
-        current_variation: float = 0.005,
-        current_time_constant: float = 120.0,
-        wind_speed: float = 1.0,
-        wind_direction: float | None = None,
-        wind_gust: float = 0.2,
-        force_noise: Sequence[float] | float = 0.0,
-        sensors: VesselSensors | Mapping[str, Any] | None = None,
-        cubic_surge: bool = False,
-        force_max: Sequence[float] | None = None,
-        u_ref: float = 0.3,
-        psi_ref: float = 0.0,
-        reward_weights: Sequence[float] = (10.0, 1.0, 0.01),
-        initial_speed: Sequence[float] = (0.0, 0.4),
-        velocity_limit: float | None = None,
-        render_window: int = 600,
-        parallel: bool | None = None,
-    ) -> None:
+    def __init__(self, num_envs: int = 1, max_episode_steps: int = 2000,
+                 render_mode: str | None = None, *, render_window: int = 600,
+                 parallel: bool | None = None, **settings: Any) -> None:
         if int(num_envs) < 1:
             raise VesselidError(f"num_envs must be >= 1, got {num_envs}")
         if int(max_episode_steps) < 1:
             raise VesselidError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise VesselidError(f"render_mode must be one of "
-                                f"{self.metadata['render_modes']} or None, got {render_mode!r}")
         self.num_envs = int(num_envs)
         self.max_episode_steps = int(max_episode_steps)
-        self.render_mode = render_mode
         block = max(16, VECTOR_BLOCK_SAMPLES // self.num_envs)
         if parallel is None:
             parallel = numba.get_num_threads() >= 4 and self.num_envs >= 256
-        self._core = _Core(
-            self.num_envs, parallel=bool(parallel), vessel=vessel, dt=dt,
-            current_speed=current_speed,
-            current_direction=current_direction, current_variation=current_variation,
-            current_time_constant=current_time_constant, wind_speed=wind_speed,
-            wind_direction=wind_direction, wind_gust=wind_gust, force_noise=force_noise,
-            sensors=sensors, cubic_surge=cubic_surge, force_max=force_max, u_ref=u_ref,
-            psi_ref=psi_ref, reward_weights=reward_weights, initial_speed=initial_speed,
-            velocity_limit=velocity_limit, block=block,
-        )
+        self._core = _Core(self.num_envs, parallel=bool(parallel), block=block,
+                           **_settings(settings))
         self.single_action_space, self.single_observation_space = self._core.spaces()
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
-        #: Identification structure of the recorded data (recorder contract).
-        self.model_spec: ModelSpec = self._core.model.spec
-        #: Sample time (s).
-        self.dt: float = self._core.model.dt
+        self._attach(render_mode, render_window)
         self._steps = np.zeros(self.num_envs, dtype=np.int64)
         self._prev_done = np.zeros(self.num_envs, dtype=np.bool_)
-        self._hist: deque | None = deque(maxlen=int(render_window)) if render_mode else None
-        self._plot: _Plot | None = None
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -650,41 +603,11 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
         return core.obs.copy(), core.rewards.copy(), terminated, truncated, core.info()
 
     def _record(self) -> None:
-        c = self._core
-        b = c.batch
-        self._hist.append((self._steps[0] * self.dt, *b.block_of("eta")[0],
-                           *b.block_of("nu")[0]))
+        self._append(self._steps[0])
 
     def render(self) -> np.ndarray | None:
         """RGB frame of sub-environment 0."""
-        if self.render_mode is None:
-            gym.logger.warn("render() called without a render_mode")
-            return None
-        if self._plot is None:
-            self._plot = _Plot(self.render_mode, self.metadata["render_fps"],
-                               self._core.model.hull.length)
-        if not self._hist:
-            self._record()
-        return self._plot.draw(np.asarray(self._hist))
-
-    def close_extras(self, **kwargs: Any) -> None:
-        if self._plot is not None:
-            self._plot.close()
-            self._plot = None
-
-    # --------------------------------------------------------- recorder contract
-    def log_row(self, info: dict[str, Any]) -> dict[str, np.ndarray]:
-        """Trial-log columns at the time of ``info``, arrays of shape ``(num_envs,)``."""
-        return _log_row(info, self._core.model.sensors.enabled)
-
-    def log_inputs(self, actions: Any) -> dict[str, np.ndarray]:
-        """Physical inputs ``{"X", "Y", "N"}`` (arrays ``(num_envs,)``) for ``actions``."""
-        tau = self._core.tau(np.asarray(actions, dtype=np.float64).reshape(self.num_envs, 3))
-        return {"X": tau[:, 0], "Y": tau[:, 1], "N": tau[:, 2]}
-
-    def log_metadata(self) -> dict[str, Any]:
-        """Disturbance and sensor settings (JSON-serialisable), for log metadata."""
-        return self._core.metadata()
+        return self._frame()
 
 
 Manoeuvring3DOFEnv.__doc__ = (Manoeuvring3DOFEnv.__doc__ or "").replace(

@@ -1,4 +1,4 @@
-"""Record environment episodes as trial logs (DESIGN.md "Trial log").
+"""Record environment episodes as trial logs (docs/architecture.md "Trial log").
 
 :class:`TrialRecorder` wraps a single environment, :class:`VectorTrialRecorder` a
 vector environment. Every episode becomes one ``experiment`` of a

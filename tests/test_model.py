@@ -1,4 +1,4 @@
-"""ModelSpec: structure checks and the TOML contract of DESIGN.md."""
+"""ModelSpec: structure checks and the TOML contract of docs/architecture.md."""
 
 import numpy as np
 import pandas as pd

@@ -7,7 +7,8 @@
     vesselid reproduce [--table 1|2|all] [--runs 1000] [--samples 10000] [--seed 0] [--out DIR]
     vesselid sea-trial --vessel cybership2 --experiments 6 --samples 20000 --seed 0 --out DIR
 
-Exit code 0 on success, 2 on bad input with a one-line reason on stderr.
+Exit code 0 on success, 2 on bad input (:class:`~vesselid.errors.VesselidError`, ``OSError``)
+with a one-line reason on stderr; anything else is a bug (traceback, exit code 1).
 Subcommands living in other modules register themselves through an
 ``add_parser(subparsers)`` function that sets ``func`` (returning an exit code).
 """
@@ -25,16 +26,22 @@ from pathlib import Path
 from typing import Any
 
 from vesselid import __version__
-from vesselid.errors import VesselidError
+from vesselid.errors import CLIError, VesselidError
 
 __all__ = ["main"]
 
 #: Modules that add their own subcommands (``add_parser(subparsers)``).
 PLUGIN_MODULES = ("vesselid.reproduce", "vesselid.seatrial")
 
+#: Plugin commands imported only when they are run (or their own ``--help`` is asked
+#: for): command -> (module, one-line help). ``vesselid --help`` lists them without
+#: importing the module, so it loads neither pandas nor numba. A module listed only in
+#: :data:`PLUGIN_MODULES` is imported for every command line (correct, but slower).
+LAZY_COMMANDS = {
+    "reproduce": ("vesselid.reproduce", "reproduce the paper's Tables 1-2 and Figure 1"),
+    "sea-trial": ("vesselid.seatrial", "design and simulate a multi-experiment sea trial"),
+}
 
-class CLIError(VesselidError):
-    """Bad command-line input (exit code 2)."""
 
 
 def _spec_path_for(out: Path) -> Path:
@@ -129,6 +136,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
     log = TrialLog.load(args.log, spec=spec)
     if spec is None and log.spec is None:
         raise CLIError(f"{args.log} carries no model spec; pass --model SPEC.toml")
+    from vesselid.identify import identify  # after the input checks: bad input loads no kernels
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = identify(log, spec, method=args.method, combine=args.combine,
@@ -150,7 +158,19 @@ def cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _command_word(argv: Sequence[str] | None) -> str | None:
+    """The subcommand named on the command line (the first non-option word), if any."""
+    for arg in argv or ():
+        if not arg.startswith("-"):
+            return arg
+    return None
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The command-line parser; a lazy plugin's module is imported only if ``argv`` runs it.
+
+    Without ``argv`` every plugin module is imported (complete parser, e.g. for docs).
+    """
     parser = argparse.ArgumentParser(
         prog="vesselid",
         description="Simulate marine vessels under current, wind and sensor noise, and identify "
@@ -189,7 +209,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", metavar="PATH|-", help="write the result as JSON ('-' = stdout)")
     p.set_defaults(func=cmd_identify)
 
-    for name in PLUGIN_MODULES:
+    wanted = _command_word(argv) if argv is not None else None
+    lazy_modules = {module for module, _ in LAZY_COMMANDS.values()}
+    modules = [m for m in PLUGIN_MODULES if m not in lazy_modules]
+    for command, (module, help_text) in LAZY_COMMANDS.items():
+        if argv is None or command == wanted:
+            modules.append(module)
+        else:  # listed in the help; never parsed in this run
+            sub.add_parser(command, help=help_text, add_help=False)
+    for name in dict.fromkeys(modules):
         try:
             module = importlib.import_module(name)
         except ModuleNotFoundError as exc:
@@ -215,7 +243,8 @@ def _terminate(signum: int, frame: Any) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code."""
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(argv)
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version, or a usage error (already printed)
@@ -231,13 +260,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except OSError as exc:
+        # unreadable/unwritable files: exit 2 with the reason and the path
         print(f"vesselid {args.command}: error: {_os_error_text(exc)}", file=sys.stderr)
         return 2
     except MemoryError:
         print(f"vesselid {args.command}: error: not enough memory for this request",
               file=sys.stderr)
         return 2
-    except (VesselidError, ValueError) as exc:
+    except VesselidError as exc:
+        # bad input: exit 2, one line; any other exception is a bug and propagates with
+        # its traceback (exit 1)
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"vesselid {args.command}: error: {msg}", file=sys.stderr)
         return 2

@@ -1,6 +1,6 @@
 """Trial logs: one row per sample, with metadata that travels with the data.
 
-A :class:`TrialLog` wraps a :class:`pandas.DataFrame` whose columns are (DESIGN.md,
+A :class:`TrialLog` wraps a :class:`pandas.DataFrame` whose columns are (docs/architecture.md,
 "Trial log"):
 
 * ``experiment`` (optional): experiment id; one experiment (id ``0``) when absent,

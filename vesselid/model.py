@@ -3,7 +3,7 @@
 A :class:`ModelSpec` describes the second-order modulus system (2a)–(2b) of the
 paper: for every state ``x_i`` an equation ``x_i(k+1) = φ_iᵀ([x(k)+v(k); u(k)]) θ_i``
 with terms from Definition 2.1. It loads from and saves to the TOML contract of
-DESIGN.md::
+docs/architecture.md::
 
     name = "heave"
     states = ["w"]
@@ -445,7 +445,7 @@ class ModelSpec:
         )
 
     def to_toml(self) -> str:
-        """TOML text of the spec (DESIGN.md contract)."""
+        """TOML text of the spec (docs/architecture.md contract)."""
         import tomli_w
 
         return tomli_w.dumps(self.to_dict())

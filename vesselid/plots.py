@@ -26,7 +26,8 @@ from matplotlib.ticker import MaxNLocator
 
 from vesselid.errors import VesselidError
 
-__all__ = ["METHOD_LABELS", "error_histograms", "estimate_vs_truth", "trial_timeseries"]
+__all__ = ["METHOD_LABELS", "error_histograms", "estimate_vs_truth", "residual_analysis",
+           "trial_timeseries"]
 
 #: Display names of the estimators (the paper's notation).
 METHOD_LABELS = {"ls": "LS", "iv": "IV", "iv-zero-mean": "IV, E{ζ}=0"}
@@ -246,7 +247,7 @@ def trial_timeseries(
     Parameters
     ----------
     log : TrialLog or DataFrame
-        A trial log (DESIGN.md columns); its spec, when present, tells states,
+        A trial log (docs/architecture.md columns); its spec, when present, tells states,
         inputs and sensor columns apart, otherwise the ``true_*`` columns do.
     experiment : optional
         Experiment to plot (default the first).
@@ -304,4 +305,46 @@ def trial_timeseries(
     axes[-1].set_xlabel("time")
     if title:
         fig.suptitle(title, fontsize=10)
+    return fig
+
+
+def residual_analysis(rc: Any, *, title: str | None = None) -> Figure:
+    """MATLAB ``resid``-style figure: residual autocorrelation (top) and residual–input
+    cross-correlation (bottom), one line per output (and input), with the
+    confidence band of :func:`vesselid.identify.specification.residual_correlations`.
+
+    Parameters
+    ----------
+    rc : ResidualCorrelation
+        From :func:`~vesselid.identify.specification.residual_correlations` (or
+        ``result.diagnostics["residual_correlation"]``, also as its ``to_dict()``).
+    """
+    if isinstance(rc, Mapping):
+        get = rc.__getitem__
+    else:
+        def get(key: str) -> Any:
+            return getattr(rc, key)
+    lags, acf = np.asarray(get("lags")), np.asarray(get("acf"))
+    xl, ccf = np.asarray(get("cross_lags")), np.asarray(get("ccf"))
+    band, level = float(get("band")), float(get("level"))
+    outputs, inputs = list(get("outputs")), list(get("inputs"))
+    fig = _figure(7.0, 5.2)
+    ax1, ax2 = fig.subplots(2, 1)
+    for i, o in enumerate(outputs):
+        ax1.plot(lags[1:], acf[i, 1:], "o-", ms=2.5, lw=1, label=f"ε {o}")
+    ax1.axhspan(-band, band, color="C2", alpha=0.15, label=f"{100 * level:.0f} % band")
+    ax1.axhline(0, color="0.3", lw=0.6)
+    ax1.set_xlabel("lag (samples)")
+    ax1.set_ylabel("autocorrelation")
+    ax1.set_title(title or "Residual analysis", fontsize=9)
+    ax1.legend(fontsize=7, ncol=min(4, len(outputs) + 1))
+    for i, o in enumerate(outputs):
+        for j, u in enumerate(inputs):
+            ax2.plot(xl, ccf[i, j], lw=1, label=f"ε {o} · {u}")
+    ax2.axhspan(-band, band, color="C2", alpha=0.15)
+    ax2.axhline(0, color="0.3", lw=0.6)
+    ax2.set_xlabel("lag τ (samples; τ > 0: input leads)")
+    ax2.set_ylabel("cross-correlation")
+    if inputs:
+        ax2.legend(fontsize=7, ncol=min(4, len(outputs) * len(inputs)))
     return fig

@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from vesselid.errors import VesselidError
+from vesselid.errors import SeaTrialError
 from vesselid.model import ModelSpec
 
 __all__ = [
@@ -98,9 +98,6 @@ DEFAULT_LEVELS: tuple[tuple[float, float, float, int], ...] = (
 #: zero-mean-instrument estimator (the instruments are centred per experiment, A7).
 DEFAULT_PERTURBATION = (0.45, 0.5, 0.1)
 
-
-class SeaTrialError(VesselidError):
-    """Bad sea-trial settings (unknown aggregate, too few samples, violated margins...)."""
 
 
 # --------------------------------------------------------------------------------- spec

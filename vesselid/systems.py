@@ -21,7 +21,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
 from vesselid.catalogue import get_system
 from vesselid.disturbances import Gaussian, Process, Uniform, Zero
@@ -29,6 +28,7 @@ from vesselid.errors import VesselidError
 from vesselid.model import ModelSpec
 from vesselid.signals import AlternatingPulses, InputSignal, RandomPulses, StaticOffset
 from vesselid.simulate import DEFAULT_DIVERGENCE_LIMIT, simulate_states
+from vesselid.simulation import SimulationResult
 
 __all__ = ["SYSTEMS", "Simulation", "System", "get_system", "heave", "siso_example"]
 
@@ -271,7 +271,7 @@ class System:
 
 
 @dataclass
-class Simulation:
+class Simulation(SimulationResult):
     """Arrays of a batch simulation, shapes ``(runs, samples, ·)``.
 
     ``x`` true states, ``y`` state measurements (1b), ``u`` inputs, ``q`` physical
@@ -289,24 +289,17 @@ class Simulation:
     entropy: list | None = None
     spawn_keys: list | None = None
 
-    @property
-    def n_runs(self) -> int:
-        return int(self.x.shape[0])
+    def _lead(self) -> np.ndarray:
+        return self.x
 
-    @property
-    def n_samples(self) -> int:
-        return int(self.x.shape[1])
+    def _dt(self) -> float:
+        return self.system.spec.dt or 1.0
 
-    def to_frame(self) -> pd.DataFrame:
-        """Tidy frame: runs become experiments (DESIGN.md trial-log columns)."""
+    def columns(self) -> dict[str, np.ndarray]:
+        """Measured states, inputs, disturbance sensors, then ground truth ``true_*``."""
         sysm = self.system
         spec = sysm.spec
-        dt = spec.dt or 1.0
-        n_r, n_k = self.n_runs, self.n_samples
-        cols: dict[str, np.ndarray] = {
-            "experiment": np.repeat(np.arange(n_r, dtype=np.int64), n_k),
-            "time": np.tile(np.arange(n_k) * dt, n_r),
-        }
+        cols: dict[str, np.ndarray] = {}
         for i, s in enumerate(spec.states):
             cols[s] = self.y[:, :, i].ravel()
         for j, name in enumerate(spec.inputs):
@@ -320,24 +313,12 @@ class Simulation:
                 cols[f"true_current_{s}"] = self.q[:, :, i].ravel()
             if s in sysm.process_noise and not sysm.process_noise[s].is_zero:
                 cols[f"true_process_{s}"] = self.w[:, :, i].ravel()
-        return pd.DataFrame(cols)
+        return cols
 
     def to_log(self, *, aggregate: bool | None = None):
         """A :class:`~vesselid.logs.TrialLog` with metadata (spec, θ0, seeds, settings)."""
-        from vesselid import __version__
-        from vesselid.logs import TrialLog
-
-        spec = self.system.identification_spec(aggregate=aggregate)
-        meta = {
-            "spec": spec.to_dict(),
-            "system": self.system.describe(),
-            "seed": self.seed,
-            "spawn_keys": self.spawn_keys,
-            "vesselid_version": __version__,
-            "samples_per_experiment": self.n_samples,
-            "experiments": self.n_runs,
-        }
-        return TrialLog(self.to_frame(), meta)
+        return self._trial_log(self.system.identification_spec(aggregate=aggregate),
+                               self.system.describe())
 
 
 def _fill(proc: Process, rng: np.random.Generator, out: np.ndarray) -> None:

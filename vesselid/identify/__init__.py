@@ -206,6 +206,19 @@ def identify(
             _warn(f"weak instruments in equation {s!r}: cond(ZᵀΦ) = {cond[s]:.3g}",
                   WeakInstrumentWarning)
 
+    from vesselid.identify import specification as spec_tests
+
+    per_equation = {}
+    for i, s in enumerate(spec.states):
+        sl = slice(int(blocks[i]), int(blocks[i + 1]))
+        if method != "ls":
+            per_equation[s] = spec_tests.equation_diagnostics(
+                zc[:, sl], phi[:, sl], data.target[:, i], data.starts, zero_mean=zero_mean,
+                names=[str(t) for t in spec.equations[s]])
+    residual_corr = spec_tests.residual_correlations(
+        resid, data.u, data.starts, outputs=list(spec.states), inputs=list(spec.inputs))
+    whiteness = spec_tests.ljung_box(resid, data.starts, names=list(spec.states))
+
     fit_one = {s: nrmse_fit(data.target[rows, i], pred[rows, i])
                for i, s in enumerate(spec.states)}
     fit_free, free_ok = _free_run_fit(data, spec, theta)
@@ -244,6 +257,9 @@ def identify(
         "design_eta": eta_used,
         "design_eta_source": eta_source,
         "modulus_states": modulus_signals(spec),
+        "specification": per_equation,
+        "whiteness": {k: v.to_dict() for k, v in whiteness.items()},
+        "residual_correlation": residual_corr.to_dict(),
         "warnings": warn_msgs,
     }
     return IdentificationResult(

@@ -1,21 +1,30 @@
 """Moment kernels specialised to one model structure (generated source, compiled once).
 
-The generic kernel of :mod:`vesselid.identify.kernels` reads the factor codes of
+The generic kernel of :mod:`vesselid.identify.kernels` reads the factor layout of
 every term from arrays at every sample. For a given structure — the number of
-states ``n`` and inputs ``m``, the factor codes, the equations of the terms — this
+states ``n`` and inputs ``m``, the factor layout, the equations of the terms — this
 module writes the same computation with all loops over states, inputs and terms
-unrolled into scalar code, and compiles it with numba (``cache=True``).
+unrolled into scalar code (factors spelled through
+:func:`vesselid.regressors.factor_source`), and compiles it with numba.
 
 * The operations and their order are exactly those of the generic kernel (same
   auxiliary-model recursion, same divergence test, same accumulation order), so
-  the two give bit-identical moments; the specialised kernel only removes the
-  indexing overhead (≈ 3–5× faster on the heave model).
-* The generated module is written once per structure to a cache directory
-  (``$VESSELID_KERNEL_DIR``, default ``~/.cache/vesselid/kernels``, falling back to
-  the temporary directory) and only rewritten if its text changes, so numba's
-  on-disk cache of the compiled code stays valid across processes.
+  the two give bit-identical moments (tested on every catalogue structure); the
+  specialised kernel only removes the indexing overhead (≈ 3–5× faster).
+* The generated module is written once per structure to a private per-user cache
+  directory (:func:`kernel_dir`) and only rewritten if its text changes, so numba's
+  on-disk cache of the compiled code stays valid across processes. Its file name is
+  a digest of the source, the numba and Python versions and
+  :data:`vesselid.regressors.SALT`, so an edit of the kernel module invalidates it.
+* Code is only executed from a directory that is owned by the current user and
+  closed to everybody else (mode ``0o700``; an own directory that is more open is
+  tightened); otherwise — and whenever writing, importing or compiling the generated
+  code fails — the generic kernel is used. There is no shared-temporary-directory
+  fallback.
+* Files not used for :data:`PRUNE_AFTER_DAYS` days are deleted (at most
+  :data:`MAX_KEPT_FILES` are kept), with their numba cache files.
 * Only the least-squares and simulated-instrument modes are specialised; other
-  modes use the generic kernel.
+  modes use the generic kernel. ``VESSELID_GENERIC_KERNELS=1`` disables generation.
 """
 
 from __future__ import annotations
@@ -24,9 +33,11 @@ import contextlib
 import hashlib
 import importlib.util
 import os
+import stat
 import sys
-import tempfile
 import threading
+import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -35,29 +46,138 @@ import numpy as np
 
 from vesselid.regressors import SALT, factor_source
 
-__all__ = ["MAX_SPECIALISED_PARAMS", "kernel_dir", "specialised_moments"]
+__all__ = [
+    "MAX_KEPT_FILES",
+    "MAX_SPECIALISED_PARAMS",
+    "PRUNE_AFTER_DAYS",
+    "SpecialisedMoments",
+    "kernel_dir",
+    "prune",
+    "specialised_moments",
+]
 
 #: Larger structures use the generic kernel (unrolled code grows as P²).
 MAX_SPECIALISED_PARAMS = 24
 
+#: Generated kernels unused for this many days are deleted.
+PRUNE_AFTER_DAYS = 30
+
+#: At most this many generated kernels are kept (least recently used go first).
+MAX_KEPT_FILES = 64
+
+_PREFIX = "vesselid_moments_"
+
 _LOCK = threading.Lock()
-_CACHE: dict[tuple, tuple[Callable, Callable] | None] = {}
+_CACHE: dict[tuple, SpecialisedMoments | None] = {}
+_PRUNED: set[Path] = set()
 
 
-def kernel_dir() -> Path:
-    """Directory of the generated kernel modules."""
-    env = os.environ.get("VESSELID_KERNEL_DIR")
-    candidates = [Path(env)] if env else []
-    candidates += [Path.home() / ".cache" / "vesselid" / "kernels",
-                   Path(tempfile.gettempdir()) / f"vesselid-kernels-{os.getuid()}"]
-    for path in candidates:
+def _default_dir() -> Path:
+    """Per-user cache location: ``%LOCALAPPDATA%`` on Windows, else XDG / ``~/.cache``."""
+    if os.name == "nt":
+        base = os.environ.get("LOCALAPPDATA")
+        root = Path(base) if base else Path.home() / "AppData" / "Local"
+        return root / "vesselid" / "kernels"
+    base = os.environ.get("XDG_CACHE_HOME")
+    root = Path(base) if base and Path(base).is_absolute() else Path.home() / ".cache"
+    return root / "vesselid" / "kernels"
+
+
+def _uid() -> int | None:
+    """The current user id, or None where the platform has none (Windows)."""
+    getuid = getattr(os, "getuid", None)
+    return None if getuid is None else getuid()
+
+
+def _private(path: Path) -> bool:
+    """True if ``path`` is a directory only the current user can use.
+
+    POSIX: owned by us with no group/other permissions (an own directory that is more
+    open is tightened to ``0o700``), inside a parent that only we or root can change,
+    or that is sticky. Without POSIX user ids (Windows) the per-user profile's ACLs
+    protect the default location; the directory must be a real directory.
+    """
+    try:
+        st = path.stat()
+    except OSError:
+        return False
+    if not stat.S_ISDIR(st.st_mode):
+        return False
+    uid = _uid()
+    if uid is None:
+        return True
+    if st.st_uid != uid:
+        return False
+    if st.st_mode & 0o077:
         try:
-            path.mkdir(parents=True, exist_ok=True)
-            if os.access(path, os.W_OK):
-                return path
+            os.chmod(path, 0o700)
+            st = path.stat()
         except OSError:
+            return False
+        if st.st_mode & 0o077:
+            return False
+    try:
+        pst = path.resolve().parent.stat()
+    except OSError:
+        return False
+    return pst.st_uid in (uid, 0) and (not pst.st_mode & 0o022 or bool(pst.st_mode & stat.S_ISVTX))
+
+
+def kernel_dir() -> Path | None:
+    """Private per-user directory of the generated kernels, or None (use the generic one).
+
+    ``$VESSELID_KERNEL_DIR`` if set, else ``~/.cache/vesselid/kernels`` (XDG) or
+    ``%LOCALAPPDATA%\\vesselid\\kernels`` (Windows). Created with mode ``0o700``; used
+    only if :func:`_private` accepts it. Never a shared temporary directory.
+    """
+    env = os.environ.get("VESSELID_KERNEL_DIR")
+    path = Path(env).expanduser() if env else _default_dir()
+    try:
+        path.mkdir(mode=0o700, parents=True, exist_ok=True)
+    except OSError:
+        return None
+    return path if _private(path) else None
+
+
+def _safe_file(path: Path) -> bool:
+    """A generated file we may execute: a regular file we own, writable by us only."""
+    try:
+        st = path.lstat()
+    except OSError:
+        return False
+    if not stat.S_ISREG(st.st_mode):
+        return False
+    uid = _uid()
+    return uid is None or (st.st_uid == uid and not st.st_mode & 0o022)
+
+
+def prune(directory: Path, *, now: float | None = None,
+          max_age_days: float = PRUNE_AFTER_DAYS, keep: int = MAX_KEPT_FILES) -> list[Path]:
+    """Delete generated kernels unused for ``max_age_days`` (or beyond the ``keep`` most
+    recently used) together with their numba cache files; returns the deleted modules.
+
+    "Used" is the file's modification time, refreshed whenever a kernel is loaded.
+    """
+    now = time.time() if now is None else now
+    try:
+        files = [(p.stat().st_mtime, p) for p in directory.glob(f"{_PREFIX}*.py")]
+    except OSError:
+        return []
+    files.sort(reverse=True)
+    gone: list[Path] = []
+    for rank, (mtime, path) in enumerate(files):
+        if rank < keep and now - mtime < max_age_days * 86400.0:
             continue
-    raise OSError("no writable directory for generated kernels")  # pragma: no cover
+        stem = path.stem
+        with contextlib.suppress(OSError):
+            path.unlink()
+            gone.append(path)
+        cache = directory / "__pycache__"
+        with contextlib.suppress(OSError):
+            for extra in cache.glob(f"{stem}.*"):
+                with contextlib.suppress(OSError):
+                    extra.unlink()
+    return gone
 
 
 def _factor(idx: int, n: int, m: int, sig: str) -> str | None:
@@ -179,25 +299,36 @@ def _source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.ndarray)
     return "\n".join(lines) + "\n"
 
 
-def _load(source: str) -> tuple[Callable, Callable]:
-    digest = hashlib.sha1(
+def _load(source: str) -> tuple[Callable, Callable] | None:
+    """Write (if needed), check and import the generated module; None if not possible."""
+    digest = hashlib.sha256(
         (source + numba.__version__ + sys.version + SALT).encode()).hexdigest()[:16]
-    name = f"vesselid_moments_{digest}"
+    name = f"{_PREFIX}{digest}"
     if name in sys.modules:
         mod = sys.modules[name]
         return mod.parallel, mod.serial
-    path = kernel_dir() / f"{name}.py"
+    directory = kernel_dir()
+    if directory is None:
+        return None
+    if directory not in _PRUNED:
+        _PRUNED.add(directory)
+        prune(directory)
+    path = directory / f"{name}.py"
     try:
-        current = path.read_text(encoding="utf-8") if path.exists() else None
-    except OSError:  # pragma: no cover
+        current = path.read_text(encoding="utf-8") if _safe_file(path) else None
+    except (OSError, UnicodeDecodeError):
         current = None
     if current != source:
         from vesselid._io import atomic_write_text
 
-        atomic_write_text(path, source)
+        atomic_write_text(path, source)  # replaces whatever is there (a link, a foreign file)
+    if not _safe_file(path):
+        return None
+    with contextlib.suppress(OSError):
+        os.utime(path)  # mark as used (pruning keeps recently used kernels)
     spec = importlib.util.spec_from_file_location(name, path)
     if spec is None or spec.loader is None:  # pragma: no cover
-        raise ImportError(f"cannot load generated kernel {path}")
+        return None
     mod = importlib.util.module_from_spec(spec)
     sys.modules[name] = mod
     try:
@@ -208,30 +339,66 @@ def _load(source: str) -> tuple[Callable, Callable]:
     return mod.parallel, mod.serial
 
 
+class SpecialisedMoments:
+    """The generated ``(parallel, serial)`` kernels of one structure, with a fallback.
+
+    Calling it runs the kernel and returns True; if numba fails to compile the
+    generated code at its first call, it warns once, disables itself and returns
+    False, and the caller runs the generic kernel instead. Errors of an already
+    compiled kernel propagate.
+    """
+
+    def __init__(self, parallel: Callable, serial: Callable) -> None:
+        self.kernels: dict[bool, Callable] = {True: parallel, False: serial}
+        self.failed = False
+
+    def __call__(self, parallel: bool, *args) -> bool:
+        if self.failed:
+            return False
+        fn = self.kernels[bool(parallel)]
+        first = not getattr(fn, "signatures", ())
+        try:
+            fn(*args)
+        except Exception as exc:
+            if not first:
+                raise
+            self.failed = True
+            warnings.warn(f"generated moment kernel failed to compile ({type(exc).__name__}: "
+                          f"{str(exc).splitlines()[0] if str(exc) else ''}); using the generic "
+                          "kernel", RuntimeWarning, stacklevel=3)
+            return False
+        return True
+
+
 def specialised_moments(
     n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.ndarray
-) -> tuple[Callable, Callable] | None:
-    """``(parallel, serial)`` kernels for this structure, or None (use the generic one).
+) -> SpecialisedMoments | None:
+    """The specialised kernels for this structure, or None (use the generic one).
 
-    Signature of both: ``(regsig, target, u, starts, group, theta, active, use_sim,
-    limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status)``.
+    Call the result as ``kern(parallel, regsig, target, u, starts, group, theta, active,
+    use_sim, limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status)``; it returns False if
+    the generated code could not be compiled (then run the generic kernel).
     """
     if fac.shape[0] > MAX_SPECIALISED_PARAMS or os.environ.get("VESSELID_GENERIC_KERNELS"):
         return None
     key = (int(n), int(m), fac.tobytes(), eq.tobytes(), np.asarray(blocks).tobytes())
     with _LOCK:
         if key in _CACHE:
-            return _CACHE[key]
-        kernels: tuple[Callable, Callable] | None
+            kern = _CACHE[key]
+            return None if kern is None or kern.failed else kern
         try:
-            kernels = _load(_source(int(n), int(m), np.asarray(fac), np.asarray(eq),
-                                    np.asarray(blocks)))
-        except (OSError, ImportError, SyntaxError):  # pragma: no cover - fall back
-            kernels = None
-        _CACHE[key] = kernels
-        return kernels
+            pair = _load(_source(int(n), int(m), np.asarray(fac), np.asarray(eq),
+                                 np.asarray(blocks)))
+        except (OSError, ImportError, SyntaxError) as exc:
+            warnings.warn(f"cannot load a generated moment kernel ({exc}); using the generic "
+                          "kernel", RuntimeWarning, stacklevel=2)
+            pair = None
+        kern = None if pair is None else SpecialisedMoments(*pair)
+        _CACHE[key] = kern
+        return kern
 
 
-def _clear() -> None:  # pragma: no cover - test helper
-    with _LOCK, contextlib.suppress(Exception):
+def _clear() -> None:  # test helper
+    with _LOCK:
         _CACHE.clear()
+        _PRUNED.clear()

@@ -65,7 +65,7 @@ from typing import Any, ClassVar
 import numpy as np
 from scipy import signal as sps
 
-from vesselid.errors import VesselidError
+from vesselid.errors import CovarianceError
 
 __all__ = [
     "BANDWIDTH_RULES",
@@ -86,9 +86,6 @@ __all__ = [
     "scores",
 ]
 
-
-class CovarianceError(VesselidError):
-    """Invalid covariance estimator or configuration."""
 
 
 #: Kernels of the HAC estimator (linearmodels' names and bandwidth convention).
@@ -239,8 +236,15 @@ def long_run_covariance(
     w = np.asarray(weights[: n_lags + 1], dtype=float)
     if n_lags == 0:
         return w[0] * g.T @ g
-    sym = np.concatenate([w[:0:-1], w])
-    kg = sps.convolve(g, sym[:, None], mode="same")
+    if n_lags <= 64:  # a few lag products beat the FFT
+        out = w[0] * (g.T @ g)
+        for j in range(1, n_lags + 1):
+            if w[j] != 0:
+                gj = g[j:].T @ g[:-j]
+                out += w[j] * (gj + gj.T)
+        return out
+    sym = np.concatenate([w[:0:-1], w])[:, None]
+    kg = sps.fftconvolve(g, sym, mode="same", axes=0)
     out = g.T @ kg
     return 0.5 * (out + out.T)
 

@@ -96,10 +96,9 @@ def moments(
     if mode in (MODE_LS, MODE_SIMULATED):
         # same computation, unrolled for this structure (bit-identical, several times faster)
         fast = specialised_moments(regsig.shape[1], u.shape[1], fac, eq, block_start)
-        if fast is not None:
-            (fast[0] if parallel else fast[1])(
-                regsig, target, u, starts, group, theta, active, mode == MODE_SIMULATED,
-                limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status)
+        if fast is not None and fast(
+                parallel, regsig, target, u, starts, group, theta, active,
+                mode == MODE_SIMULATED, limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status):
             return
     kernel = _moments_parallel if parallel else _moments_serial
     kernel(regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start,

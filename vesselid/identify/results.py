@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from vesselid.errors import IdentificationError
 from vesselid.model import ModelSpec
 
 __all__ = ["IdentificationResult"]
@@ -68,7 +69,7 @@ class IdentificationResult:
     def conf_int(self, level: float = 0.95) -> pd.DataFrame:
         """Normal-approximation confidence intervals."""
         if not 0 < level < 1:
-            raise ValueError("level must be in (0, 1)")
+            raise IdentificationError("level must be in (0, 1)")
         q = stats.norm.ppf(0.5 + level / 2)
         return pd.DataFrame({"lower": self.params - q * self.std_errors,
                              "upper": self.params + q * self.std_errors})
@@ -140,9 +141,28 @@ class IdentificationResult:
                         f"{r['experiment']} is within η={r['eta']:.3g} of zero in "
                         f"{100 * r['share_within_eta']:.1f} % of samples "
                         f"({r['sign_changes']} sign changes)")
+        from vesselid.identify.specification import summary_lines
+
+        lines.extend(summary_lines(self.diagnostics.get("specification", {})))
+        for s_name, lb in self.diagnostics.get("whiteness", {}).items():
+            lines.append(f"whiteness {s_name}: {lb.get('sentence', '')}")
         for w in self.diagnostics.get("warnings", []):
             lines.append(f"warning: {w}")
         return "\n".join(lines)
+
+    def plot_residuals(self, *, title: str | None = None):
+        """MATLAB ``resid``-style figure: residual autocorrelation and residual–input
+        cross-correlation with confidence bands (:func:`vesselid.plots.residual_analysis`).
+
+        Returns a matplotlib ``Figure`` (save it with ``fig.savefig``).
+        """
+        from vesselid.plots import residual_analysis
+
+        rc = self.diagnostics.get("residual_correlation")
+        if rc is None:
+            raise IdentificationError("this result holds no residual correlations "
+                                      "(diagnostics['residual_correlation'])")
+        return residual_analysis(rc, title=title or f"Residual analysis — {self.method}")
 
     def __str__(self) -> str:
         return self.summary()
@@ -154,7 +174,7 @@ class IdentificationResult:
         return out
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict (DESIGN.md ``identify --json`` contract)."""
+        """JSON-ready dict (docs/architecture.md ``identify --json`` contract)."""
         design = self.diagnostics.get("design")
         diag: dict[str, Any] = {
             k: v for k, v in self.diagnostics.items() if k not in ("design",)

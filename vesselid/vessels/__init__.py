@@ -35,6 +35,7 @@ from vesselid.vessels.kernel import (
     VesselBatch,
     VesselModel,
     VesselSimulation,
+    log_columns,
     simulate_vessel,
     wrap,
 )
@@ -69,6 +70,7 @@ __all__ = [
     "cybership2_spec",
     "cybership2_system",
     "get_hull",
+    "log_columns",
     "simulate_cybership2",
     "simulate_vessel",
     "wrap",

@@ -47,7 +47,6 @@ from typing import Any
 
 import numpy as np
 
-from vesselid.disturbances import GaussMarkov
 from vesselid.errors import VesselidError
 from vesselid.model import ModelSpec
 from vesselid.vessels.hull import Hull, block_inverse
@@ -331,32 +330,24 @@ def cybership2_system(
     ``θ_r|v| − θ_v|r|``); the simulation uses the full physics. For current, wind and
     the sensor suite use :func:`simulate_cybership2` or :mod:`vesselid.seatrial`.
     """
-    from vesselid.disturbances import Gaussian
-    from vesselid.signals import RandomPulses
-    from vesselid.systems import System
+    from vesselid.vessels.system import pulse_system
 
-    spec = cybership2_spec(dt, coefficients)
-    states = ("u", "v", "r")
-    w = {s: GaussMarkov(0.0, float(sd), process_noise_time_constant, dt, 3.0 * float(sd))
-         for s, sd in zip(states, process_noise_std, strict=True) if sd > 0}
-    e = {s: Gaussian(0.0, float(sd)) for s, sd in zip(states, sensor_noise_std, strict=True)}
-    width = (max(1, round(20.0 / dt)), max(1, round(60.0 / dt)))
-    inputs = {
-        "X": RandomPulses(1.0, 2.0, *width),
-        "Y": (RandomPulses(-0.3, 0.1, *width), RandomPulses(-0.1, 0.3, *width)),
-        "N": (RandomPulses(0.15, 0.3, *width), RandomPulses(-0.3, -0.15, *width)),
-    }
-    return System(
-        spec=spec, inputs=inputs, process_noise=w, sensor_noise=e,
-        model=spec.merge_terms("r*|v|", "v*|r|", -1.0),
-        x0=dict(zip(states, (float(x) for x in x0), strict=True)),
+    hull = HULL if coefficients is CYBERSHIP2 else cybership2_hull(coefficients)
+    return pulse_system(
+        hull, {"X": (1.0, 2.0), "Y": ((-0.3, 0.1), (-0.1, 0.3)),
+               "N": ((0.15, 0.3), (-0.3, -0.15))},
+        dt=dt, process_noise_std=process_noise_std,
+        process_noise_time_constant=process_noise_time_constant,
+        sensor_noise_std=sensor_noise_std, x0=x0, merges=TRIAL_MERGES,
         description="CyberShip II (Skjetne et al. 2004), Euler at dt, no current (see "
                     "vesselid.vessels.simulate_cybership2 for current/wind/sensors)",
     )
 
-#: Catalogue entry (:mod:`vesselid.catalogue`).
-system = cybership2_system
 
 #: Terms collinear in every steady turn (``v·|r| = −r·|v|`` since ``v·r < 0``): the sea
 #: trial folds ``v·|r|`` into ``r·|v|`` (:func:`vesselid.seatrial.seatrial_spec`).
 TRIAL_MERGES = (("r*|v|", "v*|r|", -1.0),)
+
+#: Catalogue entry (:mod:`vesselid.catalogue`).
+system = cybership2_system
+

@@ -17,7 +17,7 @@ environments.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -29,6 +29,7 @@ from vesselid.errors import SimulationDivergedError, VesselidError
 from vesselid.model import ModelSpec
 from vesselid.regressors import advance, kernel
 from vesselid.simulate import DEFAULT_DIVERGENCE_LIMIT
+from vesselid.simulation import SimulationResult
 from vesselid.vessels.environment import (
     N_SENSOR_CHANNELS,
     SENSOR_CHANNELS,
@@ -46,6 +47,7 @@ __all__ = [
     "VesselBatch",
     "VesselModel",
     "VesselSimulation",
+    "log_columns",
     "simulate_vessel",
 ]
 
@@ -469,7 +471,7 @@ class VesselModel:
 
 # --------------------------------------------------------------------- batch simulator
 @dataclass
-class VesselSimulation:
+class VesselSimulation(SimulationResult):
     """Result of :func:`simulate_vessel`; arrays have shape ``(runs, samples, ·)``.
 
     Properties: ``nu`` true absolute velocity ``[u, v, r]`` (the paper's ``x``), ``nu_r``
@@ -509,59 +511,26 @@ class VesselSimulation:
     def spec(self) -> ModelSpec:
         return self.model.spec
 
-    @property
-    def n_runs(self) -> int:
-        return int(self.state.shape[0])
+    def _lead(self) -> np.ndarray:
+        return self.state
 
-    @property
-    def n_samples(self) -> int:
-        return int(self.state.shape[1])
+    def _dt(self) -> float:
+        return self.model.dt
 
-    def to_frame(self) -> Any:
-        """Tidy trial-log frame (DESIGN.md): one row per sample, runs are experiments.
+    def columns(self) -> dict[str, np.ndarray]:
+        """:func:`log_columns` of the run arrays: measured ``u, v`` (GNSS), ``r`` (gyro),
+        inputs ``X, Y, N``, ``psi``, speed log ``u_log, v_log, r_log``, current meter
+        ``u_c, v_c``, anemometer ``wind_speed, wind_angle`` (enabled sensors only) and
+        ground truth ``true_*``."""
+        arrays = {"nu": self.nu, "nu_r": self.nu_r, "current": self.nu_c, "eta": self.eta,
+                  "tau": self.tau}
 
-        Columns: ``experiment, time``, measured ``u, v`` (GNSS) and ``r`` (gyro), inputs
-        ``X, Y, N``, ``psi`` (heading sensor), speed log ``u_log, v_log, r_log`` (``r_log``
-        repeats the gyro: ``r_r = r``), current meter ``u_c, v_c``, anemometer
-        ``wind_speed, wind_angle`` — each only if its sensor is enabled — and ground truth
-        ``true_u, true_v, true_r, true_u_r, true_v_r, true_u_c, true_v_c, true_north,
-        true_east, true_psi``.
-        """
-        import pandas as pd
+        def get(block: str, i: int) -> np.ndarray:
+            if block in arrays:
+                return arrays[block][:, :, i].ravel()
+            return self.sensors[:, :, SENSOR_CHANNELS.index(SENSOR_GROUPS[block][i])].ravel()
 
-        m = self.model
-        n_r, n_k = self.n_runs, self.n_samples
-        cols: dict[str, np.ndarray] = {
-            "experiment": np.repeat(np.arange(n_r, dtype=np.int64), n_k),
-            "time": np.tile(np.arange(n_k) * m.dt, n_r),
-        }
-        sens = {c: self.sensors[:, :, i].ravel() for i, c in enumerate(SENSOR_CHANNELS)}
-        en = set(m.sensors.channels)
-        for c in ("u", "v", "r"):
-            if c in en:
-                cols[c] = sens[c]
-        for j, c in enumerate(("X", "Y", "N")):
-            cols[c] = self.tau[:, :, j].ravel()
-        if "psi" in en:
-            cols["psi"] = sens["psi"]
-        if "u_log" in en:
-            cols["u_log"] = sens["u_log"]
-            cols["v_log"] = sens["v_log"]
-            if "r" in en:
-                cols["r_log"] = sens["r"]
-        for c in ("u_c", "v_c", "wind_speed", "wind_angle"):
-            if c in en:
-                cols[c] = sens[c]
-        nu_r, nu_c = self.nu_r, self.nu_c
-        for j, c in enumerate(("u", "v", "r")):
-            cols[f"true_{c}"] = self.nu[:, :, j].ravel()
-        cols["true_u_r"] = nu_r[:, :, 0].ravel()
-        cols["true_v_r"] = nu_r[:, :, 1].ravel()
-        cols["true_u_c"] = nu_c[:, :, 0].ravel()
-        cols["true_v_c"] = nu_c[:, :, 1].ravel()
-        for j, c in enumerate(("north", "east", "psi")):
-            cols[f"true_{c}"] = self.eta[:, :, j].ravel()
-        return pd.DataFrame(cols)
+        return log_columns(get, self.model.sensors.enabled)
 
     def to_log(self, *, aggregate: str | None = None):
         """A :class:`~vesselid.logs.TrialLog` with metadata (spec, θ0, seeds, settings).
@@ -573,25 +542,47 @@ class VesselSimulation:
             (paper eq. (9)) to the spec in the metadata. The speed-log columns
             ``u_log, v_log, r_log`` measure the aggregated state directly (Remark 4.3).
         """
-        from vesselid import __version__
-        from vesselid.logs import TrialLog
-
         spec = self.spec
         if aggregate == "current_meter":
             spec = spec.with_aggregate({"u": "u - u_c", "v": "v - v_c"})
         elif aggregate is not None:
             raise VesselidError(f"unknown aggregate option {aggregate!r}")
-        meta = {
-            "spec": spec.to_dict(),
-            "system": {**self.model.describe(),
-                       "env_means": np.asarray(self.env_means).tolist()},
-            "seed": self.seed,
-            "spawn_keys": self.spawn_keys,
-            "vesselid_version": __version__,
-            "samples_per_experiment": self.n_samples,
-            "experiments": self.n_runs,
-        }
-        return TrialLog(self.to_frame(), meta)
+        return self._trial_log(spec, {**self.model.describe(),
+                                      "env_means": np.asarray(self.env_means).tolist()})
+
+
+def log_columns(get: Callable[[str, int], Any], enabled: Sequence[str], *,
+                inputs: bool = True) -> dict[str, Any]:
+    """The trial-log columns of a vessel: the one schema of simulations and environments.
+
+    ``get(block, i)`` returns component ``i`` of a :data:`LAYOUT` block (``nu``, ``nu_r``,
+    ``current``, ``eta``, ``tau``) or of an enabled sensor group (:data:`SENSOR_GROUPS`);
+    ``enabled`` lists the enabled groups; ``inputs`` adds ``X, Y, N``.
+    """
+    row: dict[str, Any] = {}
+    if "gnss" in enabled:
+        row["u"], row["v"] = get("gnss", 0), get("gnss", 1)
+    if "gyro" in enabled:
+        row["r"] = get("gyro", 0)
+    if inputs:
+        row["X"], row["Y"], row["N"] = get("tau", 0), get("tau", 1), get("tau", 2)
+    if "heading" in enabled:
+        row["psi"] = get("heading", 0)
+    if "speed_log" in enabled:
+        row["u_log"], row["v_log"] = get("speed_log", 0), get("speed_log", 1)
+        if "gyro" in enabled:
+            row["r_log"] = get("gyro", 0)
+    if "current_meter" in enabled:
+        row["u_c"], row["v_c"] = get("current_meter", 0), get("current_meter", 1)
+    if "anemometer" in enabled:
+        row["wind_speed"], row["wind_angle"] = get("anemometer", 0), get("anemometer", 1)
+    for i, c in enumerate(("u", "v", "r")):
+        row[f"true_{c}"] = get("nu", i)
+    row["true_u_r"], row["true_v_r"] = get("nu_r", 0), get("nu_r", 1)
+    row["true_u_c"], row["true_v_c"] = get("current", 0), get("current", 1)
+    for i, c in enumerate(("north", "east", "psi")):
+        row[f"true_{c}"] = get("eta", i)
+    return row
 
 
 def simulate_vessel(

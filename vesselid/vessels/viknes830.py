@@ -28,8 +28,6 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from vesselid.disturbances import Gaussian, GaussMarkov
-from vesselid.signals import RandomPulses
 from vesselid.vessels.hull import Hull
 
 __all__ = ["HULL", "PARAMETERS", "system"]
@@ -72,24 +70,15 @@ def system(
     keep ``u > 0`` and, within one experiment, ``v`` and ``r`` of one sign (even
     experiments turn to starboard, odd ones to port).
     """
-    from vesselid.systems import System
+    from vesselid.vessels.system import pulse_system
 
-    spec = HULL.spec(dt)
-    states = spec.states
-    w = {s: GaussMarkov(0.0, float(sd), process_noise_time_constant, dt, 3.0 * float(sd))
-         for s, sd in zip(states, process_noise_std, strict=True) if sd > 0}
-    e = {s: Gaussian(0.0, float(sd)) for s, sd in zip(states, sensor_noise_std, strict=True)}
-    width = (max(1, round(20.0 / dt)), max(1, round(60.0 / dt)))
-    inputs = {
-        "X": RandomPulses(2000.0, 5000.0, *width),
-        "Y": RandomPulses(-400.0, 400.0, *width),
-        "N": (RandomPulses(400.0, 1500.0, *width), RandomPulses(-1500.0, -400.0, *width)),
-    }
-    return System(
-        spec=spec, inputs=inputs, process_noise=w, sensor_noise=e,
-        x0=dict(zip(states, (float(x) for x in x0), strict=True)),
-        description=HULL.description + ", Euler at dt, no current",
-    )
+    return pulse_system(
+        HULL, {"X": (2000.0, 5000.0), "Y": (-400.0, 400.0),
+               "N": ((400.0, 1500.0), (-1500.0, -400.0))},
+        dt=dt, process_noise_std=process_noise_std,
+        process_noise_time_constant=process_noise_time_constant,
+        sensor_noise_std=sensor_noise_std, x0=x0,
+        description=HULL.description + ", Euler at dt, no current")
 
 
 #: Sea-trial operating points ``(X [N], Y [N], N [N m], side)`` (:mod:`vesselid.seatrial`):

@@ -1,0 +1,532 @@
+"""Calibration of the reported uncertainty: Monte Carlo coverage of confidence intervals.
+
+A covariance estimator is calibrated when the nominal 95 % intervals
+``θ̂ ± 1.96 SE`` cover θ0 in 95 % of independent runs. :func:`coverage_study`
+simulates a scenario many times, estimates every run on the batched fast path,
+computes each run's covariance exactly as :func:`vesselid.identify.identify` does
+(:func:`group_covariances`, the same :mod:`~vesselid.identify.covariance` call on the
+same instruments and residuals), and :func:`coverage_table` reports per parameter
+the coverage with its Wilson interval and the ratio of the reported standard error
+to the Monte Carlo spread.
+
+Scenarios (:data:`SCENARIOS`): the paper's heave vehicle (§6) with the Table 1 design
+(alternating and random pulses), Table 2 (current measured, relative target), a
+Gauss–Markov current (time constant 25 samples) and Gauss–Markov sensor noise
+(time constant 20 samples), each with both pulse designs; the CyberShip II sea trial
+is in ``scripts/calibration.py``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from vesselid.identify import kernels
+from vesselid.identify.covariance import DEFAULT_COV_TYPE, get_covariance_estimator
+from vesselid.identify.data import RegressionData, from_arrays
+from vesselid.model import ModelSpec
+
+__all__ = [
+    "SCENARIOS",
+    "coverage_identify",
+    "coverage_study",
+    "coverage_table",
+    "group_covariances",
+    "heave_scenario",
+    "wilson_interval",
+]
+
+
+def wilson_interval(successes: Any, trials: Any, level: float = 0.95) -> tuple[Any, Any]:
+    """Wilson score interval for a binomial proportion (vectorised)."""
+    k = np.asarray(successes, dtype=float)
+    n = np.asarray(trials, dtype=float)
+    zq = stats.norm.ppf(0.5 + level / 2)
+    p = k / n
+    den = 1 + zq**2 / n
+    centre = (p + zq**2 / (2 * n)) / den
+    half = zq * np.sqrt(p * (1 - p) / n + zq**2 / (4 * n**2)) / den
+    return centre - half, centre + half
+
+
+def heave_scenario(name: str):
+    """``(System, aggregate, target)`` of a heave calibration scenario (:data:`SCENARIOS`)."""
+    from vesselid.disturbances import GaussMarkov
+    from vesselid.systems import heave
+
+    if name not in SCENARIOS:
+        raise KeyError(f"unknown scenario {name!r}; choose from {list(SCENARIOS)}")
+    kind, design = SCENARIOS[name]
+    if kind == "table2":
+        return heave(current_mean=0.1, pulse_design=design), True, "aggregated"
+    system = heave(pulse_design=design)
+    if kind == "gm-current":
+        system = dataclasses.replace(system, current={"w": GaussMarkov(0.0, 0.1, 25.0)})
+    elif kind == "gm-sensor":
+        system = dataclasses.replace(system, sensor_noise={"w": GaussMarkov(0.0, 0.1, 20.0)})
+    return system, False, "measured"
+
+
+#: Heave scenarios: name -> (disturbance setting, pulse design). Noise levels of §6
+#: (std 0.1); the Gauss–Markov processes have the same stationary std as the white
+#: ones they replace.
+SCENARIOS: dict[str, tuple[str, str]] = {
+    "table1-alternating": ("table1", "alternating"),
+    "table1-random": ("table1", "random"),
+    "table2": ("table2", "alternating"),
+    "gm-current-alternating": ("gm-current", "alternating"),
+    "gm-current-random": ("gm-current", "random"),
+    "gm-sensor-alternating": ("gm-sensor", "alternating"),
+    "gm-sensor-random": ("gm-sensor", "random"),
+}
+
+
+def group_covariances(
+    data: RegressionData,
+    spec: ModelSpec,
+    theta: np.ndarray,
+    theta_aux: np.ndarray | None,
+    *,
+    method: str = "iv-zero-mean",
+    combine: str = "pooled",
+    cov_type: str = DEFAULT_COV_TYPE,
+    **cov_config: Any,
+) -> tuple[np.ndarray, list[dict[str, Any]]]:
+    """Covariance of every group's estimate (batched Monte Carlo data).
+
+    ``theta`` (G, P) are the estimates, ``theta_aux`` the auxiliary models whose
+    simulated instruments gave them (refined IV; ignored for LS). Groups whose
+    estimate is not finite get NaN.
+
+    Returns
+    -------
+    cov : ndarray (G, P, P)
+    configs : list of dict
+        The covariance settings used per group (e.g. the bandwidth).
+    """
+    est = get_covariance_estimator(cov_type, **cov_config)
+    codes = spec.codes
+    n_par = spec.n_params
+    out = np.full((data.n_groups, n_par, n_par), np.nan)
+    configs: list[dict[str, Any]] = [{} for _ in range(data.n_groups)]
+    for g in range(data.n_groups):
+        if not np.all(np.isfinite(theta[g])):
+            continue
+        segs = np.flatnonzero(data.group == g)
+        a, b = int(data.starts[segs[0]]), int(data.starts[segs[-1] + 1])
+        starts = data.starts[segs[0]: segs[-1] + 2] - a
+        sl = slice(a, b)
+        phi = kernels.regressor_matrix(data.regsig[sl], data.u[sl], starts, codes.factors)
+        if method == "ls":
+            z = phi
+        else:
+            z, _ = kernels.instrument_matrix(data.target[sl], data.u[sl], starts,
+                                             theta_aux[g], codes.factors, codes.equation,
+                                             spec.n_states)
+        zero_mean = method == "iv-zero-mean"
+        weights = np.zeros((n_par, spec.n_states))
+        weights[np.arange(n_par), codes.equation] = theta[g]
+        rows = np.ones(b - a, dtype=bool)
+        rows[starts[:-1]] = False
+        resid = data.target[sl] - np.where(rows[:, None], phi, 0.0) @ weights
+        z = np.where(rows[:, None], z, 0.0)
+        if zero_mean:
+            for s in range(starts.size - 1):
+                r = slice(int(starts[s]) + 1, int(starts[s + 1]))
+                z[r] -= z[r].mean(axis=0)
+        if not np.all(np.isfinite(z[rows])):
+            continue
+        res = est.estimate(z, np.where(rows[:, None], phi, 0.0), resid, starts, codes.equation,
+                           zero_mean=zero_mean, combine=combine)
+        out[g] = res.cov
+        configs[g] = dict(res.config)
+    return out, configs
+
+
+def coverage_table(
+    theta: np.ndarray,
+    std_errors: np.ndarray,
+    theta0: np.ndarray,
+    names: list[str],
+    *,
+    level: float = 0.95,
+) -> pd.DataFrame:
+    """Per parameter: coverage of ``θ̂ ± z SE`` with Wilson interval, SE / MC spread.
+
+    ``se_ratio`` is the RMS standard error over the Monte Carlo standard deviation;
+    ``se_ratio_robust`` the median SE over the IQR-based spread (``IQR/1.349``), which
+    a few runs with very large errors or SEs do not dominate.
+
+    Runs with a non-finite estimate or standard error are left out (``runs`` counts
+    the ones used).
+    """
+    zq = stats.norm.ppf(0.5 + level / 2)
+    rows = []
+    for p, name in enumerate(names):
+        ok = np.isfinite(theta[:, p]) & np.isfinite(std_errors[:, p])
+        err = theta[ok, p] - theta0[p]
+        se = std_errors[ok, p]
+        n = int(ok.sum())
+        hits = int(np.sum(np.abs(err) <= zq * se))
+        lo, hi = wilson_interval(hits, n, level) if n else (np.nan, np.nan)
+        sd = float(np.std(err, ddof=1)) if n > 1 else np.nan
+        rows.append({
+            "parameter": name,
+            "runs": n,
+            "coverage": hits / n if n else np.nan,
+            "wilson_low": float(lo),
+            "wilson_high": float(hi),
+            "se_rms": float(np.sqrt(np.mean(se**2))) if n else np.nan,
+            "mc_sd": sd,
+            "se_ratio": float(np.sqrt(np.mean(se**2)) / sd) if n > 1 and sd > 0 else np.nan,
+            # robust to a few runs with huge errors / SEs: median SE over the IQR-based spread
+            "se_ratio_robust": float(np.median(se) / (np.subtract(*np.percentile(err, [75, 25]))
+                                                      / 1.349)) if n > 3 else np.nan,
+            "bias_z": float(np.mean(err) / sd * math.sqrt(n)) if n > 1 and sd > 0 else np.nan,
+        })
+    return pd.DataFrame(rows)
+
+
+def coverage_study(
+    scenario: str,
+    runs: int,
+    *,
+    samples: int = 10_000,
+    seed: int = 0,
+    method: str | None = None,
+    covariances: Mapping[str, tuple[str, Mapping[str, Any]]] | None = None,
+    estimate_fn: Callable[..., Any] | None = None,
+    batch: int = 200,
+) -> pd.DataFrame:
+    """Coverage of a heave scenario for one or several covariance estimators.
+
+    Parameters
+    ----------
+    scenario : str
+        Key of :data:`SCENARIOS`.
+    runs, samples, seed : int
+        Monte Carlo runs, samples per run, root seed (run ``r`` uses child ``r``).
+    method : str, optional
+        Estimator (default: the package default, :func:`default_method`); with the
+        estimator registry its batched ``estimate_parameters`` and, per run, the
+        ``equation_designs`` its ``fit`` uses (:func:`registry_covariances`).
+    covariances : mapping label -> (cov_type, cov_config)
+        Default: the package default only.
+    estimate_fn : callable, optional
+        ``estimate_fn(data, spec) -> IterationResult``; default
+        ``estimate(data, spec, method)``.
+
+    Returns
+    -------
+    DataFrame
+        :func:`coverage_table` rows with ``scenario`` and ``covariance`` columns.
+    """
+    from vesselid.identify.estimators import estimate
+
+    method = method or default_method()
+    registry = _has_registry() and estimate_fn is None
+    if registry:
+        from vesselid.identify.registry import get_estimator
+    system, aggregate, target = heave_scenario(scenario)
+    spec = system.identification_spec(aggregate=aggregate)
+    covariances = covariances or {DEFAULT_COV_TYPE: (DEFAULT_COV_TYPE, {})}
+    root = np.random.SeedSequence(seed)
+    seeds = root.spawn(int(runs))
+    thetas = []
+    ses: dict[str, list[np.ndarray]] = {k: [] for k in covariances}
+    for c in range(0, int(runs), batch):
+        sim = system.simulate(int(samples), run_seeds=seeds[c:c + batch])
+        data = from_arrays(spec, sim.y, sim.u, y2=sim.y2 if aggregate else None)
+        if target == "aggregated":
+            data = dataclasses.replace(data, target=data.regsig)
+        if registry:
+            it = get_estimator(method).estimate_parameters(data, spec)
+            thetas.append(it.theta)
+            for label, se in registry_covariances(data, spec, it, method, covariances).items():
+                ses[label].append(se)
+            continue
+        it = (estimate_fn(data, spec) if estimate_fn is not None
+              else estimate(data, spec, method))
+        thetas.append(it.theta)
+        for label, (cov_type, cfg) in covariances.items():
+            cov, _ = group_covariances(data, spec, it.theta, it.theta_aux, method=method,
+                                       cov_type=cov_type, **dict(cfg))
+            ses[label].append(np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None)))
+    theta = np.vstack(thetas)
+    names = [f"{eq}: {term}" for eq, term in spec.param_index]
+    frames = []
+    for label in covariances:
+        tab = coverage_table(theta, np.vstack(ses[label]), spec.theta0_vector(), names)
+        tab.insert(0, "covariance", label)
+        tab.insert(0, "scenario", scenario)
+        tab.insert(2, "method", method)
+        frames.append(tab)
+    return pd.concat(frames, ignore_index=True)
+
+
+def seatrial_coverage(
+    runs: int,
+    *,
+    samples: int = 20_000,
+    experiments: int = 6,
+    seed: int = 0,
+    method: str | None = None,
+    covariances: Mapping[str, tuple[str, Mapping[str, Any]]] | None = None,
+    estimate_fn: Callable[..., Any] | None = None,
+    chunk: int = 5,
+) -> pd.DataFrame:
+    """Coverage on the CyberShip II sea trial (:mod:`vesselid.seatrial`): ``runs``
+    independent trials of ``experiments × samples`` with the study's current, wind,
+    gusts and unmodelled forces, identified with the relative predictor (speed log)."""
+    from vesselid.identify.estimators import estimate
+
+    method = method or default_method()
+    registry = _has_registry() and estimate_fn is None
+    if registry:
+        from vesselid.identify.registry import get_estimator
+    from vesselid.seatrial import _disturbances, design_sea_trial, seatrial_spec
+    from vesselid.vessels import SENSOR_CHANNELS, simulate_cybership2
+
+    spec = seatrial_spec()
+    design = design_sea_trial(experiments, samples, seed=seed)
+    dist = _disturbances(0.05, np.radians(30.0), 1.0, np.radians(-60.0), 0.005, 0.1,
+                         (0.02, 0.02, 0.01))
+    idx = [SENSOR_CHANNELS.index(c) for c in ("u_log", "v_log", "r")]
+    inputs = design.warmup_inputs()
+    covariances = covariances or {DEFAULT_COV_TYPE: (DEFAULT_COV_TYPE, {})}
+    seeds = np.random.SeedSequence(seed + 2000).spawn(int(runs))
+    thetas = []
+    ses: dict[str, list[np.ndarray]] = {k: [] for k in covariances}
+    n_e = design.n_experiments
+    for c in range(0, int(runs), chunk):
+        group_seeds = seeds[c:c + chunk]
+        y = np.empty((len(group_seeds) * n_e, design.n_samples, 3))
+        tau = np.empty_like(y)
+        for g, ss in enumerate(group_seeds):
+            sim = simulate_cybership2(inputs, run_seeds=ss.spawn(n_e), dt=design.dt,
+                                      disturbances=dist)
+            y[g * n_e:(g + 1) * n_e] = sim.sensors[:, design.warmup:, idx]
+            tau[g * n_e:(g + 1) * n_e] = sim.tau[:, design.warmup:]
+            del sim
+        data = from_arrays(spec, y, tau, experiments_per_group=n_e)
+        if registry:
+            it = get_estimator(method).estimate_parameters(data, spec)
+            thetas.append(it.theta)
+            for label, se in registry_covariances(data, spec, it, method, covariances).items():
+                ses[label].append(se)
+            continue
+        it = (estimate_fn(data, spec) if estimate_fn is not None
+              else estimate(data, spec, method))
+        thetas.append(it.theta)
+        for label, (cov_type, cfg) in covariances.items():
+            cov, _ = group_covariances(data, spec, it.theta, it.theta_aux, method=method,
+                                       cov_type=cov_type, **dict(cfg))
+            ses[label].append(np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None)))
+    theta = np.vstack(thetas)
+    names = [f"{eq}: {term}" for eq, term in spec.param_index]
+    frames = []
+    for label in covariances:
+        tab = coverage_table(theta, np.vstack(ses[label]), spec.theta0_vector(), names)
+        tab.insert(0, "covariance", label)
+        tab.insert(0, "scenario", "seatrial")
+        tab.insert(2, "method", method)
+        frames.append(tab)
+    return pd.concat(frames, ignore_index=True)
+
+
+# ------------------------------------------------------------------ through identify()
+def _identify_runs(
+    frames: list[pd.DataFrame],
+    spec: ModelSpec,
+    covariances: Mapping[str, tuple[str, Mapping[str, Any]]],
+    method: str | None,
+    target: str,
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Fit every run's log with the public ``identify`` (the user's path), once per
+    covariance estimator. Failed fits give NaN rows."""
+    import inspect
+    import warnings
+
+    from vesselid.identify import identify
+
+    params = inspect.signature(identify).parameters
+    n_par = spec.n_params
+    theta = np.full((len(frames), n_par), np.nan)
+    ses = {k: np.full((len(frames), n_par), np.nan) for k in covariances}
+    for r, frame in enumerate(frames):
+        for first, (label, (cov_type, cfg)) in enumerate(covariances.items()):
+            kw: dict[str, Any] = {}
+            if method is not None:
+                kw["method"] = method
+            if "target" in params:
+                kw["target"] = target
+            if "cov_type" in params:
+                kw["cov_type"] = cov_type
+                kw["cov_config"] = dict(cfg)
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    res = identify(frame, spec, **kw)
+            except ValueError:
+                continue
+            if first == 0:
+                theta[r] = res.params.to_numpy()
+            ses[label][r] = res.std_errors.to_numpy()
+    return theta, ses
+
+
+def coverage_identify(
+    scenario: str,
+    runs: int,
+    *,
+    samples: int = 10_000,
+    seed: int = 0,
+    method: str | None = None,
+    covariances: Mapping[str, tuple[str, Mapping[str, Any]]] | None = None,
+    batch: int = 100,
+) -> pd.DataFrame:
+    """:func:`coverage_study` through the public :func:`vesselid.identify.identify`
+    (default method unless ``method``), one trial log per run; ``"seatrial"`` runs
+    the CyberShip II trial (6 × ``samples``)."""
+    covariances = covariances or {DEFAULT_COV_TYPE: (DEFAULT_COV_TYPE, {})}
+    theta_all, ses_all = [], {k: [] for k in covariances}
+    if scenario == "seatrial":
+        from vesselid.seatrial import _disturbances, design_sea_trial, seatrial_spec
+        from vesselid.vessels import SENSOR_CHANNELS, simulate_cybership2
+
+        spec = seatrial_spec()
+        design = design_sea_trial(6, samples, seed=seed)
+        dist = _disturbances(0.05, np.radians(30.0), 1.0, np.radians(-60.0), 0.005, 0.1,
+                             (0.02, 0.02, 0.01))
+        idx = [SENSOR_CHANNELS.index(c) for c in ("u_log", "v_log", "r")]
+        inputs = design.warmup_inputs()
+        seeds = np.random.SeedSequence(seed + 2000).spawn(int(runs))
+        target = "measured"
+        for ss in seeds:
+            sim = simulate_cybership2(inputs, run_seeds=ss.spawn(6), dt=design.dt,
+                                      disturbances=dist)
+            y = sim.sensors[:, design.warmup:, idx]
+            tau = sim.tau[:, design.warmup:]
+            n_e, n_k = y.shape[0], y.shape[1]
+            cols: dict[str, np.ndarray] = {"experiment": np.repeat(np.arange(n_e), n_k)}
+            for i, s in enumerate(spec.states):
+                cols[s] = y[:, :, i].ravel()
+            for j, s in enumerate(spec.inputs):
+                cols[s] = tau[:, :, j].ravel()
+            th, se = _identify_runs([pd.DataFrame(cols)], spec, covariances, method, target)
+            theta_all.append(th)
+            for k in covariances:
+                ses_all[k].append(se[k])
+    else:
+        system, aggregate, target = heave_scenario(scenario)
+        spec = system.identification_spec(aggregate=aggregate)
+        seeds = np.random.SeedSequence(seed).spawn(int(runs))
+        for c in range(0, int(runs), batch):
+            sim = system.simulate(int(samples), run_seeds=seeds[c:c + batch])
+            frames = []
+            for r in range(sim.n_runs):
+                cols = {s: sim.y[r, :, i] for i, s in enumerate(spec.states)}
+                cols |= {s: sim.u[r, :, j] for j, s in enumerate(spec.inputs)}
+                for j, s in enumerate(system.sensor_states):
+                    if aggregate:
+                        cols[system.sensor_name(s)] = sim.y2[r, :, j]
+                frames.append(pd.DataFrame(cols))
+            th, se = _identify_runs(frames, spec, covariances, method, target)
+            theta_all.append(th)
+            for k in covariances:
+                ses_all[k].append(se[k])
+    theta = np.vstack(theta_all)
+    names = [f"{eq}: {term}" for eq, term in spec.param_index]
+    out = []
+    for label in covariances:
+        tab = coverage_table(theta, np.vstack(ses_all[label]), spec.theta0_vector(), names)
+        tab.insert(0, "covariance", label)
+        tab.insert(0, "scenario", scenario)
+        out.append(tab)
+    return pd.concat(out, ignore_index=True)
+
+
+# ------------------------------------------------------------------ registry estimators
+def _has_registry() -> bool:
+    try:
+        import vesselid.identify.registry  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def default_method() -> str:
+    """The package's default estimator (``iv-zero-mean`` before the registry existed)."""
+    try:
+        from vesselid.identify.registry import DEFAULT_METHOD
+    except ImportError:  # pragma: no cover - older layout
+        return "iv-zero-mean"
+    return str(DEFAULT_METHOD)
+
+
+def _slice_group(obj: Any, g: int, n_groups: int) -> Any:
+    if isinstance(obj, np.ndarray) and obj.ndim and obj.shape[0] == n_groups:
+        return obj[g:g + 1]
+    if isinstance(obj, list) and len(obj) == n_groups and n_groups > 1:
+        return obj[g:g + 1]
+    if isinstance(obj, dict):
+        return {k: _slice_group(v, g, n_groups) for k, v in obj.items()}
+    return obj
+
+
+def registry_covariances(
+    data: RegressionData,
+    spec: ModelSpec,
+    it: Any,
+    method: str,
+    covariances: Mapping[str, tuple[str, Mapping[str, Any]]],
+    *,
+    combine: str = "pooled",
+) -> dict[str, np.ndarray]:
+    """Standard errors (G, P) of a registry estimator's batched estimates, computed as its
+    checked ``fit`` does: its ``equation_designs`` (final instruments, weight, residuals
+    of each equation) and one covariance call per equation."""
+    from vesselid.identify.data import block_starts
+    from vesselid.identify.registry import get_estimator
+
+    est = get_estimator(method)
+    blocks = block_starts(spec)
+    n_groups = data.n_groups
+    out = {k: np.full((n_groups, spec.n_params), np.nan) for k in covariances}
+    cov_est = {k: get_covariance_estimator(c, **dict(cfg)) for k, (c, cfg) in covariances.items()}
+    fields = {f.name for f in dataclasses.fields(it)}
+    for g in range(n_groups):
+        if not np.all(np.isfinite(it.theta[g])):
+            continue
+        segs = np.flatnonzero(data.group == g)
+        a, b = int(data.starts[segs[0]]), int(data.starts[segs[-1] + 1])
+        sl = slice(a, b)
+        sub = dataclasses.replace(
+            data, target=data.target[sl], regsig=data.regsig[sl], u=data.u[sl],
+            starts=data.starts[segs[0]: segs[-1] + 2] - a, group=np.zeros(segs.size, np.int64),
+            n_groups=1, experiment_ids=tuple(range(segs.size)),
+            sensor=None if data.sensor is None else data.sensor[sl])
+        it_g = dataclasses.replace(it, **{f: _slice_group(getattr(it, f), g, n_groups)
+                                          for f in fields if f != "history"})
+        phi = kernels.regressor_matrix(sub.regsig, sub.u, sub.starts, spec.codes.factors)
+        try:
+            designs = est.equation_designs(sub, spec, it_g, phi, combine)
+        except (ValueError, np.linalg.LinAlgError):
+            continue
+        for label, ce in cov_est.items():
+            for i in range(spec.n_states):
+                d = designs[i]
+                p_sl = slice(int(blocks[i]), int(blocks[i + 1]))
+                try:
+                    res = ce.estimate(d.z, d.phi, d.resid, d.starts, weight=d.weight,
+                                      zero_mean=d.zero_mean, combine=combine, skip_first=False)
+                except ValueError:
+                    continue
+                out[label][g, p_sl] = res.std_errors
+    return out

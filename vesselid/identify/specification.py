@@ -1,0 +1,600 @@
+"""Specification tests over arrays: instrument strength, over-identification, endogeneity,
+residual whiteness and residual–input correlation.
+
+Everything works on plain arrays (instruments ``z``, regressors ``phi``, target ``y``,
+residuals, inputs, experiment boundaries ``starts``), one state equation at a time
+unless said otherwise, with the package's conventions: rows are all experiments
+concatenated, no statistic mixes samples of two experiments, and with zero-mean
+instruments (A7) every experiment has its own constant (``zero_mean=True``).
+Autocorrelation-robust versions use the covariance estimators of
+:mod:`vesselid.identify.covariance` (``cov_type`` / ``cov_config``).
+
+* :func:`first_stage` — partial F of each endogenous regressor and the Cragg–Donald
+  minimum-eigenvalue statistic (Stock–Yogo style weak-instrument screen).
+* :func:`hansen_j`, :func:`difference_in_j` — Hansen's J of an over-identified set
+  (two-step efficient GMM) and the C statistic of a subset of instruments.
+* :func:`endogeneity_test` — Durbin–Wu–Hausman test of LS against IV in the
+  regression (control-function) form, robust with the chosen covariance, with a plain
+  sentence ("LS is biased on this log: p = …").
+* :func:`ljung_box` — residual whiteness per equation (statsmodels'
+  ``acorr_ljungbox`` per experiment, Q statistics and degrees of freedom summed).
+* :func:`residual_correlations` — residual autocorrelation and residual–input
+  cross-correlation with confidence bands (the data of ``plot_residuals``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from vesselid.identify.covariance import DEFAULT_COV_TYPE, CovarianceError, get_covariance_estimator
+
+__all__ = [
+    "ResidualCorrelation",
+    "TestResult",
+    "difference_in_j",
+    "endogeneity_test",
+    "equation_diagnostics",
+    "exogenous_columns",
+    "first_stage",
+    "hansen_j",
+    "ljung_box",
+    "residual_correlations",
+    "summary_lines",
+]
+
+
+@dataclass
+class TestResult:
+    """A test statistic with its null distribution (after linearmodels' ``WaldTestStatistic``).
+
+    Attributes
+    ----------
+    name : str
+    stat : float
+    df : int
+        Degrees of freedom of the χ² (or numerator of the F) distribution.
+    pvalue : float
+    distribution : str
+        ``"chi2"`` or ``"F"``.
+    null : str
+        The null hypothesis in words.
+    sentence : str
+        One plain sentence for ``summary()``.
+    extra : dict
+        Anything else (e.g. per-regressor values).
+    """
+
+    name: str
+    stat: float
+    df: int
+    pvalue: float
+    distribution: str = "chi2"
+    null: str = ""
+    sentence: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "stat": _finite(self.stat), "df": int(self.df),
+                "pvalue": _finite(self.pvalue), "distribution": self.distribution,
+                "null": self.null, "sentence": self.sentence}
+
+    def __str__(self) -> str:
+        return (f"{self.name}: {self.stat:.4g} ({self.distribution}({self.df})), "
+                f"{_p(self.pvalue)}")
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def _p(p: float) -> str:
+    """``"p = 0.034"`` / ``"p < 0.0001"``."""
+    return "p = nan" if not np.isfinite(p) else ("p < 0.0001" if p < 1e-4 else f"p = {p:.2g}")
+
+
+def _segs(starts: np.ndarray | None, t_len: int, skip_first: bool) -> list[slice]:
+    starts = np.array([0, t_len]) if starts is None else np.asarray(starts, dtype=np.int64)
+    off = 1 if skip_first else 0
+    return [slice(int(starts[s]) + off, int(starts[s + 1])) for s in range(starts.size - 1)]
+
+
+def _demean(x: np.ndarray, segs: list[slice]) -> np.ndarray:
+    out = np.zeros_like(x, dtype=float)
+    for s in segs:
+        out[s] = x[s] - x[s].mean(axis=0)
+    return out
+
+
+def _rows(x: np.ndarray, segs: list[slice]) -> np.ndarray:
+    return np.concatenate([x[s] for s in segs])
+
+
+def _compact_starts(segs: list[slice]) -> np.ndarray:
+    return np.concatenate([[0], np.cumsum([s.stop - s.start for s in segs])]).astype(np.int64)
+
+
+def exogenous_columns(z: np.ndarray, phi: np.ndarray, *, rtol: float = 1e-10) -> np.ndarray:
+    """Regressor columns that are also instrument columns (known inputs: exogenous)."""
+    z = np.asarray(z, dtype=float)
+    phi = np.asarray(phi, dtype=float)
+    out = np.zeros(phi.shape[1], dtype=bool)
+    head = min(64, phi.shape[0])
+    for j in range(phi.shape[1]):
+        scale = np.max(np.abs(phi[:, j])) or 1.0
+        cand = np.flatnonzero(np.max(np.abs(z[:head] - phi[:head, [j]]), axis=0) <= rtol * scale)
+        out[j] = any(np.max(np.abs(z[:, k] - phi[:, j])) <= rtol * scale for k in cand)
+    return out
+
+
+# ----------------------------------------------------------------- instrument strength
+def first_stage(
+    z: np.ndarray,
+    phi: np.ndarray,
+    starts: np.ndarray | None = None,
+    *,
+    zero_mean: bool = True,
+    skip_first: bool = True,
+    names: list[str] | None = None,
+) -> dict[str, Any]:
+    """First-stage strength of the instruments of one equation.
+
+    The regressors that are instruments themselves (inputs) are exogenous and are
+    partialled out together with the per-experiment constants (``zero_mean``). For
+    every remaining (endogenous) regressor the partial F statistic of its
+    regression on the excluded instruments is reported, and the Cragg–Donald
+    minimum eigenvalue statistic of them jointly (homoskedastic form; compare it
+    with Stock–Yogo critical values, ≈ 10 and up for strong instruments). Both use
+    ``σ̂² = SSR/N`` (the Wald form, as linearmodels' first-stage ``f.stat``).
+
+    Returns
+    -------
+    dict
+        ``partial_f`` {name: F}, ``partial_r2`` {name: R²}, ``cragg_donald`` (float),
+        ``endogenous`` (names), ``df`` (numerator, denominator).
+    """
+    z = np.asarray(z, dtype=float)
+    phi = np.asarray(phi, dtype=float)
+    segs = _segs(starts, phi.shape[0], skip_first)
+    names = names or [f"x{j}" for j in range(phi.shape[1])]
+    zz, pp = _rows(z, segs), _rows(phi, segs)
+    if zero_mean:
+        cs = _compact_starts(segs)
+        inner = [slice(int(cs[i]), int(cs[i + 1])) for i in range(len(segs))]
+        zz, pp = _demean(zz, inner), _demean(pp, inner)
+    exo = exogenous_columns(zz, pp)
+    excl = ~exogenous_columns(pp, zz)  # instrument columns that are not regressors
+    w = pp[:, exo]
+    endo = np.flatnonzero(~exo)
+    n = zz.shape[0]
+    k_ex = int(excl.sum())
+    k_total = k_ex + int(exo.sum()) + (len(segs) if zero_mean else 0)
+
+    def resid_on(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        if b.shape[1] == 0:
+            return a
+        coef, *_ = np.linalg.lstsq(b, a, rcond=None)
+        return a - b @ coef
+
+    x_t = resid_on(pp[:, endo], w)
+    z_t = resid_on(zz[:, excl], w)
+    out: dict[str, Any] = {"partial_f": {}, "partial_r2": {},
+                           "endogenous": [names[j] for j in endo], "df": (k_ex, n - k_total)}
+    if endo.size == 0 or k_ex == 0:
+        out["cragg_donald"] = float("inf") if endo.size == 0 else 0.0
+        return out
+    coef, *_ = np.linalg.lstsq(z_t, x_t, rcond=None)
+    fitted = z_t @ coef
+    v = x_t - fitted
+    for i, j in enumerate(endo):
+        ssr = float(v[:, i] @ v[:, i])
+        sse = float(fitted[:, i] @ fitted[:, i])
+        r2 = sse / (sse + ssr) if sse + ssr > 0 else float("nan")
+        f = (sse / k_ex) / (ssr / n) if ssr > 0 else float("inf")
+        out["partial_f"][names[j]] = float(f)
+        out["partial_r2"][names[j]] = float(r2)
+    s_vv = v.T @ v / n
+    try:
+        l_inv = np.linalg.inv(np.linalg.cholesky(s_vv))
+        g = l_inv @ (fitted.T @ fitted) @ l_inv.T / k_ex
+        out["cragg_donald"] = float(np.min(np.linalg.eigvalsh(0.5 * (g + g.T))))
+    except np.linalg.LinAlgError:
+        out["cragg_donald"] = float("inf")
+    return out
+
+
+# ----------------------------------------------------------------- over-identification
+def _gmm(z, phi, y, segs, weight):
+    a = sum(z[s].T @ phi[s] for s in segs)
+    b = sum(z[s].T @ y[s] for s in segs)
+    m = a.T @ weight @ a
+    theta = np.linalg.solve(m, a.T @ weight @ b)
+    return theta
+
+
+def hansen_j(
+    z: np.ndarray,
+    phi: np.ndarray,
+    y: np.ndarray,
+    starts: np.ndarray | None = None,
+    *,
+    zero_mean: bool = True,
+    skip_first: bool = True,
+    cov_type: str = DEFAULT_COV_TYPE,
+    long_run: np.ndarray | None = None,
+    **cov_config: Any,
+) -> TestResult:
+    """Hansen's J test of the over-identifying restrictions of one equation.
+
+    Two-step efficient GMM: 2SLS first, the long-run covariance ``S`` of its scores
+    (``cov_type``, within experiments), then ``θ = argmin ḡᵀ S⁻¹ ḡ`` and
+    ``J = ḡ(θ)ᵀ S⁻¹ ḡ(θ) ~ χ²(K − P)`` with ``ḡ = Σ z (y − φᵀθ)``. Pass ``long_run``
+    to reuse an ``S`` (the difference-in-J test does). With ``zero_mean`` the
+    instruments, regressors and target are centred per experiment first.
+
+    Raises
+    ------
+    CovarianceError
+        Fewer instruments than regressors.
+    """
+    z, phi, y, segs = _prepare(z, phi, y, starts, zero_mean, skip_first)
+    k, p = z.shape[1], phi.shape[1]
+    if k < p:
+        raise CovarianceError(
+            f"J test needs at least as many instruments ({k}) as regressors ({p})")
+    if long_run is None:
+        w0 = np.linalg.pinv(sum(z[s].T @ z[s] for s in segs))
+        th0 = _gmm(z, phi, y, segs, w0)
+        est = get_covariance_estimator(cov_type, **cov_config)
+        long_run = est.estimate(z, phi, y - phi @ th0, _starts_of(segs), weight=w0,
+                                skip_first=False).long_run
+    s_inv = np.linalg.pinv(long_run)
+    theta = _gmm(z, phi, y, segs, s_inv)
+    gbar = sum(z[s].T @ (y[s] - phi[s] @ theta) for s in segs)
+    j = float(gbar @ s_inv @ gbar)
+    df = k - p
+    pval = float(stats.chi2.sf(j, df)) if df > 0 else float("nan")
+    verdict = "rejected" if pval < 0.05 else "not rejected"
+    sentence = ("the instruments are just-identified: no over-identification test" if df == 0
+                else f"over-identifying restrictions {verdict}: J = {j:.3g}, {_p(pval)}")
+    return TestResult("Hansen J", j, df, pval, "chi2",
+                      "all instruments are uncorrelated with the equation error", sentence,
+                      {"theta": theta, "long_run": long_run})
+
+
+def difference_in_j(
+    z: np.ndarray,
+    phi: np.ndarray,
+    y: np.ndarray,
+    tested: np.ndarray,
+    starts: np.ndarray | None = None,
+    *,
+    zero_mean: bool = True,
+    skip_first: bool = True,
+    cov_type: str = DEFAULT_COV_TYPE,
+    **cov_config: Any,
+) -> TestResult:
+    """Difference-in-J (C) test of the instrument columns ``tested`` (bool mask or indices).
+
+    ``C = J(all) − J(all but tested)``, both with the long-run covariance of the full
+    set (its sub-block for the smaller set; Hayashi 2000, §3.6), so ``C ≥ 0``;
+    ``C ~ χ²(#tested)`` under the null that the tested instruments are valid given
+    that the others are.
+    """
+    z = np.asarray(z, dtype=float)
+    mask = np.zeros(z.shape[1], dtype=bool)
+    mask[np.asarray(tested)] = True
+    full = hansen_j(z, phi, y, starts, zero_mean=zero_mean, skip_first=skip_first,
+                    cov_type=cov_type, **cov_config)
+    s_full = full.extra["long_run"]
+    keep = ~mask
+    sub = hansen_j(z[:, keep], phi, y, starts, zero_mean=zero_mean, skip_first=skip_first,
+                   long_run=s_full[np.ix_(keep, keep)])
+    c = max(full.stat - sub.stat, 0.0)
+    df = int(mask.sum())
+    pval = float(stats.chi2.sf(c, df))
+    sentence = (f"the tested instruments are {'rejected' if pval < 0.05 else 'not rejected'}: "
+                f"C = {c:.3g}, {_p(pval)}")
+    return TestResult("difference-in-J (C)", c, df, pval, "chi2",
+                      "the tested instruments are uncorrelated with the equation error", sentence,
+                      {"j_full": full.stat, "j_subset": sub.stat})
+
+
+def _prepare(z, phi, y, starts, zero_mean, skip_first):
+    z = np.asarray(z, dtype=float)
+    phi = np.asarray(phi, dtype=float)
+    y = np.asarray(y, dtype=float).reshape(-1)
+    segs = _segs(starts, phi.shape[0], skip_first)
+    z, phi, y = (_rows(a, segs) for a in (z, phi, y))
+    cs = _compact_starts(segs)
+    inner = [slice(int(cs[i]), int(cs[i + 1])) for i in range(len(segs))]
+    if zero_mean:
+        z, phi, y = (_demean(a, inner) for a in (z, phi, y))
+    return z, phi, y, inner
+
+
+def _starts_of(segs: list[slice]) -> np.ndarray:
+    return np.array([segs[0].start] + [s.stop for s in segs], dtype=np.int64)
+
+
+# ----------------------------------------------------------------- endogeneity
+def endogeneity_test(
+    z: np.ndarray,
+    phi: np.ndarray,
+    y: np.ndarray,
+    starts: np.ndarray | None = None,
+    *,
+    zero_mean: bool = True,
+    skip_first: bool = True,
+    cov_type: str = DEFAULT_COV_TYPE,
+    level: float = 0.05,
+    **cov_config: Any,
+) -> TestResult:
+    """Durbin–Wu–Hausman test of LS against IV for one equation (regression form).
+
+    The endogenous regressors (those that are not instruments) are regressed on the
+    instruments; their first-stage residuals ``v̂`` are added to the LS regression
+    ``y = φᵀθ + v̂ᵀδ + ε`` and ``δ = 0`` is tested with a Wald statistic using the
+    covariance ``cov_type`` (default HAC, so autocorrelated equation errors do not
+    fake a rejection). Under the null LS and IV estimate the same θ; a rejection means
+    LS is biased on this log. With ``cov_type="unadjusted"`` the statistic is
+    linearmodels' ``wu_hausman`` times its numerator degrees of freedom.
+    """
+    z, phi, y, segs = _prepare(z, phi, y, starts, zero_mean, skip_first)
+    exo = exogenous_columns(z, phi)
+    endo = np.flatnonzero(~exo)
+    if endo.size == 0:
+        return TestResult("Durbin-Wu-Hausman", 0.0, 0, 1.0, "chi2", "LS is consistent",
+                          "no endogenous regressor: LS and IV coincide")
+    coef, *_ = np.linalg.lstsq(z, phi[:, endo], rcond=None)
+    v = phi[:, endo] - z @ coef
+    x = np.hstack([phi, v])
+    beta, *_ = np.linalg.lstsq(x, y, rcond=None)
+    est = get_covariance_estimator(cov_type, **cov_config)
+    cov = est.estimate(x, x, y - x @ beta, _starts_of(segs), skip_first=False,
+                       zero_mean=False).cov
+    d = beta[phi.shape[1]:]
+    v_d = cov[phi.shape[1]:, phi.shape[1]:]
+    try:
+        stat = float(d @ np.linalg.solve(v_d, d))
+    except np.linalg.LinAlgError:
+        stat = float("nan")
+    df = int(endo.size)
+    pval = float(stats.chi2.sf(stat, df)) if np.isfinite(stat) else float("nan")
+    if not np.isfinite(pval):
+        sentence = "endogeneity test not available"
+    elif pval < level:
+        sentence = f"LS is biased on this log: {_p(pval)}"
+    else:
+        sentence = f"no evidence that LS is biased: {_p(pval)}"
+    return TestResult("Durbin-Wu-Hausman", stat, df, pval, "chi2",
+                      "LS is consistent (the regressors are exogenous)", sentence,
+                      {"cov_type": cov_type})
+
+
+# ----------------------------------------------------------------- residual checks
+def ljung_box(
+    resid: np.ndarray,
+    starts: np.ndarray | None = None,
+    *,
+    lags: int = 20,
+    skip_first: bool = True,
+    names: list[str] | None = None,
+) -> dict[str, TestResult]:
+    """Ljung–Box whiteness test of the residual of every equation.
+
+    ``Q = n(n+2) Σ_{k≤m} r_k²/(n−k)`` per experiment (``lags`` capped at a fifth of
+    the experiment; equal to statsmodels' ``acorr_ljungbox``, checked in the tests,
+    computed here without importing statsmodels), the independent experiments' Q
+    statistics and degrees of freedom summed. The one-step equation error of (3) is
+    autocorrelated by construction
+    (sensor noise enters ``y(k)`` and ``φ(k+1)``), so a rejection is expected with
+    noisy sensors; it says why the covariance must be HAC, not that the model is wrong.
+    """
+    resid = np.asarray(resid, dtype=float)
+    if resid.ndim == 1:
+        resid = resid[:, None]
+    segs = _segs(starts, resid.shape[0], skip_first)
+    names = names or [f"e{i}" for i in range(resid.shape[1])]
+    out = {}
+    for i, name in enumerate(names):
+        q, df = 0.0, 0
+        for s in segs:
+            x = resid[s, i]
+            m = int(min(lags, max(1, x.size // 5)))
+            if x.size < 3 or np.std(x) == 0:
+                continue
+            q += _ljung_box_q(x - x.mean(), m)
+            df += m
+        pval = float(stats.chi2.sf(q, df)) if df else float("nan")
+        sentence = (f"residual of {name} is {'not ' if pval < 0.05 else ''}white "
+                    f"(Ljung-Box Q = {q:.4g}, {df} lags, {_p(pval)})")
+        out[name] = TestResult("Ljung-Box", q, df, pval, "chi2", "the residual is white",
+                               sentence)
+    return out
+
+
+def _ljung_box_q(x: np.ndarray, m: int) -> float:
+    n = x.size
+    den = float(x @ x)
+    if den == 0:
+        return 0.0
+    r = np.array([x[k:] @ x[: n - k] for k in range(1, m + 1)]) / den
+    return float(n * (n + 2) * np.sum(r**2 / (n - np.arange(1, m + 1))))
+
+
+@dataclass
+class ResidualCorrelation:
+    """Residual autocorrelation and residual–input cross-correlation (MATLAB ``resid``).
+
+    Attributes
+    ----------
+    lags : ndarray (L+1,)
+        ``0 … max_lag`` for the autocorrelation.
+    acf : ndarray (n_out, L+1)
+        Autocorrelation of each equation's residual (pooled over experiments).
+    cross_lags : ndarray (2L+1,)
+        ``−max_lag … max_lag``; positive lag τ: input leads the residual,
+        ``corr(ε(k), u(k − τ))``.
+    ccf : ndarray (n_out, n_in, 2L+1)
+    band : float
+        Half-width of the confidence band under whiteness/independence,
+        ``z_{1−α/2}/√N``.
+    level : float
+    outputs, inputs : list of str
+    n : int
+        Samples used.
+    """
+
+    lags: np.ndarray
+    acf: np.ndarray
+    cross_lags: np.ndarray
+    ccf: np.ndarray
+    band: float
+    level: float
+    outputs: list[str]
+    inputs: list[str]
+    n: int
+
+    def outside(self) -> dict[str, Any]:
+        """Share of lags (≥ 1 for the acf) whose correlation is outside the band."""
+        return {"acf": {o: float(np.mean(np.abs(self.acf[i, 1:]) > self.band))
+                        for i, o in enumerate(self.outputs)},
+                "ccf": {f"{o}~{u}": float(np.mean(np.abs(self.ccf[i, j]) > self.band))
+                        for i, o in enumerate(self.outputs) for j, u in enumerate(self.inputs)}}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"lags": self.lags.tolist(), "acf": self.acf.tolist(),
+                "cross_lags": self.cross_lags.tolist(), "ccf": self.ccf.tolist(),
+                "band": float(self.band), "level": float(self.level),
+                "outputs": list(self.outputs), "inputs": list(self.inputs), "n": int(self.n)}
+
+
+def residual_correlations(
+    resid: np.ndarray,
+    u: np.ndarray,
+    starts: np.ndarray | None = None,
+    *,
+    max_lag: int = 25,
+    level: float = 0.99,
+    skip_first: bool = True,
+    outputs: list[str] | None = None,
+    inputs: list[str] | None = None,
+) -> ResidualCorrelation:
+    """Residual autocorrelation and residual–input cross-correlation with bands.
+
+    Correlations are computed within experiments (each series centred per
+    experiment) and pooled: ``r(τ) = Σ_E Σ_k a(k) b(k−τ) / sqrt(Σ a² Σ b²)``. The band
+    ``±z/√N`` (default 99 %, as MATLAB's ``resid``) is the approximate null
+    distribution for a white residual independent of the input.
+    """
+    resid = np.asarray(resid, dtype=float)
+    u = np.asarray(u, dtype=float)
+    if resid.ndim == 1:
+        resid = resid[:, None]
+    if u.ndim == 1:
+        u = u[:, None]
+    segs = _segs(starts, resid.shape[0], skip_first)
+    max_lag = int(max(1, min(max_lag, min(s.stop - s.start for s in segs) - 1)))
+    e = _demean(resid, segs)
+    uu = _demean(u, segs)
+    n_o, n_i = e.shape[1], uu.shape[1]
+    acf = np.zeros((n_o, max_lag + 1))
+    ccf = np.zeros((n_o, n_i, 2 * max_lag + 1))
+    ee = np.zeros(n_o)
+    u2 = np.zeros(n_i)
+    n = 0
+    for s in segs:
+        a, b = e[s], uu[s]
+        m = a.shape[0]
+        n += m
+        ee += np.sum(a**2, axis=0)
+        u2 += np.sum(b**2, axis=0)
+        nfft = 1 << int(np.ceil(np.log2(m + max_lag + 1)))
+        fa = np.fft.rfft(a, nfft, axis=0)
+        fb = np.fft.rfft(b, nfft, axis=0)
+        # Σ_k a(k) x(k − τ) for τ ≥ 0 at index τ, τ < 0 at nfft + τ
+        auto = np.fft.irfft(fa * np.conj(fa), nfft, axis=0)
+        acf += auto[: max_lag + 1].T
+        cross = np.fft.irfft(fa[:, :, None] * np.conj(fb[:, None, :]), nfft, axis=0)
+        idx = np.r_[nfft - max_lag: nfft, 0: max_lag + 1]
+        ccf += np.moveaxis(cross[idx], 0, -1)  # τ ≥ 0: ε(k) with u(k − τ)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        acf = acf / ee[:, None]
+        ccf = ccf / np.sqrt(ee[:, None, None] * u2[None, :, None])
+    acf = np.nan_to_num(acf)
+    ccf = np.nan_to_num(ccf)
+    band = float(stats.norm.ppf(0.5 + level / 2) / np.sqrt(max(n, 1)))
+    return ResidualCorrelation(
+        lags=np.arange(max_lag + 1), acf=acf, cross_lags=np.arange(-max_lag, max_lag + 1),
+        ccf=ccf, band=band, level=level,
+        outputs=outputs or [f"e{i}" for i in range(n_o)],
+        inputs=inputs or [f"u{j}" for j in range(n_i)], n=n,
+    )
+
+
+# ----------------------------------------------------------------- one call per equation
+def equation_diagnostics(
+    z: np.ndarray,
+    phi: np.ndarray,
+    y: np.ndarray,
+    starts: np.ndarray | None = None,
+    *,
+    zero_mean: bool = True,
+    skip_first: bool = True,
+    names: list[str] | None = None,
+    cov_type: str = DEFAULT_COV_TYPE,
+    **cov_config: Any,
+) -> dict[str, Any]:
+    """Instrument strength, endogeneity (and J when over-identified) of one equation.
+
+    ``z`` are the instruments the estimator used (K ≥ P columns), ``phi`` the
+    regressors, ``y`` the target of the equation. Returns a JSON-ready dict:
+    ``first_stage`` (:func:`first_stage`), ``endogeneity`` and, for ``K > P``,
+    ``hansen_j`` (:meth:`TestResult.to_dict`). A test that cannot be computed
+    (singular matrices) is reported with ``None`` values and a reason, never raised.
+    """
+    out: dict[str, Any] = {}
+    try:
+        fs = first_stage(z, phi, starts, zero_mean=zero_mean, skip_first=skip_first, names=names)
+        out["first_stage"] = {k: (v if not isinstance(v, float) else _finite(v))
+                              for k, v in fs.items()}
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        out["first_stage"] = {"error": str(exc).splitlines()[0]}
+    for key, fn in (("endogeneity", endogeneity_test), ("hansen_j", hansen_j)):
+        if key == "hansen_j" and np.shape(z)[1] <= np.shape(phi)[1]:
+            continue
+        try:
+            out[key] = fn(z, phi, y, starts, zero_mean=zero_mean, skip_first=skip_first,
+                          cov_type=cov_type, **cov_config).to_dict()
+        except (np.linalg.LinAlgError, ValueError) as exc:
+            out[key] = {"stat": None, "pvalue": None, "sentence": f"{key} not available: "
+                        f"{str(exc).splitlines()[0]}"}
+    return out
+
+
+def summary_lines(per_equation: dict[str, dict[str, Any]]) -> list[str]:
+    """Plain lines for ``summary()`` from ``{state: equation_diagnostics(...)}``."""
+    lines = []
+    for s, d in per_equation.items():
+        fs = d.get("first_stage", {})
+        cd = fs.get("cragg_donald")
+        pf = fs.get("partial_f", {})
+        if pf:
+            weakest = min(pf, key=lambda k: pf[k] if pf[k] is not None else -1)
+            lines.append(f"instruments {s}: Cragg-Donald {_fmt(cd)}, weakest partial F "
+                         f"{_fmt(pf[weakest])} ({weakest})")
+        endo = d.get("endogeneity")
+        if endo:
+            lines.append(f"endogeneity {s}: {endo.get('sentence', '')}")
+        j = d.get("hansen_j")
+        if j:
+            lines.append(f"over-identification {s}: {j.get('sentence', '')}")
+    return lines
+
+
+def _fmt(x: Any) -> str:
+    return "n/a" if x is None or not np.isfinite(x) else f"{x:.3g}"
