@@ -136,7 +136,6 @@ def cmd_identify(args: argparse.Namespace) -> int:
     log = TrialLog.load(args.log, spec=spec)
     if spec is None and log.spec is None:
         raise CLIError(f"{args.log} carries no model spec; pass --model SPEC.toml")
-    from vesselid.identify import identify  # after the input checks: bad input loads no kernels
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = identify(log, spec, method=args.method, combine=args.combine,
