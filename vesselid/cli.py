@@ -31,7 +31,7 @@ from vesselid.errors import CLIError, VesselidError
 __all__ = ["main"]
 
 #: Modules that add their own subcommands (``add_parser(subparsers)``).
-PLUGIN_MODULES = ("vesselid.reproduce", "vesselid.seatrial")
+PLUGIN_MODULES = ("vesselid.reproduce", "vesselid.seatrial", "vesselid.planner")
 
 #: Plugin commands imported only when they are run (or their own ``--help`` is asked
 #: for): command -> (module, one-line help). ``vesselid --help`` lists them without

@@ -313,18 +313,28 @@ class ReproductionResult:
         }
 
 
-def warm_up() -> float:
-    """Load (or compile, on first use) every compiled kernel; returns the seconds spent.
+def warm_up(tables: tuple[int, ...] = (1, 2), runs: int | None = None,
+            samples: int = 10_000, batch_size: int | None = None) -> float:
+    """Load (or compile, on first use) the compiled kernels; returns the seconds spent.
 
     Compiled code is cached on disk (numba ``cache=True``), so this is paid once
-    per machine; later processes only load it.
+    per machine; later processes only load it. Without ``runs`` every kernel variant
+    is loaded (parallel and serial); with the size of the coming study only the
+    variant its chunks take, so a first run compiles nothing it does not use.
     """
+    from vesselid.montecarlo import DEFAULT_BATCH_SIZE
+    from vesselid.simulate import PARALLEL_MIN_SAMPLES
+
     t0 = time.perf_counter()
-    for table in (1, 2):
-        # large enough to take the parallel kernels, small enough to be instant
-        study = table_study(table, runs=24, samples=10_000, seed=0)
-        run_study(study, progress=False)
-        run_study(table_study(table, runs=2, samples=50, seed=0), progress=False)
+    chunk = None
+    if runs is not None:
+        chunk = min(int(runs), int(batch_size or DEFAULT_BATCH_SIZE)) * int(samples)
+    for table in tables:
+        if chunk is None or chunk >= PARALLEL_MIN_SAMPLES:
+            # large enough to take the parallel kernels, small enough to be instant
+            run_study(table_study(table, runs=24, samples=10_000, seed=0), progress=False)
+        if chunk is None or chunk < PARALLEL_MIN_SAMPLES:
+            run_study(table_study(table, runs=2, samples=50, seed=0), progress=False)
     return time.perf_counter() - t0
 
 
@@ -385,7 +395,8 @@ def reproduce(
                               xi_mean=xi_mean, target=target) for t in tables}
     timings: dict[str, float] = {}
     if warm and client is None:
-        timings["jit_compile_or_load_s"] = warm_up()
+        timings["jit_compile_or_load_s"] = warm_up(tuple(tables), int(runs), int(samples),
+                                                   batch_size)
     summaries, comps, results, claims = {}, {}, {}, []
     t_all = time.perf_counter()
     for t, st in studies.items():

@@ -9,7 +9,6 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from vesselid.errors import IdentificationError
 from vesselid.model import ModelSpec
@@ -70,7 +69,9 @@ class IdentificationResult:
         """Normal-approximation confidence intervals."""
         if not 0 < level < 1:
             raise IdentificationError("level must be in (0, 1)")
-        q = stats.norm.ppf(0.5 + level / 2)
+        from scipy.special import ndtri  # = stats.norm.ppf, without importing scipy.stats
+
+        q = ndtri(0.5 + level / 2)
         return pd.DataFrame({"lower": self.params - q * self.std_errors,
                              "upper": self.params + q * self.std_errors})
 
