@@ -40,6 +40,8 @@ PLUGIN_MODULES = ("vesselid.reproduce", "vesselid.seatrial", "vesselid.planner")
 LAZY_COMMANDS = {
     "reproduce": ("vesselid.reproduce", "reproduce the paper's Tables 1-2 and Figure 1"),
     "sea-trial": ("vesselid.seatrial", "design and simulate a multi-experiment sea trial"),
+    "plan-trial": ("vesselid.planner",
+                   "plan a sea trial: manoeuvres and predicted standard errors"),
 }
 
 

@@ -277,8 +277,10 @@ def _jacobian(factors: np.ndarray, eq: np.ndarray, theta: np.ndarray, sig: np.nd
     """``J[k, i, j] = ∂(Φᵀθ)_i/∂x_j`` at the signal rows ``sig`` (analytic, vectorised).
 
     Term ``p`` is ``F[f0]·F[f1]`` with ``F = [s, |s|, 1]``."""
+    from vesselid.regressors import factor_vector
+
     n_s = sig.shape[1]
-    f = np.hstack([sig, np.abs(sig), np.ones((sig.shape[0], 1))])
+    f = factor_vector(sig)
     jac = np.zeros((sig.shape[0], n, n))
     for p in range(factors.shape[0]):
         for this, other in ((int(factors[p, 0]), int(factors[p, 1])),
