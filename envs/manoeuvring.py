@@ -33,6 +33,7 @@ from gymnasium.vector.utils import batch_space
 from vesselid.catalogue import vessel_module
 from vesselid.envs._render import FigureRenderer
 from vesselid.envs._settings import triple
+from vesselid.envs._validate import check_action, require_reset
 from vesselid.errors import VesselidError
 from vesselid.model import ModelSpec
 from vesselid.vessels import (
@@ -498,9 +499,8 @@ class Manoeuvring3DOFEnv(_ManoeuvringBase, gym.Env[np.ndarray, np.ndarray]):
         self, action: Any
     ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
         core = self._core
-        if core.rng is None:
-            raise gym.error.ResetNeeded("call reset() before step()")
-        core.step(np.reshape(action, (1, 3)), self._skip)
+        require_reset(core.rng is not None)
+        core.step(check_action(action, self.action_space.shape).reshape(1, 3), self._skip)
         self._t += 1
         if self._hist is not None:
             self._record()
@@ -583,8 +583,8 @@ class Manoeuvring3DOFVectorEnv(_ManoeuvringBase, VectorEnv):
         self, actions: Any
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         core = self._core
-        if core.rng is None:
-            raise gym.error.ResetNeeded("call reset() before step()")
+        require_reset(core.rng is not None)
+        actions = check_action(actions, self.action_space.shape, name="actions")
         skip = self._prev_done
         if skip.any():
             core._initial(core.rng, np.flatnonzero(skip), None)

@@ -29,9 +29,11 @@ __all__ = [
     "CovarianceError",
     "ExperimentDesignWarning",
     "IdentificationError",
+    "InvalidActionError",
     "LogValidationError",
     "ModelSpecError",
     "RankDeficientError",
+    "ResourceLimitError",
     "SeaTrialError",
     "SimulationDivergedError",
     "SimulationError",
@@ -94,3 +96,11 @@ class ConvergenceWarning(UserWarning):
 
 class ExperimentDesignWarning(UserWarning):
     """A state comes too close to zero for the modulus to be treated as smooth (A10/A15)."""
+
+
+class ResourceLimitError(VesselidError):
+    """A request would need more memory, disk or time than this machine allows."""
+
+
+class InvalidActionError(VesselidError):
+    """An environment action is not finite or does not have the action space's shape."""

@@ -877,6 +877,8 @@ def run_pipeline(
 # ---------------------------------------------------------------------------------- CLI
 def add_parser(subparsers: Any) -> None:
     """Register ``vesselid sea-trial`` (the CLI plugin contract of :mod:`vesselid.cli`)."""
+    from vesselid.cli import finite_float, int_at_least
+
     p = subparsers.add_parser(
         "sea-trial", help="design and simulate a multi-experiment sea trial",
         description="Design a multi-experiment sea trial (steady turns to both sides at "
@@ -885,12 +887,13 @@ def add_parser(subparsers: Any) -> None:
     from vesselid.catalogue import vessel_names
 
     p.add_argument("--vessel", default="cybership2", choices=vessel_names())
-    p.add_argument("--experiments", type=int, default=6)
-    p.add_argument("--samples", type=int, default=20000, help="samples per experiment")
-    p.add_argument("--current-speed", type=float, default=0.05, help="m/s (model scale)")
-    p.add_argument("--current-direction", type=float, default=30.0,
+    p.add_argument("--experiments", type=int_at_least(2), default=6)
+    p.add_argument("--samples", type=int_at_least(50), default=20000,
+                   help="samples per experiment")
+    p.add_argument("--current-speed", type=finite_float, default=0.05, help="m/s (model scale)")
+    p.add_argument("--current-direction", type=finite_float, default=30.0,
                    help="going-to direction, degrees from north")
-    p.add_argument("--wind-speed", type=float, default=1.0, help="m/s (model scale)")
+    p.add_argument("--wind-speed", type=finite_float, default=1.0, help="m/s (model scale)")
     p.add_argument("--aggregate", default="relative",
                    choices=["relative", "speed_log", "current_meter", "none"],
                    help="signals for u, v: speed log as target and regressors (relative, "
@@ -918,11 +921,27 @@ def add_parser(subparsers: Any) -> None:
                         "metadata in the file) or csv (+ JSON sidecar)")
     p.add_argument("--identify", action="store_true",
                    help="also run LS, IV and IV-zero-mean and print the comparison")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int_at_least(0), default=0)
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--raw", metavar="DIR",
                    help="also write the raw sensor streams (NMEA 0183, actuator CSV, spec) to DIR")
     p.set_defaults(func=cmd_sea_trial)
+
+
+def _guard(args: argparse.Namespace) -> None:
+    """Refuse a trial that does not fit this machine (:mod:`vesselid.limits`)."""
+    from vesselid import limits
+
+    rows = args.experiments * args.samples + args.samples  # + the held-out validation run
+    cols = 24  # states, inputs, sensors, GNSS/heading channels and ground truth
+    fmt = args.format
+    runs = 4 if args.identify else 1  # --identify simulates again and fits three methods
+    limits.check(
+        "sea-trial", f"{args.experiments} experiments × {args.samples} samples",
+        memory=limits.table_memory(rows, cols) + (limits.read_memory(rows, cols)
+                                                  if args.identify else 0.0),
+        seconds=runs * limits.simulation_seconds(rows, 3) + limits.write_seconds(rows, cols, fmt),
+        disk=limits.file_bytes(rows, cols, fmt), disk_path=Path(args.out) / "seatrial.csv")
 
 
 def default_log_format() -> str:
@@ -958,6 +977,7 @@ def cmd_sea_trial(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise SeaTrialError(f"--out must be a directory, got the file {out}")
+    _guard(args)
     out.mkdir(parents=True, exist_ok=True)
     opts = {"current_speed": args.current_speed,
             "current_direction": math.radians(args.current_direction),
@@ -969,8 +989,7 @@ def cmd_sea_trial(args: argparse.Namespace) -> int:
     log.metadata["command"] = "vesselid " + " ".join(sys.argv[1:]) if sys.argv else ""
     data = out / ("seatrial.csv" if args.format == "csv" else "seatrial.parquet")
     spec_path = out / f"{args.vessel}.toml"
-    log.spec.save(spec_path)
-    log.save(data)
+    log.save(data, extra={spec_path: log.spec.to_toml()})  # all files appear together
     extra = f" and sidecar {data.with_suffix('.json')}" if args.format == "csv" else ""
     print(f"wrote {data} ({len(log)} rows, {args.experiments} experiments){extra}, model spec "
           f"{spec_path} (aggregate: {args.aggregate})")

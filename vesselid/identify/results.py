@@ -213,7 +213,9 @@ class IdentificationResult:
         }
 
     def to_json(self, **kwargs: Any) -> str:
-        return json.dumps(self.to_dict(), **({"indent": 2} | kwargs))
+        from vesselid._io import strict_json
+
+        return strict_json(self.to_dict(), **({"indent": 2} | kwargs))
 
 
 def _jsonable(obj: Any) -> Any:
