@@ -121,8 +121,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     print(f"wrote {out} ({n} rows, {args.experiments} experiment(s)) and model spec "
           f"{spec_path}")
     if args.raw:
+        from vesselid.logs import TrialLog
         from vesselid.rawstreams import write_raw_streams
 
+        log = TrialLog.load(out)  # the log just written (simulation streams it to disk)
         manifest = write_raw_streams(log, args.raw, seed=args.seed)
         n = sum(manifest["sentences"].values())
         print(f"wrote raw sensor streams to {args.raw} ({n} NMEA sentences, actuators.csv, "
