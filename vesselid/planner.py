@@ -277,8 +277,10 @@ def _jacobian(factors: np.ndarray, eq: np.ndarray, theta: np.ndarray, sig: np.nd
     """``J[k, i, j] = ∂(Φᵀθ)_i/∂x_j`` at the signal rows ``sig`` (analytic, vectorised).
 
     Term ``p`` is ``F[f0]·F[f1]`` with ``F = [s, |s|, 1]``."""
+    from vesselid.regressors import factor_vector
+
     n_s = sig.shape[1]
-    f = np.hstack([sig, np.abs(sig), np.ones((sig.shape[0], 1))])
+    f = factor_vector(sig)
     jac = np.zeros((sig.shape[0], n, n))
     for p in range(factors.shape[0]):
         for this, other in ((int(factors[p, 0]), int(factors[p, 1])),
@@ -852,9 +854,12 @@ def add_parser(subparsers: Any) -> None:
                     "worst relative standard error of the identified parameters is "
                     "smallest, predicted from the asymptotic IV covariance (no Monte Carlo).")
     p.add_argument("--vessel", default="cybership2", choices=["cybership2"])
-    p.add_argument("--samples", type=int, default=120_000, help="total sample budget")
-    p.add_argument("--experiments", type=int, default=6)
-    p.add_argument("--wind-speed", type=float, default=1.0, help="m/s (model scale)")
+    from vesselid.cli import finite_float, int_at_least
+
+    p.add_argument("--samples", type=int_at_least(50), default=120_000,
+                   help="total sample budget")
+    p.add_argument("--experiments", type=int_at_least(1), default=6)
+    p.add_argument("--wind-speed", type=finite_float, default=1.0, help="m/s (model scale)")
     p.add_argument("--json", action="store_true", help="print the plan as JSON")
     p.set_defaults(func=cmd_plan_trial)
 
@@ -867,6 +872,12 @@ def cmd_plan_trial(args: argparse.Namespace) -> int:
         raise PlannerError(f"--samples must be at least 50 per experiment, got {args.samples}")
     if not (math.isfinite(args.wind_speed) and args.wind_speed >= 0):
         raise PlannerError(f"--wind-speed must be a non-negative number, got {args.wind_speed}")
+    from vesselid import limits
+
+    # every candidate manoeuvre is simulated over the budget to predict its moments
+    limits.check("plan-trial", f"{args.samples} samples × {args.experiments} experiments",
+                 memory=limits.table_memory(args.samples, 40),
+                 seconds=limits.simulation_seconds(40.0 * args.samples, 3))
     plan = plan_trial(args.samples, args.experiments,
                       levels=DisturbanceLevels(wind_speed=args.wind_speed))
     if args.json:

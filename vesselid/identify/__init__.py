@@ -45,6 +45,7 @@ from vesselid.identify.estimators import (
 )
 from vesselid.identify.results import IdentificationResult
 from vesselid.model import ModelSpec
+from vesselid.regressors import weights_matrix
 from vesselid.simulate import simulate_states
 
 __all__ = [
@@ -193,9 +194,7 @@ def identify(
     zero_mean = method == "iv-zero-mean"
     zc = _center(z, data) if zero_mean else z
     # one-step predictions φᵀθ̂ of every equation at once (NaN at each experiment's first row)
-    weights = np.zeros((spec.n_params, spec.n_states))
-    weights[np.arange(spec.n_params), codes.equation] = theta
-    pred = phi @ weights
+    pred = phi @ weights_matrix(codes, theta)
     resid = data.target - pred
     cov = np.zeros((spec.n_params, spec.n_params))
     cond: dict[str, float] = {}
