@@ -45,6 +45,7 @@ from vesselid.identify.estimators import (
 )
 from vesselid.identify.results import IdentificationResult
 from vesselid.model import ModelSpec
+from vesselid.regressors import weights_matrix
 from vesselid.simulate import simulate_states
 
 __all__ = [
@@ -193,9 +194,7 @@ def identify(
     zero_mean = method == "iv-zero-mean"
     zc = _center(z, data) if zero_mean else z
     # one-step predictions φᵀθ̂ of every equation at once (NaN at each experiment's first row)
-    weights = np.zeros((spec.n_params, spec.n_states))
-    weights[np.arange(spec.n_params), codes.equation] = theta
-    pred = phi @ weights
+    pred = phi @ weights_matrix(codes, theta)
     resid = data.target - pred
     cov = np.zeros((spec.n_params, spec.n_params))
     cond: dict[str, float] = {}
@@ -285,6 +284,9 @@ def _equation_rows(data: RegressionData) -> np.ndarray:
 
 
 def _check_rank(phi: np.ndarray, spec: ModelSpec, blocks: np.ndarray, names: list[str]) -> None:
+    from vesselid.diagnostics import check_moment_range
+
+    check_moment_range(phi, names)  # overflow first: a Gram matrix of inf says nothing
     problems = []
     gram = phi.T @ phi  # one BLAS pass; each block's full-rank screen reads its part
     for i, s in enumerate(spec.states):

@@ -204,7 +204,13 @@ def solve_moments(
                 segs = np.flatnonzero(data.group == g)
                 big_a = a_n[segs].reshape(-1, a_i.shape[2])
                 big_b = b_n[segs].reshape(-1)
-                sol, _, rank, _ = np.linalg.lstsq(big_a, big_b, rcond=None)
+                # equilibrate the columns: the rank decision must not depend on units
+                scale = np.linalg.norm(big_a, axis=0)
+                if not np.all(np.isfinite(scale) & (scale > 0)):
+                    ok_i[j] = False
+                    continue
+                sol, _, rank, _ = np.linalg.lstsq(big_a / scale, big_b, rcond=None)
+                sol = sol / scale
                 if rank < a_i.shape[2] or not np.all(np.isfinite(sol)):
                     ok_i[j] = False
                 else:
@@ -213,6 +219,19 @@ def solve_moments(
         ok[np.flatnonzero(act)[~ok_i]] = False
     ok &= act
     return theta, ok
+
+
+def _equilibrated_cond(a: np.ndarray) -> np.ndarray:
+    """Condition numbers of a stack ``(G, n, m)`` after unit-norm row and column scaling."""
+    r = np.linalg.norm(a, axis=2, keepdims=True)
+    c = np.linalg.norm(a, axis=1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scaled = a / r / c
+    out = np.full(a.shape[0], np.inf)
+    good = np.all(np.isfinite(scaled), axis=(1, 2))
+    if good.any():
+        out[good] = np.linalg.cond(scaled[good])
+    return out
 
 
 def _batched_solve(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -230,9 +249,10 @@ def _batched_solve(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray
             except np.linalg.LinAlgError:
                 ok[j] = False
     # guard against numerically singular systems that solve() does not reject
+    # on the row- and column-equilibrated matrices: units must not make a system singular
     cond = np.full(a.shape[0], np.inf)
     if ok.any():
-        cond[ok] = np.linalg.cond(a[ok])
+        cond[ok] = _equilibrated_cond(a[ok])
     ok &= np.isfinite(cond) & (cond < 1e15) & np.all(np.isfinite(out), axis=1)
     out[~ok] = np.nan
     return out, ok

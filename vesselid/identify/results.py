@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
+from vesselid.errors import IdentificationError
 from vesselid.model import ModelSpec
 
 __all__ = ["IdentificationResult"]
@@ -68,8 +68,10 @@ class IdentificationResult:
     def conf_int(self, level: float = 0.95) -> pd.DataFrame:
         """Normal-approximation confidence intervals."""
         if not 0 < level < 1:
-            raise ValueError("level must be in (0, 1)")
-        q = stats.norm.ppf(0.5 + level / 2)
+            raise IdentificationError("level must be in (0, 1)")
+        from scipy.special import ndtri  # = stats.norm.ppf, without importing scipy.stats
+
+        q = ndtri(0.5 + level / 2)
         return pd.DataFrame({"lower": self.params - q * self.std_errors,
                              "upper": self.params + q * self.std_errors})
 
@@ -159,8 +161,8 @@ class IdentificationResult:
 
         rc = self.diagnostics.get("residual_correlation")
         if rc is None:
-            raise ValueError("this result holds no residual correlations "
-                             "(diagnostics['residual_correlation'])")
+            raise IdentificationError("this result holds no residual correlations "
+                                      "(diagnostics['residual_correlation'])")
         return residual_analysis(rc, title=title or f"Residual analysis — {self.method}")
 
     def __str__(self) -> str:
@@ -193,7 +195,9 @@ class IdentificationResult:
         }
 
     def to_json(self, **kwargs: Any) -> str:
-        return json.dumps(self.to_dict(), **({"indent": 2} | kwargs))
+        from vesselid._io import strict_json
+
+        return strict_json(self.to_dict(), **({"indent": 2} | kwargs))
 
 
 def _jsonable(obj: Any) -> Any:
