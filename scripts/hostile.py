@@ -403,6 +403,7 @@ def cases(long: bool = False) -> list[Case]:
         ("sea-trial 1e8 experiments", ["sea-trial", "--experiments", "100000000", "--samples",
                                        "100000", "--out", "st"]),
         ("sea-trial 1e12 samples", ["sea-trial", "--samples", "1000000000000", "--out", "st"]),
+        ("plan-trial 1e11 samples", ["plan-trial", "--samples", "100000000000"]),
     ]:
         c.append(Case(f"size: {name}", argv, expect="fast-refuse"))
     c.append(Case("size: identify a 200 GB (sparse) CSV", ["identify", "huge.csv", "--model",
@@ -442,6 +443,9 @@ def cases(long: bool = False) -> list[Case]:
                                      "--xi-mean", "abc"]),
         ("sea-trial --experiments 1", ["sea-trial", "--experiments", "1", "--out", "st"]),
         ("sea-trial --wind-speed nan", ["sea-trial", "--wind-speed", "nan", "--out", "st"]),
+        ("plan-trial --experiments 0", ["plan-trial", "--experiments", "0"]),
+        ("plan-trial --samples -1", ["plan-trial", "--samples", "-1"]),
+        ("plan-trial --wind-speed inf", ["plan-trial", "--wind-speed", "inf"]),
         ("unknown command", ["frobnicate"]),
     ]:
         c.append(Case(f"option: {name}", argv, setup=base_log))

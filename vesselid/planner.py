@@ -854,9 +854,12 @@ def add_parser(subparsers: Any) -> None:
                     "worst relative standard error of the identified parameters is "
                     "smallest, predicted from the asymptotic IV covariance (no Monte Carlo).")
     p.add_argument("--vessel", default="cybership2", choices=["cybership2"])
-    p.add_argument("--samples", type=int, default=120_000, help="total sample budget")
-    p.add_argument("--experiments", type=int, default=6)
-    p.add_argument("--wind-speed", type=float, default=1.0, help="m/s (model scale)")
+    from vesselid.cli import finite_float, int_at_least
+
+    p.add_argument("--samples", type=int_at_least(50), default=120_000,
+                   help="total sample budget")
+    p.add_argument("--experiments", type=int_at_least(1), default=6)
+    p.add_argument("--wind-speed", type=finite_float, default=1.0, help="m/s (model scale)")
     p.add_argument("--json", action="store_true", help="print the plan as JSON")
     p.set_defaults(func=cmd_plan_trial)
 
@@ -869,6 +872,12 @@ def cmd_plan_trial(args: argparse.Namespace) -> int:
         raise PlannerError(f"--samples must be at least 50 per experiment, got {args.samples}")
     if not (math.isfinite(args.wind_speed) and args.wind_speed >= 0):
         raise PlannerError(f"--wind-speed must be a non-negative number, got {args.wind_speed}")
+    from vesselid import limits
+
+    # every candidate manoeuvre is simulated over the budget to predict its moments
+    limits.check("plan-trial", f"{args.samples} samples × {args.experiments} experiments",
+                 memory=limits.table_memory(args.samples, 40),
+                 seconds=limits.simulation_seconds(40.0 * args.samples, 3))
     plan = plan_trial(args.samples, args.experiments,
                       levels=DisturbanceLevels(wind_speed=args.wind_speed))
     if args.json:
