@@ -23,6 +23,7 @@ from gymnasium.vector.utils import batch_space
 from vesselid.disturbances import Gaussian, Process
 from vesselid.envs._render import HeavePlot
 from vesselid.envs._settings import finite, pair
+from vesselid.envs._validate import check_action, require_reset
 from vesselid.errors import VesselidError
 from vesselid.model import ModelSpec
 from vesselid.simulate import step_states
@@ -395,7 +396,8 @@ class HeaveEnv(_HeaveBase, gym.Env[np.ndarray, np.ndarray]):
 
     def step(self, action: Any) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, float]]:
         """Apply the normalised thrust ``action`` for one sample."""
-        rew, term, _ = self._core.step(action)
+        require_reset(self._core.rng is not None)
+        rew, term, _ = self._core.step(check_action(action, self.action_space.shape))
         self._t += 1
         self._record(self._core.tau)
         if self.render_mode == "human":
@@ -460,7 +462,9 @@ class HeaveVectorEnv(_HeaveBase, VectorEnv):
     def step(self, actions: Any
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         """Step all sub-environments with normalised thrusts of shape ``(num_envs, 1)``."""
-        rew, term, trunc = self._core.step(actions)
+        require_reset(self._core.rng is not None)
+        rew, term, trunc = self._core.step(check_action(actions, self.action_space.shape,
+                                                        name="actions"))
         self._t += 1
         self._record(self._core.tau)
         return self._core.obs(), rew, term, trunc, self._info()

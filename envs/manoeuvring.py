@@ -33,6 +33,7 @@ from gymnasium.vector.utils import batch_space
 from vesselid.catalogue import vessel_module
 from vesselid.envs._render import FigureRenderer
 from vesselid.envs._settings import triple
+from vesselid.envs._validate import check_action, require_reset
 from vesselid.errors import VesselidError
 from vesselid.model import ModelSpec
 from vesselid.vessels import (
@@ -346,7 +347,66 @@ _DOC_ARGS = """
 
 
 # --------------------------------------------------------------------------- single env
-class Manoeuvring3DOFEnv(gym.Env[np.ndarray, np.ndarray]):
+class _ManoeuvringBase:
+    """Rendering and the recorder contract shared by both environments (sub-env 0 is
+    rendered)."""
+
+    metadata: ClassVar[dict[str, Any]]
+    _core: _Core
+    render_mode: str | None
+
+    def _attach(self, render_mode: str | None, render_window: int) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise VesselidError(f"render_mode must be one of "
+                                f"{self.metadata['render_modes']} or None, got {render_mode!r}")
+        self.render_mode = render_mode
+        #: Identification structure of the recorded data (recorder contract).
+        self.model_spec: ModelSpec = self._core.model.spec
+        #: Sample time (s).
+        self.dt: float = self._core.model.dt
+        self._hist: deque | None = deque(maxlen=int(render_window)) if render_mode else None
+        self._plot: _Plot | None = None
+
+    def _append(self, step: int) -> None:
+        b = self._core.batch
+        self._hist.append((step * self.dt, *b.block_of("eta")[0], *b.block_of("nu")[0]))
+
+    def _frame(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; "
+                            "e.g. gym.make('vesselid/Manoeuvring3DOF-v0', render_mode='rgb_array')")
+            return None
+        if self._plot is None:
+            self._plot = _Plot(self.render_mode, self.metadata["render_fps"],
+                               self._core.model.hull.length)
+        if not self._hist:
+            self._record()
+        return self._plot.draw(np.asarray(self._hist))
+
+    def close_extras(self, **kwargs: Any) -> None:
+        if self._plot is not None:
+            self._plot.close()
+            self._plot = None
+
+    def log_row(self, info: dict[str, Any]) -> dict[str, Any]:
+        """Trial-log columns at the time of ``info`` (recorder contract; floats, or arrays
+        ``(num_envs,)``): :func:`vesselid.vessels.log_columns` without the inputs."""
+        return _log_row(info, self._core.model.sensors.enabled)
+
+    def log_inputs(self, action: Any) -> dict[str, Any]:
+        """Physical inputs ``{"X", "Y", "N"}`` applied for ``action``."""
+        n = self._core.n
+        tau = self._core.tau(np.asarray(action, dtype=np.float64).reshape(n, 3))
+        cols = {c: tau[:, j] for j, c in enumerate(("X", "Y", "N"))}
+        return {c: float(v[0]) for c, v in cols.items()} if isinstance(
+            self, Manoeuvring3DOFEnv) else cols
+
+    def log_metadata(self) -> dict[str, Any]:
+        """Disturbance and sensor settings (JSON-serialisable), for log metadata."""
+        return self._core.metadata()
+
+
+class Manoeuvring3DOFEnv(_ManoeuvringBase, gym.Env[np.ndarray, np.ndarray]):
     """Surge/sway/yaw manoeuvring of CyberShip II in current and wind.
 
     ## Description
@@ -416,20 +476,11 @@ class Manoeuvring3DOFEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def __init__(self, render_mode: str | None = None, *, render_window: int = 600,
                  **settings: Any) -> None:
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise VesselidError(f"render_mode must be one of "
-                                f"{self.metadata['render_modes']} or None, got {render_mode!r}")
         self._core = _Core(1, parallel=False, block=SINGLE_BLOCK, **_settings(settings))
-        self.render_mode = render_mode
         self.action_space, self.observation_space = self._core.spaces()
-        #: Identification structure of the recorded data (recorder contract).
-        self.model_spec: ModelSpec = self._core.model.spec
-        #: Sample time (s).
-        self.dt: float = self._core.model.dt
+        self._attach(render_mode, render_window)
         self._skip = self._core.no_skip
         self._t = 0
-        self._hist: deque | None = deque(maxlen=int(render_window)) if render_mode else None
-        self._plot: _Plot | None = None
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -448,9 +499,8 @@ class Manoeuvring3DOFEnv(gym.Env[np.ndarray, np.ndarray]):
         self, action: Any
     ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
         core = self._core
-        if core.rng is None:
-            raise gym.error.ResetNeeded("call reset() before step()")
-        core.step(np.reshape(action, (1, 3)), self._skip)
+        require_reset(core.rng is not None)
+        core.step(check_action(action, self.action_space.shape).reshape(1, 3), self._skip)
         self._t += 1
         if self._hist is not None:
             self._record()
@@ -460,50 +510,17 @@ class Manoeuvring3DOFEnv(gym.Env[np.ndarray, np.ndarray]):
         return core.obs[0].copy(), float(core.rewards[0]), terminated, False, core.info(0)
 
     def _record(self) -> None:
-        c = self._core
-        b = c.batch
-        self._hist.append((self._t * self.dt, *b.block_of("eta")[0], *b.block_of("nu")[0]))
+        self._append(self._t)
 
     def render(self) -> np.ndarray | None:
-        if self.render_mode is None:
-            gym.logger.warn("render() called without a render_mode; "
-                            "e.g. gym.make('vesselid/Manoeuvring3DOF-v0', render_mode='rgb_array')")
-            return None
-        if self._plot is None:
-            self._plot = _Plot(self.render_mode, self.metadata["render_fps"],
-                               self._core.model.hull.length)
-        if not self._hist:
-            self._record()
-        return self._plot.draw(np.asarray(self._hist))
+        return self._frame()
 
     def close(self) -> None:
-        if self._plot is not None:
-            self._plot.close()
-            self._plot = None
-
-    # --------------------------------------------------------- recorder contract
-    def log_row(self, info: dict[str, Any]) -> dict[str, float]:
-        """Trial-log columns at the time of ``info`` (recorder contract).
-
-        Measured ``u, v`` (GNSS), ``r`` (gyro), ``psi``, speed log ``u_log, v_log,
-        r_log``, current meter ``u_c, v_c``, anemometer ``wind_speed, wind_angle`` (enabled
-        sensors only) and ground truth ``true_*`` (as
-        :meth:`vesselid.vessels.CyberShip2Simulation.to_frame`).
-        """
-        return _log_row(info, self._core.model.sensors.enabled)
-
-    def log_inputs(self, action: Any) -> dict[str, float]:
-        """Physical inputs ``{"X", "Y", "N"}`` applied for ``action``."""
-        tau = self._core.tau(np.asarray(action, dtype=np.float64).reshape(3))
-        return {"X": float(tau[0]), "Y": float(tau[1]), "N": float(tau[2])}
-
-    def log_metadata(self) -> dict[str, Any]:
-        """Disturbance and sensor settings (JSON-serialisable), for log metadata."""
-        return self._core.metadata()
+        self.close_extras()
 
 
 # --------------------------------------------------------------------------- vector env
-class Manoeuvring3DOFVectorEnv(VectorEnv):
+class Manoeuvring3DOFVectorEnv(_ManoeuvringBase, VectorEnv):
     """``num_envs`` CyberShip II vessels stepped by one parallel compiled kernel.
 
     Same dynamics, spaces, rewards and info keys as :class:`Manoeuvring3DOFEnv` (info
@@ -536,12 +553,8 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
             raise VesselidError(f"num_envs must be >= 1, got {num_envs}")
         if int(max_episode_steps) < 1:
             raise VesselidError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise VesselidError(f"render_mode must be one of "
-                                f"{self.metadata['render_modes']} or None, got {render_mode!r}")
         self.num_envs = int(num_envs)
         self.max_episode_steps = int(max_episode_steps)
-        self.render_mode = render_mode
         block = max(16, VECTOR_BLOCK_SAMPLES // self.num_envs)
         if parallel is None:
             parallel = numba.get_num_threads() >= 4 and self.num_envs >= 256
@@ -550,14 +563,9 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
         self.single_action_space, self.single_observation_space = self._core.spaces()
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
-        #: Identification structure of the recorded data (recorder contract).
-        self.model_spec: ModelSpec = self._core.model.spec
-        #: Sample time (s).
-        self.dt: float = self._core.model.dt
+        self._attach(render_mode, render_window)
         self._steps = np.zeros(self.num_envs, dtype=np.int64)
         self._prev_done = np.zeros(self.num_envs, dtype=np.bool_)
-        self._hist: deque | None = deque(maxlen=int(render_window)) if render_mode else None
-        self._plot: _Plot | None = None
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -575,8 +583,8 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
         self, actions: Any
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         core = self._core
-        if core.rng is None:
-            raise gym.error.ResetNeeded("call reset() before step()")
+        require_reset(core.rng is not None)
+        actions = check_action(actions, self.action_space.shape, name="actions")
         skip = self._prev_done
         if skip.any():
             core._initial(core.rng, np.flatnonzero(skip), None)
@@ -595,41 +603,11 @@ class Manoeuvring3DOFVectorEnv(VectorEnv):
         return core.obs.copy(), core.rewards.copy(), terminated, truncated, core.info()
 
     def _record(self) -> None:
-        c = self._core
-        b = c.batch
-        self._hist.append((self._steps[0] * self.dt, *b.block_of("eta")[0],
-                           *b.block_of("nu")[0]))
+        self._append(self._steps[0])
 
     def render(self) -> np.ndarray | None:
         """RGB frame of sub-environment 0."""
-        if self.render_mode is None:
-            gym.logger.warn("render() called without a render_mode")
-            return None
-        if self._plot is None:
-            self._plot = _Plot(self.render_mode, self.metadata["render_fps"],
-                               self._core.model.hull.length)
-        if not self._hist:
-            self._record()
-        return self._plot.draw(np.asarray(self._hist))
-
-    def close_extras(self, **kwargs: Any) -> None:
-        if self._plot is not None:
-            self._plot.close()
-            self._plot = None
-
-    # --------------------------------------------------------- recorder contract
-    def log_row(self, info: dict[str, Any]) -> dict[str, np.ndarray]:
-        """Trial-log columns at the time of ``info``, arrays of shape ``(num_envs,)``."""
-        return _log_row(info, self._core.model.sensors.enabled)
-
-    def log_inputs(self, actions: Any) -> dict[str, np.ndarray]:
-        """Physical inputs ``{"X", "Y", "N"}`` (arrays ``(num_envs,)``) for ``actions``."""
-        tau = self._core.tau(np.asarray(actions, dtype=np.float64).reshape(self.num_envs, 3))
-        return {"X": tau[:, 0], "Y": tau[:, 1], "N": tau[:, 2]}
-
-    def log_metadata(self) -> dict[str, Any]:
-        """Disturbance and sensor settings (JSON-serialisable), for log metadata."""
-        return self._core.metadata()
+        return self._frame()
 
 
 Manoeuvring3DOFEnv.__doc__ = (Manoeuvring3DOFEnv.__doc__ or "").replace(

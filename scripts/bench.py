@@ -12,7 +12,9 @@ Targets (2-core machine):
   ``scripts/bench_startup.py``): ``vesselid --help`` ≤ 1.0×, ``vesselid identify`` on a
   10⁴-sample heave log ≤ 2.0×, ``vesselid reproduce --table 1`` ≥ 15× faster than the
   plain-numpy baseline with its Monte Carlo part ≤ 1 s; the first ``vesselid reproduce``
-  after a fresh install (empty caches, ``cold_start``) ≤ 15 s.
+  after a fresh install (empty caches, ``cold_start``) ≤ 15 s;
+* ``vesselid ingest`` of 10⁶ NMEA 0183 sentences ≤ 10 s (``ingest``,
+  ``scripts/bench_ingest.py``).
 
 Run ``python scripts/bench.py`` (all) or ``python scripts/bench.py --only simulate identify``;
 ``--json PATH`` writes the figures. Benchmarks live here, never in timed tests.
@@ -166,6 +168,7 @@ BENCHES: dict[str, Callable[[], Callable | None]] = {
     "seatrial": lambda: _load("bench_seatrial", "bench_seatrial"),
     "startup": lambda: _load("bench_startup", "bench_startup"),
     "cold_start": lambda: _load("bench_startup", "bench_cold_start"),
+    "ingest": lambda: _load("bench_ingest", "bench_ingest"),
 }
 
 

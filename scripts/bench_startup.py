@@ -137,7 +137,8 @@ def bench_startup(repeats: int = 5, baseline_runs: int = 1000,
         "numpy_baseline_table1_s": base,
         "numpy_baseline_runs": baseline_runs,
         "speedup_vs_numpy": base / repro_med,
-        "help_loads": modules_loaded("from vesselid.cli import build_parser; build_parser()"),
+        "help_loads": modules_loaded("from vesselid.cli import build_parser\n"
+                                     "build_parser(['--help'])"),
         "import_vesselid_top_ms": import_times("vesselid"),
         "all_times_s": {**times, "reproduce": repro, "monte_carlo": mc},
         "targets": {"help_ratio": 1.0, "identify_ratio": 2.0, "speedup_vs_numpy": 15.0,
@@ -148,9 +149,11 @@ def bench_startup(repeats: int = 5, baseline_runs: int = 1000,
 def _fresh_venv(tmp: Path) -> Path:
     """A new virtual environment with a wheel of this checkout; dependencies shared."""
     wheels = tmp / "wheels"
+    env = user_env()
+    env.pop("PYTHONPATH", None)  # else pip may take a checkout on the path for an install
     subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps",
                     "--no-build-isolation", "-w", str(wheels), str(ROOT)], check=True,
-                   capture_output=True)
+                   capture_output=True, env=env)
     venv = tmp / "venv"
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
     py = venv / "bin" / "python"
@@ -162,7 +165,9 @@ def _fresh_venv(tmp: Path) -> Path:
     Path(site.stdout.strip(), "_deps.pth").write_text(str(deps) + "\n")
     wheel = next(wheels.glob("vesselid-*.whl"))
     subprocess.run([sys.executable, "-m", "pip", "--python", str(py), "install", "-q",
-                    "--no-deps", str(wheel)], check=True, capture_output=True)
+                    "--no-deps", str(wheel)], check=True, capture_output=True, env=env)
+    if not (venv / "bin" / "vesselid").exists():
+        raise RuntimeError("the wheel did not install the vesselid console script")
     return venv
 
 
@@ -204,6 +209,7 @@ def main() -> None:
     args = p.parse_args()
     res = {} if args.only_cold else bench_startup(args.repeats, args.baseline_runs,
                                                   args.reproduce_repeats)
+    print(json.dumps(res, indent=2), flush=True)
     if args.cold or args.only_cold:
         res.update(bench_cold_start())
     print(json.dumps(res, indent=2))

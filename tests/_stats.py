@@ -5,6 +5,10 @@ errors of the same run, never seed-tuned constants.
   ``p`` (two-sided exact binomial test at level ``alpha``)?
 * :func:`wilson_interval` — Wilson score interval of a proportion.
 * :func:`within_se` — is an estimate within ``k`` standard errors of its target?
+* :func:`ar1_mean_se` — standard error of the sample mean of a stationary AR(1) series.
+* :func:`std_se` — standard error of a sample standard deviation (Gaussian, AR(1)).
+* :func:`assert_mean_within` / :func:`assert_std_within` — the two checks above, with
+  a message that shows the derived tolerance.
 """
 
 from __future__ import annotations
@@ -12,7 +16,15 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
-__all__ = ["binomial_ok", "wilson_interval", "within_se"]
+__all__ = [
+    "ar1_mean_se",
+    "assert_mean_within",
+    "assert_std_within",
+    "binomial_ok",
+    "std_se",
+    "wilson_interval",
+    "within_se",
+]
 
 
 def binomial_ok(successes: int, trials: int, p: float, alpha: float = 1e-3) -> bool:
@@ -35,3 +47,42 @@ def wilson_interval(successes: int, trials: int, level: float = 0.95) -> tuple[f
 def within_se(estimate: float, target: float, se: float, k: float = 4.0) -> bool:
     """``|estimate − target| ≤ k · se`` (``se`` from the same run)."""
     return bool(abs(float(estimate) - float(target)) <= k * float(se))
+
+
+def ar1_mean_se(std: float, pole: float, n: int) -> float:
+    """Standard error of the mean of ``n`` samples of a stationary AR(1) with standard
+    deviation ``std`` and pole ``a`` (lag-k correlation ``aᵏ``)::
+
+        Var(x̄) = σ²/n · [(1 + a)/(1 − a) − 2a(1 − aⁿ) / (n (1 − a)²)]
+
+    (``a = 0``: the white-noise ``σ/√n``).
+    """
+    a, n = float(pole), int(n)
+    factor = (1 + a) / (1 - a) - 2 * a * (1 - a**n) / (n * (1 - a) ** 2)
+    return float(std) * float(np.sqrt(factor / n))
+
+
+def std_se(std: float, n: int, pole: float = 0.0) -> float:
+    """Large-sample standard error of the sample standard deviation of ``n`` Gaussian
+    samples, white (``σ/√(2n)``) or AR(1) with pole ``a`` (× √((1 + a²)/(1 − a²)))."""
+    a = float(pole)
+    return float(std) * float(np.sqrt((1 + a * a) / (1 - a * a) / (2 * int(n))))
+
+
+def assert_mean_within(samples, target: float, *, k: float = 5.0, pole: float = 0.0,
+                       std: float | None = None) -> None:
+    """Assert the sample mean is within ``k`` standard errors of ``target``; the SE is
+    derived from the same samples (their std, or ``std``) and the AR(1) ``pole``."""
+    x = np.asarray(samples, dtype=float).ravel()
+    sd = float(np.std(x, ddof=1)) if std is None else float(std)
+    se = ar1_mean_se(sd, pole, x.size)
+    assert within_se(x.mean(), target, se, k), (
+        f"mean {x.mean():.6g} not within {k} SE ({se:.3g}) of {target:.6g}")
+
+
+def assert_std_within(samples, target: float, *, k: float = 5.0, pole: float = 0.0) -> None:
+    """Assert the sample std is within ``k`` standard errors (:func:`std_se`) of ``target``."""
+    x = np.asarray(samples, dtype=float).ravel()
+    se = std_se(target, x.size, pole)
+    assert within_se(x.std(), target, se, k), (
+        f"std {x.std():.6g} not within {k} SE ({se:.3g}) of {target:.6g}")

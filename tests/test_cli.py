@@ -86,3 +86,22 @@ def test_cybership2_simulate_identify(tmp_path, capsys):
     assert code == 0
     payload = json.loads(text)
     assert "v*|r|" not in payload["params"]["v"] and "r*|v|" in payload["params"]["v"]
+
+
+def test_os_errors_exit_two_and_bugs_show_as_bugs(tmp_path, capsys, monkeypatch):
+    """OSError is bad input (exit 2, one line); a plain ValueError/TypeError is a bug:
+    it propagates with its traceback (exit 1 from the console script)."""
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    code, _, err = run(["simulate", "--samples", "50", "--out", str(blocker / "t.csv")], capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    import vesselid.identify
+
+    def broken(*args, **kwargs):
+        raise ValueError("internal bug")
+
+    log = tmp_path / "t.csv"
+    assert run(["simulate", "--samples", "400", "--out", str(log)], capsys)[0] == 0
+    monkeypatch.setattr(vesselid.identify, "identify", broken)
+    with pytest.raises(ValueError, match="internal bug"):
+        main(["identify", str(log), "--model", str(tmp_path / "t.toml")])

@@ -115,6 +115,7 @@ def test_render_human_headless() -> None:
     env = Manoeuvring3DOFEnv(render_mode="human")
     env.reset(seed=0)
     env.step(np.zeros(3, dtype=np.float32))
+    assert env.render() is None  # human mode draws (headless: Agg) and returns nothing
     env.close()
 
 

@@ -27,8 +27,8 @@ REGISTERED = sorted(i for i in gym.registry if i.startswith("vesselid/"))
 def _require(env_id: str) -> gym.envs.registration.EnvSpec:
     spec = gym.spec(env_id)
     module = str(spec.entry_point).split(":")[0]
-    if importlib.util.find_spec(module) is None:
-        pytest.skip(f"{module} does not exist yet")
+    # a registered id whose module is missing is a broken registration: fail, never skip
+    assert importlib.util.find_spec(module) is not None, f"{env_id}: module {module} is missing"
     return spec
 
 

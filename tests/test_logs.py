@@ -223,11 +223,13 @@ def test_atomic_parquet_writer_raises(
 ) -> None:
     pq = pytest.importorskip("pyarrow.parquet")
 
-    def boom(table: object, where: object, *args: object, **kwargs: object) -> None:
-        Path(str(where)).write_bytes(b"PAR1 half")
+    real = pq.ParquetWriter.write_table
+
+    def boom(self: object, table: object, *args: object, **kwargs: object) -> None:
+        real(self, table, *args, **kwargs)  # half written: the footer is missing
         raise OSError("disk full")
 
-    monkeypatch.setattr(pq, "write_table", boom)
+    monkeypatch.setattr(pq.ParquetWriter, "write_table", boom)
     with pytest.raises(OSError, match="disk full"):
         log.save(tmp_path / "trial.parquet")
     assert list(tmp_path.iterdir()) == []

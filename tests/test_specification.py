@@ -104,3 +104,24 @@ def test_residual_correlations_find_a_delayed_input_and_respect_experiments():
     assert rc.cross_lags[k] == 3 and abs(rc.ccf[0, 0, k]) > 5 * rc.band
     assert rc.band == pytest.approx(2.5758 / np.sqrt(3000), rel=1e-3)
     assert set(rc.to_dict()) >= {"acf", "ccf", "band"}
+
+
+def test_identify_reports_diagnostics_and_plots_residuals():
+    import json
+    import warnings
+
+    from vesselid.identify import identify
+    from vesselid.systems import heave
+
+    log = heave(pulse_design="alternating").simulate(3000, 1, seed=5).to_log()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = identify(log)
+    text = res.summary()
+    assert "LS is biased on this log" in text or "no evidence that LS is biased" in text
+    assert "Ljung-Box" in text and "Cragg-Donald" in text
+    json.loads(json.dumps(res.to_dict(), allow_nan=False))
+    fig = res.plot_residuals()
+    assert len(fig.axes) == 2
+    rc = res.diagnostics["residual_correlation"]
+    assert len(rc["acf"][0]) == len(rc["lags"]) and rc["band"] > 0

@@ -10,6 +10,9 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
+import sys
+from typing import Any
+
 from vesselid.errors import (
     ConvergenceWarning,
     ExperimentDesignWarning,
@@ -21,8 +24,6 @@ from vesselid.errors import (
     VesselidError,
     WeakInstrumentWarning,
 )
-from vesselid.model import Aggregate, ModelSpec
-from vesselid.terms import Term
 
 __all__ = [
     "Aggregate",
@@ -40,9 +41,64 @@ __all__ = [
     "__version__",
 ]
 
-try:  # register the gymnasium environments (vesselid/Heave-v0, ...) when gymnasium is there
-    from vesselid.envs import register_envs as _reg
+# Imported on first use (PEP 562), so that ``import vesselid`` — and ``vesselid --help`` —
+# load neither pandas nor the numerical stack.
+_LAZY = {"Aggregate": "vesselid.model", "ModelSpec": "vesselid.model", "Term": "vesselid.terms"}
 
-    _reg()
-except ImportError:
-    pass
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
+
+class _RegisterWithGymnasium:
+    """One-shot import hook: registers the environments right after gymnasium is imported.
+
+    ``import vesselid`` thus registers ``vesselid/Heave-v0``, ... for every later
+    ``gym.make`` without importing gymnasium itself (≈ 0.1 s) when no environment is
+    ever made.
+    """
+
+    def find_spec(self, fullname: str, path: Any = None, target: Any = None) -> Any:
+        if fullname != "gymnasium":
+            return None
+        import importlib.util
+
+        if self in sys.meta_path:
+            sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(fullname)
+        loader = getattr(spec, "loader", None)
+        if loader is None or not hasattr(loader, "exec_module"):
+            return spec
+        exec_module = loader.exec_module
+
+        def exec_and_register(module: Any) -> None:
+            exec_module(module)
+            _register()
+
+        loader.exec_module = exec_and_register
+        return spec
+
+
+def _register() -> None:
+    try:
+        from vesselid.envs import register_envs
+    except ImportError:  # the environments are not installed
+        return
+    register_envs()
+
+
+if "gymnasium" in sys.modules:  # already imported: register now (cheap)
+    _register()
+elif not any(isinstance(f, _RegisterWithGymnasium) for f in sys.meta_path):
+    sys.meta_path.insert(0, _RegisterWithGymnasium())

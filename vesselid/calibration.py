@@ -31,6 +31,7 @@ from vesselid.identify import kernels
 from vesselid.identify.covariance import DEFAULT_COV_TYPE, get_covariance_estimator
 from vesselid.identify.data import RegressionData, from_arrays
 from vesselid.model import ModelSpec
+from vesselid.regressors import weights_matrix
 
 __all__ = [
     "SCENARIOS",
@@ -130,8 +131,7 @@ def group_covariances(
                                              theta_aux[g], codes.factors, codes.equation,
                                              spec.n_states)
         zero_mean = method == "iv-zero-mean"
-        weights = np.zeros((n_par, spec.n_states))
-        weights[np.arange(n_par), codes.equation] = theta[g]
+        weights = weights_matrix(codes, theta[g])
         rows = np.ones(b - a, dtype=bool)
         rows[starts[:-1]] = False
         resid = data.target[sl] - np.where(rows[:, None], phi, 0.0) @ weights

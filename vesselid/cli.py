@@ -7,7 +7,8 @@
     vesselid reproduce [--table 1|2|all] [--runs 1000] [--samples 10000] [--seed 0] [--out DIR]
     vesselid sea-trial --vessel cybership2 --experiments 6 --samples 20000 --seed 0 --out DIR
 
-Exit code 0 on success, 2 on bad input with a one-line reason on stderr.
+Exit code 0 on success, 2 on bad input (:class:`~vesselid.errors.VesselidError`, ``OSError``)
+with a one-line reason on stderr; anything else is a bug (traceback, exit code 1).
 Subcommands living in other modules register themselves through an
 ``add_parser(subparsers)`` function that sets ``func`` (returning an exit code).
 """
@@ -16,29 +17,71 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
+import signal
 import sys
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from vesselid import __version__
-from vesselid.errors import VesselidError
+from vesselid.errors import CLIError, VesselidError
 
 __all__ = ["main"]
 
 #: Modules that add their own subcommands (``add_parser(subparsers)``).
-PLUGIN_MODULES = ("vesselid.reproduce", "vesselid.seatrial")
+PLUGIN_MODULES = ("vesselid.reproduce", "vesselid.seatrial", "vesselid.planner", "vesselid.ingest")
 
+#: Plugin commands imported only when they are run (or their own ``--help`` is asked
+#: for): command -> (module, one-line help). ``vesselid --help`` lists them without
+#: importing the module, so it loads neither pandas nor numba. A module listed only in
+#: :data:`PLUGIN_MODULES` is imported for every command line (correct, but slower).
+LAZY_COMMANDS = {
+    "reproduce": ("vesselid.reproduce", "reproduce the paper's Tables 1-2 and Figure 1"),
+    "sea-trial": ("vesselid.seatrial", "design and simulate a multi-experiment sea trial"),
+    "plan-trial": ("vesselid.planner",
+                   "plan a sea trial: manoeuvres and predicted standard errors"),
+    "ingest": ("vesselid.ingest",
+               "turn raw sensor streams (NMEA 0183, ROS 2 bags, CSV) into a trial log"),
+}
 
-class CLIError(VesselidError):
-    """Bad command-line input (exit code 2)."""
 
 
 def _spec_path_for(out: Path) -> Path:
     return out.with_name(out.stem + ".toml")
 
 
+def int_at_least(minimum: int) -> Any:
+    """An argparse ``type``: an integer ``>= minimum`` (the error names the option)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be at least {minimum}, got {value}")
+        return value
+
+    parse.__name__ = f"integer >= {minimum}"
+    return parse
+
+
+def finite_float(text: str) -> float:
+    """An argparse ``type``: a finite float."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
+    return value
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
+    from vesselid import limits
+    from vesselid.stream import log_columns, peak_rows, simulate_to_file
     from vesselid.systems import get_system
 
     out = Path(args.out)
@@ -52,32 +95,58 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         if args.current_sensor:
             options["current_sensor"] = True
     elif args.current_mean is not None or args.current_sensor:
-        options["current_speed"] = args.current_mean or 0.0
-        if args.current_sensor:
-            options["current_sensor"] = True
+        raise CLIError(f"--current-mean/--current-sensor apply to heave and siso; system "
+                       f"{args.system!r} has no current here (for CyberShip II with current, "
+                       f"wind and sensors use `vesselid sea-trial --current-speed`)")
     system = get_system(args.system, **options)
     if args.experiments is None:
         # a system with per-experiment designs (e.g. turns to both sides) needs all of them
         n_designs = [len(d) for d in system.inputs.values() if isinstance(d, (list, tuple))]
         args.experiments = max(n_designs, default=1)
-    sim = system.simulate(args.samples, n_runs=args.experiments, seed=args.seed)
-    log = sim.to_log()
-    log.metadata["command"] = "vesselid " + " ".join(sys.argv[1:]) if sys.argv else ""
+    rows = args.samples * args.experiments
+    cols = log_columns(system)
+    fmt = "csv" if out.suffix.lower() == ".csv" else "parquet"
+    limits.check(
+        "simulate", f"{args.experiments} experiment(s) × {args.samples} samples × {cols} columns",
+        memory=limits.table_memory(peak_rows(args.samples, args.experiments), cols)
+        + 400.0 * args.experiments,
+        seconds=limits.simulation_seconds(rows, system.spec.n_states)
+        + limits.write_seconds(rows, cols, fmt),
+        disk=limits.file_bytes(rows, cols, fmt) + 200.0 * args.experiments, disk_path=out)
     spec_path = _spec_path_for(out)
-    log.spec.save(spec_path)
-    log.save(out)
-    print(f"wrote {out} ({len(log)} rows, {args.experiments} experiment(s)) and model spec "
+    command = "vesselid " + " ".join(sys.argv[1:]) if sys.argv else ""
+    n = simulate_to_file(system, args.samples, args.experiments, args.seed, out,
+                         metadata={"command": command},
+                         extra={spec_path: system.identification_spec().to_toml()})
+    print(f"wrote {out} ({n} rows, {args.experiments} experiment(s)) and model spec "
           f"{spec_path}")
+    if args.raw:
+        from vesselid.logs import TrialLog
+        from vesselid.rawstreams import write_raw_streams
+
+        log = TrialLog.load(out)  # the log just written (simulation streams it to disk)
+        manifest = write_raw_streams(log, args.raw, seed=args.seed)
+        n = sum(manifest["sentences"].values())
+        print(f"wrote raw sensor streams to {args.raw} ({n} NMEA sentences, actuators.csv, "
+              f"ingest.toml, {manifest['files'][-1]})")
+        print(f"next: vesselid ingest {args.raw} --dt {log.spec.dt} --out trial.csv")
     print(f"next: vesselid identify {out} --model {spec_path}")
     return 0
 
 
 def cmd_identify(args: argparse.Namespace) -> int:
+    from vesselid import limits
+    from vesselid._io import atomic_write_text
     from vesselid.identify import identify
-    from vesselid.logs import TrialLog
+    from vesselid.logs import TrialLog, estimate_shape
     from vesselid.model import ModelSpec
 
+    if args.json and args.json != "-" and Path(args.json).is_dir():
+        raise IsADirectoryError(21, "--json path is a directory", args.json)
     spec = ModelSpec.load(args.model) if args.model else None
+    rows, cols = estimate_shape(args.log)
+    limits.check("identify", f"{args.log} (~{rows:.3g} rows × {cols} columns)",
+                 memory=limits.read_memory(rows, cols), seconds=limits.read_seconds(rows, cols))
     log = TrialLog.load(args.log, spec=spec)
     if spec is None and log.spec is None:
         raise CLIError(f"{args.log} carries no model spec; pass --model SPEC.toml")
@@ -90,30 +159,34 @@ def cmd_identify(args: argparse.Namespace) -> int:
         if args.json == "-":
             print(text)
         else:
-            from vesselid._io import atomic_write_text
-
             atomic_write_text(args.json, text + "\n")
             print(result.summary())
             print(f"\nwrote {args.json}")
     else:
         print(result.summary())
+    if getattr(args, "export", None):
+        path = result.export(args.export, source=str(args.log))
+        print(f"wrote {path} (spec with the estimate as theta0, its standard errors and "
+              "covariance)", file=sys.stderr if args.json == "-" else sys.stdout)
     if args.json == "-":  # otherwise the summary already lists the warnings
         for w in caught:
             print(f"warning: {w.message}", file=sys.stderr)
     return 0
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
+def _command_word(argv: Sequence[str] | None) -> str | None:
+    """The subcommand named on the command line (the first non-option word), if any."""
+    for arg in argv or ():
+        if not arg.startswith("-"):
+            return arg
+    return None
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The command-line parser; a lazy plugin's module is imported only if ``argv`` runs it.
+
+    Without ``argv`` every plugin module is imported (complete parser, e.g. for docs).
+    """
     from vesselid.identify import covariance_api
     from vesselid.identify.registry import DEFAULT_METHOD, ESTIMATORS, method_labels
 
@@ -131,15 +204,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--system", default="heave",
                    help="catalogue name: heave (paper §6), siso (§5) or a vessel "
                         "(vesselid.catalogue: cybership2, ...)")
-    p.add_argument("--samples", type=int, default=10000, help="samples per experiment")
-    p.add_argument("--experiments", type=int, default=None,
+    p.add_argument("--samples", type=int_at_least(2), default=10000,
+                   help="samples per experiment")
+    p.add_argument("--experiments", type=int_at_least(1), default=None,
                    help="independent experiments (default 1; cybership2: 2, a turn to each side)")
-    p.add_argument("--current-mean", type=float, default=None,
+    p.add_argument("--current-mean", type=finite_float, default=None,
                    help="mean current (heave: w̄c; default 0)")
     p.add_argument("--current-sensor", action="store_true",
                    help="log a current-meter reading and use the aggregated-state predictor")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int_at_least(0), default=0)
     p.add_argument("--out", required=True, help="trial.csv or trial.parquet")
+    p.add_argument("--raw", metavar="DIR",
+                   help="also write the raw sensor streams (NMEA 0183, actuator CSV, spec) to DIR "
+                        "(surface vessels: cybership2)")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("identify", help="identify a model from a trial log",
@@ -157,11 +234,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--combine", default="pooled", choices=["pooled", "stacked"],
                    help="multi-experiment equations: pooled normal equations (default) or the "
                         "stacked least-squares form (6)")
-    p.add_argument("--max-iter", type=_positive_int, default=100)
+    p.add_argument("--max-iter", type=int_at_least(1), default=100)
     p.add_argument("--json", metavar="PATH|-", help="write the result as JSON ('-' = stdout)")
+    p.add_argument("--export", metavar="MODEL.toml",
+                   help="write the identified model (spec with θ̂ and its covariance) for reuse")
     p.set_defaults(func=cmd_identify)
 
-    for name in PLUGIN_MODULES:
+    wanted = _command_word(argv) if argv is not None else None
+    lazy_modules = {module for module, _ in LAZY_COMMANDS.values()}
+    modules = [m for m in PLUGIN_MODULES if m not in lazy_modules]
+    for command, (module, help_text) in LAZY_COMMANDS.items():
+        if argv is None or command == wanted:
+            modules.append(module)
+        else:  # listed in the help; never parsed in this run
+            sub.add_parser(command, help=help_text, add_help=False)
+    for name in dict.fromkeys(modules):
         try:
             module = importlib.import_module(name)
         except ModuleNotFoundError as exc:
@@ -172,19 +259,54 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _os_error_text(exc: OSError) -> str:
+    """``cannot write 'out/x.csv': Is a directory`` — the reason and the path."""
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    paths = [p for p in (exc.filename, exc.filename2) if p is not None]
+    where = " -> ".join(repr(str(p)) for p in paths)
+    return f"{reason}: {where}" if where else reason
+
+
+def _terminate(signum: int, frame: Any) -> None:
+    """SIGTERM: unwind like Ctrl-C so that temporary files are removed."""
+    raise SystemExit(128 + signum)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version, or a usage error (already printed)
+        return exc.code if isinstance(exc.code, int) else 2
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
+    previous = None
+    try:
+        previous = signal.signal(signal.SIGTERM, _terminate)
+    except ValueError:  # not the main thread
+        pass
     try:
         return int(args.func(args) or 0)
-    except (VesselidError, ValueError, FileNotFoundError) as exc:
+    except OSError as exc:
+        # unreadable/unwritable files: exit 2 with the reason and the path
+        print(f"vesselid {args.command}: error: {_os_error_text(exc)}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print(f"vesselid {args.command}: error: not enough memory for this request",
+              file=sys.stderr)
+        return 2
+    except VesselidError as exc:
+        # bad input: exit 2, one line; any other exception is a bug and propagates with
+        # its traceback (exit 1)
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"vesselid {args.command}: error: {msg}", file=sys.stderr)
         return 2
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from vesselid.errors import VesselidError
+from vesselid.errors import ControlError
 from vesselid.model import ModelSpec
 
 __all__ = [
@@ -46,9 +46,6 @@ __all__ = [
     "default_reference",
     "run_control_experiment",
 ]
-
-class ControlError(VesselidError):
-    """Bad controller settings (unknown terms, zero input gain, ...)."""
 
 
 def _wrap(a: float) -> float:

@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -22,6 +23,7 @@ import pandas as pd
 from vesselid.model import ModelSpec
 
 __all__ = [
+    "check_moment_range",
     "collinear_terms",
     "condition_number",
     "design_margins",
@@ -132,6 +134,40 @@ def collinear_terms(
         if members:
             groups.append(members)
     return groups
+
+
+def check_moment_range(phi: np.ndarray, names: Sequence[str]) -> None:
+    """Refuse regressors whose moment sums ``ΦᵀΦ``/``ZᵀΦ`` would overflow float64.
+
+    Every moment is a sum of ``N`` products of two regressors, so a regressor above
+    ``sqrt(max float64 / (N P))`` can make a sum infinite (e.g. signals of ~1e150, or
+    finite garbage from a corrupted file); the message names the regressor and its
+    magnitude instead of a later "singular" or "did not converge".
+
+    Raises
+    ------
+    IdentificationError
+        A regressor is not finite or too large.
+    """
+    from vesselid.errors import IdentificationError
+
+    phi = np.asarray(phi, dtype=float)
+    if phi.size == 0:
+        return
+    with np.errstate(invalid="ignore"):
+        big = np.max(np.abs(phi), axis=0)
+    limit = math.sqrt(np.finfo(float).max / (phi.shape[0] * max(phi.shape[1], 1))) / 16.0
+    bad = ~(big <= limit)
+    if bad.any():
+        j = int(np.flatnonzero(bad)[0])
+        if not np.isfinite(big[j]):
+            raise IdentificationError(
+                f"regressor {names[j]!r} is not finite (the signals overflow float64 in "
+                "its product); rescale the signals (e.g. to SI units)")
+        raise IdentificationError(
+            f"regressor {names[j]!r} reaches {big[j]:.3g}: its moment sums over "
+            f"{phi.shape[0]} samples would overflow float64 (limit ~{limit:.2g}); rescale the "
+            "signals (e.g. to SI units) or check the log for corrupted values")
 
 
 def condition_number(a: np.ndarray) -> float:

@@ -1,19 +1,42 @@
-"""Domain errors and warnings.
+"""Domain errors and warnings: the one error hierarchy of the package.
 
 Every domain error subclasses :class:`ValueError` (through :class:`VesselidError`)
-so callers can catch bad input uniformly, following python-control's convention.
+so callers can catch bad input uniformly, following python-control's convention::
+
+    VesselidError (ValueError)
+    ├── ModelSpecError           invalid model structure / TOML spec
+    ├── LogValidationError       trial log: missing column, NaN/inf, bad time
+    ├── SimulationError          bad simulation input (shapes, θ)
+    │   └── SimulationDivergedError
+    ├── IdentificationError      identification cannot proceed
+    │   ├── RankDeficientError   collinear regressors (names the terms)
+    │   └── CovarianceError      unknown covariance estimator / bad configuration
+    ├── SeaTrialError            bad sea-trial settings
+    ├── ControlError             bad controller settings
+    └── CLIError                 bad command-line input
+
+The command line maps these (and ``OSError``) to exit code 2 with a one-line reason;
+any other exception is a bug and shows as one (traceback, exit code 1). Raise a
+subclass here for bad input, never a plain ``ValueError``.
 """
 
 from __future__ import annotations
 
 __all__ = [
+    "CLIError",
+    "ControlError",
     "ConvergenceWarning",
+    "CovarianceError",
     "ExperimentDesignWarning",
     "IdentificationError",
+    "InvalidActionError",
     "LogValidationError",
     "ModelSpecError",
     "RankDeficientError",
+    "ResourceLimitError",
+    "SeaTrialError",
     "SimulationDivergedError",
+    "SimulationError",
     "VesselidError",
     "WeakInstrumentWarning",
 ]
@@ -31,16 +54,36 @@ class LogValidationError(VesselidError):
     """A trial log is missing columns, holds NaN/inf, or has non-increasing time."""
 
 
-class SimulationDivergedError(VesselidError):
+class SimulationError(VesselidError):
+    """Bad simulation input: inputs, disturbances or θ of the wrong shape, non-finite θ."""
+
+
+class SimulationDivergedError(SimulationError):
     """A simulated state became non-finite or exceeded the divergence limit."""
-
-
-class RankDeficientError(VesselidError):
-    """Regressors are (near) collinear; the message names the collinear terms."""
 
 
 class IdentificationError(VesselidError):
     """Identification cannot proceed (too few samples, diverging auxiliary model, ...)."""
+
+
+class RankDeficientError(IdentificationError):
+    """Regressors are (near) collinear; the message names the collinear terms."""
+
+
+class CovarianceError(IdentificationError):
+    """Unknown covariance estimator or invalid configuration of one."""
+
+
+class SeaTrialError(VesselidError):
+    """Bad sea-trial settings (unknown aggregate, too few samples, violated margins...)."""
+
+
+class ControlError(VesselidError):
+    """Bad controller settings (unknown terms, zero input gain, ...)."""
+
+
+class CLIError(VesselidError):
+    """Bad command-line input (exit code 2)."""
 
 
 class WeakInstrumentWarning(UserWarning):
@@ -53,3 +96,11 @@ class ConvergenceWarning(UserWarning):
 
 class ExperimentDesignWarning(UserWarning):
     """A state comes too close to zero for the modulus to be treated as smooth (A10/A15)."""
+
+
+class ResourceLimitError(VesselidError):
+    """A request would need more memory, disk or time than this machine allows."""
+
+
+class InvalidActionError(VesselidError):
+    """An environment action is not finite or does not have the action space's shape."""

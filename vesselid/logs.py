@@ -22,6 +22,8 @@ The row index is not saved; a loaded log always has a default ``RangeIndex``.
 
 from __future__ import annotations
 
+import contextlib
+import csv
 import json
 import math
 import re
@@ -33,12 +35,18 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from vesselid._io import atomic_path
-from vesselid._json import dumps as strict_dumps
-from vesselid.errors import LogValidationError
+from vesselid._io import atomic_group, finite_or_none
+from vesselid.errors import LogValidationError, ModelSpecError
 from vesselid.model import ModelSpec
 
-__all__ = ["PARQUET_METADATA_KEY", "SUPPORTED_SUFFIXES", "TrialLog", "concat_logs"]
+__all__ = [
+    "PARQUET_METADATA_KEY",
+    "SUPPORTED_SUFFIXES",
+    "TrialLog",
+    "TrialLogWriter",
+    "concat_logs",
+    "estimate_shape",
+]
 
 #: Key of the vesselid metadata in the Parquet schema metadata.
 PARQUET_METADATA_KEY = b"vesselid"
@@ -49,12 +57,13 @@ _FORMAT = "vesselid-trial-log"
 _FORMAT_VERSION = 1
 
 
-def _write_csv(data: pd.DataFrame, path: Path) -> None:
+def _write_csv(data: pd.DataFrame, path: Path, *, append: bool = False) -> None:
     """CSV with every float in its shortest round-trip representation (``repr``).
 
     Numeric frames go through pyarrow's CSV writer when it is installed (the same
     shortest representation, ~10× faster than pandas); anything else through pandas,
-    whose default float formatting is also the shortest round-trip text.
+    whose default float formatting is also the shortest round-trip text. With
+    ``append`` the rows are added to ``path`` without a header (chunked writing).
     """
     plain_names = not any(set(c) & set(',"\r\n') for c in data.columns)
     if plain_names and all(data[c].dtype.kind in "fi" for c in data.columns):
@@ -65,11 +74,12 @@ def _write_csv(data: pd.DataFrame, path: Path) -> None:
             pass
         else:
             table = pa.Table.from_pandas(data, preserve_index=False)
-            with open(path, "wb") as fh:  # the header unquoted, as pandas writes it
-                fh.write((",".join(data.columns) + "\n").encode("utf-8"))
+            with open(path, "ab" if append else "wb") as fh:  # header unquoted, as pandas
+                if not append:
+                    fh.write((",".join(data.columns) + "\n").encode("utf-8"))
                 pa_csv.write_csv(table, fh, pa_csv.WriteOptions(include_header=False))
             return
-    data.to_csv(path, index=False)
+    data.to_csv(path, index=False, mode="a" if append else "w", header=not append)
 
 
 def _pandas_before(major: int, minor: int) -> bool:
@@ -110,7 +120,8 @@ def _json_default(obj: Any) -> Any:
 
 def _dumps(obj: Any) -> str:
     try:
-        return strict_dumps(obj, default=_json_default, indent=2, sort_keys=False)
+        return json.dumps(finite_or_none(obj), default=_json_default, indent=2, sort_keys=False,
+                          allow_nan=False)
     except (TypeError, ValueError) as exc:
         raise LogValidationError(f"trial log metadata is not JSON-serialisable: {exc}") from exc
 
@@ -373,7 +384,7 @@ class TrialLog:
         return self
 
     # ------------------------------------------------------------------------ I/O
-    def save(self, path: str | Path) -> Path:
+    def save(self, path: str | Path, *, extra: dict[str | Path, str] | None = None) -> Path:
         """Write the log atomically.
 
         Parameters
@@ -381,8 +392,12 @@ class TrialLog:
         path : str or Path
             ``.csv``: CSV (no index, floats in their shortest round-trip text) plus a JSON sidecar
             ``path.with_suffix(".json")`` with the metadata and column dtypes.
-            ``.parquet`` / ``.pq``: Parquet with the metadata in the schema metadata
-            under ``b"vesselid"`` (needs pyarrow: ``pip install 'vesselid[parquet]'``).
+            ``.parquet`` / ``.pq``: Parquet (with page checksums) holding the metadata in
+            the schema metadata under ``b"vesselid"`` (needs pyarrow:
+            ``pip install 'vesselid[parquet]'``).
+        extra : dict path -> str, optional
+            Further text files (e.g. the model spec TOML) placed together with the log:
+            all files appear, or none does.
 
         Returns
         -------
@@ -394,6 +409,8 @@ class TrialLog:
         LogValidationError
             Unsupported suffix, non-string or duplicated column names, metadata that is
             not JSON-serialisable, or pyarrow missing for Parquet.
+        OSError
+            The output cannot be written (the message names the path).
 
         Notes
         -----
@@ -401,38 +418,9 @@ class TrialLog:
         place only once all files are complete; if writing fails nothing is left behind
         and existing files are untouched. The row index is not saved.
         """
-        path = Path(path)
-        suffix = _suffix(path)
-        data = self.data
-        bad_names = [c for c in data.columns if not isinstance(c, str)]
-        if bad_names:
-            raise LogValidationError(f"trial log column names must be strings, got {bad_names}")
-        duplicated = sorted(set(data.columns[data.columns.duplicated()]))
-        if duplicated:
-            raise LogValidationError(f"trial log has duplicated columns {duplicated}")
-        envelope = {
-            "format": _FORMAT,
-            "format_version": _FORMAT_VERSION,
-            "vesselid_version": _package_version(),
-            "columns": list(data.columns),
-            "dtypes": {c: str(data[c].dtype) for c in data.columns},
-            "metadata": self.metadata,
-        }
-        text = _dumps(envelope)  # fail before touching the disk
-        if suffix == ".csv":
-            sidecar = _sidecar_path(path)
-            with atomic_path(path) as tmp_data, atomic_path(sidecar) as tmp_meta:
-                _write_csv(data, tmp_data)
-                tmp_meta.write_text(text + "\n", encoding="utf-8")
-        else:
-            pa, pq = _import_pyarrow()
-            table = pa.Table.from_pandas(data, preserve_index=False)
-            schema_meta = dict(table.schema.metadata or {})
-            schema_meta[PARQUET_METADATA_KEY] = text.encode("utf-8")
-            table = table.replace_schema_metadata(schema_meta)
-            with atomic_path(path) as tmp_data:
-                pq.write_table(table, tmp_data)
-        return path
+        with TrialLogWriter(path, self.metadata, extra=extra) as writer:
+            writer.append(self.data)
+        return Path(path)
 
     @classmethod
     def load(
@@ -480,6 +468,162 @@ class TrialLog:
         return log
 
 
+class TrialLogWriter:
+    """Write a trial log chunk by chunk, atomically, without holding it in memory.
+
+    ``with TrialLogWriter(path, metadata) as w: w.append(frame); ...`` appends the rows
+    of every frame in order (same columns and dtypes each time) to a temporary file;
+    when the block completes the data file, its sidecar (CSV) and any ``extra`` files
+    appear together, and on any error none of them does. One ``append`` writes exactly
+    the bytes :meth:`TrialLog.save` writes for that frame.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.csv`` (plus sidecar ``.json``) or ``.parquet`` / ``.pq``.
+    metadata : dict, optional
+        JSON-serialisable metadata; may be updated until the first ``append``.
+    extra : dict path -> str, optional
+        Text files written together with the log (e.g. the model spec).
+    """
+
+    def __init__(self, path: str | Path, metadata: dict | None = None, *,
+                 extra: dict[str | Path, str] | None = None) -> None:
+        self.path = Path(path)
+        self._suffix = _suffix(self.path)
+        self.metadata: dict = dict(metadata) if metadata is not None else {}
+        self.extra = {Path(k): v for k, v in (extra or {}).items()}
+        self.rows = 0
+        self._columns: list[str] | None = None
+        self._dtypes: dict[str, str] | None = None
+        self._text: str | None = None
+        self._group: Any = None
+        self._tmps: list[Path] = []
+        self._pq_writer: Any = None
+        self._schema: Any = None
+
+    def _targets(self) -> list[Path]:
+        targets = [self.path]
+        if self._suffix == ".csv":
+            targets.append(_sidecar_path(self.path))
+        return targets + list(self.extra)
+
+    def __enter__(self) -> TrialLogWriter:
+        _dumps(self.metadata)  # fail on unserialisable metadata before touching the disk
+        if self._suffix != ".csv":
+            _import_pyarrow()
+        self._group = atomic_group(self._targets())
+        self._tmps = self._group.__enter__()
+        return self
+
+    def _envelope(self, data: pd.DataFrame) -> str:
+        bad_names = [c for c in data.columns if not isinstance(c, str)]
+        if bad_names:
+            raise LogValidationError(f"trial log column names must be strings, got {bad_names}")
+        duplicated = sorted(set(data.columns[data.columns.duplicated()]))
+        if duplicated:
+            raise LogValidationError(f"trial log has duplicated columns {duplicated}")
+        envelope = {
+            "format": _FORMAT,
+            "format_version": _FORMAT_VERSION,
+            "vesselid_version": _package_version(),
+            "columns": list(data.columns),
+            "dtypes": {c: str(data[c].dtype) for c in data.columns},
+            "metadata": self.metadata,
+        }
+        return _dumps(envelope)
+
+    def append(self, data: pd.DataFrame) -> None:
+        """Append the rows of ``data`` (same columns and dtypes as the first chunk)."""
+        if self._group is None:
+            raise RuntimeError("TrialLogWriter.append outside its 'with' block")
+        if self._columns is None:
+            self._text = self._envelope(data)
+            self._columns = list(data.columns)
+            self._dtypes = {c: str(data[c].dtype) for c in data.columns}
+        elif (list(data.columns) != self._columns
+              or {c: str(data[c].dtype) for c in data.columns} != self._dtypes):
+            raise LogValidationError(
+                f"chunk columns/dtypes {list(data.columns)} differ from the first chunk's "
+                f"{self._columns}")
+        tmp = self._tmps[0]
+        if self._suffix == ".csv":
+            first = self.rows == 0
+            _write_csv(data, tmp, append=not first)
+        else:
+            pa, pq = _import_pyarrow()
+            table = pa.Table.from_pandas(data, preserve_index=False)
+            if self._pq_writer is None:
+                schema_meta = dict(table.schema.metadata or {})
+                schema_meta[PARQUET_METADATA_KEY] = self._text.encode("utf-8")
+                self._schema = table.schema.with_metadata(schema_meta)
+                self._pq_writer = pq.ParquetWriter(tmp, self._schema, write_page_checksum=True)
+            self._pq_writer.write_table(table.replace_schema_metadata(self._schema.metadata))
+        self.rows += len(data)
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        group, self._group = self._group, None
+        try:
+            if exc_type is None:
+                if self._columns is None:
+                    self.append(pd.DataFrame())
+                if self._pq_writer is not None:
+                    self._pq_writer.close()
+                if self._suffix == ".csv":
+                    self._tmps[1].write_text(self._text + "\n", encoding="utf-8")
+                offset = 2 if self._suffix == ".csv" else 1
+                for tmp, text in zip(self._tmps[offset:], self.extra.values(), strict=True):
+                    tmp.write_text(text, encoding="utf-8")
+            elif self._pq_writer is not None:
+                with contextlib.suppress(Exception):
+                    self._pq_writer.close()
+        except BaseException as err:
+            group.__exit__(type(err), err, err.__traceback__)
+            raise
+        group.__exit__(exc_type, exc, tb)
+
+
+def estimate_shape(path: str | Path) -> tuple[int, int]:
+    """Rows and columns of a log file without reading it (for :mod:`vesselid.limits`).
+
+    Parquet: exact, from the footer. CSV: the header's columns and the file size
+    divided by the mean length of the first data lines.
+
+    Raises
+    ------
+    LogValidationError
+        Unsupported suffix, missing file or unreadable footer.
+    OSError
+        The file cannot be opened.
+    """
+    path = Path(path)
+    suffix = _suffix(path)
+    if path.is_dir():
+        raise IsADirectoryError(21, "trial log path is a directory", str(path))
+    if not path.is_file():
+        raise LogValidationError(f"trial log file {str(path)!r} does not exist")
+    if suffix != ".csv":
+        pa, pq = _import_pyarrow()
+        try:
+            meta = pq.read_metadata(path)
+        except (pa.ArrowException, OSError, ValueError) as exc:
+            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise LogValidationError(f"{path}: cannot read Parquet (corrupt or not Parquet): "
+                                     f"{msg}") from exc
+        return int(meta.num_rows), int(meta.num_columns)
+    size = path.stat().st_size
+    with open(path, "rb") as fh:
+        block = fh.read(1 << 16)  # never more: a file may be one endless line
+    lines = block.split(b"\n")
+    header = lines[0]
+    cols = header.count(b",") + 1
+    sample = lines[1:-1]  # complete data lines
+    if not sample:  # no complete line in the first 64 kB: count bytes as values
+        return (max(0, size - len(header)) // 8 if size > len(block) else 0), cols
+    per_line = max(1.0, sum(len(line) + 1 for line in sample) / len(sample))
+    return int((size - len(header) - 1) / per_line) + 1, cols
+
+
 def _positions_by_experiment(data: pd.DataFrame) -> list[tuple[object, np.ndarray]]:
     """0-based row positions of every experiment, in sorted-id order."""
     if "experiment" not in data.columns:
@@ -489,17 +633,117 @@ def _positions_by_experiment(data: pd.DataFrame) -> list[tuple[object, np.ndarra
     return [(eid, np.flatnonzero((col == eid).to_numpy())) for eid in ids]
 
 
-def _read_envelope(text: str, where: str) -> dict:
+#: Types of the metadata entries vesselid writes (others are kept as they are).
+_METADATA_TYPES: dict[str, tuple[tuple[type, ...], str]] = {
+    "spec": ((dict,), "a JSON object (model spec)"),
+    "vesselid_version": ((str,), "a string"),
+    "command": ((str,), "a string"),
+    "seed": ((int, type(None)), "an integer or null"),
+    "seeds": ((list,), "a list of integers or nulls"),
+    "spawn_keys": ((list,), "a list of lists of integers"),
+    "experiments": ((int,), "an integer"),
+    "samples_per_experiment": ((int,), "an integer"),
+}
+
+
+def _type_name(value: Any) -> str:
+    return {dict: "object", list: "list", str: "string", bool: "boolean", int: "integer",
+            float: "number", type(None): "null"}.get(type(value), type(value).__name__)
+
+
+def _check_metadata(metadata: Any, where: str) -> dict:
+    """Check the type of every metadata entry vesselid relies on."""
+    if not isinstance(metadata, dict):
+        raise LogValidationError(
+            f"{where}: trial log metadata must be a JSON object, got {_type_name(metadata)}")
+    for key, (types, text) in _METADATA_TYPES.items():
+        if key not in metadata:
+            continue
+        value = metadata[key]
+        ok = isinstance(value, types) and not isinstance(value, bool)
+        if ok and key == "seeds":
+            ok = all(v is None or (isinstance(v, int) and not isinstance(v, bool)) for v in value)
+        if ok and key == "spawn_keys":
+            ok = all(isinstance(k, list) and all(isinstance(i, int) and not isinstance(i, bool)
+                                                 for i in k) for k in value)
+        if ok and key in ("experiments", "samples_per_experiment"):
+            ok = value >= 0
+        if not ok:
+            raise LogValidationError(
+                f"{where}: metadata entry {key!r} must be {text}, got {_type_name(value)} "
+                f"{value!r:.60}")
+    if "spec" in metadata:
+        try:
+            ModelSpec.from_dict(metadata["spec"])
+        except ModelSpecError as exc:
+            raise LogValidationError(f"{where}: metadata entry 'spec': {exc}") from exc
+    return metadata
+
+
+def _read_envelope(text: str | bytes, where: str) -> dict:
+    if isinstance(text, bytes):
+        try:
+            text = text.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise LogValidationError(
+                f"{where}: trial log metadata is not UTF-8 text: {exc}") from exc
     try:
-        envelope = json.loads(text)
+        envelope = json.loads(text, parse_constant=_reject_constant)
     except ValueError as exc:
         raise LogValidationError(f"{where}: invalid trial log metadata JSON: {exc}") from exc
     if not isinstance(envelope, dict):
-        raise LogValidationError(f"{where}: trial log metadata must be a JSON object")
+        raise LogValidationError(
+            f"{where}: trial log metadata must be a JSON object, got {_type_name(envelope)}")
     if envelope.get("format") != _FORMAT:
         # A plain JSON object written by hand: treat it as the metadata itself.
         envelope = {"metadata": envelope}
+    else:
+        version = envelope.get("format_version", _FORMAT_VERSION)
+        if not isinstance(version, int) or isinstance(version, bool):
+            raise LogValidationError(
+                f"{where}: 'format_version' must be an integer, got {_type_name(version)}")
+        if version > _FORMAT_VERSION:
+            raise LogValidationError(
+                f"{where}: trial log format version {version} is newer than this vesselid "
+                f"understands ({_FORMAT_VERSION}); upgrade vesselid")
+        columns = envelope.get("columns")
+        if columns is not None and not (
+                isinstance(columns, list) and all(isinstance(c, str) for c in columns)):
+            raise LogValidationError(f"{where}: 'columns' must be a list of strings")
+        if columns is not None and len(set(columns)) != len(columns):
+            dup = sorted({c for c in columns if columns.count(c) > 1})
+            raise LogValidationError(f"{where}: 'columns' lists duplicated names {dup}")
+        dtypes = envelope.get("dtypes", {})
+        if not isinstance(dtypes, dict):
+            raise LogValidationError(
+                f"{where}: 'dtypes' must be a JSON object, got {_type_name(dtypes)}")
+        for col, name in dtypes.items():
+            if not isinstance(name, str):
+                raise LogValidationError(
+                    f"{where}: dtype of column {col!r} must be a string, got "
+                    f"{_type_name(name)} {name!r:.40}")
+            try:
+                pd.api.types.pandas_dtype(name)
+            except (TypeError, ValueError) as exc:
+                raise LogValidationError(
+                    f"{where}: dtype {name!r} of column {col!r} is not a dtype") from exc
+    envelope["metadata"] = _check_metadata(envelope.get("metadata", {}), where)
     return envelope
+
+
+def _reject_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not valid JSON")
+
+
+def _csv_header(path: Path) -> list[str]:
+    """The header row as written (pandas renames duplicated names to ``w.1``)."""
+    try:
+        with open(path, encoding="utf-8", newline="") as fh:
+            return next(csv.reader(fh), [])
+    except UnicodeDecodeError as exc:
+        raise LogValidationError(f"{path}: cannot read CSV: not UTF-8 text ({exc})") from exc
+    except csv.Error as exc:
+        raise LogValidationError(f"{path}: cannot read CSV header: {exc}") from exc
 
 
 def _read_csv(path: Path) -> tuple[pd.DataFrame, dict]:
@@ -507,17 +751,20 @@ def _read_csv(path: Path) -> tuple[pd.DataFrame, dict]:
     envelope: dict = {}
     dtypes: dict[str, str] = {}
     if sidecar.is_file():
-        envelope = _read_envelope(sidecar.read_text(encoding="utf-8"), str(sidecar))
+        envelope = _read_envelope(sidecar.read_bytes(), str(sidecar))
         dtypes = envelope.get("dtypes") or {}
-        if not isinstance(dtypes, dict):
-            raise LogValidationError(f"{sidecar}: 'dtypes' must be a JSON object")
+    raw_header = _csv_header(path)
+    seen: set[str] = set()
+    duplicated = sorted({c for c in raw_header if c in seen or seen.add(c)})
+    if duplicated:
+        raise LogValidationError(f"{path}: CSV header has duplicated column names {duplicated}")
     try:
         header = pd.read_csv(path, nrows=0)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise LogValidationError(f"{path}: cannot read CSV: {exc}") from exc
-    if dtypes and list(header.columns) != list(envelope.get("columns", dtypes)):
+    if dtypes and list(header.columns) != list(envelope.get("columns") or dtypes):
         warnings.warn(
-            f"{sidecar} describes columns {list(envelope.get('columns', dtypes))} but "
+            f"{sidecar} describes columns {list(envelope.get('columns') or dtypes)} but "
             f"{path} has {list(header.columns)}; ignoring the recorded dtypes",
             UserWarning,
             stacklevel=3,
@@ -537,7 +784,7 @@ def _read_csv(path: Path) -> tuple[pd.DataFrame, dict]:
             data[col] = data[col].astype(name)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise LogValidationError(f"{path}: cannot read CSV: {exc}") from exc
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise LogValidationError(
             f"{path}: values do not match the dtypes recorded in {sidecar.name}: {exc}"
         ) from exc
@@ -547,12 +794,24 @@ def _read_csv(path: Path) -> tuple[pd.DataFrame, dict]:
 def _read_parquet(path: Path) -> tuple[pd.DataFrame, dict]:
     pa, pq = _import_pyarrow()
     try:
-        table = pq.read_table(path)
-    except (pa.ArrowException, OSError) as exc:
-        raise LogValidationError(f"{path}: cannot read Parquet: {exc}") from exc
-    raw = (table.schema.metadata or {}).get(PARQUET_METADATA_KEY)
-    envelope = _read_envelope(raw.decode("utf-8"), str(path)) if raw is not None else {}
-    return table.to_pandas(), envelope
+        schema = pq.read_schema(path)
+        names = list(schema.names)
+        seen: set[str] = set()
+        duplicated = sorted({c for c in names if c in seen or seen.add(c)})
+        if duplicated:
+            raise LogValidationError(f"{path}: Parquet file has duplicated column names "
+                                     f"{duplicated}")
+        table = pq.read_table(path, page_checksum_verification=True)
+        raw = (table.schema.metadata or {}).get(PARQUET_METADATA_KEY)
+        envelope = _read_envelope(raw, str(path)) if raw is not None else {}
+        data = table.to_pandas()
+    except LogValidationError:
+        raise
+    except (pa.ArrowException, OSError, ValueError, TypeError) as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise LogValidationError(f"{path}: cannot read Parquet (corrupt or not Parquet): "
+                                 f"{msg}") from exc
+    return data, envelope
 
 
 # ------------------------------------------------------------------------- concat_logs

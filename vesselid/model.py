@@ -160,8 +160,9 @@ class ModelSpec:
         aggregate: Mapping[str, str | Aggregate] | None = None,
         dt: float | None = None,
     ) -> None:
-        if isinstance(states, str) or isinstance(inputs, str):
-            raise ModelSpecError("states and inputs must be lists of names, not strings")
+        for label, names_ in (("states", states), ("inputs", inputs)):
+            if isinstance(names_, (str, Mapping)) or not isinstance(names_, Sequence):
+                raise ModelSpecError(f"{label}: expected a list of names, got {_kind(names_)}")
         states_t = tuple(_check_name("state", s) for s in states)
         inputs_t = tuple(_check_name("input", u) for u in inputs)
         if not states_t:
@@ -171,7 +172,9 @@ class ModelSpec:
         if dupes:
             raise ModelSpecError(f"signal names must be unique across states and inputs: {dupes}")
         if not isinstance(equations, Mapping):
-            raise ModelSpecError("equations must map each state to a list of terms")
+            raise ModelSpecError(
+                f"equations: expected a table mapping each state to a list of terms, got "
+                f"{_kind(equations)}")
         unknown_eq = sorted(set(equations) - set(states_t))
         if unknown_eq:
             raise ModelSpecError(f"equations given for unknown states {unknown_eq}")
@@ -180,8 +183,9 @@ class ModelSpec:
             if state not in equations:
                 raise ModelSpecError(f"no equation for state {state!r}")
             raw = equations[state]
-            if isinstance(raw, str):
-                raise ModelSpecError(f"equation of {state!r} must be a list of terms, got {raw!r}")
+            if isinstance(raw, (str, Mapping)) or not isinstance(raw, Sequence):
+                raise ModelSpecError(
+                    f"[equations] {state}: expected a list of terms, got {_kind(raw)}")
             terms = tuple(Term.parse(t) for t in raw)
             if not terms:
                 raise ModelSpecError(f"equation of {state!r} is empty")
@@ -202,6 +206,8 @@ class ModelSpec:
             eqs[state] = terms
         th: dict[str, tuple[float, ...]] | None = None
         if theta0 is not None:
+            if not isinstance(theta0, Mapping):
+                raise ModelSpecError(f"theta0: expected a table, got {_kind(theta0)}")
             th = {}
             unknown_th = sorted(set(theta0) - set(states_t))
             if unknown_th:
@@ -209,7 +215,17 @@ class ModelSpec:
             for state in states_t:
                 if state not in theta0:
                     raise ModelSpecError(f"theta0 has no values for state {state!r}")
-                values = tuple(float(x) for x in theta0[state])
+                raw_th = theta0[state]
+                if isinstance(raw_th, (str, Mapping)) or not isinstance(raw_th, Sequence):
+                    if not isinstance(raw_th, np.ndarray):
+                        raise ModelSpecError(
+                            f"[theta0] {state}: expected a list of numbers, got {_kind(raw_th)}")
+                for i, x in enumerate(raw_th):
+                    if isinstance(x, (str, bytes, bool)) or not isinstance(x, (int, float,
+                                                                                np.number)):
+                        raise ModelSpecError(
+                            f"[theta0] {state}[{i}]: expected a number, got {_kind(x)}")
+                values = tuple(float(x) for x in raw_th)
                 if len(values) != len(eqs[state]):
                     raise ModelSpecError(
                         f"theta0 of {state!r} has {len(values)} values but the equation has "
@@ -219,6 +235,8 @@ class ModelSpec:
                     raise ModelSpecError(f"theta0 of {state!r} holds non-finite values")
                 th[state] = values
         agg: dict[str, Aggregate] = {}
+        if aggregate is not None and not isinstance(aggregate, Mapping):
+            raise ModelSpecError(f"aggregate: expected a table, got {_kind(aggregate)}")
         for state, rel in (aggregate or {}).items():
             if state not in states_t:
                 raise ModelSpecError(f"aggregate relation given for unknown state {state!r}")
@@ -231,6 +249,8 @@ class ModelSpec:
                 )
             agg[state] = a
         if dt is not None:
+            if isinstance(dt, (str, bytes, bool)) or not isinstance(dt, (int, float, np.number)):
+                raise ModelSpecError(f"dt: expected a number of seconds, got {_kind(dt)}")
             dt = float(dt)
             if not (math.isfinite(dt) and dt > 0):
                 raise ModelSpecError(f"dt must be a positive number, got {dt}")
@@ -374,16 +394,47 @@ class ModelSpec:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> ModelSpec:
-        """Build from the plain-data form (as read from TOML or JSON)."""
+        """Build from the plain-data form (as read from TOML or JSON).
+
+        The type of every table and entry is checked; a message names the key, e.g.
+        ``[theta0] w: expected a list of numbers, got a number (0.99)``.
+        """
         if not isinstance(data, Mapping):
-            raise ModelSpecError("a model spec must be a table/mapping")
+            raise ModelSpecError(f"a model spec must be a table/mapping, got {_kind(data)}")
         allowed = {"name", "states", "inputs", "dt", "equations", "theta0", "aggregate"}
-        unknown = sorted(set(data) - allowed)
+        # "estimate": uncertainty of an exported identified model (vesselid.modelio)
+        unknown = sorted(map(str, set(data) - allowed - {"estimate"}))
         if unknown:
             raise ModelSpecError(f"unknown model spec keys {unknown}; allowed {sorted(allowed)}")
         for key in ("states", "equations"):
             if key not in data:
                 raise ModelSpecError(f"model spec is missing {key!r}")
+        _expect(data.get("name", "model"), str, "name", "a string")
+        for key in ("states", "inputs"):
+            value = data.get(key, [])
+            _expect(value, list, key, "a list of names")
+            for i, item in enumerate(value):
+                _expect(item, str, f"{key}[{i}]", "a name (string)")
+        dt = data.get("dt")
+        if dt is not None:
+            _expect_number(dt, "dt")
+        for table in ("equations", "theta0", "aggregate"):
+            value = data.get(table)
+            if value is None and table != "equations":
+                continue
+            _expect(value, Mapping, table, f"a table [{table}]")
+            for key, entry in value.items():
+                where = f"[{table}] {key}"
+                if table == "equations":
+                    _expect(entry, list, where, "a list of terms")
+                    for i, term in enumerate(entry):
+                        _expect(term, str, f"{where}[{i}]", "a term (string)")
+                elif table == "theta0":
+                    _expect(entry, list, where, "a list of numbers")
+                    for i, x in enumerate(entry):
+                        _expect_number(x, f"{where}[{i}]")
+                else:
+                    _expect(entry, str, where, "a relation such as 'w - w_c'")
         return cls(
             name=data.get("name", "model"),
             states=data["states"],
@@ -411,12 +462,29 @@ class ModelSpec:
 
     @classmethod
     def load(cls, path: str | Path) -> ModelSpec:
-        """Read a TOML spec file."""
+        """Read a TOML spec file.
+
+        Raises
+        ------
+        ModelSpecError
+            Missing file, not UTF-8 text, invalid TOML or an invalid spec (the message
+            starts with the path).
+        OSError
+            The file cannot be read (permissions, a directory, ...).
+        """
         path = Path(path)
-        if not path.is_file():
+        if path.is_dir():
+            raise IsADirectoryError(21, "model spec path is a directory", str(path))
+        if not path.exists():
             raise ModelSpecError(f"model spec file {str(path)!r} does not exist")
+        raw = path.read_bytes()
         try:
-            return cls.from_toml(path.read_text(encoding="utf-8"))
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ModelSpecError(f"{path}: not a TOML text file (not UTF-8 at byte "
+                                 f"{exc.start})") from exc
+        try:
+            return cls.from_toml(text)
         except ModelSpecError as exc:
             raise ModelSpecError(f"{path}: {exc}") from exc
 
@@ -432,6 +500,36 @@ class ModelSpec:
             agg = f"   (regressors use {self.aggregate[s]})" if s in self.aggregate else ""
             lines.append(f"  {s}(k+1) = [{terms}] θ_{s}{agg}")
         return "\n".join(lines)
+
+
+def _kind(value: Any) -> str:
+    """TOML-flavoured name of a value's type, with the value when short."""
+    if isinstance(value, bool):
+        kind = "a boolean"
+    elif isinstance(value, (int, float)):
+        kind = "a number"
+    elif isinstance(value, str):
+        kind = "a string"
+    elif isinstance(value, Mapping):
+        kind = "a table"
+    elif isinstance(value, (list, tuple)):
+        kind = "a list"
+    else:
+        kind = type(value).__name__
+    text = repr(value)
+    return f"{kind} ({text})" if len(text) <= 40 else kind
+
+
+def _expect(value: Any, types: Any, where: str, what: str) -> None:
+    if not isinstance(value, types) or (isinstance(value, bool) and types is not bool):
+        raise ModelSpecError(f"{where}: expected {what}, got {_kind(value)}")
+
+
+def _expect_number(value: Any, where: str) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ModelSpecError(f"{where}: expected a number, got {_kind(value)}")
+    if not math.isfinite(value):
+        raise ModelSpecError(f"{where}: expected a finite number, got {value!r}")
 
 
 def _canonical(term: Term) -> str:

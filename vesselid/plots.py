@@ -109,13 +109,13 @@ def error_histograms(
     params = _params(df)
     multi = len({eq for eq, _ in params}) > 1
     n_r, n_c = len(meths), len(params)
-    width, height = figsize or (3.0 * n_c + 0.6, 1.3 * n_r + 0.8)
+    width, height = figsize or (3.0 * n_c + 0.8, 1.3 * n_r + 0.8)
     # One axes per parameter with the estimators stacked as rows inside it, fixed
     # margins (no layout engine), precomputed counts drawn as one filled step artist per
     # panel: a few dozen artists in all, which keeps drawing well under 0.3 s.
     fig = Figure(figsize=(width, height))
     FigureCanvasAgg(fig)
-    fig.subplots_adjust(left=0.75 / width, right=1.0 - 0.12 / width, bottom=0.32 / height,
+    fig.subplots_adjust(left=0.95 / width, right=1.0 - 0.12 / width, bottom=0.32 / height,
                         top=1.0 - (0.62 if title else 0.34) / height, wspace=0.05)
     axes = np.atleast_1d(fig.subplots(1, n_c, squeeze=False)[0])
     eq_col = df["equation"].astype(str).to_numpy()

@@ -23,6 +23,9 @@ Layout (plain numpy, no compilation):
     Φ for an array of signal vectors ``(..., S)`` → ``(..., P)`` (vectorised numpy).
 ``predict(layout, theta, signals)``
     One-step predictions ``Φᵀθ`` per equation, ``(..., S)`` → ``(..., n_equations)``.
+``factor_vector(signals)`` / ``weights_matrix(layout, theta)``
+    ``F = [s, |s|, 1]`` for arrays of signal vectors; ``W`` with ``Φ W = Φᵀθ`` for a
+    precomputed Φ matrix (one BLAS product; equal to ``predict`` up to rounding).
 
 Compiled helpers (numba, ``inline="always"``; call them from compiled code):
 
@@ -72,12 +75,14 @@ __all__ = [
     "encode_terms",
     "evaluate",
     "factor_source",
+    "factor_vector",
     "fill_factors",
     "fill_factors_xu",
     "kernel",
     "one_step",
     "predict",
     "regressors",
+    "weights_matrix",
 ]
 
 
@@ -151,7 +156,8 @@ def factor_source(idx: int, n_signals: int) -> tuple[int, bool] | None:
     return None
 
 
-def _factor_vector(signals: np.ndarray) -> np.ndarray:
+def factor_vector(signals: np.ndarray) -> np.ndarray:
+    """The factor vectors ``F = [s, |s|, 1]`` of an array of signal vectors ``(..., S)``."""
     s = np.asarray(signals, dtype=np.float64)
     return np.concatenate([s, np.abs(s), np.ones((*s.shape[:-1], 1))], axis=-1)
 
@@ -172,7 +178,7 @@ def evaluate(factors: np.ndarray | RegressorLayout, signals: np.ndarray) -> np.n
         The regressor values Φ (Definition 2.1).
     """
     fac = factors.factors if isinstance(factors, RegressorLayout) else np.asarray(factors)
-    f = _factor_vector(signals)
+    f = factor_vector(signals)
     return f[..., fac[:, 0]] * f[..., fac[:, 1]]
 
 
@@ -197,6 +203,18 @@ def predict(layout: RegressorLayout, theta: np.ndarray, signals: np.ndarray) -> 
     for p, i in enumerate(layout.equation):  # term order, as the compiled one_step
         out[..., i] += contrib[..., p]
     return out
+
+
+def weights_matrix(layout: RegressorLayout, theta: np.ndarray) -> np.ndarray:
+    """``W (P, n_equations)`` with ``Φ W = Φᵀθ`` per equation, for Φ matrices of many rows.
+
+    ``phi @ weights_matrix(layout, θ)`` is one BLAS product (fast; equal to the term-order
+    sum of :func:`predict` / :func:`one_step` up to rounding, not bit for bit).
+    """
+    n_eq = int(layout.equation.max()) + 1 if layout.n_params else 0
+    weights = np.zeros((layout.n_params, n_eq))
+    weights[np.arange(layout.n_params), layout.equation] = np.asarray(theta, dtype=np.float64)
+    return weights
 
 
 # ------------------------------------------------------------------ salted caching

@@ -68,8 +68,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from vesselid._io import atomic_write_text
-from vesselid._json import dumps, strict
+from vesselid._io import atomic_write_text, strict_json
+from vesselid._json import strict
 from vesselid.errors import VesselidError
 from vesselid.identify.registry import DEFAULT_METHOD, ESTIMATORS, PAPER_METHODS, method_labels
 from vesselid.montecarlo import Study, run_study, save_results, summary_table
@@ -349,18 +349,28 @@ class ReproductionResult:
         })
 
 
-def warm_up() -> float:
-    """Load (or compile, on first use) every compiled kernel; returns the seconds spent.
+def warm_up(tables: tuple[int, ...] = (1, 2), runs: int | None = None,
+            samples: int = 10_000, batch_size: int | None = None) -> float:
+    """Load (or compile, on first use) the compiled kernels; returns the seconds spent.
 
     Compiled code is cached on disk (numba ``cache=True``), so this is paid once
-    per machine; later processes only load it.
+    per machine; later processes only load it. Without ``runs`` every kernel variant
+    is loaded (parallel and serial); with the size of the coming study only the
+    variant its chunks take, so a first run compiles nothing it does not use.
     """
+    from vesselid.montecarlo import DEFAULT_BATCH_SIZE
+    from vesselid.simulate import PARALLEL_MIN_SAMPLES
+
     t0 = time.perf_counter()
-    for table in (1, 2):
-        # large enough to take the parallel kernels, small enough to be instant
-        study = table_study(table, runs=24, samples=10_000, seed=0)
-        run_study(study, progress=False)
-        run_study(table_study(table, runs=2, samples=50, seed=0), progress=False)
+    chunk = None
+    if runs is not None:
+        chunk = min(int(runs), int(batch_size or DEFAULT_BATCH_SIZE)) * int(samples)
+    for table in tables:
+        if chunk is None or chunk >= PARALLEL_MIN_SAMPLES:
+            # large enough to take the parallel kernels, small enough to be instant
+            run_study(table_study(table, runs=24, samples=10_000, seed=0), progress=False)
+        if chunk is None or chunk < PARALLEL_MIN_SAMPLES:
+            run_study(table_study(table, runs=2, samples=50, seed=0), progress=False)
     return time.perf_counter() - t0
 
 
@@ -421,7 +431,8 @@ def reproduce(
                               xi_mean=xi_mean, target=target) for t in tables}
     timings: dict[str, float] = {}
     if warm and client is None:
-        timings["jit_compile_or_load_s"] = warm_up()
+        timings["jit_compile_or_load_s"] = warm_up(tuple(tables), int(runs), int(samples),
+                                                   batch_size)
     summaries, comps, results, claims = {}, {}, {}, []
     t_all = time.perf_counter()
     for t, st in studies.items():
@@ -473,21 +484,25 @@ def _write(res: ReproductionResult, out: Path, fmt: str, figures: bool) -> None:
         res.timings["figures_s"] = time.perf_counter() - t0
     path = out / "summary.json"
     res.files.append(str(path))
-    atomic_write_text(path, dumps(res.to_dict(), indent=2) + "\n")
+    atomic_write_text(path, strict_json(res.to_dict(), indent=2) + "\n")
 
 
 # -------------------------------------------------------------------------- CLI
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Register ``vesselid reproduce`` (CLI plugin contract of :mod:`vesselid.cli`)."""
+    from vesselid.cli import int_at_least
+
     p = subparsers.add_parser(
         "reproduce", help="reproduce the paper's Tables 1-2 and Figure 1",
         description="Monte Carlo reproduction of Ljungberg & Enqvist §6: LS, IV and IV with "
                     "zero-mean instruments on the heave system; prints the published and "
                     "reproduced tables row by row and checks the paper's claims.")
     p.add_argument("--table", default="all", choices=["1", "2", "all"])
-    p.add_argument("--runs", type=int, default=1000, help="Monte Carlo runs (paper: 1000)")
-    p.add_argument("--samples", type=int, default=10_000, help="samples per run (paper: 10⁴)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--runs", type=int_at_least(2), default=1000,
+                   help="Monte Carlo runs (paper: 1000)")
+    p.add_argument("--samples", type=int_at_least(10), default=10_000,
+                   help="samples per run (paper: 10⁴)")
+    p.add_argument("--seed", type=int_at_least(0), default=0)
     p.add_argument("--out", metavar="DIR", help="write figures, tidy results and summary.json")
     p.add_argument("--json", metavar="PATH|-", help="write the summary as JSON ('-' = stdout)")
     p.add_argument("--xi-mean", default="literal", metavar="literal|FLOAT",
@@ -500,7 +515,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="input design: alternating 0.1/0.3 pulses of 1-20 samples (default) "
                         "or random levels in [0.1, 0.3] held 10-100 samples")
     p.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler address")
-    p.add_argument("--batch-size", type=int, default=None, help="runs per chunk")
+    p.add_argument("--batch-size", type=int_at_least(1), default=None, help="runs per chunk")
     p.add_argument("--format", default="csv", choices=["csv", "parquet"],
                    help="format of the tidy results in --out")
     p.add_argument("--strict", action="store_true",
@@ -509,11 +524,42 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     return p
 
 
+def _guard(args: argparse.Namespace) -> None:
+    """Refuse sizes or output paths that cannot work before running anything."""
+    from vesselid import limits
+    from vesselid.montecarlo import DEFAULT_BATCH_SIZE
+
+    for opt, value in (("--out", args.out), ("--json", args.json)):
+        if value is None or value == "-":
+            continue
+        path = Path(value)
+        if opt == "--out" and path.exists() and not path.is_dir():
+            raise NotADirectoryError(20, "--out must be a directory, not an existing file",
+                                     str(path))
+        if opt == "--json" and path.is_dir():
+            raise IsADirectoryError(21, "--json path is a directory", str(path))
+        for parent in path.parents:
+            if parent.exists():
+                if not parent.is_dir():
+                    raise NotADirectoryError(20, f"{parent} is not a directory", str(path))
+                break
+    n_tables = len(_tables(args.table))
+    batch = min(args.runs, args.batch_size or DEFAULT_BATCH_SIZE)
+    # per batch: ~40 float64 arrays of samples per run (signals, states, regressors,
+    # instruments); results: 9 tidy rows of ~150 B per run and table
+    memory = (limits.BASE_MEMORY + 40.0 * 8.0 * batch * args.samples
+              + 1500.0 * args.runs * n_tables)
+    seconds = 3e-7 * n_tables * args.runs * args.samples
+    limits.check("reproduce", f"{n_tables} table(s) × {args.runs} runs × {args.samples} samples",
+                 memory=memory, seconds=seconds)
+
+
 def cmd_reproduce(args: argparse.Namespace) -> int:
     if args.runs < 2 or args.samples < 10:
         raise VesselidError("need --runs >= 2 and --samples >= 10")
     if args.batch_size is not None and args.batch_size < 1:
         raise VesselidError("--batch-size must be positive")
+    _guard(args)
     res = reproduce(
         table=args.table, runs=args.runs, samples=args.samples, seed=args.seed, out=args.out,
         xi_mean=args.xi_mean, target=args.target, pulses=args.pulses, client=args.scheduler,
@@ -521,11 +567,11 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     )
     payload = res.to_dict()
     if args.json == "-":
-        print(dumps(payload, indent=2))
+        print(strict_json(payload, indent=2))
     else:
         print(res.to_text())
         if args.json:
-            atomic_write_text(args.json, dumps(payload, indent=2) + "\n")
+            atomic_write_text(args.json, strict_json(payload, indent=2) + "\n")
             print(f"wrote {args.json}")
     if args.strict and not res.ok:
         return 1

@@ -49,12 +49,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from vesselid.errors import VesselidError
+from vesselid.errors import SeaTrialError
 from vesselid.model import ModelSpec
 
 __all__ = [
     "AGGREGATES",
     "DEFAULT_LEVELS",
+    "DESIGNS",
     "SeaTrialDesign",
     "SeaTrialResult",
     "add_parser",
@@ -62,6 +63,7 @@ __all__ = [
     "free_run_nrmse",
     "markdown_table",
     "normalized_errors",
+    "planned_sea_trial_design",
     "run_pipeline",
     "seatrial_spec",
     "simulate_sea_trial",
@@ -93,24 +95,29 @@ DEFAULT_LEVELS: tuple[tuple[float, float, float, int], ...] = (
     (1.55, -0.15, 0.21, -1),
 )
 
+#: Input designs by name: ``"planned"`` (default) — standard manoeuvres chosen by the trial
+#: planner (:func:`vesselid.planner.plan_trial`), identified with the full structure
+#: (``v·|r|`` and ``r·|v|`` apart: zig-zags separate them); ``"static-offset"`` — the
+#: original steady turns with random pulses (:func:`design_sea_trial`), identified with
+#: the merged structure.
+DESIGNS = ("planned", "static-offset")
+
 #: Default perturbation amplitudes ``(X, Y, N)`` of the random pulses. Large relative
 #: perturbations are needed: only the variation *within* an experiment informs the
 #: zero-mean-instrument estimator (the instruments are centred per experiment, A7).
 DEFAULT_PERTURBATION = (0.45, 0.5, 0.1)
 
 
-class SeaTrialError(VesselidError):
-    """Bad sea-trial settings (unknown aggregate, too few samples, violated margins...)."""
-
 
 # --------------------------------------------------------------------------------- spec
-def seatrial_spec(dt: float = 0.1, aggregate: str | None = "relative", *,
-                  vessel: str = "cybership2") -> ModelSpec:
+def seatrial_spec(dt: float = 0.1, aggregate: str | None = "relative",
+                  structure: str = "merged", *, vessel: str = "cybership2") -> ModelSpec:
     """The identification spec of the sea trial.
 
-    :func:`vesselid.vessels.cybership2_spec` with ``v·|r|`` folded into ``r·|v|``
-    (``v·|r| = −r·|v|`` in every steady turn) and the aggregate relation of
-    ``aggregate`` (:data:`AGGREGATES`).
+    :func:`vesselid.vessels.cybership2_spec` — with ``structure="merged"`` (the
+    static-offset design) ``v·|r|`` folded into ``r·|v|`` (``v·|r| = −r·|v|`` in every
+    steady turn); ``"full"`` keeps both (the planned manoeuvres separate them) — and the
+    aggregate relation of ``aggregate`` (:data:`AGGREGATES`).
 
     Parameters
     ----------
@@ -123,9 +130,11 @@ def seatrial_spec(dt: float = 0.1, aggregate: str | None = "relative", *,
         ``"speed_log"`` — GNSS target, speed-log regressors (Remark 4.3 with (10));
         ``"current_meter"`` — GNSS target, regressors ``GNSS − current meter`` (eq. (9));
         ``"none"`` — GNSS everywhere (predictor (3)).
+    structure : {"merged", "full"}
+        ``"merged"``: the vessel data module's ``TRIAL_MERGES`` (terms collinear in steady
+        turns) are folded; ``"full"``: no merges.
     vessel : str
-        Catalogue vessel; its data module's ``TRIAL_MERGES`` (terms collinear in steady
-        turns) are folded.
+        Catalogue vessel.
 
     Returns
     -------
@@ -134,10 +143,13 @@ def seatrial_spec(dt: float = 0.1, aggregate: str | None = "relative", *,
     from vesselid.catalogue import vessel_module
 
     key = _aggregate_key(aggregate)
+    if structure not in ("merged", "full"):
+        raise SeaTrialError(f"unknown structure {structure!r}; choose 'merged' or 'full'")
     module = vessel_module(vessel)
     spec = module.HULL.spec(dt)
-    for keep, drop, factor in getattr(module, "TRIAL_MERGES", ()):
-        spec = spec.merge_terms(keep, drop, factor)
+    if structure == "merged":
+        for keep, drop, factor in getattr(module, "TRIAL_MERGES", ()):
+            spec = spec.merge_terms(keep, drop, factor)
     rel = AGGREGATES[key]
     return spec.with_aggregate(rel) if rel else spec
 
@@ -184,6 +196,10 @@ class SeaTrialDesign:
     dt: float
     nominal: np.ndarray = field(repr=False)
     vessel: str = "cybership2"
+    name: str = "static-offset"
+    structure: str = "merged"
+    warmup_forces: np.ndarray | None = field(default=None, repr=False)
+    plan: Any = field(default=None, repr=False)
 
     @property
     def n_experiments(self) -> int:
@@ -203,7 +219,10 @@ class SeaTrialDesign:
         return self.margins[~self.margins["ok"]]
 
     def warmup_inputs(self) -> np.ndarray:
-        """Inputs with the constant-offset warm-up prepended, ``(N_E, warmup + N, 3)``."""
+        """Inputs with the warm-up prepended, ``(N_E, warmup + N, 3)`` (the constant
+        offset of each experiment, or the planned design's straight approach)."""
+        if self.warmup_forces is not None:
+            return np.concatenate([self.warmup_forces, self.inputs], axis=1)
         offsets = self.table[["X", "Y", "N"]].to_numpy(float)
         pre = np.repeat(offsets[:, None, :], self.warmup, axis=1)
         return np.concatenate([pre, self.inputs], axis=1)
@@ -345,6 +364,101 @@ def design_sea_trial(
     return design
 
 
+def planned_sea_trial_design(
+    experiments: int = 6,
+    samples: int = 20000,
+    *,
+    dt: float = 0.1,
+    warmup: float = 60.0,
+    levels: Any = None,
+    plan: Any = None,
+) -> SeaTrialDesign:
+    """The planned design: standard manoeuvres chosen by :func:`vesselid.planner.plan_trial`.
+
+    Each experiment is a programme of manoeuvres (zig-zags, turning circles, stopping,
+    thruster tests, ...) whose rudder switching instants were found on the nominal
+    model; the forces are applied open loop (A4). Zig-zags make ``v`` and ``r`` change
+    sign, so the design is identified with the full structure (``v·|r|`` and ``r·|v|``
+    apart) and its A10/A15 margins are reported, not enforced.
+
+    Parameters
+    ----------
+    experiments, samples : int
+        ``N_E`` and samples per experiment.
+    dt : float
+        Sample time (s).
+    warmup : float
+        Straight approach (s) simulated and discarded before each experiment.
+    levels : vesselid.planner.DisturbanceLevels, optional
+        Disturbances the planner assumes (default: the sea-trial defaults).
+    plan : vesselid.planner.TrialPlan, optional
+        A ready plan (its experiments and samples win).
+
+    Returns
+    -------
+    SeaTrialDesign
+        With ``plan`` holding the :class:`~vesselid.planner.TrialPlan`.
+    """
+    from vesselid.diagnostics import design_margins
+    from vesselid.manoeuvres import NominalVessel
+    from vesselid.planner import plan_trial
+
+    n_e, n_d = int(experiments), int(samples)
+    if n_e < 1:
+        raise SeaTrialError(f"need at least 1 experiment, got {n_e}")
+    if n_d < 50:
+        raise SeaTrialError(f"need at least 50 samples per experiment, got {n_d}")
+    n_warm = max(0, round(float(warmup) / dt))
+    if plan is None:
+        plan = plan_trial(n_e * n_d, n_e, levels=levels, dt=dt, warmup=n_warm)
+    n_e, n_d, n_warm = plan.experiments, plan.samples, plan.warmup
+    vessel = NominalVessel.cybership2(dt)
+    forces = plan.forces(vessel)
+    nominal = np.stack([vessel.run(f, np.zeros(3))[n_warm:-1] for f in forces])
+    rows = []
+    for e, prog in enumerate(plan.programmes):
+        f = forces[e, n_warm:]
+        rows.append({"experiment": e, "programme": prog.label(),
+                     "X": float(f[:, 0].mean()), "Y": float(f[:, 1].mean()),
+                     "N": float(f[:, 2].mean())})
+    table = pd.DataFrame(rows)
+    spec = seatrial_spec(dt, None, "full")
+    eta_used = {"u": 0.08, "v": 0.08, "r": 0.02}
+    starts = np.arange(n_e + 1, dtype=np.int64) * n_d
+    margins = design_margins(nominal.reshape(-1, 3), starts, spec, eta_used, list(range(n_e)),
+                             threshold=0.0)
+    for j, st in enumerate(spec.states):
+        table[f"mean_{st}"] = nominal[:, :, j].mean(axis=1)
+        table[f"min_abs_{st}"] = np.abs(nominal[:, :, j]).min(axis=1)
+    return SeaTrialDesign(
+        inputs=np.ascontiguousarray(forces[:, n_warm:]), table=table, margins=margins,
+        eta=eta_used, warmup=n_warm, dt=float(dt), nominal=nominal, name="planned",
+        structure="full", warmup_forces=np.ascontiguousarray(forces[:, :n_warm]), plan=plan)
+
+
+def _make_design(name: str | None, experiments: int, samples: int, dt: float, seed: Any,
+                 options: Mapping[str, Any]) -> SeaTrialDesign:
+    """Design by name; ``None``: planned for CyberShip II (the planner's vessel), else
+    static-offset."""
+    options = dict(options)
+    vessel = options.get("vessel", "cybership2")
+    if name is None:
+        name = "planned" if vessel == "cybership2" else "static-offset"
+    if name == "static-offset":
+        return design_sea_trial(experiments, samples, dt=dt, seed=seed, **options)
+    if name == "planned":
+        if vessel != "cybership2":
+            raise SeaTrialError(f"the trial planner knows CyberShip II only, not {vessel!r}; "
+                                "use design='static-offset'")
+        options.pop("vessel", None)
+        allowed = {"warmup", "levels", "plan"}
+        bad = set(options) - allowed
+        if bad:
+            raise SeaTrialError(f"options {sorted(bad)} apply to the static-offset design only")
+        return planned_sea_trial_design(experiments, samples, dt=dt, **options)
+    raise SeaTrialError(f"unknown design {name!r}; choose from {list(DESIGNS)}")
+
+
 # --------------------------------------------------------------------------- simulation
 def _disturbances(current_speed: float, current_direction: float, wind_speed: float,
                   wind_direction: float, current_variation: float, wind_gust: float,
@@ -374,7 +488,7 @@ def simulate_sea_trial(
     samples: int = 20000,
     seed: int | None = 0,
     *,
-    design: SeaTrialDesign | None = None,
+    design: SeaTrialDesign | str | None = None,
     current_speed: float = 0.05,
     current_direction: float = math.radians(30.0),
     current_variation: float = 0.005,
@@ -387,6 +501,7 @@ def simulate_sea_trial(
     source: str = "batch",
     dt: float = 0.1,
     vessel: str = "cybership2",
+    waves: Any = None,
     **design_options: Any,
 ):
     """Simulate a multi-experiment CyberShip II sea trial and return its trial log.
@@ -398,8 +513,10 @@ def simulate_sea_trial(
     seed : int, optional
         One seed for everything: the design's pulses and all disturbances
         (``SeedSequence(seed).spawn(2)``).
-    design : SeaTrialDesign, optional
-        A ready design (default :func:`design_sea_trial` with ``design_options``).
+    design : SeaTrialDesign or {"planned", "static-offset"}, optional
+        A ready design, or the name of one (:data:`DESIGNS`; default ``"planned"``:
+        :func:`planned_sea_trial_design`; ``"static-offset"``: :func:`design_sea_trial`
+        with ``design_options``).
     current_speed, current_direction : float
         Mean earth-fixed current (m/s, going-to direction in rad). Default 0.05 m/s at
         model scale (≈ 0.8 kn full scale, Froude scaling 1:70).
@@ -424,27 +541,32 @@ def simulate_sea_trial(
         Sample time (s).
     vessel : str
         Catalogue vessel (ignored when ``design`` is given: the design's vessel).
+    waves : vesselid.waves.WaveConditions, optional
+        Sea state: first-order wave-induced motion (JONSWAP, :mod:`vesselid.waves`) added
+        to the measured velocities (GNSS, speed log, gyro) and heading as a coloured
+        sensor disturbance, drawn from the same seed; recorded in the metadata.
 
     Returns
     -------
     TrialLog
         Columns ``experiment, time, u, v, r, X, Y, N, psi, u_log, v_log, r_log, u_c, v_c,
-        wind_speed, wind_angle, true_*``; metadata ``spec`` (identification spec with
-        θ0 and the aggregate relation), ``design`` (the experiment table), ``system``.
+        wind_speed, wind_angle, true_*`` (with waves also ``true_wave_u, true_wave_v,
+        true_wave_r, true_wave_psi``); metadata ``spec`` (identification spec with θ0 and
+        the aggregate relation), ``design`` (the experiment table), ``system``, ``waves``.
     """
     from vesselid.logs import TrialLog
 
     key = _aggregate_key(aggregate)
     root = np.random.SeedSequence(seed)
     design_seed, sim_seed = root.spawn(2)
-    if design is None:
-        design = design_sea_trial(experiments, samples, dt=dt, seed=design_seed,
-                                  vessel=vessel, **design_options)
+    if design is None or isinstance(design, str):
+        design = _make_design(design, experiments, samples, dt, design_seed,
+                              dict(design_options, vessel=vessel))
     elif design_options:
         raise SeaTrialError("design options are ignored when a design is given")
     dist = _disturbances(current_speed, current_direction, wind_speed, wind_direction,
                          current_variation, wind_gust, force_noise)
-    spec = seatrial_spec(design.dt, key, vessel=design.vessel)
+    spec = seatrial_spec(design.dt, key, design.structure, vessel=design.vessel)
     if source == "batch":
         log = _simulate_batch(design, dist, sensors, sim_seed)
     elif source == "env":
@@ -452,6 +574,8 @@ def simulate_sea_trial(
     else:
         raise SeaTrialError(f"source must be 'batch' or 'env', got {source!r}")
     frame = log.to_frame()
+    if waves is not None:
+        _add_waves(frame, waves, design.dt, root.spawn(1)[0])
     if key == "relative":
         frame = frame.rename(columns={"u": "u_gnss", "v": "v_gnss"})
         frame["u"] = frame["u_log"]
@@ -464,12 +588,45 @@ def simulate_sea_trial(
         "source": source,
         "vessel": design.vessel,
         "design": design.table.to_dict(orient="list"),
+        "design_name": design.name,
+        "structure": design.structure,
         "design_eta": design.eta,
         "warmup_samples_discarded": design.warmup,
         "samples_per_experiment": design.n_samples,
         "experiments": design.n_experiments,
     })
+    if design.plan is not None:
+        meta["plan"] = design.plan.to_dict()
+    if waves is not None:
+        meta["waves"] = waves.to_dict()
     return TrialLog(frame, meta)
+
+
+def _add_waves(frame: pd.DataFrame, waves: Any, dt: float, seed: np.random.SeedSequence) -> None:
+    """Add first-order wave-induced motion to the measured columns, experiment by experiment."""
+    from vesselid.waves import WaveConditions, wave_motion
+
+    if not isinstance(waves, WaveConditions):
+        raise SeaTrialError(f"waves must be WaveConditions, got {type(waves).__name__}")
+    rng = np.random.default_rng(seed)
+    exp = frame["experiment"].to_numpy()
+    cols = {c: np.zeros(len(frame)) for c in ("u", "v", "r", "psi")}
+    for e in np.unique(exp):
+        idx = np.flatnonzero(exp == e)
+        m = wave_motion(waves, dt, frame["true_psi"].to_numpy()[idx],
+                        frame["true_north"].to_numpy()[idx], frame["true_east"].to_numpy()[idx],
+                        rng)
+        for c in cols:
+            cols[c][idx] = m[c]
+    for name, c in (("u", "u"), ("v", "v"), ("u_log", "u"), ("v_log", "v"), ("r", "r"),
+                    ("r_log", "r")):
+        if name in frame:
+            frame[name] = frame[name].to_numpy() + cols[c]
+    if "psi" in frame:
+        a = frame["psi"].to_numpy() + cols["psi"]
+        frame["psi"] = a - 2.0 * np.pi * np.floor((a + np.pi) / (2.0 * np.pi))
+    for c in cols:
+        frame[f"true_wave_{c}"] = cols[c]
 
 
 def _simulate_batch(design: SeaTrialDesign, dist, sensors, seed: np.random.SeedSequence):
@@ -639,6 +796,7 @@ def run_pipeline(
     combine: str = "pooled",
     aggregate: str | None = "relative",
     holdout_samples: int | None = None,
+    design: str | None = None,
     **simulation_options: Any,
 ) -> SeaTrialResult:
     """Design, simulate and identify a sea trial; validate on a held-out experiment.
@@ -658,6 +816,8 @@ def run_pipeline(
         As :func:`simulate_sea_trial`.
     holdout_samples : int, optional
         Length of the validation experiment used (default ``min(samples, 5000)``).
+    design : {"planned", "static-offset"}, optional
+        Input design (:data:`DESIGNS`; default planned for CyberShip II).
     **simulation_options
         Passed to :func:`simulate_sea_trial` (current, wind, sensors, design options).
 
@@ -669,12 +829,14 @@ def run_pipeline(
     from vesselid.logs import TrialLog
 
     t0 = time.perf_counter()
-    design_keys = {"levels", "perturbation", "pulse_width", "dt", "warmup", "eta", "check",
+    design_keys = {"levels", "perturbation", "pulse_width", "warmup", "eta", "check", "plan",
                    "vessel"}
     design_opts = {k: simulation_options.pop(k) for k in list(simulation_options)
                    if k in design_keys}
+    dt = float(simulation_options.pop("dt", 0.1))
     design_seed = np.random.SeedSequence(seed).spawn(2)[0]  # as simulate_sea_trial does
-    design = design_sea_trial(int(experiments) + 1, samples, seed=design_seed, **design_opts)
+    design = _make_design(design, int(experiments) + 1, samples, dt, design_seed,
+                          design_opts)
     full = simulate_sea_trial(seed=seed, design=design, aggregate=aggregate,
                               **simulation_options)
     t1 = time.perf_counter()
@@ -715,6 +877,8 @@ def run_pipeline(
 # ---------------------------------------------------------------------------------- CLI
 def add_parser(subparsers: Any) -> None:
     """Register ``vesselid sea-trial`` (the CLI plugin contract of :mod:`vesselid.cli`)."""
+    from vesselid.cli import finite_float, int_at_least
+
     p = subparsers.add_parser(
         "sea-trial", help="design and simulate a multi-experiment sea trial",
         description="Design a multi-experiment sea trial (steady turns to both sides at "
@@ -723,17 +887,33 @@ def add_parser(subparsers: Any) -> None:
     from vesselid.catalogue import vessel_names
 
     p.add_argument("--vessel", default="cybership2", choices=vessel_names())
-    p.add_argument("--experiments", type=int, default=6)
-    p.add_argument("--samples", type=int, default=20000, help="samples per experiment")
-    p.add_argument("--current-speed", type=float, default=0.05, help="m/s (model scale)")
-    p.add_argument("--current-direction", type=float, default=30.0,
+    p.add_argument("--experiments", type=int_at_least(2), default=6)
+    p.add_argument("--samples", type=int_at_least(50), default=20000,
+                   help="samples per experiment")
+    p.add_argument("--current-speed", type=finite_float, default=0.05, help="m/s (model scale)")
+    p.add_argument("--current-direction", type=finite_float, default=30.0,
                    help="going-to direction, degrees from north")
-    p.add_argument("--wind-speed", type=float, default=1.0, help="m/s (model scale)")
+    p.add_argument("--wind-speed", type=finite_float, default=1.0, help="m/s (model scale)")
     p.add_argument("--aggregate", default="relative",
                    choices=["relative", "speed_log", "current_meter", "none"],
                    help="signals for u, v: speed log as target and regressors (relative, "
                         "default), GNSS target with speed-log regressors (Remark 4.3), GNSS "
                         "target with GNSS - current meter regressors (eq. (9)), GNSS only")
+    p.add_argument("--design", default=None, choices=list(DESIGNS),
+                   help="input design: standard manoeuvres chosen by the trial planner "
+                        "(planned, default; see `vesselid plan-trial`) or the original "
+                        "steady turns with random pulses (static-offset; the default for vessels "
+                        "other than cybership2)")
+    p.add_argument("--sea-state", default=None, choices=["none", "calm", "smooth", "slight",
+                                                          "moderate", "rough"],
+                   help="waves (JONSWAP, Froude-scaled 1:70): first-order wave-induced "
+                        "motion on the measurements; default none")
+    p.add_argument("--wave-height", type=float, default=None,
+                   help="full-scale significant wave height H_s (m); overrides --sea-state")
+    p.add_argument("--wave-period", type=float, default=None,
+                   help="full-scale peak period T_p (s)")
+    p.add_argument("--wave-direction", type=float, default=45.0,
+                   help="going-to direction of the waves, degrees from north")
     p.add_argument("--source", default="batch", choices=["batch", "env"],
                    help="batch simulator or Manoeuvring3DOF-v0 through the recorder")
     p.add_argument("--format", default=None, choices=["csv", "parquet"],
@@ -741,9 +921,27 @@ def add_parser(subparsers: Any) -> None:
                         "metadata in the file) or csv (+ JSON sidecar)")
     p.add_argument("--identify", action="store_true",
                    help="also run LS, IV and IV-zero-mean and print the comparison")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int_at_least(0), default=0)
     p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--raw", metavar="DIR",
+                   help="also write the raw sensor streams (NMEA 0183, actuator CSV, spec) to DIR")
     p.set_defaults(func=cmd_sea_trial)
+
+
+def _guard(args: argparse.Namespace) -> None:
+    """Refuse a trial that does not fit this machine (:mod:`vesselid.limits`)."""
+    from vesselid import limits
+
+    rows = args.experiments * args.samples + args.samples  # + the held-out validation run
+    cols = 24  # states, inputs, sensors, GNSS/heading channels and ground truth
+    fmt = args.format
+    runs = 4 if args.identify else 1  # --identify simulates again and fits three methods
+    limits.check(
+        "sea-trial", f"{args.experiments} experiments × {args.samples} samples",
+        memory=limits.table_memory(rows, cols) + (limits.read_memory(rows, cols)
+                                                  if args.identify else 0.0),
+        seconds=runs * limits.simulation_seconds(rows, 3) + limits.write_seconds(rows, cols, fmt),
+        disk=limits.file_bytes(rows, cols, fmt), disk_path=Path(args.out) / "seatrial.csv")
 
 
 def default_log_format() -> str:
@@ -751,6 +949,21 @@ def default_log_format() -> str:
     import importlib.util
 
     return "parquet" if importlib.util.find_spec("pyarrow") is not None else "csv"
+
+
+def waves_from_args(args: argparse.Namespace) -> Any:
+    """:class:`~vesselid.waves.WaveConditions` from ``--sea-state``/``--wave-*`` (or None)."""
+    from vesselid.waves import SEA_STATES, WaveConditions
+
+    name = getattr(args, "sea_state", None)
+    hs = getattr(args, "wave_height", None)
+    tp = getattr(args, "wave_period", None)
+    if hs is None and tp is None and name in (None, "none"):
+        return None
+    base_hs, base_tp = SEA_STATES.get(name or "moderate", SEA_STATES["moderate"])
+    return WaveConditions(height=base_hs if hs is None else float(hs),
+                          period=base_tp if tp is None else float(tp),
+                          direction=math.radians(float(getattr(args, "wave_direction", 45.0))))
 
 
 def cmd_sea_trial(args: argparse.Namespace) -> int:
@@ -764,25 +977,32 @@ def cmd_sea_trial(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise SeaTrialError(f"--out must be a directory, got the file {out}")
+    _guard(args)
     out.mkdir(parents=True, exist_ok=True)
     opts = {"current_speed": args.current_speed,
             "current_direction": math.radians(args.current_direction),
-            "wind_speed": args.wind_speed}
+            "wind_speed": args.wind_speed, "waves": waves_from_args(args)}
     opts["vessel"] = args.vessel
     log = simulate_sea_trial(args.experiments, args.samples, args.seed,
-                             aggregate=args.aggregate, source=args.source, **opts)
+                             aggregate=args.aggregate, source=args.source,
+                             design=args.design, **opts)
     log.metadata["command"] = "vesselid " + " ".join(sys.argv[1:]) if sys.argv else ""
     data = out / ("seatrial.csv" if args.format == "csv" else "seatrial.parquet")
     spec_path = out / f"{args.vessel}.toml"
-    log.spec.save(spec_path)
-    log.save(data)
+    log.save(data, extra={spec_path: log.spec.to_toml()})  # all files appear together
     extra = f" and sidecar {data.with_suffix('.json')}" if args.format == "csv" else ""
     print(f"wrote {data} ({len(log)} rows, {args.experiments} experiments){extra}, model spec "
           f"{spec_path} (aggregate: {args.aggregate})")
     print(f"next: vesselid identify {data} --model {spec_path} --method iv-zero-mean")
+    if getattr(args, "raw", None):
+        from vesselid.rawstreams import write_raw_streams
+
+        manifest = write_raw_streams(log, args.raw, seed=args.seed)
+        print(f"wrote raw sensor streams to {args.raw} ({sum(manifest['sentences'].values())} "
+              f"NMEA sentences, actuators.csv, ingest.toml, {manifest['files'][-1]})")
     if args.identify:
         res = run_pipeline(args.experiments, args.samples, args.seed, aggregate=args.aggregate,
-                           source=args.source, **opts)
+                           source=args.source, design=args.design, **opts)
         print()
         print(res.summary())
     return 0

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from vesselid.errors import SimulationDivergedError
+from vesselid.errors import SimulationDivergedError, SimulationError
 from vesselid.model import ModelSpec
 from vesselid.regressors import advance, kernel
 
@@ -110,7 +110,7 @@ def _as_batch(name: str, arr, n_runs: int, n_samples: int, width: int) -> np.nda
     if a.ndim == 2:
         a = a[None]
     if a.ndim != 3 or a.shape[1:] != (n_samples, width) or a.shape[0] not in (1, n_runs):
-        raise ValueError(
+        raise SimulationError(
             f"{name} must have shape (runs, samples, {width}) or (samples, {width}); got "
             f"{np.shape(arr)} for {n_runs} runs of {n_samples} samples"
         )
@@ -158,17 +158,17 @@ def simulate_states(
     u_arr = np.asarray(u, dtype=np.float64)
     single = u_arr.ndim == 2
     if u_arr.ndim not in (2, 3) or u_arr.shape[-1] != spec.n_inputs:
-        raise ValueError(f"u must have shape (N, {spec.n_inputs}) or (R, N, {spec.n_inputs})")
+        raise SimulationError(f"u must have shape (N, {spec.n_inputs}) or (R, N, {spec.n_inputs})")
     n_runs = 1 if single else u_arr.shape[0]
     n_samples, n = u_arr.shape[-2], spec.n_states
     if n_samples < 1:
-        raise ValueError("need at least one sample")
+        raise SimulationError("need at least one sample")
     th = spec.theta0_vector() if theta is None else np.asarray(theta, dtype=np.float64)
     th = np.atleast_2d(th)
     if th.shape[1] != spec.n_params or th.shape[0] not in (1, n_runs):
-        raise ValueError(f"theta must have {spec.n_params} entries per run, got {th.shape}")
+        raise SimulationError(f"theta must have {spec.n_params} entries per run, got {th.shape}")
     if not np.all(np.isfinite(th)):
-        raise ValueError("theta holds non-finite values")
+        raise SimulationError("theta holds non-finite values")
     x0_arr = np.zeros((n_runs, n)) if x0 is None else np.asarray(x0, dtype=np.float64)
     x0_arr = np.ascontiguousarray(np.broadcast_to(np.atleast_2d(x0_arr), (n_runs, n)))
     zeros = np.zeros((1, n_samples, n))

@@ -89,6 +89,19 @@ def _uid() -> int | None:
     return None if getuid is None else getuid()
 
 
+def _owned(path: Path, kind: Callable[[int], bool], *, follow: bool) -> os.stat_result | None:
+    """``path``'s stat if it is of ``kind`` and owned by the current user (any owner where
+    the platform has no user ids), else None."""
+    try:
+        st = path.stat() if follow else path.lstat()
+    except OSError:
+        return None
+    uid = _uid()
+    if not kind(st.st_mode) or (uid is not None and st.st_uid != uid):
+        return None
+    return st
+
+
 def _private(path: Path) -> bool:
     """True if ``path`` is a directory only the current user can use.
 
@@ -97,17 +110,10 @@ def _private(path: Path) -> bool:
     or that is sticky. Without POSIX user ids (Windows) the per-user profile's ACLs
     protect the default location; the directory must be a real directory.
     """
-    try:
-        st = path.stat()
-    except OSError:
-        return False
-    if not stat.S_ISDIR(st.st_mode):
-        return False
+    st = _owned(path, stat.S_ISDIR, follow=True)
     uid = _uid()
-    if uid is None:
-        return True
-    if st.st_uid != uid:
-        return False
+    if st is None or uid is None:
+        return st is not None
     if st.st_mode & 0o077:
         try:
             os.chmod(path, 0o700)
@@ -141,14 +147,8 @@ def kernel_dir() -> Path | None:
 
 def _safe_file(path: Path) -> bool:
     """A generated file we may execute: a regular file we own, writable by us only."""
-    try:
-        st = path.lstat()
-    except OSError:
-        return False
-    if not stat.S_ISREG(st.st_mode):
-        return False
-    uid = _uid()
-    return uid is None or (st.st_uid == uid and not st.st_mode & 0o022)
+    st = _owned(path, stat.S_ISREG, follow=False)
+    return st is not None and (_uid() is None or not st.st_mode & 0o022)
 
 
 def prune(directory: Path, *, now: float | None = None,

@@ -427,6 +427,9 @@ def _target_rule(spec: ModelSpec, target: str) -> str:
 
 
 def _check_rank(phi: np.ndarray, spec: ModelSpec, blocks: np.ndarray, names: list[str]) -> None:
+    from vesselid.diagnostics import check_moment_range
+
+    check_moment_range(phi, names)  # overflow first: a Gram matrix of inf says nothing
     problems = []
     gram = phi.T @ phi  # one BLAS pass; each block's full-rank screen reads its part
     for i, s in enumerate(spec.states):

@@ -63,9 +63,8 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
-from scipy import signal as sps
 
-from vesselid.errors import VesselidError
+from vesselid.errors import CovarianceError
 
 __all__ = [
     "BANDWIDTH_RULES",
@@ -86,9 +85,6 @@ __all__ = [
     "scores",
 ]
 
-
-class CovarianceError(VesselidError):
-    """Invalid covariance estimator or configuration."""
 
 
 #: Kernels of the HAC estimator (linearmodels' names and bandwidth convention).
@@ -247,7 +243,9 @@ def long_run_covariance(
                 out += w[j] * (gj + gj.T)
         return out
     sym = np.concatenate([w[:0:-1], w])[:, None]
-    kg = sps.fftconvolve(g, sym, mode="same", axes=0)
+    from scipy.signal import fftconvolve  # only the HAC kernels need it
+
+    kg = fftconvolve(g, sym, mode="same", axes=0)
     out = g.T @ kg
     return 0.5 * (out + out.T)
 

@@ -20,6 +20,7 @@ Equations (paper):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -204,7 +205,13 @@ def solve_moments(
                 segs = np.flatnonzero(data.group == g)
                 big_a = a_n[segs].reshape(-1, a_i.shape[2])
                 big_b = b_n[segs].reshape(-1)
-                sol, _, rank, _ = np.linalg.lstsq(big_a, big_b, rcond=None)
+                # equilibrate the columns: the rank decision must not depend on units
+                scale = np.linalg.norm(big_a, axis=0)
+                if not np.all(np.isfinite(scale) & (scale > 0)):
+                    ok_i[j] = False
+                    continue
+                sol, _, rank, _ = np.linalg.lstsq(big_a / scale, big_b, rcond=None)
+                sol = sol / scale
                 if rank < a_i.shape[2] or not np.all(np.isfinite(sol)):
                     ok_i[j] = False
                 else:
@@ -213,6 +220,19 @@ def solve_moments(
         ok[np.flatnonzero(act)[~ok_i]] = False
     ok &= act
     return theta, ok
+
+
+def _equilibrated_cond(a: np.ndarray) -> np.ndarray:
+    """Condition numbers of a stack ``(G, n, m)`` after unit-norm row and column scaling."""
+    r = np.linalg.norm(a, axis=2, keepdims=True)
+    c = np.linalg.norm(a, axis=1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scaled = a / r / c
+    out = np.full(a.shape[0], np.inf)
+    good = np.all(np.isfinite(scaled), axis=(1, 2))
+    if good.any():
+        out[good] = np.linalg.cond(scaled[good])
+    return out
 
 
 def _batched_solve(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -230,9 +250,10 @@ def _batched_solve(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray
             except np.linalg.LinAlgError:
                 ok[j] = False
     # guard against numerically singular systems that solve() does not reject
+    # on the row- and column-equilibrated matrices: units must not make a system singular
     cond = np.full(a.shape[0], np.inf)
     if ok.any():
-        cond[ok] = np.linalg.cond(a[ok])
+        cond[ok] = _equilibrated_cond(a[ok])
     ok &= np.isfinite(cond) & (cond < 1e15) & np.all(np.isfinite(out), axis=1)
     out[~ok] = np.nan
     return out, ok
@@ -278,6 +299,7 @@ def refined_iv(
     limit_factor: float = 1e3,
     keep_history: bool = False,
     groups: np.ndarray | None = None,
+    moment_source: Callable | None = None,
 ) -> IterationResult:
     """Refined instrumental variables: iterate ``θ ← θ + α (T(θ) − θ)``.
 
@@ -299,6 +321,10 @@ def refined_iv(
       come from the iterate with the smallest fixed-point residual — a genuine
       IV estimate even when the iteration did not converge.
 
+    ``moment_source(theta, active, out, limits)``, when given, fills the moments ``out``
+    instead of :func:`compute_moments` on ``data`` (which then only needs the attributes
+    the solvers read): :mod:`vesselid.streaming` sums them over streamed experiments.
+
     Returns
     -------
     IterationResult
@@ -313,7 +339,11 @@ def refined_iv(
     mom = _empty_moments(data.n_segments, n_par, spec.n_states)
 
     def evaluate(theta: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        compute_moments(data, spec, np.nan_to_num(theta), active=active, out=mom, limits=limits)
+        if moment_source is None:
+            compute_moments(data, spec, np.nan_to_num(theta), active=active, out=mom,
+                            limits=limits)
+        else:  # moments summed elsewhere (streamed experiments, a Dask cluster)
+            moment_source(theta, active, mom, limits)
         diverged = np.zeros(n_groups, dtype=bool)
         np.logical_or.at(diverged, data.group, mom.status != kernels.AUX_OK)
         t_theta, ok = solve_moments(mom, data, spec, zero_mean=zero_mean, combine=combine,

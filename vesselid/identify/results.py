@@ -9,9 +9,9 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
-from vesselid._json import dumps, strict
+from vesselid._json import strict
+from vesselid.errors import IdentificationError
 from vesselid.model import ModelSpec
 
 __all__ = ["IdentificationResult"]
@@ -69,10 +69,30 @@ class IdentificationResult:
     def conf_int(self, level: float = 0.95) -> pd.DataFrame:
         """Normal-approximation confidence intervals."""
         if not 0 < level < 1:
-            raise ValueError("level must be in (0, 1)")
-        q = stats.norm.ppf(0.5 + level / 2)
+            raise IdentificationError("level must be in (0, 1)")
+        from scipy.special import ndtri  # = stats.norm.ppf, without importing scipy.stats
+
+        q = ndtri(0.5 + level / 2)
         return pd.DataFrame({"lower": self.params - q * self.std_errors,
                              "upper": self.params + q * self.std_errors})
+
+    def to_control(self, **kwargs: Any) -> Any:
+        """The identified model as a discrete-time python-control ``NonlinearIOSystem``.
+
+        See :func:`vesselid.modelio.to_control` (keyword arguments ``dt``, ``name``).
+        """
+        from vesselid.modelio import to_control
+
+        return to_control(self.spec, self.params, **kwargs)
+
+    def export(self, path: Any, **kwargs: Any) -> Any:
+        """Write the spec with θ̂ (as θ0), standard errors and covariance; atomic.
+
+        See :func:`vesselid.modelio.export_model`; ``ModelSpec.load`` reads it back.
+        """
+        from vesselid.modelio import export_model
+
+        return export_model(self, path, **kwargs)
 
     def compare(self, theta0: Any | None = None) -> pd.DataFrame:
         """Estimates against true values with the paper's normalised error ``(θ̂ − θ0)/θ0``.
@@ -165,8 +185,8 @@ class IdentificationResult:
 
         rc = self.diagnostics.get("residual_correlation")
         if rc is None:
-            raise ValueError("this result holds no residual correlations "
-                             "(diagnostics['residual_correlation'])")
+            raise IdentificationError("this result holds no residual correlations "
+                                      "(diagnostics['residual_correlation'])")
         return residual_analysis(rc, title=title or f"Residual analysis — {self.method}")
 
     def __str__(self) -> str:
@@ -200,6 +220,7 @@ class IdentificationResult:
         })
 
     def to_json(self, **kwargs: Any) -> str:
-        """Strict JSON (non-finite values as ``null``)."""
-        return dumps(self.to_dict(), **({"indent": 2} | kwargs))
+        from vesselid._io import strict_json
+
+        return strict_json(self.to_dict(), **({"indent": 2} | kwargs))
 

@@ -28,7 +28,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from vesselid.identify.covariance import DEFAULT_COV_TYPE, CovarianceError, get_covariance_estimator
 
@@ -85,6 +84,20 @@ class TestResult:
     def __str__(self) -> str:
         return (f"{self.name}: {self.stat:.4g} ({self.distribution}({self.df})), "
                 f"{_p(self.pvalue)}")
+
+
+def _chi2_sf(x: float, df: float) -> float:
+    """χ² survival function (= ``scipy.stats.chi2.sf``; scipy.special keeps imports light)."""
+    from scipy.special import chdtrc
+
+    return float(chdtrc(df, x)) if df > 0 else float("nan")  # scipy.stats: nan for df = 0
+
+
+def _norm_ppf(q: float) -> float:
+    """Standard normal quantile (= ``scipy.stats.norm.ppf``)."""
+    from scipy.special import ndtri
+
+    return ndtri(q)
 
 
 def _finite(x: float) -> float | None:
@@ -256,7 +269,7 @@ def hansen_j(
     gbar = sum(z[s].T @ (y[s] - phi[s] @ theta) for s in segs)
     j = float(gbar @ s_inv @ gbar)
     df = k - p
-    pval = float(stats.chi2.sf(j, df)) if df > 0 else float("nan")
+    pval = float(_chi2_sf(j, df)) if df > 0 else float("nan")
     verdict = "rejected" if pval < 0.05 else "not rejected"
     sentence = ("the instruments are just-identified: no over-identification test" if df == 0
                 else f"over-identifying restrictions {verdict}: J = {j:.3g}, {_p(pval)}")
@@ -295,7 +308,7 @@ def difference_in_j(
                    long_run=s_full[np.ix_(keep, keep)])
     c = max(full.stat - sub.stat, 0.0)
     df = int(mask.sum())
-    pval = float(stats.chi2.sf(c, df))
+    pval = float(_chi2_sf(c, df))
     sentence = (f"the tested instruments are {'rejected' if pval < 0.05 else 'not rejected'}: "
                 f"C = {c:.3g}, {_p(pval)}")
     return TestResult("difference-in-J (C)", c, df, pval, "chi2",
@@ -363,7 +376,7 @@ def endogeneity_test(
     except np.linalg.LinAlgError:
         stat = float("nan")
     df = int(endo.size)
-    pval = float(stats.chi2.sf(stat, df)) if np.isfinite(stat) else float("nan")
+    pval = float(_chi2_sf(stat, df)) if np.isfinite(stat) else float("nan")
     if not np.isfinite(pval):
         sentence = "endogeneity test not available"
     elif pval < level:
@@ -409,7 +422,7 @@ def ljung_box(
                 continue
             q += _ljung_box_q(x - x.mean(), m)
             df += m
-        pval = float(stats.chi2.sf(q, df)) if df else float("nan")
+        pval = float(_chi2_sf(q, df)) if df else float("nan")
         sentence = (f"residual of {name} is {'not ' if pval < 0.05 else ''}white "
                     f"(Ljung-Box Q = {q:.4g}, {df} lags, {_p(pval)})")
         out[name] = TestResult("Ljung-Box", q, df, pval, "chi2", "the residual is white",
@@ -527,7 +540,7 @@ def residual_correlations(
         ccf = ccf / np.sqrt(ee[:, None, None] * u2[None, :, None])
     acf = np.nan_to_num(acf)
     ccf = np.nan_to_num(ccf)
-    band = float(stats.norm.ppf(0.5 + level / 2) / np.sqrt(max(n, 1)))
+    band = float(_norm_ppf(0.5 + level / 2) / np.sqrt(max(n, 1)))
     return ResidualCorrelation(
         lags=np.arange(max_lag + 1), acf=acf, cross_lags=np.arange(-max_lag, max_lag + 1),
         ccf=ccf, band=band, level=level,

@@ -1,0 +1,56 @@
+"""Benchmark: raw NMEA streams with 10⁶ sentences — writing them and `vesselid ingest`.
+
+Target: ingest of 10⁶ NMEA 0183 sentences (plus the actuator CSV) ≤ 10 s. For reference
+the per-line pynmea2 parse rate is measured on a sample and extrapolated to 10⁶ lines.
+"""
+
+from __future__ import annotations
+
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+SENTENCES_PER_SECOND = 48  # GGA 5 + RMC 10 + HDT 20 + ROT 10 + VHW 2 + MWV 1 Hz
+
+
+def bench_ingest(repeats: int = 3, sentences: int = 1_000_000) -> dict:
+    import pynmea2
+
+    from vesselid.ingest import ingest
+    from vesselid.rawstreams import write_raw_streams
+    from vesselid.systems import get_system
+
+    per_exp = int(sentences / SENTENCES_PER_SECOND / 2 / 0.1) + 1
+    log = get_system("cybership2").simulate(per_exp, n_runs=2, seed=0).to_log()
+    with tempfile.TemporaryDirectory() as tmp:
+        raw = Path(tmp) / "raw"
+        t0 = time.perf_counter()
+        manifest = write_raw_streams(log, raw, seed=0)
+        t_write = time.perf_counter() - t0
+        n = sum(manifest["sentences"].values())
+        ingest(raw, 0.1)  # warm-up (imports)
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            out = ingest(raw, 0.1)
+            times.append(time.perf_counter() - t0)
+        lines = (raw / "nav.nmea").read_text().splitlines()[:20000]
+        t0 = time.perf_counter()
+        for line in lines:
+            pynmea2.parse(line.rpartition("\\")[2])
+        per_line = (time.perf_counter() - t0) / len(lines)
+    return {
+        "NMEA sentences": n,
+        "rows written to the trial log": len(out),
+        "write raw streams (s)": t_write,
+        "ingest median (s)": statistics.median(times),
+        "ingest sentences per second": n / statistics.median(times),
+        "pynmea2.parse per line (us)": per_line * 1e6,
+        "pynmea2.parse extrapolated to 1e6 lines (s)": per_line * 1e6,
+    }
+
+
+if __name__ == "__main__":
+    for k, v in bench_ingest().items():
+        print(f"{k:<50s} {v:,.4g}" if isinstance(v, float) else f"{k:<50s} {v}")

@@ -1,0 +1,253 @@
+"""Fuzz the command line with malformed logs, specs, sidecars and option values.
+
+Property (issue 11): every run ends with exit 2 and a one-line reason, or exit 0 with a
+valid result (strict JSON) — never a traceback (an exception escaping
+``vesselid.cli.main``), never ``NaN``/``Infinity`` in JSON. The CLI runs in-process on a
+small log; examples are bounded so the whole module takes a few seconds.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import string
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from vesselid.cli import main
+
+FUZZ = settings(max_examples=25, deadline=None, derandomize=True,
+                suppress_health_check=[HealthCheck.too_slow,
+                                       HealthCheck.function_scoped_fixture])
+
+
+def run(argv: list[str]) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main([str(a) for a in argv])
+    return code, out.getvalue(), err.getvalue()
+
+
+def _no_constant(name: str) -> float:
+    raise ValueError(f"invalid JSON constant {name}")
+
+
+def assert_clean(code: int, out: str, err: str, *, json_out: bool = False) -> None:
+    """Exit 2 with a one-line reason, or exit 0 (with strict JSON when asked for)."""
+    assert code in (0, 2), (code, err)
+    assert "Traceback" not in err
+    if code == 2:
+        lines = [ln for ln in err.strip().splitlines() if ln.strip()]
+        assert lines and "error:" in lines[-1], err
+        assert len(lines) == 1 or lines[0].startswith("usage:"), err
+    elif json_out:
+        payload = json.loads(out, parse_constant=_no_constant)
+        assert isinstance(payload, dict) and "params" in payload
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("fuzz")
+    code, _, err = run(["simulate", "--samples", "120", "--experiments", "2", "--seed", "3",
+                        "--out", d / "t.csv"])
+    assert code == 0, err
+    return d
+
+
+# ------------------------------------------------------------------------- logs (CSV)
+cell = st.one_of(
+    st.sampled_from(["", "nan", "NaN", "inf", "-inf", "1e309", "-1e308", "abc", "0x10",
+                     "1,5", '"1"', "1e-320", "  ", "True", "None", "1e150", "9" * 400]),
+    st.floats(allow_nan=True, allow_infinity=True).map(repr),
+    st.text(alphabet=string.printable, max_size=8),
+)
+
+
+@st.composite
+def csv_mutation(draw, lines: list[str]):
+    lines = list(lines)
+    header = lines[0].split(",")
+    kind = draw(st.sampled_from(["cell", "header-dup", "header-drop", "truncate", "swap",
+                                 "ragged", "bytes", "empty-rows"]))
+    if kind == "cell":
+        for _ in range(draw(st.integers(1, 3))):
+            i = draw(st.integers(1, len(lines) - 1))
+            j = draw(st.integers(0, len(header) - 1))
+            row = lines[i].split(",")
+            row[j] = draw(cell)
+            lines[i] = ",".join(row)
+    elif kind == "header-dup":
+        j = draw(st.integers(0, len(header) - 1))
+        k = draw(st.integers(0, len(header) - 1))
+        header[k] = header[j]
+        lines[0] = ",".join(header)
+    elif kind == "header-drop":
+        j = draw(st.integers(0, len(header) - 1))
+        lines = [",".join(x for n, x in enumerate(ln.split(",")) if n != j) for ln in lines]
+    elif kind == "truncate":
+        text = "\n".join(lines)
+        return text[: draw(st.integers(0, len(text)))]
+    elif kind == "swap":
+        i = draw(st.integers(1, len(lines) - 2))
+        lines[i], lines[i + 1] = lines[i + 1], lines[i]
+    elif kind == "ragged":
+        i = draw(st.integers(1, len(lines) - 1))
+        lines[i] = lines[i] + "," + draw(cell)
+    elif kind == "bytes":
+        i = draw(st.integers(0, len(lines) - 1))
+        lines[i] = draw(st.text(max_size=30))
+    else:
+        i = draw(st.integers(1, len(lines) - 1))
+        lines.insert(i, "," * draw(st.integers(0, len(header))))
+    return "\n".join(lines) + "\n"
+
+
+@FUZZ
+@given(data=st.data(), sidecar=st.booleans())
+def test_malformed_csv_logs(base, tmp_path, data, sidecar):
+    lines = (base / "t.csv").read_text().splitlines()
+    text = data.draw(csv_mutation(lines))
+    d = tmp_path / f"c{abs(hash(text)) % 10**9}"
+    d.mkdir(exist_ok=True)
+    (d / "t.csv").write_text(text, encoding="utf-8", errors="surrogateescape")
+    if sidecar:
+        (d / "t.json").write_text((base / "t.json").read_text())
+    assert_clean(*run(["identify", d / "t.csv", "--model", base / "t.toml", "--json", "-"]),
+                 json_out=True)
+
+
+# ----------------------------------------------------------------------------- sidecars
+json_value = st.recursive(
+    st.one_of(st.none(), st.booleans(), st.integers(-10**20, 10**20),
+              st.floats(allow_nan=False, allow_infinity=False), st.text(max_size=10)),
+    lambda inner: st.one_of(st.lists(inner, max_size=3),
+                            st.dictionaries(st.text(max_size=5), inner, max_size=3)),
+    max_leaves=6,
+)
+
+
+@FUZZ
+@given(data=st.data())
+def test_malformed_sidecars(base, tmp_path, data):
+    envelope = json.loads((base / "t.json").read_text())
+    target = data.draw(st.sampled_from(["top", "metadata", "spec", "dtypes", "raw"]))
+    if target == "raw":
+        text = data.draw(st.text(max_size=60))
+    else:
+        table = {"top": envelope, "metadata": envelope["metadata"],
+                 "spec": envelope["metadata"]["spec"], "dtypes": envelope["dtypes"]}[target]
+        key = data.draw(st.sampled_from([*sorted(table), "extra"]))
+        table[key] = data.draw(json_value)
+        text = json.dumps(envelope)
+    d = tmp_path / f"s{abs(hash(text)) % 10**9}"
+    d.mkdir(exist_ok=True)
+    (d / "t.csv").write_text((base / "t.csv").read_text())
+    (d / "t.json").write_text(text)
+    assert_clean(*run(["identify", d / "t.csv", "--json", "-"]), json_out=True)
+
+
+# -------------------------------------------------------------------------------- specs
+toml_scalar = st.one_of(st.booleans(), st.integers(-10**6, 10**6),
+                        st.floats(allow_nan=True, allow_infinity=True),
+                        st.text(alphabet=string.ascii_letters + "*|_ -+", max_size=8))
+toml_value = st.recursive(
+    toml_scalar,
+    lambda inner: st.one_of(st.lists(inner, max_size=3),
+                            st.dictionaries(st.sampled_from(["w", "tau", "a", "x"]), inner,
+                                            max_size=2)),
+    max_leaves=5,
+)
+GOOD = {"name": "heave", "states": ["w"], "inputs": ["tau"],
+        "equations": {"w": ["w", "w*|w|", "tau"]}, "theta0": {"w": [0.99, -0.1, 1.0]},
+        "dt": 1.0}
+
+
+@FUZZ
+@given(key=st.sampled_from([*GOOD, "aggregate", "colour"]), value=toml_value,
+       nested=st.booleans())
+def test_malformed_specs(base, tmp_path, key, value, nested):
+    import tomli_w
+
+    spec = json.loads(json.dumps(GOOD))
+    if nested and isinstance(spec.get(key), dict):
+        spec[key]["w"] = value
+    else:
+        spec[key] = value
+    try:
+        text = tomli_w.dumps(spec)
+    except (TypeError, ValueError):
+        return  # not representable in TOML
+    path = tmp_path / f"s{abs(hash(text)) % 10**9}.toml"
+    path.write_text(text)
+    assert_clean(*run(["identify", base / "t.csv", "--model", path, "--json", "-"]),
+                 json_out=True)
+
+
+@FUZZ
+@given(raw=st.binary(max_size=200))
+def test_binary_specs(base, tmp_path, raw):
+    path = tmp_path / "b.toml"
+    path.write_bytes(raw)
+    assert_clean(*run(["identify", base / "t.csv", "--model", path]))
+
+
+# ------------------------------------------------------------------------------ options
+count_text = st.one_of(
+    st.integers(-5, 1).map(str),
+    st.integers(10**12, 10**20).map(str),  # absurd sizes: refused by the size guard
+    st.sampled_from(["abc", "1e3", "", "2.5", "nan", "0x10", "-0"]),
+)
+
+
+@FUZZ
+@given(option=st.sampled_from(["--samples", "--experiments", "--seed"]), value=count_text)
+def test_simulate_option_values(tmp_path, option, value):
+    code, out, err = run(["simulate", "--samples", "50", option, value, "--out",
+                          tmp_path / "x.csv"])
+    assert_clean(code, out, err)
+    if value.lstrip("-").isdigit() and (int(value) < 0 or (int(value) >= 10**12
+                                                           and option != "--seed")):
+        assert code == 2  # absurd or negative: refused
+
+
+@FUZZ
+@given(option=st.sampled_from(["--max-iter", "--method", "--combine"]),
+       value=st.one_of(count_text, st.text(max_size=6)))
+def test_identify_option_values(base, option, value):
+    assert_clean(*run(["identify", base / "t.csv", option, value, "--json", "-"]),
+                 json_out=True)
+
+
+bad_count = st.one_of(st.integers(-10**6, -1).map(str),
+                      st.sampled_from(["abc", "1e3", "", "2.5", "nan", "0x10", "--"]))
+
+
+@FUZZ
+@given(option=st.sampled_from(["--runs", "--samples", "--batch-size", "--seed"]),
+       value=st.one_of(bad_count, st.integers(10**12, 10**20).map(str)))
+def test_reproduce_option_values(option, value):
+    """Invalid or absurd values only: a valid one would run a Monte Carlo study."""
+    if option in ("--batch-size", "--seed") and value.isdigit():
+        value = "-" + value
+    code, out, err = run(["reproduce", "--runs", "2", "--samples", "10", option, value])
+    assert_clean(code, out, err)
+    assert code == 2
+
+
+def test_fuzzed_json_never_holds_nan(base, tmp_path):
+    """A log whose input is constant makes some statistics non-finite: JSON says null."""
+    lines = (base / "t.csv").read_text().splitlines()
+    j = lines[0].split(",").index("tau")
+    rows = [ln.split(",") for ln in lines[1:]]
+    for r in rows:
+        r[j] = "0.2"
+    (tmp_path / "t.csv").write_text("\n".join([lines[0], *(",".join(r) for r in rows)]) + "\n")
+    code, out, err = run(["identify", tmp_path / "t.csv", "--model", base / "t.toml",
+                          "--json", "-"])
+    assert_clean(code, out, err, json_out=True)
+    assert np.isfinite(code)

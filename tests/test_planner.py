@@ -1,0 +1,100 @@
+"""Trial planner: covariance algebra, manoeuvre schedules, plan-trial CLI."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from vesselid.cli import main
+from vesselid.manoeuvres import (
+    AccelerationStopping,
+    ManoeuvreError,
+    NominalVessel,
+    Programme,
+    TurningCircle,
+    ZigZag,
+    manoeuvre_from_dict,
+)
+from vesselid.planner import (
+    Information,
+    PlannerError,
+    _ar1_meat,
+    _stationary_meat,
+    plan_trial,
+)
+
+
+def _brute(y, r):
+    n = y.shape[0]
+    out = np.zeros((y.shape[1], y.shape[1]))
+    for k in range(n):
+        for m in range(n):
+            out += np.outer(y[k], y[m]) * r(abs(k - m))
+    return out
+
+
+def test_ar1_and_stationary_meat_match_the_double_sum():
+    rng = np.random.default_rng(0)
+    y = rng.standard_normal((60, 3))
+    np.testing.assert_allclose(_ar1_meat(y, 0.8), _brute(y, lambda t: 0.8**t), rtol=1e-10)
+    acov = np.array([2.0, -0.7, 0.3, 0.1])
+    want = _brute(y, lambda t: acov[t] if t < acov.size else 0.0)
+    np.testing.assert_allclose(_stationary_meat(y, acov), want, rtol=1e-9, atol=1e-9)
+
+
+def test_centring_of_summed_blocks_is_exact():
+    rng = np.random.default_rng(1)
+    z = rng.standard_normal((80, 2)) + np.array([3.0, -1.0])
+    phi = z + 0.1 * rng.standard_normal(z.shape)
+    eps = rng.standard_normal(80)
+
+    def info(sl):
+        za = np.hstack([z[sl], np.ones((z[sl].shape[0], 1))])
+        pa = np.hstack([phi[sl], np.ones((z[sl].shape[0], 1))])
+        return Information([za.T @ pa], [za.T @ za], [za.T @ eps[sl]], za.shape[0])
+
+    c = (info(slice(0, 30)) + info(slice(30, 80))).centred()
+    zc = z - z.mean(axis=0)
+    np.testing.assert_allclose(c.a[0], zc.T @ phi, rtol=1e-10)
+    np.testing.assert_allclose(c.s[0], zc.T @ zc, rtol=1e-10)
+    np.testing.assert_allclose(c.b[0], zc.T @ eps, rtol=1e-10, atol=1e-12)
+
+
+def test_zigzag_switches_at_the_heading_and_small_rudder_is_reported():
+    v = NominalVessel.cybership2()
+    zz = ZigZag(thrust=2.0, rudder=35.0, heading=20.0)
+    f = Programme([zz]).schedule(v, 3000, warmup=300)
+    assert f.shape == (3300, 3) and np.all(np.abs(f) <= np.array(v.limits) + 1e-12)
+    x = v.run(f, np.zeros(3))
+    psi = v.dt * np.concatenate([[0.0], np.cumsum(x[:-1, 2])])
+    switch = np.flatnonzero(np.diff(f[:, 2]) != 0) + 1
+    switch = switch[switch > 300]
+    base = psi[300]
+    assert switch.size >= 3
+    np.testing.assert_allclose(np.abs(np.degrees(psi[switch] - base)), 20.0, atol=3.0)
+    with pytest.raises(ManoeuvreError, match="does not answer"):
+        Programme([ZigZag(thrust=2.0, rudder=10.0, heading=10.0)]).schedule(v, 3000)
+    with pytest.raises(ManoeuvreError, match="actuator limits"):
+        Programme([AccelerationStopping(thrust=3.0)]).schedule(v, 100)
+    tc = TurningCircle(thrust=1.0, side=-1)
+    assert manoeuvre_from_dict(tc.to_dict()) == tc
+    p = Programme([tc, zz], [100, 200])
+    assert Programme.from_dict(json.loads(json.dumps(p.to_dict()))) == p
+
+
+def test_plan_trial_small_budget_and_cli(capsys):
+    plan = plan_trial(8000, 2, block=2000, evaluate_block=1000)
+    t = plan.table()
+    assert len(plan.programmes) == 2 and np.all(np.isfinite(t["predicted_se"]))
+    assert plan.worst_relative_se() > 0
+    code = main(["plan-trial", "--samples", "8000", "--experiments", "2", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0 and out["experiments"] == 2 and "parameters" in out
+    se = [p["predicted_se"] for eq in out["parameters"].values() for p in eq.values()]
+    assert all(s is None or math.isfinite(s) for s in se)
+    code = main(["plan-trial", "--samples", "10", "--experiments", "2"])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    with pytest.raises(PlannerError):
+        plan_trial(100, 0)

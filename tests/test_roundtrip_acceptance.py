@@ -1,0 +1,38 @@
+"""Issue 13 acceptance: simulate --raw -> ingest -> identify against θ0 and the ideal log."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from vesselid.cli import main
+from vesselid.identify import identify
+from vesselid.ingest import ingest
+from vesselid.logs import TrialLog
+from vesselid.model import ModelSpec
+
+pytest.importorskip("pynmea2")
+pytest.importorskip("pymap3d")
+
+
+@pytest.mark.slow
+def test_raw_round_trip_acceptance(tmp_path):
+    raw = tmp_path / "raw"
+    assert main(["simulate", "--system", "cybership2", "--experiments", "2", "--samples",
+                 "20000", "--seed", "3", "--out", str(tmp_path / "ideal.csv"),
+                 "--raw", str(raw)]) == 0
+    spec = ModelSpec.load(raw / "cybership2.toml")
+    log = ingest(raw, 0.1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        got = identify(log, spec)
+        ideal = identify(TrialLog.load(tmp_path / "ideal.csv"), spec)
+    theta0 = spec.theta0_series().to_numpy()
+    z = np.abs(got.params.to_numpy() - theta0) / got.std_errors.to_numpy()
+    delta = np.abs(got.params.to_numpy() - ideal.params.to_numpy()) / ideal.std_errors.to_numpy()
+    print(f"max |z| vs theta0 {z.max():.3f}; max |delta|/SE vs ideal {delta.max():.3f}; "
+          f"converged raw {got.converged} ideal {ideal.converged}")
+    assert z.max() <= 3.5
+    assert delta.max() <= 2.0

@@ -1,0 +1,419 @@
+"""Raw inputs → trial log: clock alignment, resampling, frames, experiments, quality.
+
+:func:`ingest` reads every source (NMEA 0183 files, ROS 2 bags, mapped CSV files), picks
+one stream per channel (NMEA: GGA before RMC for position, RMC before VTG for velocity,
+HDT before THS; bags: IMU gyro before odometry twist for yaw rate), and then
+
+1. converts latitude/longitude to local NED (``pymap3d.geodetic2ned``) around the
+   configured origin or the first fix,
+2. lays the grid ``t_k = k·dt`` (UNIX seconds, so 10 Hz GNSS epochs fall on grid points),
+   keeps the grid points where *every* channel has data without a gap longer than
+   ``max(max_gap, 3 periods)``, and splits experiments where that fails (a pause between
+   runs, or one sensor missing for minutes); stretches shorter than ``min_duration`` are
+   dropped and reported,
+3. resamples each channel (:func:`vesselid.ingest.streams.resample`: anti-aliased
+   decimation, interpolation, or zero-order hold for commands; heading unwrapped),
+4. rotates earth-frame velocity into body-frame surge/sway with the heading,
+   ``u = cos ψ v_N + sin ψ v_E``, ``v = −sin ψ v_N + cos ψ v_E``, and takes the yaw rate
+   from the rate-of-turn sensor/gyro, or differentiates the unwrapped heading when there
+   is none,
+5. writes a quality report (per source and per column) into ``metadata["quality"]``.
+"""
+
+from __future__ import annotations
+
+import glob
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from vesselid.errors import VesselidError
+from vesselid.ingest.config import IngestConfig, IngestError, load_config
+from vesselid.ingest.streams import Stream, coverage, resample, stream_quality
+
+__all__ = ["NMEA_SUFFIXES", "ingest"]
+
+NMEA_SUFFIXES = (".nmea", ".txt", ".log", ".0183", ".n0183")
+BAG_SUFFIXES = (".db3", ".mcap")
+CONFIG_NAME = "ingest.toml"
+#: Grid points beyond which ingest refuses (a clock error making the span absurd).
+MAX_GRID = 50_000_000
+
+#: Columns first in the output, in this order (when present).
+_ORDER = ("u", "v", "r", "psi", "north", "east", "u_log", "v_log", "wind_speed", "wind_angle")
+
+
+def _collect(paths: Sequence[str | Path], config_path: str | Path | None):
+    files: list[Path] = []
+    bags: list[Path] = []
+    tomls: list[Path] = []
+    config_file = Path(config_path) if config_path is not None else None
+    for p in paths:
+        p = Path(p)
+        if not p.exists():
+            raise IngestError(f"input {p} does not exist")
+        if p.is_dir():
+            if (p / "metadata.yaml").is_file():
+                bags.append(p)
+                continue
+            if config_file is None and (p / CONFIG_NAME).is_file():
+                config_file = p / CONFIG_NAME
+            for child in sorted(p.iterdir()):
+                if child.is_dir() and (child / "metadata.yaml").is_file():
+                    bags.append(child)
+                elif child.is_file():
+                    files.append(child)
+        else:
+            files.append(p)
+    config = load_config(config_file) if config_file is not None else IngestConfig()
+    nmea, csv, other = [], [], []
+    for f in files:
+        suffix = f.suffix.lower()
+        if f.name == CONFIG_NAME or (config_file is not None and f == config_file):
+            continue
+        if suffix in NMEA_SUFFIXES:
+            nmea.append(f)
+        elif suffix in BAG_SUFFIXES:
+            bags.append(f)
+        elif suffix == ".csv":
+            csv.append(f)
+        elif suffix == ".toml":
+            tomls.append(f)
+        else:
+            other.append(f)
+    return config, config_file, nmea, bags, csv, tomls, other
+
+
+def _csv_jobs(config: IngestConfig, csv_files: list[Path]):
+    jobs = []
+    used: set[Path] = set()
+    for m in config.csv:
+        pattern = str(config.base / m.file)
+        hits = sorted(Path(x) for x in glob.glob(pattern))
+        hits += [f for f in csv_files if f.name == Path(m.file).name and f not in hits]
+        if not hits:
+            raise IngestError(f"the ingest configuration maps {m.file!r}, which is not there")
+        for h in hits:
+            jobs.append((h, m))
+            used.add(h.resolve())
+    unmapped = [str(f) for f in csv_files if f.resolve() not in used]
+    return jobs, unmapped
+
+
+def _find_spec(tomls: list[Path]):
+    from vesselid.model import ModelSpec
+
+    for t in tomls:
+        try:
+            return ModelSpec.load(t), t
+        except (VesselidError, ValueError, OSError, KeyError, TypeError):
+            continue
+    return None, None
+
+
+def _choose(streams: list[Stream]) -> tuple[dict[str, Stream], dict[str, list[str]]]:
+    chosen: dict[str, Stream] = {}
+    unused: dict[str, list[str]] = {}
+    for s in sorted(streams, key=lambda s: (s.priority, -s.t.size)):
+        if s.t.size == 0:
+            unused.setdefault(s.name, []).append(f"{s.source} (no valid samples)")
+            continue
+        if s.name in chosen:
+            unused.setdefault(s.name, []).append(s.source)
+        else:
+            chosen[s.name] = s
+    return chosen, unused
+
+
+def _ned(chosen: dict[str, Stream], config: IngestConfig, notes: dict) -> tuple | None:
+    if "lat" not in chosen or "lon" not in chosen:
+        return None
+    import pymap3d
+
+    lat, lon = chosen.pop("lat"), chosen.pop("lon")
+    alt = chosen.pop("alt", None)
+    t, ia, ib = np.intersect1d(lat.t, lon.t, return_indices=True)
+    la, lo = lat.values[ia], lon.values[ib]
+    if config.origin is not None:
+        origin = config.origin
+    else:
+        h0 = float(np.interp(t[0], alt.t, alt.values)) if alt is not None and alt.t.size else 0.0
+        origin = (float(la[0]), float(lo[0]), h0)
+    n, e, _d = pymap3d.geodetic2ned(la, lo, np.full(la.size, origin[2]), *origin)
+    chosen["north"] = Stream("north", t, np.asarray(n, float), source=lat.source,
+                             notes=dict(lat.notes)).clean()
+    chosen["east"] = Stream("east", t, np.asarray(e, float), source=lat.source).clean()
+    notes["origin"] = [float(x) for x in origin]
+    notes["origin_source"] = "configuration" if config.origin is not None else "first fix"
+    return origin
+
+
+def ingest(
+    paths: str | Path | Sequence[str | Path],
+    dt: float,
+    *,
+    config: str | Path | None = None,
+    origin: Sequence[float] | None = None,
+    max_gap: float | None = None,
+    min_duration: float | None = None,
+) -> Any:
+    """Turn raw sensor files into a :class:`~vesselid.logs.TrialLog`.
+
+    Parameters
+    ----------
+    paths : path or sequence of paths
+        Directories (every NMEA file ``*.nmea|*.txt|*.log``, mapped CSV, ROS 2 bag and
+        spec TOML in them; ``ingest.toml`` is the configuration) and/or files.
+    dt : float
+        Sample time of the output grid (s).
+    config : path, optional
+        Ingest configuration TOML (:mod:`vesselid.ingest.config`); default ``ingest.toml``
+        in the first directory that has one.
+    origin : (lat, lon[, h]), optional
+        Local NED origin, overriding the configuration.
+    max_gap, min_duration : float, optional
+        Override the configuration (s).
+
+    Returns
+    -------
+    TrialLog
+        Columns ``experiment, time`` (s from the first sample), ``u, v, r`` (body frame),
+        ``psi`` (unwrapped heading, rad), ``north, east`` (m), speed log and wind columns when
+        measured, and every mapped CSV/bag channel (inputs). ``metadata["quality"]`` holds the
+        quality report; a spec TOML found among the inputs is attached when its columns are
+        all present.
+
+    Raises
+    ------
+    IngestError
+        Nothing usable, a required channel missing, no stretch of data long enough.
+    """
+    if isinstance(paths, str | Path):
+        paths = [paths]
+    if not paths:
+        raise IngestError("no input files given")
+    dt = float(dt)
+    if not (math.isfinite(dt) and dt > 0):
+        raise IngestError(f"--dt must be a positive number of seconds, got {dt}")
+    cfg, cfg_file, nmea_files, bags, csv_files, tomls, other = _collect(paths, config)
+    if origin is not None or max_gap is not None or min_duration is not None:
+        from dataclasses import replace
+
+        org = cfg.origin
+        if origin is not None:
+            o = [float(x) for x in origin]
+            if len(o) not in (2, 3):
+                raise IngestError(f"--origin needs LAT,LON[,H], got {origin!r}")
+            org = (o[0], o[1], o[2] if len(o) == 3 else 0.0)
+        cfg = replace(cfg, origin=org,
+                      max_gap=cfg.max_gap if max_gap is None else float(max_gap),
+                      min_duration=cfg.min_duration if min_duration is None
+                      else float(min_duration))
+        if not cfg.max_gap > 0:
+            raise IngestError("--max-gap must be positive")
+    _check_sizes([*nmea_files, *csv_files])
+    streams: list[Stream] = []
+    sources: list[dict[str, Any]] = []
+    for f in nmea_files:
+        from vesselid.ingest.nmea import read_nmea
+
+        s, q = read_nmea(f, relative_latency=cfg.relative_latency,
+                         epoch_tolerance=cfg.epoch_tolerance)
+        streams += s
+        sources.append({"type": "nmea0183", **q})
+    jobs, unmapped = _csv_jobs(cfg, csv_files)
+    for f, m in jobs:
+        from vesselid.ingest.tables import read_csv_streams
+
+        s, q = read_csv_streams(f, m)
+        streams += s
+        sources.append({"type": "csv", "kind": m.kind, **q})
+    for b in bags:
+        from vesselid.ingest.rosbag import read_bag
+
+        s, q = read_bag(b, cfg.ros)
+        streams += s
+        sources.append({"type": "ros2bag", **q})
+    if not streams:
+        what = "no NMEA 0183 file, ROS 2 bag or mapped CSV file"
+        extra = f" (unmapped CSV files: {unmapped}; add a [[csv]] table)" if unmapped else ""
+        raise IngestError(f"{what} among the inputs{extra}")
+    notes: dict[str, Any] = {}
+    chosen, unused = _choose(streams)
+    _ned(chosen, cfg, notes)
+    chosen.pop("alt", None)
+    body_direct = "u" in chosen and "v" in chosen
+    if not body_direct:
+        have = [c for c in ("vel_north", "vel_east", "psi") if c in chosen]
+        if "vel_north" in chosen and "psi" not in chosen:
+            raise IngestError(
+                "no heading (HDT/THS, odometry orientation or a mapped 'psi' column): earth-frame "
+                "velocities cannot be rotated into body-frame surge/sway")
+        if "vel_north" not in chosen:
+            raise IngestError(
+                "no velocity: need speed/course over ground (RMC/VTG), odometry twist or mapped "
+                f"'u'/'v' columns (found channels: {sorted(chosen)})")
+        del have
+    used = dict(chosen)
+    if body_direct:
+        for c in ("vel_north", "vel_east"):
+            used.pop(c, None)
+    grid_info = _grid(used, dt, cfg)
+    segments = grid_info["segments"]
+    if not segments:
+        raise IngestError(grid_info["reason"])
+    t0 = segments[0][0] * dt
+    cols: dict[str, list[np.ndarray]] = {}
+    info: dict[str, dict[str, Any]] = {name: {"bridged": 0} for name in used}
+    exp_col, time_col = [], []
+    for e, (k0, k1) in enumerate(segments):
+        ks = np.arange(k0, k1 + 1)
+        grid = ks * dt
+        exp_col.append(np.full(grid.size, e, dtype=np.int64))
+        time_col.append((ks - segments[0][0]) * dt)
+        for name, s in used.items():
+            vals, inf = resample(s, grid, dt)
+            cols.setdefault(name, []).append(vals)
+            info[name]["bridged"] += inf["bridged"]
+            info[name]["method"] = inf["method"]
+    data: dict[str, np.ndarray] = {"experiment": np.concatenate(exp_col),
+                                   "time": np.concatenate(time_col)}
+    arrays = {k: np.concatenate(v) for k, v in cols.items()}
+    derived: dict[str, str] = {}
+    if not body_direct:
+        psi = arrays["psi"]
+        vn, ve = arrays.pop("vel_north"), arrays.pop("vel_east")
+        c, s_ = np.cos(psi), np.sin(psi)
+        arrays["u"] = c * vn + s_ * ve
+        arrays["v"] = -s_ * vn + c * ve
+        derived["u"] = derived["v"] = "earth-frame velocity over ground rotated by the heading"
+    if "r" not in arrays and "psi" in arrays:
+        r = np.empty_like(arrays["psi"])
+        for e in range(len(segments)):
+            m = data["experiment"] == e
+            r[m] = np.gradient(arrays["psi"][m], dt) if m.sum() > 1 else 0.0
+        arrays["r"] = r
+        derived["r"] = "derivative of the unwrapped heading (no rate-of-turn sensor or gyro)"
+    if "wind_angle" in arrays:
+        arrays["wind_angle"] = np.mod(arrays["wind_angle"] + math.pi, 2 * math.pi) - math.pi
+    order = [c for c in _ORDER if c in arrays] + sorted(c for c in arrays if c not in _ORDER)
+    for c in order:
+        data[c] = arrays[c]
+    frame = pd.DataFrame(data)
+    n_rows = len(frame)
+    columns_q: dict[str, Any] = {}
+    for name, s in used.items():
+        q = stream_quality(s)
+        q["resampling"] = info[name].get("method")
+        q["interpolated_fraction"] = info[name]["bridged"] / n_rows if n_rows else 0.0
+        columns_q[name] = q
+    for c, why in derived.items():
+        columns_q[c] = {"derived": why}
+    quality = {
+        "dt": dt,
+        "rows": n_rows,
+        "experiments": [{"experiment": e, "start_utc": _iso(k0 * dt), "rows": int(k1 - k0 + 1)}
+                        for e, (k0, k1) in enumerate(segments)],
+        "dropped_segments": grid_info["dropped"],
+        "grid_coverage": grid_info["coverage"],
+        "columns": columns_q,
+        "sources": sources,
+        "unused_sources": unused,
+        "unmapped_files": unmapped + [str(o) for o in other],
+        **notes,
+    }
+    from vesselid import __version__
+    from vesselid.logs import TrialLog
+
+    meta: dict[str, Any] = {
+        "source": "vesselid ingest",
+        "inputs": [str(p) for p in paths],
+        "config": str(cfg_file) if cfg_file is not None else None,
+        "dt": dt,
+        "time_origin_utc": _iso(t0),
+        "time_origin_unix": t0,
+        "quality": quality,
+        "vesselid_version": __version__,
+    }
+    spec, spec_path = _find_spec(tomls)
+    if spec is not None:
+        need = [*spec.states, *spec.inputs, *spec.sensors]
+        if all(c in frame.columns for c in need):
+            meta["spec"] = spec.to_dict()
+            meta["spec_file"] = str(spec_path)
+    return TrialLog(frame, _jsonable(meta))
+
+
+def _check_sizes(files: list[Path]) -> None:
+    try:
+        from vesselid import limits
+    except ImportError:
+        return
+    check = getattr(limits, "check_file_size", None)
+    if check is None:
+        return
+    for f in files:
+        check(f)
+
+
+def _grid(used: dict[str, Stream], dt: float, cfg: IngestConfig) -> dict[str, Any]:
+    lo = max(s.t[0] for s in used.values())
+    hi = min(s.t[-1] for s in used.values())
+    names = sorted(used)
+    if not hi > lo:
+        spans = {n: [_iso(used[n].t[0]), _iso(used[n].t[-1])] for n in names}
+        return {"segments": [], "dropped": [], "coverage": {},
+                "reason": f"the channels do not overlap in time: {spans}"}
+    k0 = math.floor(lo / dt - 0.5)
+    k1 = math.ceil(hi / dt + 0.5)
+    if k1 - k0 > MAX_GRID:
+        return {"segments": [], "dropped": [], "coverage": {},
+                "reason": f"the common time span ({(hi - lo) / 3600:.1f} h) is too long for "
+                          f"dt={dt} (more than {MAX_GRID} samples); check the clocks"}
+    ks = np.arange(k0, k1 + 1)
+    grid = ks * dt
+    ok = np.ones(ks.size, dtype=bool)
+    cov: dict[str, float] = {}
+    for n in names:
+        c = coverage(used[n], grid, cfg.max_gap)
+        cov[n] = float(c.mean())
+        ok &= c
+    # maximal runs of consecutive good grid points
+    d = np.diff(np.concatenate([[0], ok.astype(np.int8), [0]]))
+    starts = np.flatnonzero(d == 1)
+    ends = np.flatnonzero(d == -1) - 1
+    min_n = max(2, math.ceil(cfg.min_duration / dt))
+    segments, dropped = [], []
+    for a, b in zip(starts, ends, strict=True):
+        if b - a + 1 >= min_n:
+            segments.append((int(ks[a]), int(ks[b])))
+        else:
+            dropped.append({"start_utc": _iso(ks[a] * dt), "rows": int(b - a + 1)})
+    reason = ""
+    if not segments:
+        longest = int((ends - starts + 1).max()) if starts.size else 0
+        worst = min(cov, key=cov.get) if cov else "?"
+        reason = (f"no stretch of at least {cfg.min_duration:g} s where every channel has data "
+                  f"(longest {longest * dt:g} s; least covered channel {worst!r}: "
+                  f"{100 * cov.get(worst, 0):.0f} % of the common span)")
+    return {"segments": segments, "dropped": dropped, "coverage": cov, "reason": reason}
+
+
+def _iso(unix: float) -> str:
+    return pd.Timestamp(unix, unit="s", tz="UTC").isoformat()
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj

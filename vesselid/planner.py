@@ -1,0 +1,887 @@
+"""Trial planner: predicted parameter covariance of a design, and an optimal design.
+
+Predicted covariance (no Monte Carlo)
+-------------------------------------
+``identify`` with zero-mean instruments (the paper's IV_{E{ζ}=0}, multi-experiment
+pooled form of eq. (6)) returns, per state equation ``i``,
+``θ̂_i − θ_i ≈ A_i⁻¹ Σ_k ζ̃(k) ε_i(k)`` with ``A_i = Σ_k ζ̃(k) φ(k)ᵀ``, where ζ̃ are the
+refined instruments — the regressors simulated noise-free from the estimate with the
+measured inputs (at convergence θ̂ ≈ θ0), centred per experiment (A7) — and ``ε_i`` is
+the equation error of the predictor. Its asymptotic covariance is the sandwich
+
+    Cov θ̂_i = A_i⁻¹ S_i A_i⁻ᵀ,      S_i = Σ_k Σ_l ζ̃(k) ζ̃(l)ᵀ E[ε_i(k) ε_i(l)],
+
+evaluated here on the *simulated* instruments of the design with the autocovariance
+of ``ε`` implied by the disturbance levels (linearised):
+
+* white sensor noise ``e`` (std ``σ``) enters the target and, through the regressors,
+  the prediction: ``ε_i(k) = e_i(k) − Σ_j J_ij(k−1) e_j(k−1)`` with the Jacobian
+  ``J = ∂(Φᵀθ)/∂x`` along the nominal trajectory (lags 0 and ±1, time varying);
+* unmodelled forces: Gauss–Markov, ``dt M⁻¹ τ_noise`` (autocovariance ``s² a^|τ|``);
+* wind gusts and wind-direction changes: Gauss–Markov, through the gain of the
+  Blendermann wind load along the nominal heading and velocity (time-varying gains);
+* waves (:mod:`vesselid.waves`): coloured sensor noise ``ξ``, ``ε ≈ ξ(k) − ξ(k−1)``,
+  stationary autocovariance from the wave spectrum and response (FFT).
+
+The mean wind load is a deterministic, heading-dependent force that the estimator does
+not know; its predicted *bias* ``A_i⁻¹ Σ ζ̃ ε_wind`` is reported next to the standard
+errors.
+
+Design
+------
+Candidate manoeuvres (:mod:`vesselid.manoeuvres`) are evaluated as *blocks* of a fixed
+length; information is additive over blocks (``A`` and ``S`` add up), so a design is a
+multiset of blocks and its covariance is ``(ΣA)⁻¹ (ΣS) (ΣA)⁻ᵀ``. :func:`plan_trial`
+chooses blocks greedily and improves the choice by exchange (Fedorov 1972; Atkinson,
+Donev & Tobias 2007, ch. 12) to minimise the worst relative standard error
+``max_p SE_p/|θ0_p|`` over the parameters with ``|θ0_p| ≥ relevance``, then packs the
+blocks into the experiments and evaluates the assembled design exactly (each
+experiment simulated continuously, instruments centred per experiment).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy import signal as sps
+from scipy.fft import next_fast_len
+
+from vesselid.errors import VesselidError
+from vesselid.manoeuvres import (
+    FORCE_LIMITS,
+    AccelerationStopping,
+    Crabbing,
+    Manoeuvre,
+    ManoeuvreError,
+    NominalVessel,
+    Programme,
+    PullOut,
+    Spiral,
+    TurningCircle,
+    ZigZag,
+)
+from vesselid.model import ModelSpec
+from vesselid.regressors import evaluate as evaluate_regressors
+from vesselid.regressors import predict as predict_regressors
+
+__all__ = [
+    "DisturbanceLevels",
+    "PlannerError",
+    "TrialPlan",
+    "candidate_library",
+    "design_information",
+    "plan_trial",
+    "predict_covariance",
+]
+
+
+class PlannerError(VesselidError):
+    """Bad planner settings (budget too small, no feasible design, ...)."""
+
+
+#: Identification structures: ``"full"`` keeps ``v·|r|`` and ``r·|v|`` apart (manoeuvres
+#: with ``v·r > 0`` separate them); ``"merged"`` folds ``v·|r|`` into ``r·|v|`` (exact only
+#: while ``v·r < 0``, as in the steady turns of the static-offset design).
+STRUCTURES = ("full", "merged")
+
+
+# ---------------------------------------------------------------------------- noise
+@dataclass(frozen=True)
+class DisturbanceLevels:
+    """Disturbance levels the planner assumes (model scale, SI units).
+
+    Defaults are those of ``vesselid sea-trial`` (:func:`vesselid.seatrial.simulate_sea_trial`).
+
+    Parameters
+    ----------
+    sensor_std : (float, float, float)
+        White noise std of the signals of ``u, v, r`` (speed log, gyro).
+    sensor_clip : float
+        Clipping of the sensor noise in stds (variance factor of a clipped normal).
+    force_noise_std, force_noise_time_constant
+        Unmodelled Gauss–Markov forces ``[X, Y, N]`` and their time constant (s).
+    wind_speed, wind_direction, gust_std, gust_time_constant, wind_direction_std,
+    wind_direction_time_constant
+        Mean wind (m/s, going-to rad) and its Gauss–Markov variations.
+    waves : vesselid.waves.WaveConditions, optional
+        Sea state (first-order wave-induced motion on the measurements).
+    """
+
+    sensor_std: tuple[float, float, float] = (0.005, 0.005, 0.002)
+    sensor_clip: float = 3.0
+    force_noise_std: tuple[float, float, float] = (0.02, 0.02, 0.01)
+    force_noise_time_constant: float = 2.0
+    wind_speed: float = 1.0
+    wind_direction: float = math.radians(-60.0)
+    gust_std: float = 0.1
+    gust_time_constant: float = 5.0
+    wind_direction_std: float = 0.1
+    wind_direction_time_constant: float = 30.0
+    waves: Any = None
+
+    def to_dict(self) -> dict[str, Any]:
+        d = {k: getattr(self, k) for k in self.__dataclass_fields__ if k != "waves"}
+        d["waves"] = None if self.waves is None else self.waves.to_dict()
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+
+
+def _clipped_variance(c: float) -> float:
+    """Variance of a standard normal clipped at ``±c``."""
+    from scipy import stats
+
+    if not math.isfinite(c):
+        return 1.0
+    p = stats.norm.cdf(c) - stats.norm.cdf(-c)
+    return float(p - 2 * c * stats.norm.pdf(c) + 2 * c * c * stats.norm.sf(c))
+
+
+# ------------------------------------------------------------------- vessel glue
+@dataclass
+class _Vessel:
+    """What the planner needs from a vessel: the physics spec, the identification
+    spec, dt M⁻¹ and the wind load."""
+
+    nominal: NominalVessel
+    ident: ModelSpec
+    dt_minv: np.ndarray
+    wind_force: Any
+
+    @classmethod
+    def cybership2(cls, dt: float = 0.1, structure: str = "full") -> _Vessel:
+        from vesselid.vessels import blendermann_wind_force, cybership2
+
+        if structure not in STRUCTURES:
+            raise PlannerError(f"unknown structure {structure!r}; choose from {STRUCTURES}")
+        ident = cybership2.HULL.spec(dt)
+        if structure == "merged":
+            for keep, drop, factor in cybership2.TRIAL_MERGES:
+                ident = ident.merge_terms(keep, drop, factor)
+        return cls(NominalVessel.cybership2(dt), ident,
+                   dt * cybership2.HULL.mass_matrix_inverse(), blendermann_wind_force)
+
+
+def _wind_load(vessel: _Vessel, x: np.ndarray, psi: np.ndarray, speed: float,
+               direction: np.ndarray | float) -> np.ndarray:
+    """Wind force ``(N, 3)`` along states ``x`` and heading ``psi``."""
+    d = direction - psi
+    urw = x[:, 0] - speed * np.cos(d)
+    vrw = x[:, 1] - speed * np.sin(d)
+    gam = -np.arctan2(vrw, urw)
+    return vessel.wind_force(gam, np.hypot(urw, vrw))
+
+
+# ----------------------------------------------------------------- information
+@dataclass
+class Information:
+    """Additive moments of one experiment (or of blocks of one experiment).
+
+    Per equation, over the instruments augmented with a constant (uncentred):
+    ``A = Σ ζ_a φ_aᵀ``, ``S = ΣΣ ζ_a ζ_aᵀ E[εε]`` (the meat) and the wind moment
+    ``b = Σ ζ_a ε_wind``; ``n`` samples. :meth:`centred` applies the per-experiment
+    centring of the zero-mean instruments (A7) exactly.
+    """
+
+    a: list[np.ndarray]
+    s: list[np.ndarray]
+    b: list[np.ndarray]
+    n: int
+
+    def __add__(self, other: Information) -> Information:
+        return Information([x + y for x, y in zip(self.a, other.a, strict=True)],
+                           [x + y for x, y in zip(self.s, other.s, strict=True)],
+                           [x + y for x, y in zip(self.b, other.b, strict=True)],
+                           self.n + other.n)
+
+    def scaled(self, f: float) -> Information:
+        return Information([f * x for x in self.a], [f * x for x in self.s],
+                           [f * x for x in self.b], round(f * self.n))
+
+    def centred(self) -> Centred:
+        """Moments of the instruments centred over this experiment."""
+        a_out, s_out, b_out = [], [], []
+        for a, s, b in zip(self.a, self.s, self.b, strict=True):
+            n = a[-1, -1]
+            if n <= 0:
+                p = a.shape[0] - 1
+                a_out.append(np.zeros((p, p)))
+                s_out.append(np.zeros((p, p)))
+                b_out.append(np.zeros(p))
+                continue
+            zbar = a[:-1, -1] / n
+            a_out.append(a[:-1, :-1] - np.outer(zbar, a[-1, :-1]))
+            q = s[:-1, -1]
+            s_out.append(s[:-1, :-1] - np.outer(zbar, q) - np.outer(q, zbar)
+                         + np.outer(zbar, zbar) * s[-1, -1])
+            b_out.append(b[:-1] - zbar * b[-1])
+        return Centred(a_out, s_out, b_out)
+
+
+@dataclass
+class Centred:
+    """Per-equation moments of centred instruments; adds over experiments."""
+
+    a: list[np.ndarray]
+    s: list[np.ndarray]
+    b: list[np.ndarray]
+
+    def __add__(self, other: Centred) -> Centred:
+        return Centred([x + y for x, y in zip(self.a, other.a, strict=True)],
+                       [x + y for x, y in zip(self.s, other.s, strict=True)],
+                       [x + y for x, y in zip(self.b, other.b, strict=True)])
+
+    def __sub__(self, other: Centred) -> Centred:
+        return Centred([x - y for x, y in zip(self.a, other.a, strict=True)],
+                       [x - y for x, y in zip(self.s, other.s, strict=True)],
+                       [x - y for x, y in zip(self.b, other.b, strict=True)])
+
+
+def _ar1_meat(y: np.ndarray, a: float) -> np.ndarray:
+    """``Σ_k Σ_l y_k y_lᵀ a^|k−l|`` for rows ``y`` ``(N, p)``.
+
+    With the causal AR filter ``f_k = Σ_{l≤k} a^{k−l} y_l`` the double sum is
+    ``yᵀf + fᵀy − yᵀy`` (one filter pass).
+    """
+    if y.shape[0] == 0:
+        return np.zeros((y.shape[1], y.shape[1]))
+    yt = np.ascontiguousarray(y.T)
+    f = sps.lfilter([1.0], [1.0, -a], yt, axis=1)
+    m = yt @ f.T
+    return m + m.T - yt @ yt.T
+
+
+def _stationary_meat(y: np.ndarray, acov: np.ndarray) -> np.ndarray:
+    """``Σ_k Σ_l y_k y_lᵀ R(k−l)`` for a stationary autocovariance ``R(0..L)`` (FFT)."""
+    n = y.shape[0]
+    lags = acov.size - 1
+    m = next_fast_len(n + lags + 1)
+    r = np.zeros(m)
+    r[: lags + 1] = acov
+    r[m - lags:] = acov[1:][::-1]
+    spec = np.fft.rfft(r).real
+    yf = np.fft.rfft(y, n=m, axis=0)
+    w = np.ones(yf.shape[0])
+    w[1: (m + 1) // 2] = 2.0
+    out = (yf.conj().T * (spec * w)) @ yf
+    return (out.real + out.real.T) / (2.0 * m)
+
+
+def _jacobian(factors: np.ndarray, eq: np.ndarray, theta: np.ndarray, sig: np.ndarray,
+              n: int) -> np.ndarray:
+    """``J[k, i, j] = ∂(Φᵀθ)_i/∂x_j`` at the signal rows ``sig`` (analytic, vectorised).
+
+    Term ``p`` is ``F[f0]·F[f1]`` with ``F = [s, |s|, 1]``."""
+    from vesselid.regressors import factor_vector
+
+    n_s = sig.shape[1]
+    f = factor_vector(sig)
+    jac = np.zeros((sig.shape[0], n, n))
+    for p in range(factors.shape[0]):
+        for this, other in ((int(factors[p, 0]), int(factors[p, 1])),
+                            (int(factors[p, 1]), int(factors[p, 0]))):
+            j = this % n_s if this < 2 * n_s else -1
+            if j < 0 or j >= n:
+                continue
+            d = f[:, other] if this < n_s else np.sign(sig[:, j]) * f[:, other]
+            jac[:, eq[p], j] += theta[p] * d
+    return jac
+
+
+def design_information(
+    forces: np.ndarray,
+    vessel: _Vessel,
+    levels: DisturbanceLevels,
+    *,
+    warmup: int = 0,
+    x0: Sequence[float] | None = None,
+) -> Information:
+    """Information of one experiment with the given forces (first ``warmup`` discarded).
+
+    Parameters
+    ----------
+    forces : ndarray (warmup + N, 3)
+        Open-loop input schedule.
+    vessel : _Vessel
+        Vessel glue (physics, identification spec, dt M⁻¹, wind load).
+    levels : DisturbanceLevels
+        Disturbances assumed.
+    warmup : int
+        Leading samples simulated and discarded (the experiment starts after them).
+    x0 : sequence of float, optional
+        Initial state of the simulation (default zeros).
+
+    Returns
+    -------
+    Information
+    """
+    nom = vessel.nominal
+    dt = nom.dt
+    xs = nom.run(forces, np.zeros(3) if x0 is None else np.asarray(x0, float))[:-1]
+    psi = dt * np.concatenate([[0.0], np.cumsum(xs[:-1, 2])])
+    xs, tau, psi = xs[warmup:], np.asarray(forces, float)[warmup:], psi[warmup:]
+    spec = vessel.ident
+    codes = spec.codes
+    n_k = xs.shape[0]
+    if n_k < 3:
+        raise PlannerError("an experiment needs at least 3 samples")
+    # instruments: the identification model simulated noise-free from the first sample
+    from vesselid.simulate import simulate_states
+
+    xi = simulate_states(spec, tau, x0=xs[0])
+    sig_i = np.hstack([xi, tau])
+    sig_t = np.hstack([xs, tau])
+    zeta = evaluate_regressors(codes, sig_i[:-1])  # row k predicts sample k+1
+    phi = evaluate_regressors(codes, sig_t[:-1])
+    # Jacobian of the one-step map of the identification model along the trajectory
+    jac = _jacobian(codes.factors, codes.equation, spec.theta0_vector(), sig_t[:-1],
+                    spec.n_states)
+    # deterministic equation error: the structure's misspecification (merged terms)
+    full = nom.spec
+    pred_full = predict_regressors(full.codes, full.theta0_vector(), sig_t[:-1])
+    eps_det = pred_full - predict_regressors(codes, spec.theta0_vector(), sig_t[:-1])
+    # wind: mean load (deterministic bias) and gains of gust / direction changes
+    wind_on = levels.wind_speed > 0 or levels.gust_std > 0
+    if wind_on:
+        base = _wind_load(vessel, xs[:-1], psi[:-1], levels.wind_speed, levels.wind_direction)
+        dv = 1e-4
+        g_speed = (_wind_load(vessel, xs[:-1], psi[:-1], levels.wind_speed + dv,
+                              levels.wind_direction) - base) / dv
+        g_dir = (_wind_load(vessel, xs[:-1], psi[:-1], levels.wind_speed,
+                            levels.wind_direction + dv) - base) / dv
+        eps_det = eps_det + base @ vessel.dt_minv.T
+        g_speed = g_speed @ vessel.dt_minv.T
+        g_dir = g_dir @ vessel.dt_minv.T
+    sig = np.asarray(levels.sensor_std, float) ** 2 * _clipped_variance(levels.sensor_clip)
+    fn = np.asarray(levels.force_noise_std, float)
+    w_var = (vessel.dt_minv**2) @ (fn**2)
+    a_fn = math.exp(-dt / levels.force_noise_time_constant)
+    a_g = math.exp(-dt / levels.gust_time_constant)
+    a_d = math.exp(-dt / levels.wind_direction_time_constant)
+    wave_lines = None
+    if levels.waves is not None and levels.waves.height > 0:
+        from vesselid.waves import velocity_lines
+
+        c, sn = np.cos(psi), np.sin(psi)
+        north = dt * np.concatenate([[0.0], np.cumsum(c * xs[:, 0] - sn * xs[:, 1])[:-1]])
+        east = dt * np.concatenate([[0.0], np.cumsum(sn * xs[:, 0] + c * xs[:, 1])[:-1]])
+        g = velocity_lines(levels.waves, dt, psi, north, east)
+        wave_lines = g[:, 1:, :] - g[:, :-1, :]  # ε(row k) ≈ ξ(k+1) − ξ(k)
+    a_list, s_list, b_list = [], [], []
+    start = 0
+    ar_cache: dict[Any, np.ndarray] = {}
+    for i in range(spec.n_states):
+        cols = np.flatnonzero(codes.equation == i)
+        # augmented with a constant column: centring per experiment happens later
+        # (:meth:`Information.centred`), so blocks of one experiment can be added first
+        z = np.hstack([zeta[:, cols], np.ones((n_k - 1, 1))])
+        ph = np.hstack([phi[:, cols], np.ones((n_k - 1, 1))])
+        a_list.append(z.T @ ph)
+        # white sensor noise: lag 0 and lag ±1 (time-varying Jacobian)
+        v0 = sig[i] + (jac[:, i, :] ** 2) @ sig
+        c1 = -jac[1:, i, i] * sig[i]  # cov(ε(k), ε(k+1)) for rows k, k+1
+        meat = (z * v0[:, None]).T @ z
+        cross = (z[:-1] * c1[:, None]).T @ z[1:]
+        meat += cross + cross.T
+        if w_var[i] > 0:
+            key = tuple(map(tuple, codes.factors[cols].tolist()))
+            if key not in ar_cache:
+                ar_cache[key] = _ar1_meat(z, a_fn)
+            meat += w_var[i] * ar_cache[key]
+        b = z.T @ eps_det[:, i]
+        if wind_on:
+            if levels.gust_std > 0:
+                meat += levels.gust_std**2 * _ar1_meat(z * g_speed[:, i:i + 1], a_g)
+            if levels.wind_direction_std > 0:
+                meat += levels.wind_direction_std**2 * _ar1_meat(z * g_dir[:, i:i + 1], a_d)
+        if wave_lines is not None:
+            # random-phase lines: E[(Σ z ε)(Σ z ε)ᵀ] = ½ Re(W Wᴴ), W = Σ_k z_k ε-lines
+            w = z.T @ wave_lines[i]
+            meat += 0.5 * (w.real @ w.real.T + w.imag @ w.imag.T)
+        s_list.append(meat)
+        b_list.append(b)
+        start += len(cols)
+    return Information(a_list, s_list, b_list, n_k)
+
+
+@dataclass
+class Prediction:
+    """Predicted covariance and wind bias of a design."""
+
+    cov: pd.DataFrame
+    bias: pd.Series
+    theta0: pd.Series
+
+    @property
+    def std_errors(self) -> pd.Series:
+        return pd.Series(np.sqrt(np.clip(np.diag(self.cov.to_numpy()), 0, None)),
+                         index=self.cov.index, name="predicted_se")
+
+    def relative(self) -> pd.Series:
+        with np.errstate(divide="ignore"):
+            return (self.std_errors / self.theta0.abs()).rename("relative_se")
+
+
+def predict_covariance(info: Centred | Information, spec: ModelSpec) -> Prediction:
+    """``Cov θ̂ = A⁻¹ S A⁻ᵀ`` per equation (block diagonal) and the wind bias ``A⁻¹ b``."""
+    if isinstance(info, Information):
+        info = info.centred()
+    p = spec.n_params
+    cov = np.full((p, p), 0.0)
+    bias = np.zeros(p)
+    codes = spec.codes
+    for i in range(spec.n_states):
+        cols = np.flatnonzero(codes.equation == i)
+        try:
+            a_inv = np.linalg.inv(info.a[i])
+            c = a_inv @ info.s[i] @ a_inv.T
+            bi = a_inv @ info.b[i]
+            if not (np.all(np.isfinite(c)) and np.linalg.cond(info.a[i]) < 1e14):
+                raise np.linalg.LinAlgError
+        except np.linalg.LinAlgError:
+            c = np.full((len(cols), len(cols)), np.inf)
+            bi = np.full(len(cols), np.nan)
+        cov[np.ix_(cols, cols)] = c
+        bias[cols] = bi
+    idx = spec.param_index
+    return Prediction(pd.DataFrame(cov, index=idx, columns=idx), pd.Series(bias, index=idx,
+                      name="predicted_bias"), spec.theta0_series())
+
+
+# --------------------------------------------------------------------- candidates
+def candidate_library(limits: Sequence[float] = FORCE_LIMITS) -> list[Manoeuvre]:
+    """Candidate manoeuvres for CyberShip II within the actuator ``limits``.
+
+    Turning circles (35°, both sides), zig-zags (10/10, 20/20, 35/20, 35/35) at a low
+    and a high engine setting, a pull-out, a spiral, acceleration/stopping with three
+    rudder angles and thruster (crabbing) tests with three moment ratios.
+    """
+    lo, hi = min(0.8, limits[0]), limits[0]
+    out: list[Manoeuvre] = [TurningCircle(thrust=hi, rudder=35.0, side=1, turn=360.0),
+                            TurningCircle(thrust=hi, rudder=35.0, side=-1, turn=360.0)]
+    for x in (lo, hi):
+        out += [ZigZag(thrust=x, rudder=d, heading=h) for d, h in
+                ((10, 10), (20, 20), (35, 20), (35, 35))]
+    out += [PullOut(thrust=hi, rudder=35.0),
+            Spiral(thrust=0.75 * hi, rudder=35.0, steps=8, hold=40.0)]
+    out += [AccelerationStopping(thrust=limits[0], astern=limits[0], rudder=r)
+            for r in (0.0, 15.0, 35.0)]
+    out += [Crabbing(thrust=x, sway=limits[1], moment=m) for x in (0.0, 0.75 * hi)
+            for m in (-0.5, 0.0, 0.5)]
+    return out
+
+
+# --------------------------------------------------------------------------- plan
+@dataclass
+class TrialPlan:
+    """A planned multi-experiment trial and its predicted accuracy.
+
+    Attributes
+    ----------
+    programmes : list of Programme
+        One manoeuvre programme per experiment.
+    experiments, samples, warmup : int
+        ``N_E``, samples per experiment and discarded approach samples.
+    prediction : Prediction
+        Predicted covariance (exact evaluation of the assembled design).
+    candidates : DataFrame
+        Every candidate: label, blocks chosen, feasibility.
+    identifiability : list of dict
+        Parameters whose predicted relative SE exceeds the target, with the best
+        identified combination of the near-collinear group they belong to.
+    """
+
+    programmes: list[Programme]
+    experiments: int
+    samples: int
+    warmup: int
+    dt: float
+    prediction: Prediction
+    candidates: pd.DataFrame
+    identifiability: list[dict[str, Any]]
+    target: float
+    relevance: float
+    levels: DisturbanceLevels = field(default_factory=DisturbanceLevels)
+    structure: str = "full"
+    spec: ModelSpec | None = None
+
+    def table(self) -> pd.DataFrame:
+        """Per parameter: θ0, predicted SE, relative SE and predicted wind bias."""
+        p = self.prediction
+        out = pd.DataFrame({"theta0": p.theta0, "predicted_se": p.std_errors,
+                            "relative_se": p.relative(), "predicted_bias": p.bias})
+        out["relevant"] = p.theta0.abs() >= self.relevance
+        return out
+
+    def worst_relative_se(self) -> float:
+        t = self.table()
+        return float(t.loc[t["relevant"], "relative_se"].max())
+
+    def forces(self, vessel: NominalVessel | None = None) -> np.ndarray:
+        """Input schedule ``(N_E, warmup + N, 3)`` of the planned experiments."""
+        v = vessel or NominalVessel.cybership2(self.dt)
+        return np.stack([p.schedule(v, self.samples, warmup=self.warmup)
+                         for p in self.programmes])
+
+    def to_dict(self) -> dict[str, Any]:
+        t = self.table()
+
+        def fin(x: float) -> float | None:
+            return float(x) if math.isfinite(float(x)) else None
+
+        params: dict[str, dict[str, Any]] = {}
+        for (eq, term), row in t.iterrows():
+            params.setdefault(eq, {})[term] = {
+                "theta0": fin(row["theta0"]), "predicted_se": fin(row["predicted_se"]),
+                "relative_se": fin(row["relative_se"]),
+                "predicted_bias": fin(row["predicted_bias"]), "relevant": bool(row["relevant"])}
+        return {
+            "experiments": self.experiments, "samples_per_experiment": self.samples,
+            "warmup_samples": self.warmup, "dt": self.dt,
+            "programmes": [p.to_dict() for p in self.programmes],
+            "labels": [p.label() for p in self.programmes],
+            "worst_relative_se": fin(self.worst_relative_se()),
+            "structure": self.structure,
+            "target_relative_se": self.target, "relevance": self.relevance,
+            "parameters": params, "identifiability": _finite(self.identifiability),
+            "levels": self.levels.to_dict(),
+        }
+
+    def summary(self) -> str:
+        lines = [f"Trial plan: {self.experiments} experiments x {self.samples} samples "
+                 f"(+{self.warmup} approach samples each), dt = {self.dt:g} s", ""]
+        for e, p in enumerate(self.programmes):
+            lines.append(f"  experiment {e}: {p.label()}")
+        t = self.table().copy()
+        t.index = [f"{eq}: {term}" for eq, term in t.index]
+        lines += ["", "Predicted standard errors (asymptotic IV, zero-mean instruments):", "",
+                  _markdown(t), "",
+                  f"worst relative SE over |θ0| ≥ {self.relevance:g}: "
+                  f"{100 * self.worst_relative_se():.2f} % (target {100 * self.target:.1f} %)"]
+        if self.identifiability:
+            lines.append("Not separately identifiable to the target within this budget:")
+            for item in self.identifiability:
+                lines.append(f"  - {item['message']}")
+        infeasible = self.candidates[~self.candidates["feasible"]]
+        for _, row in infeasible.iterrows():
+            lines.append(f"candidate skipped: {row['label']}: {row['reason']}")
+        return "\n".join(lines)
+
+
+def _markdown(df: pd.DataFrame) -> str:
+    """A pipe table of ``df`` with its index."""
+    def cell(x: Any) -> str:
+        return format(float(x), ".4g") if isinstance(x, (float, np.floating)) else str(x)
+
+    head = ["", *map(str, df.columns)]
+    lines = ["| " + " | ".join(head) + " |", "|" + "|".join(["---"] * len(head)) + "|"]
+    for idx, row in df.iterrows():
+        lines.append("| " + " | ".join([cell(idx), *(cell(x) for x in row)]) + " |")
+    return "\n".join(lines)
+
+
+def _finite(obj: Any) -> Any:
+    """Replace non-finite floats by ``None`` (strict JSON), recursively."""
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if math.isfinite(float(obj)) else None
+    return obj
+
+
+def _objective(info: Centred, spec: ModelSpec, theta0: np.ndarray, relevant: np.ndarray,
+               prior: tuple[list[np.ndarray], list[np.ndarray]] | None = None,
+               mode: str = "worst", bias: bool = True) -> float:
+    """Design criterion on the relative mean-square errors ``(var_p + bias_p²)/θ0_p²``
+    of the relevant parameters (``bias`` from the deterministic equation errors):
+    ``"worst"`` (the largest relative SE, minimax) or ``"mean"`` (mean
+    relative variance, A-optimality in relative units). ``prior`` adds a weak
+    pseudo-experiment ``(A_p, S_p)`` so that designs that leave a direction unidentified
+    get a large but finite value (greedy steps from an empty design)."""
+    rel_var = []
+    codes = spec.codes
+    for i in range(spec.n_states):
+        cols = np.flatnonzero(codes.equation == i)
+        a, s = info.a[i], info.s[i]
+        if prior is not None:
+            a, s = a + prior[0][i], s + prior[1][i]
+        try:
+            a_inv = np.linalg.inv(a)
+        except np.linalg.LinAlgError:
+            return math.inf
+        var = np.clip(np.einsum("ij,jk,ik->i", a_inv, s, a_inv), 0, None)
+        if bias:
+            var = var + (a_inv @ info.b[i]) ** 2
+        keep = relevant[cols]
+        rel_var.append(var[keep] / theta0[cols][keep] ** 2)
+    rv = np.concatenate(rel_var)
+    if not np.all(np.isfinite(rv)):
+        return math.inf
+    if rv.size == 0:
+        return 0.0
+    return float(math.sqrt(rv.max())) if mode == "worst" else float(rv.mean())
+
+
+def _identifiability(pred: Prediction, target: float, relevance: float) -> list[dict[str, Any]]:
+    """Parameters above the target and their best-identified pairwise combinations."""
+    cov = pred.cov.to_numpy()
+    se = pred.std_errors.to_numpy()
+    th = pred.theta0.to_numpy()
+    idx = list(pred.cov.index)
+    out = []
+    for p in range(len(idx)):
+        if abs(th[p]) < relevance or not (se[p] / abs(th[p]) > target):
+            continue
+        eq = idx[p][0]
+        best = None
+        for q in range(len(idx)):
+            if q == p or idx[q][0] != eq or not (se[q] > 0) or not math.isfinite(se[q]):
+                continue
+            corr = cov[p, q] / (se[p] * se[q])
+            if best is None or abs(corr) > abs(best[1]):
+                best = (q, corr)
+        item: dict[str, Any] = {"equation": eq, "term": idx[p][1],
+                                "relative_se": float(se[p] / abs(th[p]))}
+        msg = (f"{eq}: {idx[p][1]} — predicted SE {100 * item['relative_se']:.1f} % of θ0")
+        if best is not None and math.isfinite(best[1]):
+            q, corr = best
+            c2 = cov[np.ix_([p, q], [p, q])] / np.outer([abs(th[p]), abs(th[q])],
+                                                          [abs(th[p]), abs(th[q])])
+            w, v = np.linalg.eigh(c2)
+            comb = v[:, 0] / np.max(np.abs(v[:, 0]))
+            item.update({"partner": idx[q][1], "correlation": float(corr),
+                         "combination": {idx[p][1]: float(comb[0] / abs(th[p])),
+                                         idx[q][1]: float(comb[1] / abs(th[q]))},
+                         "combination_relative_se": float(math.sqrt(max(w[0], 0.0)))})
+            msg += (f"; correlated {corr:+.2f} with {idx[q][1]}: the combination "
+                    f"{comb[0]:+.2f}·θ[{idx[p][1]}]/|θ0| {comb[1]:+.2f}·θ[{idx[q][1]}]/|θ0| "
+                    f"is identified to {100 * math.sqrt(max(w[0], 0.0)):.1f} %")
+        item["message"] = msg
+        out.append(item)
+    return out
+
+
+def plan_trial(
+    samples: int = 120_000,
+    experiments: int = 6,
+    *,
+    levels: DisturbanceLevels | None = None,
+    candidates: Sequence[Manoeuvre] | None = None,
+    block: int = 4000,
+    warmup: int = 600,
+    dt: float = 0.1,
+    relevance: float = 1e-3,
+    target: float = 0.033,
+    limits: Sequence[float] = FORCE_LIMITS,
+    max_exchange: int = 2,
+    evaluate_block: int = 2000,
+    structure: str = "full",
+) -> TrialPlan:
+    """Plan a trial: choose the manoeuvres (and how long each runs) for a sample budget.
+
+    Parameters
+    ----------
+    samples : int
+        Total sample budget (all experiments).
+    experiments : int
+        Number of experiments ``N_E``; each gets ``samples // experiments`` samples.
+    levels : DisturbanceLevels, optional
+        Disturbances assumed (default: the sea-trial defaults).
+    candidates : sequence of Manoeuvre, optional
+        Candidate manoeuvres (default :func:`candidate_library`).
+    block : int
+        Length of a design block (samples); experiments are packed with blocks.
+    warmup : int
+        Straight-approach samples before each experiment (simulated, discarded).
+    dt : float
+        Sample time (s).
+    relevance : float
+        Parameters with ``|θ0|`` below this do not enter the objective (their SE is
+        still predicted and reported).
+    target : float
+        Relative SE that counts as identified (default 3.3 %: a 10 % error is 3 SE).
+    limits : (float, float, float)
+        Actuator limits ``|X|, |Y|, |N|``.
+    max_exchange : int
+        Passes of the exchange algorithm.
+    evaluate_block : int
+        Samples simulated per candidate (its information is scaled to ``block``).
+    structure : {"full", "merged"}
+        Identification structure (:data:`STRUCTURES`).
+
+    Returns
+    -------
+    TrialPlan
+    """
+    n_e = int(experiments)
+    if n_e < 1:
+        raise PlannerError(f"need at least one experiment, got {experiments}")
+    n_d = int(samples) // n_e
+    if n_d < 50:
+        raise PlannerError(f"need at least 50 samples per experiment, got {n_d}")
+    blk = int(min(block, n_d))
+    per_exp = max(1, n_d // blk)
+    n_blocks = n_e * per_exp
+    lv = levels or DisturbanceLevels()
+    vessel = _Vessel.cybership2(dt, structure)
+    vessel.nominal = replace(vessel.nominal, limits=tuple(float(x) for x in limits))
+    spec = vessel.ident
+    theta0 = spec.theta0_vector()
+    relevant = np.abs(theta0) >= relevance
+    cands = list(candidates) if candidates is not None else candidate_library(limits)
+    infos: list[Information | None] = []
+    rows = []
+    n_eval = min(blk, int(evaluate_block))
+    for m in cands:
+        try:
+            f = Programme([m]).schedule(vessel.nominal, n_eval, warmup=warmup)
+            info = design_information(f, vessel, lv, warmup=warmup)
+            infos.append(info.scaled(blk / n_eval))
+            rows.append({"label": m.label(), "feasible": True, "reason": ""})
+        except (ManoeuvreError, VesselidError) as exc:
+            infos.append(None)
+            rows.append({"label": m.label(), "feasible": False, "reason": str(exc)})
+    ok = [i for i, x in enumerate(infos) if x is not None]
+    if not ok:
+        raise PlannerError("no candidate manoeuvre is feasible within the actuator limits")
+    # a weak prior (SE = 10 |θ0|) so greedy steps from an empty design are defined
+    cen = [infos[i].centred() for i in ok]
+    prior_a, prior_s = [], []
+    for q in range(spec.n_states):
+        # isotropic in relative units θ_p/|θ0_p|: A_p = λ D⁻¹, S_p = 100 λ² I
+        cols = np.flatnonzero(spec.codes.equation == q)
+        d = np.maximum(np.abs(theta0[cols]), relevance)
+        lam = 1e-4 * max(float(np.max(np.abs(np.diag(c.a[q]) * d))) for c in cen)
+        prior_a.append(np.diag(lam / d))
+        prior_s.append(100.0 * lam**2 * np.eye(cols.size))
+    prior = (prior_a, prior_s)
+    empty = infos[ok[0]].scaled(0.0)
+    slots: list[list[int]] = [[] for _ in range(n_e)]
+    sums = [empty for _ in range(n_e)]
+    cents = [empty.centred() for _ in range(n_e)]
+
+    def total_without(e: int) -> Centred:
+        out = None
+        for j in range(n_e):
+            if j != e:
+                out = cents[j] if out is None else out + cents[j]
+        return out if out is not None else empty.centred()
+
+    def score(rest: Centred, base: Information, i: int, mode: str) -> float:
+        return _objective(rest + (base + infos[i]).centred(), spec, theta0, relevant, prior,
+                          mode)
+
+    for step in range(n_blocks):
+        e = step % n_e
+        rest = total_without(e)
+        best = min(ok, key=lambda i: score(rest, sums[e], i, "mean"))
+        slots[e].append(best)
+        sums[e] = sums[e] + infos[best]
+        cents[e] = sums[e].centred()
+    for _ in range(int(max_exchange)):
+        improved = False
+        for e in range(n_e):
+            rest = total_without(e)
+            for pos in range(len(slots[e])):
+                base = sums[e] + infos[slots[e][pos]].scaled(-1.0)
+                cur = score(rest, base, slots[e][pos], "worst")
+                best_i, best_v = slots[e][pos], cur
+                for i in ok:
+                    v = score(rest, base, i, "worst")
+                    if v < best_v * (1 - 1e-6):
+                        best_i, best_v = i, v
+                if best_i != slots[e][pos]:
+                    slots[e][pos] = best_i
+                    sums[e] = base + infos[best_i]
+                    cents[e] = sums[e].centred()
+                    improved = True
+        if not improved:
+            break
+    chosen = [i for sl in slots for i in sl]
+    counts = np.bincount(chosen, minlength=len(cands))
+    cand_table = pd.DataFrame(rows)
+    cand_table["blocks"] = counts
+    programmes = []
+    for items in slots:
+        uniq: list[int] = []
+        for i in items:
+            if i not in uniq:
+                uniq.append(i)
+        durs = [blk * items.count(i) for i in uniq]
+        durs[-1] += n_d - sum(durs)
+        programmes.append(Programme([cands[i] for i in uniq], durs))
+    # exact evaluation of the assembled design
+    info = None
+    for p in programmes:
+        f = p.schedule(vessel.nominal, n_d, warmup=warmup)
+        e_info = design_information(f, vessel, lv, warmup=warmup).centred()
+        info = e_info if info is None else info + e_info
+    pred = predict_covariance(info, spec)
+    return TrialPlan(programmes=programmes, experiments=n_e, samples=n_d, warmup=int(warmup),
+                     dt=float(dt), prediction=pred, candidates=cand_table,
+                     identifiability=_identifiability(pred, target, relevance),
+                     target=float(target), relevance=float(relevance), levels=lv,
+                     structure=structure, spec=spec)
+
+
+def predict_design(forces: np.ndarray, *, warmup: int = 0, dt: float = 0.1,
+                   levels: DisturbanceLevels | None = None,
+                   structure: str = "full") -> Prediction:
+    """Predicted covariance of explicit input schedules ``(N_E, warmup + N, 3)``."""
+    vessel = _Vessel.cybership2(dt, structure)
+    lv = levels or DisturbanceLevels()
+    info = None
+    for f in np.asarray(forces, float):
+        e = design_information(f, vessel, lv, warmup=warmup).centred()
+        info = e if info is None else info + e
+    return predict_covariance(info, vessel.ident)
+
+
+# ---------------------------------------------------------------------------------- CLI
+def add_parser(subparsers: Any) -> None:
+    """Register ``vesselid plan-trial`` (the CLI plugin contract of :mod:`vesselid.cli`)."""
+    p = subparsers.add_parser(
+        "plan-trial", help="plan a sea trial: manoeuvres and predicted standard errors",
+        description="Choose standard manoeuvres (turning circles, zig-zags, pull-outs, "
+                    "spirals, stopping, thruster tests) for a sample budget so that the "
+                    "worst relative standard error of the identified parameters is "
+                    "smallest, predicted from the asymptotic IV covariance (no Monte Carlo).")
+    p.add_argument("--vessel", default="cybership2", choices=["cybership2"])
+    from vesselid.cli import finite_float, int_at_least
+
+    p.add_argument("--samples", type=int_at_least(50), default=120_000,
+                   help="total sample budget")
+    p.add_argument("--experiments", type=int_at_least(1), default=6)
+    p.add_argument("--wind-speed", type=finite_float, default=1.0, help="m/s (model scale)")
+    p.add_argument("--json", action="store_true", help="print the plan as JSON")
+    p.set_defaults(func=cmd_plan_trial)
+
+
+def cmd_plan_trial(args: argparse.Namespace) -> int:
+    """``vesselid plan-trial``: print the plan and the predicted standard errors."""
+    if args.experiments < 1:
+        raise PlannerError(f"--experiments must be at least 1, got {args.experiments}")
+    if args.samples < 50 * max(args.experiments, 1):
+        raise PlannerError(f"--samples must be at least 50 per experiment, got {args.samples}")
+    if not (math.isfinite(args.wind_speed) and args.wind_speed >= 0):
+        raise PlannerError(f"--wind-speed must be a non-negative number, got {args.wind_speed}")
+    from vesselid import limits
+
+    # every candidate manoeuvre is simulated over the budget to predict its moments
+    limits.check("plan-trial", f"{args.samples} samples × {args.experiments} experiments",
+                 memory=limits.table_memory(args.samples, 40),
+                 seconds=limits.simulation_seconds(40.0 * args.samples, 3))
+    plan = plan_trial(args.samples, args.experiments,
+                      levels=DisturbanceLevels(wind_speed=args.wind_speed))
+    if args.json:
+        print(json.dumps(plan.to_dict(), indent=2, allow_nan=False))
+    else:
+        print(plan.summary())
+    return 0
