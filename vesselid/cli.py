@@ -137,10 +137,19 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_identify(args: argparse.Namespace) -> int:
     from vesselid import limits
     from vesselid._io import atomic_write_text
-    from vesselid.identify import identify
+    from vesselid.identify import covariance_api, identify
+    from vesselid.identify.registry import DEFAULT_METHOD, ESTIMATORS
     from vesselid.logs import TrialLog, estimate_shape
     from vesselid.model import ModelSpec
 
+    if args.method is None:
+        args.method = DEFAULT_METHOD
+    if args.method not in ESTIMATORS:
+        raise CLIError(f"argument --method: invalid choice {args.method!r} "
+                       f"(choose from {', '.join(ESTIMATORS)})")
+    if args.cov is not None and args.cov not in covariance_api.available():
+        raise CLIError(f"argument --cov: invalid choice {args.cov!r} "
+                       f"(choose from {', '.join(covariance_api.available())})")
     if args.json and args.json != "-" and Path(args.json).is_dir():
         raise IsADirectoryError(21, "--json path is a directory", args.json)
     spec = ModelSpec.load(args.model) if args.model else None
@@ -187,8 +196,6 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
 
     Without ``argv`` every plugin module is imported (complete parser, e.g. for docs).
     """
-    from vesselid.identify import covariance_api
-    from vesselid.identify.registry import DEFAULT_METHOD, ESTIMATORS, method_labels
 
     parser = argparse.ArgumentParser(
         prog="vesselid",
@@ -219,15 +226,28 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
                         "(surface vessels: cybership2)")
     p.set_defaults(func=cmd_simulate)
 
+    wanted = _command_word(argv) if argv is not None else None
+    # The estimator registry loads compiled kernels: only a help text needs it up front. Otherwise
+    # --method/--cov are checked against the registry when identify runs (exit 2 with the choices).
+    full = argv is None or (wanted == "identify" and ("-h" in argv or "--help" in argv))
+    method_opts: dict[str, Any] = {"default": None,
+                                   "help": "estimator (default: the package default)"}
+    cov_opts: dict[str, Any] = {"default": None, "help": "covariance estimator"}
+    if full:
+        from vesselid.identify import covariance_api
+        from vesselid.identify.registry import DEFAULT_METHOD, ESTIMATORS, method_labels
+
+        method_opts = {"default": DEFAULT_METHOD, "choices": list(ESTIMATORS),
+                       "help": f"estimator (default {DEFAULT_METHOD}): "
+                       + "; ".join(f"{k}: {v}" for k, v in method_labels("long").items())}
+        cov_opts = {"default": None, "choices": covariance_api.available(),
+                    "help": f"covariance estimator (default {covariance_api.default_cov_type()})"}
     p = sub.add_parser("identify", help="identify a model from a trial log",
                        description="Identify θ from a trial log (CSV or Parquet).")
     p.add_argument("log", help="trial log (.csv with optional .json sidecar, or .parquet)")
     p.add_argument("--model", help="model spec TOML (default: the spec stored in the log)")
-    p.add_argument("--method", default=DEFAULT_METHOD, choices=list(ESTIMATORS),
-                   help=f"estimator (default {DEFAULT_METHOD}): "
-                        + "; ".join(f"{k}: {v}" for k, v in method_labels("long").items()))
-    p.add_argument("--cov", default=None, choices=covariance_api.available(),
-                   help=f"covariance estimator (default {covariance_api.default_cov_type()})")
+    p.add_argument("--method", **method_opts)
+    p.add_argument("--cov", **cov_opts)
     p.add_argument("--target", default="measured", choices=["measured", "aggregated"],
                    help="regression target with a current sensor: y1(k) as in eq. (10) "
                         "(default) or the aggregated ỹ(k) (reproduce --table 2 uses it)")
@@ -240,7 +260,6 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
                    help="write the identified model (spec with θ̂ and its covariance) for reuse")
     p.set_defaults(func=cmd_identify)
 
-    wanted = _command_word(argv) if argv is not None else None
     lazy_modules = {module for module, _ in LAZY_COMMANDS.values()}
     modules = [m for m in PLUGIN_MODULES if m not in lazy_modules]
     for command, (module, help_text) in LAZY_COMMANDS.items():
