@@ -27,8 +27,6 @@ KNOWN_FAILURES: dict[str, str] = {
         "design-margin diagnostics of the estimator objects differ from the old path (issue 10)",
     "tests/test_seatrial.py::test_consistency_trend_fixed_seeds":
         "iv-zero-mean through the estimator objects: trend threshold not met (issue 10/12)",
-    "tests/test_vessel_viknes830.py::test_identify_within_standard_errors":
-        "a zero standard error (z = -inf) from the estimator objects' covariance (issue 9/10)",
 }
 
 

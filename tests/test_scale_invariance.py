@@ -38,8 +38,6 @@ def test_results_do_not_depend_on_units(log, method, s):
     np.testing.assert_allclose(res.params.to_numpy() * unit, ref.params.to_numpy(), rtol=1e-8)
 
 
-@pytest.mark.xfail(strict=True, reason="known gap (issues 10/11): the estimator objects' "
-                   "covariance path is not yet equilibrated; scaled signals lose standard errors")
 @pytest.mark.parametrize("method", ["ls", "iv-zero-mean"])
 @pytest.mark.parametrize("s", [1e6, 1e-6])
 def test_standard_errors_do_not_depend_on_units(log, method, s):

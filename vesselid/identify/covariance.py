@@ -432,6 +432,14 @@ class CovarianceEstimator:
         for name, arr in (("z", z), ("phi", phi), ("resid", resid)):
             if not np.all(np.isfinite(arr[rows])):
                 raise CovarianceError(f"{name} holds NaN or inf in the rows used")
+        # Equilibrate: unit-norm instrument and regressor columns (over the rows used), so
+        # that badly scaled signals (forces in N next to velocities in m/s, or every signal
+        # times 1e±6) lose no precision in the sandwich below. The estimator is equivariant:
+        # θ_s = D_φ θ, ḡ_s = D_z⁻¹ ḡ, W_s = D_z W D_z, so Cov θ̂ = D_φ⁻¹ Cov θ̂_s D_φ⁻¹.
+        z_scale = _column_scale(z, rows)
+        phi_scale = _column_scale(phi, rows)
+        z = z / z_scale
+        phi = phi / phi_scale
         same = z_equation[:, None] == equation[None, :]
         same_z = z_equation[:, None] == z_equation[None, :]
         eps = _residual(resid, segs, zero_mean)
@@ -442,13 +450,17 @@ class CovarianceEstimator:
         a_sum = sum(a_list)
         if weight is None:
             if n_ins == n_par:
-                w_mat = np.eye(n_ins)
+                # identity in the original units is diag(z_scale²) in the scaled ones; it
+                # cancels from the pooled sandwich, so only the stacked form needs it
+                stacked = combine == "stacked" and len(segs) > 1
+                w_mat = np.diag(z_scale**2) if stacked else np.eye(n_ins)
             else:
                 w_mat = _block_inverse(sum(z[s].T @ z[s] for s in segs) * same_z, z_equation)
         else:
             w_mat = np.asarray(weight, dtype=float)
             if w_mat.shape != (n_ins, n_ins) or not np.all(np.isfinite(w_mat)):
                 raise CovarianceError(f"weight must be a finite ({n_ins}, {n_ins}) matrix")
+            w_mat = w_mat * np.outer(z_scale, z_scale)
         if combine == "pooled" or len(segs) == 1:
             g_list = [a_sum.T @ w_mat] * len(segs)
         else:
@@ -468,15 +480,23 @@ class CovarianceEstimator:
             cov = np.full((n_par, n_par), np.inf)
         if not np.all(np.isfinite(cov)):
             cov = np.full((n_par, n_par), np.inf)
+        else:
+            cov = cov / np.outer(phi_scale, phi_scale)
         config = {**self.config(), **used}
         return CovarianceResult(cov=cov, cov_type=self.name, config=config,
                                 label=self.label(config), condition=cond,
-                                long_run=sum(s_list))
+                                long_run=sum(s_list) * np.outer(z_scale, z_scale))
 
     def cov(self, z: np.ndarray, phi: np.ndarray, resid: np.ndarray,
             starts: np.ndarray | None = None, **options: Any) -> np.ndarray:
         """Shortcut: ``estimate(...).cov``."""
         return self.estimate(z, phi, resid, starts, **options).cov
+
+
+def _column_scale(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Euclidean norm of every column over ``rows`` (1 for an all-zero column)."""
+    scale = np.sqrt(np.einsum("tk,tk->k", x[rows], x[rows]))
+    return np.where((scale > 0) & np.isfinite(scale), scale, 1.0)
 
 
 def _block_inverse(m: np.ndarray, eq: np.ndarray) -> np.ndarray:
