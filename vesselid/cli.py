@@ -48,6 +48,18 @@ LAZY_COMMANDS = {
 
 
 
+class _Parser(argparse.ArgumentParser):
+    """``argparse`` with one-line usage errors (``vesselid CMD: error: ...``, exit 2).
+
+    The usage block argparse prints before a usage error is left out: bad input gets
+    one line on stderr, like every other refusal (``--help`` still shows the usage).
+    Subcommand parsers inherit the class (``add_subparsers`` uses ``type(self)``).
+    """
+
+    def error(self, message: str) -> Any:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
 def _spec_path_for(out: Path) -> Path:
     return out.with_name(out.stem + ".toml")
 
@@ -197,7 +209,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     Without ``argv`` every plugin module is imported (complete parser, e.g. for docs).
     """
 
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="vesselid",
         description="Simulate marine vessels under current, wind and sensor noise, and identify "
                     "their second-order modulus models consistently (Ljungberg & Enqvist).",
