@@ -111,6 +111,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                        f"{args.system!r} has no current here (for CyberShip II with current, "
                        f"wind and sensors use `vesselid sea-trial --current-speed`)")
     system = get_system(args.system, **options)
+    if args.raw:  # refuse before simulating: nothing is written for a request that must fail
+        _check_raw_request(args.raw, system)
     if args.experiments is None:
         # a system with per-experiment designs (e.g. turns to both sides) needs all of them
         n_designs = [len(d) for d in system.inputs.values() if isinstance(d, (list, tuple))]
@@ -144,6 +146,21 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         print(f"next: vesselid ingest {args.raw} --dt {log.spec.dt} --out trial.csv")
     print(f"next: vesselid identify {out} --model {spec_path}")
     return 0
+
+
+def _check_raw_request(raw: str, system: Any) -> None:
+    """``simulate --raw DIR``: a surface vessel, and a directory that can be made."""
+    states = list(system.spec.states)
+    missing = [c for c in ("u", "v", "r") if c not in states]
+    if missing:
+        raise CLIError(f"--raw needs a surface vessel with surge u, sway v and yaw rate r "
+                       f"(e.g. --system cybership2); {system.spec.name!r} has states {states}")
+    path = Path(raw)
+    if path.exists() and not path.is_dir():
+        raise NotADirectoryError(20, "--raw must be a directory, not an existing file", raw)
+    parent = next((p for p in path.absolute().parents if p.exists()), None)
+    if parent is not None and not parent.is_dir():
+        raise NotADirectoryError(20, "not a directory", str(parent))
 
 
 def cmd_identify(args: argparse.Namespace) -> int:

@@ -11,7 +11,8 @@ Equations (paper):
 * IV (4): ``θ = sol{ Σ ζ (y − φᵀθ) = 0 }``; with zero-mean instruments (A7) ζ is
   centred per experiment and component.
 * Multi-experiment (6)/(10): ``stacked`` solves the ``p·N_E`` equations
-  ``(1/N_D) Σ_k Z_E (y − Φᵀθ) = 0`` in the least-squares sense, exactly as written;
+  ``(1/N_D) Σ_k Z_E (y − Φᵀθ) = 0`` in the least-squares sense, each instrument's rows
+  weighted to be unit-free (:func:`vesselid.identify.linalg.stacked_row_weights`);
   ``pooled`` sums the per-experiment normal equations, ``(Σ_E Σ_k Z_E Φᵀ) θ = Σ_E Σ_k Z_E y``.
   With one experiment both are the same.
 * Refined IV (§6, Young 2008): instruments simulated from the latest estimate,
