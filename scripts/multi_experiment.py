@@ -24,6 +24,7 @@ import time
 import numpy as np
 import pandas as pd
 
+from vesselid.diagnostics import normalized_error
 from vesselid.disturbances import Gaussian, Uniform
 from vesselid.identify.data import RegressionData, from_arrays
 from vesselid.identify.estimators import estimate
@@ -79,7 +80,7 @@ def compare_combine(runs: int = 200, samples: int = 5000, seed: int = 0, *,
         lo, hi = np.nanmin(singles, axis=1), np.nanmax(singles, axis=1)
         for combine in ("stacked", "pooled"):
             res = estimate(joint, spec, method, combine=combine)
-            err = (res.theta - theta0) / theta0
+            err = normalized_error(res.theta, theta0)
             outside = np.any((res.theta < lo) | (res.theta > hi), axis=1)
             for p, term in enumerate(spec.param_index.get_level_values("term")):
                 e = err[:, p]

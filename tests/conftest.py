@@ -12,8 +12,6 @@ from __future__ import annotations
 import pytest
 
 KNOWN_FAILURES: dict[str, str] = {
-    "tests/test_architecture.py::test_no_import_cycle":
-        "identify.base -> identify.results -> identify.registry -> identify.base (issue 9/10)",
     "tests/test_calibration.py::test_default_covariance_covers_95_percent":
         "calibration's switch to the registry default estimator is untested (IndexError in "
         "the experiment segmentation) (issue 10)",

@@ -9,26 +9,39 @@
   matrix (e.g. ``w`` and ``|w|`` when ``w`` never changes sign).
 * :func:`condition_number` — of the column-equilibrated ``ZᵀΦ`` (instrument
   strength).
-* :func:`nrmse_fit` — ``100 (1 − ‖y − ŷ‖ / ‖y − ȳ‖)`` percent.
+* NRMSE, one definition with two faces: the ratio ``r = ‖y − ŷ‖ / ‖y − ȳ‖``
+  (:func:`nrmse_ratio`; :func:`free_run_ratio` pools the experiments of a data set, each
+  about its own mean), reported either as an error :func:`nrmse` ``= 100 r`` percent
+  (0 = perfect; the sea-trial validation) or as a fit :func:`nrmse_fit` ``= 100 (1 − r)``
+  percent (100 = perfect; ``IdentificationResult.diagnostics``).
+* :func:`normalized_error` — the paper's ``(θ̂ − θ0) / θ0``, NaN where ``θ0 = 0``.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
 from vesselid.model import ModelSpec
 
+if TYPE_CHECKING:
+    from vesselid.identify.data import RegressionData
+
 __all__ = [
     "check_moment_range",
     "collinear_terms",
     "condition_number",
     "design_margins",
+    "free_run_ratio",
     "modulus_signals",
+    "normalized_error",
+    "nrmse",
     "nrmse_fit",
+    "nrmse_ratio",
 ]
 
 
@@ -180,8 +193,24 @@ def condition_number(a: np.ndarray) -> float:
     return float(np.linalg.cond(a / r[:, None] / c[None, :]))
 
 
-def nrmse_fit(y: np.ndarray, y_hat: np.ndarray) -> float:
-    """Normalised-RMSE fit in percent, ``100 (1 − ‖y − ŷ‖ / ‖y − ȳ‖)`` (100 = perfect)."""
+def normalized_error(estimate: np.ndarray, theta0: np.ndarray) -> np.ndarray:
+    """The paper's normalised error ``(θ̂ − θ0) / θ0`` (Tables 1–2, Figure 1), elementwise.
+
+    The one definition (results' ``compare()``, Monte Carlo tables, sea trials). Where
+    ``θ0 = 0`` the relative error is undefined and the result is NaN (never ±inf), so a
+    zero true value shows as a gap, not as an infinitely bad estimate.
+    """
+    est = np.asarray(estimate, dtype=float)
+    th0 = np.asarray(theta0, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(th0 != 0, (est - th0) / np.where(th0 != 0, th0, 1.0), np.nan)
+
+
+def nrmse_ratio(y: np.ndarray, y_hat: np.ndarray) -> float:
+    """``‖y − ŷ‖ / ‖y − ȳ‖`` over the samples where both are finite (NaN if undefined).
+
+    The one NRMSE definition; :func:`nrmse` and :func:`nrmse_fit` only scale it.
+    """
     y = np.asarray(y, dtype=float)
     y_hat = np.asarray(y_hat, dtype=float)
     ok = np.isfinite(y) & np.isfinite(y_hat)
@@ -190,4 +219,54 @@ def nrmse_fit(y: np.ndarray, y_hat: np.ndarray) -> float:
     den = np.linalg.norm(y[ok] - y[ok].mean())
     if den == 0:
         return float("nan")
-    return float(100.0 * (1.0 - np.linalg.norm(y[ok] - y_hat[ok]) / den))
+    return float(np.linalg.norm(y[ok] - y_hat[ok]) / den)
+
+
+def nrmse(y: np.ndarray, y_hat: np.ndarray) -> float:
+    """NRMSE as an error in percent, ``100 ‖y − ŷ‖ / ‖y − ȳ‖`` (0 = perfect)."""
+    return 100.0 * nrmse_ratio(y, y_hat)
+
+
+def nrmse_fit(y: np.ndarray, y_hat: np.ndarray) -> float:
+    """NRMSE as a fit in percent, ``100 (1 − ‖y − ŷ‖ / ‖y − ȳ‖)`` (100 = perfect;
+    MATLAB ``compare``'s convention), i.e. ``100 −`` :func:`nrmse`."""
+    return float(100.0 * (1.0 - nrmse_ratio(y, y_hat)))
+
+
+def free_run_ratio(data: RegressionData, spec: ModelSpec,
+                   theta: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Free-run (simulation) NRMSE ratio per state, pooled over the experiments of ``data``.
+
+    Each experiment is simulated from its measured inputs and initial state (with the
+    measured current inside the nonlinearity when the spec has an aggregate relation);
+    ``r = sqrt(Σ_E ‖y − ŷ‖² / Σ_E ‖y − ȳ_E‖²)``, each experiment about its own mean.
+    Experiments whose simulation diverges are left out of the sums.
+
+    Returns
+    -------
+    ratio : ndarray
+        One ratio per state (NaN where every experiment diverged).
+    all_ok : bool
+        False if some experiment diverged.
+    """
+    from vesselid.simulate import simulate_states
+
+    num = np.zeros(spec.n_states)
+    den = np.zeros(spec.n_states)
+    all_ok = True
+    for s in range(data.n_segments):
+        sl = data.segment(s)
+        y = data.target[sl]
+        v = data.sensor[sl] if data.sensor is not None else None
+        x = simulate_states(spec, data.u[sl], theta=np.asarray(theta, float), x0=y[0], v=v,
+                            raise_on_divergence=False)
+        if not np.all(np.isfinite(x)):
+            all_ok = False
+            continue
+        num += np.sum((y - x) ** 2, axis=0)
+        den += np.sum((y - y.mean(axis=0)) ** 2, axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.sqrt(num / den)
+    if not all_ok and not np.any(den):
+        ratio[:] = np.nan
+    return ratio, all_ok

@@ -46,6 +46,7 @@ import numpy as np
 import pandas as pd
 
 from vesselid._io import atomic_write_with
+from vesselid.diagnostics import normalized_error
 from vesselid.errors import VesselidError
 from vesselid.identify.data import RegressionData, from_arrays
 from vesselid.identify.estimators import COMBINE_MODES
@@ -228,7 +229,7 @@ def _tidy(res, method: str, spec: ModelSpec, theta0: np.ndarray, start: int) -> 
     est = res.theta.ravel()
     th0 = np.tile(theta0, n_runs)
     with np.errstate(divide="ignore", invalid="ignore"):
-        err = np.where(th0 != 0, (est - th0) / np.where(th0 != 0, th0, 1.0), np.nan)
+        err = normalized_error(est, th0)
     finite = np.all(np.isfinite(res.theta), axis=1)
     converged = np.asarray(res.converged, dtype=bool) & finite
     return pd.DataFrame({

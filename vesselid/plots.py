@@ -25,6 +25,8 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from vesselid.errors import VesselidError
+from vesselid.figures import new_figure as _figure
+from vesselid.figures import residual_analysis
 
 __all__ = ["error_histograms", "estimate_vs_truth", "residual_analysis", "trial_timeseries"]
 
@@ -34,13 +36,6 @@ def _labels() -> dict[str, str]:
     from vesselid.identify.registry import method_labels
 
     return method_labels("plot")
-
-
-
-def _figure(width: float, height: float) -> Figure:
-    fig = Figure(figsize=(width, height), layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
 
 
 def _params(df: pd.DataFrame) -> list[tuple[str, str]]:
@@ -309,46 +304,4 @@ def trial_timeseries(
     axes[-1].set_xlabel("time")
     if title:
         fig.suptitle(title, fontsize=10)
-    return fig
-
-
-def residual_analysis(rc: Any, *, title: str | None = None) -> Figure:
-    """MATLAB ``resid``-style figure: residual autocorrelation (top) and residual–input
-    cross-correlation (bottom), one line per output (and input), with the
-    confidence band of :func:`vesselid.identify.specification.residual_correlations`.
-
-    Parameters
-    ----------
-    rc : ResidualCorrelation
-        From :func:`~vesselid.identify.specification.residual_correlations` (or
-        ``result.diagnostics["residual_correlation"]``, also as its ``to_dict()``).
-    """
-    if isinstance(rc, Mapping):
-        get = rc.__getitem__
-    else:
-        def get(key: str) -> Any:
-            return getattr(rc, key)
-    lags, acf = np.asarray(get("lags")), np.asarray(get("acf"))
-    xl, ccf = np.asarray(get("cross_lags")), np.asarray(get("ccf"))
-    band, level = float(get("band")), float(get("level"))
-    outputs, inputs = list(get("outputs")), list(get("inputs"))
-    fig = _figure(7.0, 5.2)
-    ax1, ax2 = fig.subplots(2, 1)
-    for i, o in enumerate(outputs):
-        ax1.plot(lags[1:], acf[i, 1:], "o-", ms=2.5, lw=1, label=f"ε {o}")
-    ax1.axhspan(-band, band, color="C2", alpha=0.15, label=f"{100 * level:.0f} % band")
-    ax1.axhline(0, color="0.3", lw=0.6)
-    ax1.set_xlabel("lag (samples)")
-    ax1.set_ylabel("autocorrelation")
-    ax1.set_title(title or "Residual analysis", fontsize=9)
-    ax1.legend(fontsize=7, ncol=min(4, len(outputs) + 1))
-    for i, o in enumerate(outputs):
-        for j, u in enumerate(inputs):
-            ax2.plot(xl, ccf[i, j], lw=1, label=f"ε {o} · {u}")
-    ax2.axhspan(-band, band, color="C2", alpha=0.15)
-    ax2.axhline(0, color="0.3", lw=0.6)
-    ax2.set_xlabel("lag τ (samples; τ > 0: input leads)")
-    ax2.set_ylabel("cross-correlation")
-    if inputs:
-        ax2.legend(fontsize=7, ncol=min(4, len(outputs) * len(inputs)))
     return fig

@@ -699,36 +699,27 @@ def markdown_table(df: pd.DataFrame, fmt: str = ".4f") -> str:
 
 
 def normalized_errors(params: pd.Series | np.ndarray, theta0: pd.Series) -> pd.Series:
-    """``(θ̂ − θ0) / θ0`` per parameter (the paper's Tables 1–2)."""
-    est = np.asarray(params, dtype=float)
-    return pd.Series((est - theta0.to_numpy()) / theta0.to_numpy(), index=theta0.index)
+    """``(θ̂ − θ0) / θ0`` per parameter (:func:`vesselid.diagnostics.normalized_error`)."""
+    from vesselid.diagnostics import normalized_error
+
+    return pd.Series(normalized_error(params, theta0.to_numpy()), index=theta0.index)
 
 
 def free_run_nrmse(log, spec: ModelSpec, theta: np.ndarray) -> dict[str, float]:
     """Free-run (simulation) error of ``theta`` on ``log``, NRMSE % per state.
 
-    ``100 ‖y − ŷ‖ / ‖y − ȳ‖`` over all experiments of ``log`` (0 = perfect), where ``ŷ``
-    is a simulation of the model from the measured inputs and initial state, with the
-    measured current (aggregate sensor) inside the nonlinearity when the spec has an
-    aggregate relation.
+    ``100 ‖y − ŷ‖ / ‖y − ȳ‖`` pooled over the experiments of ``log`` (0 = perfect; the
+    ratio is :func:`vesselid.diagnostics.free_run_ratio`); ``inf`` for every state when
+    the simulation of some experiment diverges.
     """
+    from vesselid.diagnostics import free_run_ratio
     from vesselid.identify.data import from_log
-    from vesselid.simulate import simulate_states
 
     data, spec = from_log(log, spec)
-    num = np.zeros(spec.n_states)
-    den = np.zeros(spec.n_states)
-    for s in range(data.n_segments):
-        sl = data.segment(s)
-        y = data.target[sl]
-        v = data.sensor[sl] if data.sensor is not None else None
-        x = simulate_states(spec, data.u[sl], theta=np.asarray(theta, float), x0=y[0], v=v,
-                            raise_on_divergence=False)
-        if not np.all(np.isfinite(x)):
-            return {st: float("inf") for st in spec.states}
-        num += np.sum((y - x) ** 2, axis=0)
-        den += np.sum((y - y.mean(axis=0)) ** 2, axis=0)
-    return {st: float(100.0 * np.sqrt(num[i] / den[i])) for i, st in enumerate(spec.states)}
+    ratio, all_ok = free_run_ratio(data, spec, theta)
+    if not all_ok:
+        return {st: float("inf") for st in spec.states}
+    return {st: float(100.0 * ratio[i]) for i, st in enumerate(spec.states)}
 
 
 @dataclass

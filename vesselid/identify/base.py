@@ -30,6 +30,7 @@ import pandas as pd
 from vesselid.diagnostics import (
     collinear_terms,
     design_margins,
+    free_run_ratio,
     modulus_signals,
     nrmse_fit,
 )
@@ -51,7 +52,6 @@ from vesselid.identify.estimators import (
 )
 from vesselid.identify.results import IdentificationResult
 from vesselid.model import ModelSpec
-from vesselid.simulate import simulate_states
 
 __all__ = ["TARGETS", "EquationDesign", "Estimator", "equation_rows"]
 
@@ -318,6 +318,7 @@ class Estimator:
             "n_experiments": data.n_segments,
             "diagnostics": diagnostics,
             "history": history,
+            "label": self.label,
         }
         return IdentificationResult(**results)
 
@@ -461,23 +462,7 @@ def _check_rank(phi: np.ndarray, spec: ModelSpec, blocks: np.ndarray, names: lis
 
 
 def _free_run_fit(data: RegressionData, spec: ModelSpec, theta: np.ndarray):
-    """Free-run (simulation) fit per state, experiment by experiment."""
-    fits_num = np.zeros(spec.n_states)
-    fits_den = np.zeros(spec.n_states)
-    all_ok = True
-    for s in range(data.n_segments):
-        sl = data.segment(s)
-        y = data.target[sl]
-        v = data.sensor[sl] if data.sensor is not None else None
-        x = simulate_states(spec, data.u[sl], theta=theta, x0=y[0], v=v,
-                            raise_on_divergence=False)
-        if not np.all(np.isfinite(x)):
-            all_ok = False
-            continue
-        fits_num += np.sum((y - x) ** 2, axis=0)
-        fits_den += np.sum((y - y.mean(axis=0)) ** 2, axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        fit = 100.0 * (1.0 - np.sqrt(fits_num / fits_den))
-    if not all_ok and not np.any(fits_den):
-        fit[:] = np.nan
+    """Free-run (simulation) fit per state, ``100 (1 − r)`` (:func:`free_run_ratio`)."""
+    ratio, all_ok = free_run_ratio(data, spec, theta)
+    fit = 100.0 * (1.0 - ratio)
     return {st: float(fit[i]) for i, st in enumerate(spec.states)}, all_ok

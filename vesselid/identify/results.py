@@ -11,16 +11,11 @@ import numpy as np
 import pandas as pd
 
 from vesselid._json import strict
+from vesselid.diagnostics import normalized_error
 from vesselid.errors import IdentificationError
 from vesselid.model import ModelSpec
 
 __all__ = ["IdentificationResult"]
-
-
-def _label(method: str) -> str:
-    from vesselid.identify.registry import method_labels
-
-    return method_labels("long").get(method, method)
 
 
 @dataclass
@@ -45,6 +40,9 @@ class IdentificationResult:
         ``design`` (A10/A15 margins per experiment and state), ``instrument_condition``
         (per equation), ``fit_one_step`` / ``fit_free_run`` (NRMSE %, per state),
         ``oscillation``, ``fixed_point_residual``, ``combine``, warnings raised.
+    label : str
+        The estimator's long label (set by the estimator that made the result, so this
+        module needs no registry; empty: the method name is shown).
     """
 
     method: str
@@ -59,6 +57,7 @@ class IdentificationResult:
     n_experiments: int
     diagnostics: dict[str, Any] = field(default_factory=dict)
     history: pd.DataFrame | None = None
+    label: str = ""
 
     @cached_property
     def std_errors(self) -> pd.Series:
@@ -106,7 +105,7 @@ class IdentificationResult:
         out = pd.DataFrame({"estimate": self.params, "theta0": truth,
                             "std_error": self.std_errors})
         with np.errstate(divide="ignore", invalid="ignore"):
-            out["normalized_error"] = (out["estimate"] - out["theta0"]) / out["theta0"]
+            out["normalized_error"] = normalized_error(out["estimate"], out["theta0"])
             out["error_in_std_errors"] = (out["estimate"] - out["theta0"]) / out["std_error"]
         return out
 
@@ -128,7 +127,7 @@ class IdentificationResult:
             table["theta0"] = cmp["theta0"]
             table["norm_error"] = cmp["normalized_error"]
         lines = [
-            f"Model {self.spec.name!r} — {_label(self.method)}",
+            f"Model {self.spec.name!r} — {self.label or self.method}",
             f"experiments: {self.n_experiments}   samples: {self.n_samples}   "
             f"combine: {self.diagnostics.get('combine', 'pooled')}   "
             f"target: {self.diagnostics.get('target', 'measured')}",
@@ -177,11 +176,11 @@ class IdentificationResult:
 
     def plot_residuals(self, *, title: str | None = None):
         """MATLAB ``resid``-style figure: residual autocorrelation and residual–input
-        cross-correlation with confidence bands (:func:`vesselid.plots.residual_analysis`).
+        cross-correlation with confidence bands (:func:`vesselid.figures.residual_analysis`).
 
         Returns a matplotlib ``Figure`` (save it with ``fig.savefig``).
         """
-        from vesselid.plots import residual_analysis
+        from vesselid.figures import residual_analysis
 
         rc = self.diagnostics.get("residual_correlation")
         if rc is None:
