@@ -17,8 +17,6 @@ KNOWN_FAILURES: dict[str, str] = {
         "the experiment segmentation) (issue 10)",
     "tests/test_lazy_imports.py::test_environments_registered_when_gymnasium_is_imported_later":
         "gymnasium registration hook does not fire in a non-editable install (issue 14)",
-    "tests/test_planner.py::test_plan_trial_small_budget_and_cli":
-        "plan-trial usage errors print argparse's usage block, not one line (issue 11/12)",
     "tests/test_reproduce.py::test_paper_size_matches_published_tables":
         "the new default-estimator row has no published numbers (NaN) (issue 10)",
     "tests/test_seatrial.py::test_data_margins_in_identification_diagnostics":

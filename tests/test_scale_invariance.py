@@ -53,3 +53,85 @@ def test_standard_errors_do_not_depend_on_units(log, method, s):
 def test_overflowing_moments_are_named(log):
     with pytest.raises(IdentificationError, match=r"'w: w\*\|w\|' reaches .* overflow float64"):
         identify(_scaled(log, 1e150), method="ls")
+
+
+# ---------------------------------------------------------- every estimator, both forms
+def _all_estimators() -> list[tuple[str, str]]:
+    from vesselid.identify import ESTIMATORS
+
+    out = [(m, "pooled") for m in ESTIMATORS]
+    out += [(m, "stacked") for m, est in ESTIMATORS.items() if "stacked" in est.multi_experiment]
+    return out
+
+
+@pytest.fixture(scope="module")
+def fits(log):
+    cache: dict = {}
+
+    def fit(method: str, combine: str, s: float):
+        key = (method, combine, s)
+        if key not in cache:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                cache[key] = identify(log if s == 1 else _scaled(log, s), method=method,
+                                      combine=combine)
+        return cache[key]
+
+    return fit
+
+
+@pytest.mark.parametrize(("method", "combine"), _all_estimators())
+@pytest.mark.parametrize("s", [1e6, 1e-6])
+def test_every_estimator_and_combine_mode_is_unit_invariant(fits, method, combine, s):
+    """Estimates to 1e-8 (the closed forms agree to ~1e-12; the refined iterations stop on
+    a relative residual in parameter units, so they may stop one step apart: ≤ ~1e-9)."""
+    ref, res = fits(method, combine, 1), fits(method, combine, s)
+    unit = np.array([1.0, s, 1.0])
+    np.testing.assert_allclose(res.params.to_numpy() * unit, ref.params.to_numpy(), rtol=1e-8)
+    np.testing.assert_allclose(res.std_errors.to_numpy() * unit, ref.std_errors.to_numpy(),
+                               rtol=1e-6)
+
+
+# ------------------------------------------------------------------ the linear algebra
+def test_column_scaled_solve_is_bit_identical_to_plain_lu():
+    from vesselid.identify import linalg
+
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(50, 4, 4)) * rng.uniform(0.1, 10, size=(50, 1, 4))
+    b = rng.normal(size=(50, 4))
+    x, ok = linalg.solve(a, b)
+    assert ok.all()
+    assert np.array_equal(x, np.linalg.solve(a, b[..., None])[..., 0])
+
+
+def test_solve_and_rank_checks_do_not_depend_on_units():
+    from vesselid.identify import linalg
+
+    rng = np.random.default_rng(1)
+    a = rng.normal(size=(20, 3, 3))
+    b = rng.normal(size=(20, 3))
+    d = np.array([1e6, 1e12, 1e6])  # x -> s x: the moments of [x, x|x|, u] scale like this
+    x, ok = linalg.solve(a, b)
+    xs, oks = linalg.solve(a * d[:, None] * d[None, :], b * d)
+    assert ok.all() and oks.all()
+    np.testing.assert_allclose(xs * d, x, rtol=1e-9)
+    np.testing.assert_allclose(linalg.condition_number(a * d[:, None] * d[None, :]),
+                               linalg.condition_number(a), rtol=1e-3)
+    s = np.einsum("gij,gkj->gik", a, a)
+    inv, ok = linalg.inv_sym(s)
+    inv_s, ok_s = linalg.inv_sym(s * d[:, None] * d[None, :])
+    assert ok.all() and ok_s.all()
+    np.testing.assert_allclose(inv_s * d[:, None] * d[None, :], inv, rtol=1e-9)
+    singular = np.array([[1.0, 2.0], [2.0, 4.0]])[None] * np.array([1e-9, 1e9])
+    assert not linalg.solve(singular, np.ones((1, 2)))[1][0]
+
+
+def test_stacked_row_weights_remove_the_units_of_the_instruments():
+    from vesselid.identify import linalg
+
+    a = np.random.default_rng(2).normal(size=(3, 4, 4))
+    u = np.array([1e-6, 1.0, 1e6, 3.0])
+    w = linalg.stacked_row_weights(a)
+    w_u = linalg.stacked_row_weights(a * u[None, :, None] * np.array([5.0, 1e3, 1e-4, 2])[None])
+    ratio = w_u * u**2 / w
+    np.testing.assert_allclose(ratio / ratio[0], 1.0, rtol=1e-10)

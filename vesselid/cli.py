@@ -48,6 +48,18 @@ LAZY_COMMANDS = {
 
 
 
+class _Parser(argparse.ArgumentParser):
+    """``argparse`` with one-line usage errors (``vesselid CMD: error: ...``, exit 2).
+
+    The usage block argparse prints before a usage error is left out: bad input gets
+    one line on stderr, like every other refusal (``--help`` still shows the usage).
+    Subcommand parsers inherit the class (``add_subparsers`` uses ``type(self)``).
+    """
+
+    def error(self, message: str) -> Any:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
 def _spec_path_for(out: Path) -> Path:
     return out.with_name(out.stem + ".toml")
 
@@ -99,6 +111,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                        f"{args.system!r} has no current here (for CyberShip II with current, "
                        f"wind and sensors use `vesselid sea-trial --current-speed`)")
     system = get_system(args.system, **options)
+    if args.raw:  # refuse before simulating: nothing is written for a request that must fail
+        _check_raw_request(args.raw, system)
     if args.experiments is None:
         # a system with per-experiment designs (e.g. turns to both sides) needs all of them
         n_designs = [len(d) for d in system.inputs.values() if isinstance(d, (list, tuple))]
@@ -132,6 +146,21 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         print(f"next: vesselid ingest {args.raw} --dt {log.spec.dt} --out trial.csv")
     print(f"next: vesselid identify {out} --model {spec_path}")
     return 0
+
+
+def _check_raw_request(raw: str, system: Any) -> None:
+    """``simulate --raw DIR``: a surface vessel, and a directory that can be made."""
+    states = list(system.spec.states)
+    missing = [c for c in ("u", "v", "r") if c not in states]
+    if missing:
+        raise CLIError(f"--raw needs a surface vessel with surge u, sway v and yaw rate r "
+                       f"(e.g. --system cybership2); {system.spec.name!r} has states {states}")
+    path = Path(raw)
+    if path.exists() and not path.is_dir():
+        raise NotADirectoryError(20, "--raw must be a directory, not an existing file", raw)
+    parent = next((p for p in path.absolute().parents if p.exists()), None)
+    if parent is not None and not parent.is_dir():
+        raise NotADirectoryError(20, "not a directory", str(parent))
 
 
 def cmd_identify(args: argparse.Namespace) -> int:
@@ -197,7 +226,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     Without ``argv`` every plugin module is imported (complete parser, e.g. for docs).
     """
 
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="vesselid",
         description="Simulate marine vessels under current, wind and sensor noise, and identify "
                     "their second-order modulus models consistently (Ljungberg & Enqvist).",

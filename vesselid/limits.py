@@ -47,11 +47,16 @@ __all__ = [
     "MEMORY_FRACTION",
     "available_memory",
     "check",
+    "check_file_size",
+    "check_grid",
+    "check_inputs",
     "file_bytes",
     "format_bytes",
     "format_seconds",
     "free_disk",
     "memory_limit",
+    "raw_read_memory",
+    "raw_read_seconds",
     "read_memory",
     "read_seconds",
     "simulation_seconds",
@@ -260,3 +265,66 @@ def check(
         raise ResourceLimitError(
             f"{command}: {what} would take ~{format_seconds(seconds)}; the limit is "
             f"{format_seconds(t_limit)} ({t_why})")
+
+
+# ------------------------------------------------------------------- raw sensor files
+#: Peak bytes of memory per byte of raw input (NMEA text, mapped CSV, bag) while ingest
+#: parses it into streams and resamples them: measured ~5 B/B (29 MB of NMEA + CSV from
+#: ``simulate --raw``: 337 MB peak, 190 MB of it the interpreter); 12 leaves a margin.
+RAW_BYTES_PER_BYTE = 12.0
+#: Seconds per byte of raw input (measured ~5e-8 s/B on 2 busy cores).
+RAW_SECONDS_PER_BYTE = 2e-7
+
+
+def raw_read_memory(n_bytes: float) -> float:
+    """Peak bytes to ingest ``n_bytes`` of raw sensor files."""
+    return BASE_MEMORY + float(n_bytes) * RAW_BYTES_PER_BYTE
+
+
+def raw_read_seconds(n_bytes: float) -> float:
+    """Seconds to ingest ``n_bytes`` of raw sensor files."""
+    return float(n_bytes) * RAW_SECONDS_PER_BYTE
+
+
+def _input_bytes(paths: list[Path]) -> tuple[int, int]:
+    """Total size and count of the regular files under ``paths`` (directories walked)."""
+    total = count = 0
+    for p in paths:
+        if p.is_dir():
+            for root, _dirs, files in os.walk(p):
+                for f in files:
+                    try:
+                        total += os.stat(os.path.join(root, f)).st_size
+                        count += 1
+                    except OSError:
+                        continue
+        elif p.is_file():
+            total += p.stat().st_size
+            count += 1
+    return total, count
+
+
+def check_inputs(command: str, paths: list[str | os.PathLike[str]]) -> None:
+    """Refuse raw inputs (files and directories) too large to ingest on this machine.
+
+    Uses the files' sizes on disk only (a 200 GB sparse file is refused at once).
+    """
+    total, count = _input_bytes([Path(p) for p in paths])
+    check(command, f"{count} raw input file(s), {format_bytes(total)}",
+          memory=raw_read_memory(total), seconds=raw_read_seconds(total))
+
+
+def check_file_size(path: str | os.PathLike[str], command: str = "ingest") -> None:
+    """Refuse one raw input file too large to parse on this machine (see :func:`check_inputs`)."""
+    check_inputs(command, [path])
+
+
+#: Seconds per grid value to resample, convert and write (measured 3e-7 s: 8e6 × 14 in 33 s).
+GRID_SECONDS_PER_VALUE = 5e-7
+
+
+def check_grid(command: str, points: float, channels: float) -> None:
+    """Refuse a resampling grid of ``points`` × ``channels`` values that does not fit."""
+    check(command, f"a grid of {points:.3g} samples × {int(channels)} channels",
+          memory=table_memory(points, channels + 2),
+          seconds=float(points) * (channels + 2) * GRID_SECONDS_PER_VALUE)

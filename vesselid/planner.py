@@ -880,6 +880,12 @@ def cmd_plan_trial(args: argparse.Namespace) -> int:
                  seconds=limits.simulation_seconds(40.0 * args.samples, 3))
     plan = plan_trial(args.samples, args.experiments,
                       levels=DisturbanceLevels(wind_speed=args.wind_speed))
+    if not math.isfinite(plan.worst_relative_se()):
+        # e.g. an absurd wind speed: every candidate's simulation diverges (issue 11)
+        raise PlannerError(
+            f"no plan has finite predicted standard errors for {args.samples} samples at "
+            f"--wind-speed {args.wind_speed:g} m/s (the manoeuvre simulations diverge or the "
+            "parameters are not identifiable); use a realistic wind speed or a larger budget")
     if args.json:
         print(json.dumps(plan.to_dict(), indent=2, allow_nan=False))
     else:

@@ -18,6 +18,7 @@ state equation, from which covariance and diagnostics follow) and one entry in
 
 from __future__ import annotations
 
+import itertools
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
@@ -62,7 +63,8 @@ class EquationDesign:
     ``z`` (n, K) instruments as used (centred / prefiltered where the estimator does
     so), ``phi`` (n, P) regressors and ``resid`` (n,) residuals on the same footing,
     ``starts`` (S+1,) experiment boundaries into these rows, ``weight`` the GMM
-    weight (K, K) when ``K > P`` (None: just identified), ``zero_mean`` whether the
+    weight (K, K) when ``K > P`` or the row weight of the stacked equations (None: just
+    identified, pooled), ``zero_mean`` whether the
     rows carry per-experiment constants (centred instruments).
     """
 
@@ -344,7 +346,8 @@ class _UserInstrumentMixin:
                              iterations=np.array([0]),
                              reason=np.array([STOP_FIXED], dtype=object),
                              residual=np.zeros(1), oscillation=np.zeros(1, dtype=bool))
-        return it, square_designs(data, spec, z_user, phi, theta[0], zero_mean=self.zero_mean)
+        return it, square_designs(data, spec, z_user, phi, theta[0], zero_mean=self.zero_mean,
+                                  combine=combine)
 
 
 def center_segments(x: np.ndarray, data: RegressionData) -> np.ndarray:
@@ -357,8 +360,14 @@ def center_segments(x: np.ndarray, data: RegressionData) -> np.ndarray:
 
 
 def square_designs(data: RegressionData, spec: ModelSpec, z: np.ndarray, phi: np.ndarray,
-                   theta: np.ndarray, *, zero_mean: bool) -> list[EquationDesign]:
-    """Designs of a just-identified estimator with full-length ``z``/``phi`` (T, P)."""
+                   theta: np.ndarray, *, zero_mean: bool, combine: str = "pooled"
+                   ) -> list[EquationDesign]:
+    """Designs of a just-identified estimator with full-length ``z``/``phi`` (T, P).
+
+    With ``combine="stacked"`` and several experiments, ``weight`` holds the row weights
+    the stacked solve used (:func:`vesselid.identify.linalg.stacked_row_weights`), so
+    the covariance is that of the estimator actually computed.
+    """
     rows = equation_rows(data)
     zc = center_segments(z, data) if zero_mean else z
     blocks = block_starts(spec)
@@ -367,8 +376,13 @@ def square_designs(data: RegressionData, spec: ModelSpec, z: np.ndarray, phi: np
     for i in range(spec.n_states):
         sl = slice(int(blocks[i]), int(blocks[i + 1]))
         res = data.target[rows, i] - phi[rows, sl] @ theta[sl]
-        out.append(EquationDesign(z=zc[rows, sl], phi=phi[rows, sl], resid=res, starts=starts,
-                                  zero_mean=zero_mean))
+        d = EquationDesign(z=zc[rows, sl], phi=phi[rows, sl], resid=res, starts=starts,
+                           zero_mean=zero_mean)
+        if combine == "stacked" and starts.size > 2:
+            a_n = np.stack([d.z[a:b].T @ d.phi[a:b] / max(b - a, 1)
+                            for a, b in itertools.pairwise(starts)])
+            d.weight = np.diag(linalg.stacked_row_weights(a_n))
+        out.append(d)
     return out
 
 

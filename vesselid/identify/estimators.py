@@ -11,7 +11,8 @@ Equations (paper):
 * IV (4): ``θ = sol{ Σ ζ (y − φᵀθ) = 0 }``; with zero-mean instruments (A7) ζ is
   centred per experiment and component.
 * Multi-experiment (6)/(10): ``stacked`` solves the ``p·N_E`` equations
-  ``(1/N_D) Σ_k Z_E (y − Φᵀθ) = 0`` in the least-squares sense, exactly as written;
+  ``(1/N_D) Σ_k Z_E (y − Φᵀθ) = 0`` in the least-squares sense, each instrument's rows
+  weighted to be unit-free (:func:`vesselid.identify.linalg.stacked_row_weights`);
   ``pooled`` sums the per-experiment normal equations, ``(Σ_E Σ_k Z_E Φᵀ) θ = Σ_E Σ_k Z_E y``.
   With one experiment both are the same.
 * Refined IV (§6, Young 2008): instruments simulated from the latest estimate,
@@ -26,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vesselid.errors import IdentificationError
-from vesselid.identify import kernels
+from vesselid.identify import kernels, linalg
 from vesselid.identify.data import RegressionData, block_starts, duplicate_blocks
 from vesselid.model import ModelSpec
 
@@ -205,13 +206,18 @@ def solve_moments(
                 segs = np.flatnonzero(data.group == g)
                 big_a = a_n[segs].reshape(-1, a_i.shape[2])
                 big_b = b_n[segs].reshape(-1)
-                # equilibrate the columns: the rank decision must not depend on units
-                scale = np.linalg.norm(big_a, axis=0)
-                if not np.all(np.isfinite(scale) & (scale > 0)):
+                if not (np.all(np.isfinite(big_a)) and np.all(np.isfinite(big_b))):
                     ok_i[j] = False
                     continue
-                sol, _, rank, _ = np.linalg.lstsq(big_a / scale, big_b, rcond=None)
-                sol = sol / scale
+                # equilibrate rows (one weight per instrument, linalg.stacked_row_weights)
+                # and columns: neither the estimate nor the rank decision depends on units
+                n_k = a_i.shape[1]
+                r, c = linalg.equilibrate(big_a[None], groups=np.tile(np.arange(n_k),
+                                                                      segs.size))
+                r, c = r[0], c[0]
+                sol, _, rank, _ = np.linalg.lstsq(big_a * r[:, None] * c[None, :], big_b * r,
+                                                  rcond=None)
+                sol = sol * c
                 if rank < a_i.shape[2] or not np.all(np.isfinite(sol)):
                     ok_i[j] = False
                 else:
@@ -222,41 +228,10 @@ def solve_moments(
     return theta, ok
 
 
-def _equilibrated_cond(a: np.ndarray) -> np.ndarray:
-    """Condition numbers of a stack ``(G, n, m)`` after unit-norm row and column scaling."""
-    r = np.linalg.norm(a, axis=2, keepdims=True)
-    c = np.linalg.norm(a, axis=1, keepdims=True)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scaled = a / r / c
-    out = np.full(a.shape[0], np.inf)
-    good = np.all(np.isfinite(scaled), axis=(1, 2))
-    if good.any():
-        out[good] = np.linalg.cond(scaled[good])
-    return out
-
-
 def _batched_solve(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Solve a stack of square systems; singular or non-finite ones are flagged."""
-    ok = np.all(np.isfinite(a), axis=(1, 2)) & np.all(np.isfinite(b), axis=1)
-    out = np.full(b.shape, np.nan)
-    if not ok.any():
-        return out, ok
-    try:
-        out[ok] = np.linalg.solve(a[ok], b[ok][..., None])[..., 0]
-    except np.linalg.LinAlgError:
-        for j in np.flatnonzero(ok):
-            try:
-                out[j] = np.linalg.solve(a[j], b[j])
-            except np.linalg.LinAlgError:
-                ok[j] = False
-    # guard against numerically singular systems that solve() does not reject
-    # on the row- and column-equilibrated matrices: units must not make a system singular
-    cond = np.full(a.shape[0], np.inf)
-    if ok.any():
-        cond[ok] = _equilibrated_cond(a[ok])
-    ok &= np.isfinite(cond) & (cond < 1e15) & np.all(np.isfinite(out), axis=1)
-    out[~ok] = np.nan
-    return out, ok
+    """Solve a stack of square systems; singular or non-finite ones are flagged
+    (:func:`vesselid.identify.linalg.solve`: column-scaled, equilibrated rank check)."""
+    return linalg.solve(a, b)
 
 
 def least_squares(data: RegressionData, spec: ModelSpec, *, combine: str = "pooled"):

@@ -12,41 +12,133 @@ turns the flags into clear errors.
   two-step GMM: ``W = Ŝ⁻¹``).
 * :func:`inv_sym` — inverse of a stack of symmetric positive (semi)definite matrices.
 * :func:`condition_number` — of the row- and column-equilibrated matrix (instrument strength).
+* :func:`equilibrate` — row and column scales that remove the units of a matrix.
+
+Units never matter: every rank/condition decision is taken on equilibrated matrices
+and the solves scale columns (exactly, by powers of two), so multiplying every
+signal by 10^±6 changes the estimates only by rounding.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["COND_MAX", "condition_number", "gmm_solve", "inv_sym", "solve"]
+__all__ = ["COND_MAX", "condition_number", "equilibrate", "gmm_solve", "inv_sym", "pow2_scale",
+           "solve",
+           "stacked_row_weights"]
 
 #: Systems whose (equilibrated) condition number exceeds this are treated as singular.
 COND_MAX = 1e15
 
 
+def pow2_scale(norms: np.ndarray) -> np.ndarray:
+    """Powers of two ``2^-e`` with ``norms · 2^-e`` in ``[0.5, 1)``; 1 where a norm is 0,
+    not finite or would leave the exponent range.
+
+    Scaling by a power of two is exact in floating point, so a column-scaled system is
+    solved with bit-identical rounding to the unscaled one (LU with partial pivoting
+    picks its pivots within columns) while the scale decisions no longer depend on units.
+    """
+    norms = np.asarray(norms, dtype=float)
+    with np.errstate(invalid="ignore", over="ignore"):
+        _, e = np.frexp(np.where(np.isfinite(norms) & (norms > 0), norms, 1.0))
+    e = np.clip(e, -1000, 1000)
+    return np.ldexp(1.0, -e)
+
+
+def equilibrate(a: np.ndarray, *, groups: np.ndarray | None = None, max_iter: int = 100,
+                tol: float = 1e-15) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column scales that equilibrate a stack of matrices ``(G, n, m)``.
+
+    Alternately scales the columns and the rows to unit 2-norm (Sinkhorn–Knopp in the
+    2-norm) until the scales settle, so the result does not depend on the units the
+    rows and columns came in: for ``a' = U a V`` (diagonal ``U``, ``V``) the scaled
+    matrices ``r' a' c'`` and ``r a c`` agree to rounding. ``groups`` (length ``n``)
+    ties rows together (one scale for all rows of a group, normalising the group's
+    joint norm), e.g. the rows of one instrument in every experiment of a stacked
+    system.
+
+    Returns
+    -------
+    r : ndarray (G, n), c : ndarray (G, m)
+        Positive scales (1 where a row/column is zero or not finite).
+    """
+    a = np.abs(np.asarray(a, dtype=float))
+    g_n, n, m = a.shape
+    r = np.ones((g_n, n))
+    c = np.ones((g_n, m))
+    sq = np.where(np.isfinite(a), a, 0.0)
+    peak = np.max(sq, axis=(1, 2), keepdims=True)
+    sq = sq / np.where(peak > 0, peak, 1.0)  # overflow-safe squares below
+    sq = sq * sq
+    if groups is not None:
+        groups = np.asarray(groups)
+        onehot = (groups[:, None] == np.unique(groups)[None, :]).astype(float)  # (n, k)
+    for _ in range(max_iter):
+        rs = r * r
+        col = np.einsum("gij,gi->gj", sq, rs)
+        c_new = np.where(col > 0, 1.0 / np.sqrt(np.where(col > 0, col, 1.0)), 1.0)
+        cs = c_new * c_new
+        row = np.einsum("gij,gj->gi", sq, cs)
+        if groups is not None:
+            row = (row @ onehot) @ onehot.T
+        r_new = np.where(row > 0, 1.0 / np.sqrt(np.where(row > 0, row, 1.0)), 1.0)
+        # fix the free global factor: geometric mean of the row scales is 1
+        shift = np.exp(np.mean(np.log(r_new), axis=1, keepdims=True))
+        r_new, c_new = r_new / shift, c_new * shift
+        delta = max(np.max(np.abs(np.log(r_new / r))), np.max(np.abs(np.log(c_new / c))))
+        r, c = r_new, c_new
+        if delta < tol:
+            break
+    peak = peak[:, :, 0]
+    return r, c / np.where(peak > 0, peak, 1.0)
+
+
+def stacked_row_weights(a_n: np.ndarray) -> np.ndarray:
+    """Weights of the instrument rows of the stacked equations (6)/(10).
+
+    ``a_n`` (S, K, P) holds the per-experiment ``(1/N_E) Σ z φᵀ``; the stacked
+    least-squares problem ``min Σ_E ‖W^½ (b_E − A_E θ)/N_E‖²`` weights instrument ``j``
+    (its rows in every experiment alike) by ``W_jj = r_j²`` with ``r`` from
+    :func:`equilibrate` of the stacked matrix, so the rows lose their units (the paper
+    writes (6) without weights, which silently weights every instrument by the square
+    of its unit). Returns the ``K`` diagonal entries of ``W`` (geometric mean 1).
+    """
+    a_n = np.asarray(a_n, dtype=float)
+    s_n, k, p = a_n.shape
+    r, _ = equilibrate(a_n.reshape(1, s_n * k, p), groups=np.tile(np.arange(k), s_n))
+    return r[0, :k] ** 2
+
+
 def _equilibrated_cond(a: np.ndarray) -> np.ndarray:
-    """Condition numbers of a stack ``(G, n, m)`` after unit-norm row and column scaling."""
-    r = np.linalg.norm(a, axis=2, keepdims=True)
-    c = np.linalg.norm(a, axis=1, keepdims=True)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scaled = a / r / c
+    """Condition numbers of a stack ``(G, n, m)`` after :func:`equilibrate`."""
+    a = np.asarray(a, dtype=float)
     out = np.full(a.shape[0], np.inf)
-    good = np.all(np.isfinite(scaled), axis=(1, 2))
+    good = np.all(np.isfinite(a), axis=(1, 2))
+    good &= np.all(np.any(a != 0, axis=1), axis=1) & np.all(np.any(a != 0, axis=2), axis=1)
     if good.any():
-        out[good] = np.linalg.cond(scaled[good])
+        r, c = equilibrate(a[good], max_iter=50, tol=1e-9)
+        out[good] = np.linalg.cond(a[good] * r[:, :, None] * c[:, None, :])
     return out
 
 
 def solve(a: np.ndarray, b: np.ndarray, *, cond_max: float = COND_MAX
           ) -> tuple[np.ndarray, np.ndarray]:
-    """Solve a stack of square systems ``a[g] x[g] = b[g]``.
+    """Solve a stack of square systems ``a[g] x[g] = b[g]``, unit-invariantly.
+
+    The columns of ``a`` are scaled to unit norm by powers of two before the LU solve
+    (``x = C y`` with ``(a C) y = b``): exact, so the rounding is that of the unscaled
+    solve, and the solution of a system whose unknowns carry units (``a D``) is ``D⁻¹``
+    times the unscaled one. The singularity check uses the condition number of the
+    row- and column-equilibrated matrix (:func:`condition_number`), so multiplying
+    every signal by 10⁶ cannot make a system "singular".
 
     Parameters
     ----------
     a : ndarray (G, P, P)
     b : ndarray (G, P)
     cond_max : float
-        Systems with a larger condition number are flagged singular.
+        Systems with a larger equilibrated condition number are flagged singular.
 
     Returns
     -------
@@ -55,22 +147,30 @@ def solve(a: np.ndarray, b: np.ndarray, *, cond_max: float = COND_MAX
     ok : ndarray (G,) bool
         False for singular, ill-conditioned or non-finite systems.
     """
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
     ok = np.all(np.isfinite(a), axis=(1, 2)) & np.all(np.isfinite(b), axis=1)
     out = np.full(b.shape, np.nan)
     if not ok.any():
         return out, ok
-    try:
-        out[ok] = np.linalg.solve(a[ok], b[ok][..., None])[..., 0]
-    except np.linalg.LinAlgError:
-        for j in np.flatnonzero(ok):
-            try:
-                out[j] = np.linalg.solve(a[j], b[j])
-            except np.linalg.LinAlgError:
-                ok[j] = False
-    # guard against numerically singular systems that solve() does not reject
+    with np.errstate(over="ignore", invalid="ignore"):
+        col = pow2_scale(np.sqrt(np.einsum("gij,gij->gj", a[ok], a[ok])))
+    a_s = a[ok] * col[:, None, :]
+    with np.errstate(all="ignore"):
+        try:
+            y = np.linalg.solve(a_s, b[ok][..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            y = np.full(a_s.shape[:2], np.nan)
+            for j in range(a_s.shape[0]):
+                try:
+                    y[j] = np.linalg.solve(a_s[j], b[ok][j])
+                except np.linalg.LinAlgError:
+                    pass
+        out[ok] = y * col
+    # numerically singular systems that solve() does not reject, judged on the
+    # equilibrated matrix: units must not make a system singular (or regular)
     cond = np.full(a.shape[0], np.inf)
-    if ok.any():
-        cond[ok] = np.linalg.cond(a[ok])
+    cond[ok] = _equilibrated_cond(a[ok])
     ok &= np.isfinite(cond) & (cond < cond_max) & np.all(np.isfinite(out), axis=1)
     out[~ok] = np.nan
     return out, ok
@@ -79,18 +179,32 @@ def solve(a: np.ndarray, b: np.ndarray, *, cond_max: float = COND_MAX
 def inv_sym(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Inverse of a stack of symmetric positive definite matrices ``(G, K, K)``.
 
+    Symmetrically equilibrated first (``D s D`` with ``D`` the powers of two nearest
+    ``1/sqrt(diag s)``), inverted, and scaled back (``D (D s D)⁻¹ D``), so the result
+    and the singularity check do not depend on the units of the rows/columns.
     Returns ``(inverse, ok)``; rows that are singular or not finite get NaN and
     ``ok = False``.
     """
+    s = np.asarray(s, dtype=float)
     ok = np.all(np.isfinite(s), axis=(1, 2))
-    cond = np.full(s.shape[0], np.inf)
-    if ok.any():
-        cond[ok] = np.linalg.cond(s[ok])
-    ok &= cond < COND_MAX
+    diag = np.diagonal(s, axis1=1, axis2=2)
+    ok &= np.all(diag > 0, axis=1)
     out = np.full(s.shape, np.nan)
-    if ok.any():
-        inv = np.linalg.inv(s[ok])
-        out[ok] = 0.5 * (inv + np.swapaxes(inv, 1, 2))
+    if not ok.any():
+        return out, ok
+    d = pow2_scale(np.sqrt(diag[ok]))
+    x = s[ok] * d[:, :, None] * d[:, None, :]
+    cond = np.linalg.cond(x)
+    good = np.isfinite(cond) & (cond < COND_MAX)
+    res = np.full(x.shape, np.nan)
+    if good.any():
+        with np.errstate(all="ignore"):
+            inv = np.linalg.inv(x[good]) * d[good][:, :, None] * d[good][:, None, :]
+        res[good] = 0.5 * (inv + np.swapaxes(inv, 1, 2))
+        good[good] = np.all(np.isfinite(res[good]), axis=(1, 2))
+    out[ok] = res
+    ok[ok] = good
+    out[~ok] = np.nan
     return out, ok
 
 

@@ -35,7 +35,8 @@ class LeastSquares(Estimator):
         return estimate(data, spec, "ls", combine=combine)
 
     def equation_designs(self, data, spec, it, phi, combine):
-        return square_designs(data, spec, phi, phi, it.theta[0], zero_mean=False)
+        return square_designs(data, spec, phi, phi, it.theta[0], zero_mean=False,
+                              combine=combine)
 
 
 class RefinedIV(_UserInstrumentMixin, Estimator):
@@ -83,7 +84,8 @@ class RefinedIV(_UserInstrumentMixin, Estimator):
         codes = spec.codes
         z, _ = kernels.instrument_matrix(data.target, data.u, data.starts, it.theta_aux[0],
                                          codes.factors, codes.equation, spec.n_states)
-        return square_designs(data, spec, z, phi, it.theta[0], zero_mean=self.zero_mean)
+        return square_designs(data, spec, z, phi, it.theta[0], zero_mean=self.zero_mean,
+                              combine=combine)
 
     def describe(self, it: IterationResult) -> dict[str, Any]:
         return {"instruments": "simulated (auxiliary model)" + (

@@ -52,6 +52,9 @@ def cmd_ingest(args: argparse.Namespace) -> int:
             origin = [float(x) for x in args.origin.split(",")]
         except ValueError:
             raise IngestError(f"--origin needs LAT,LON[,H], got {args.origin!r}") from None
+    from vesselid import limits
+
+    limits.check_inputs("ingest", args.inputs)  # before parsing anything
     log = ingest(args.inputs, args.dt, config=args.config, origin=origin,
                  max_gap=args.max_gap, min_duration=args.min_duration)
     log.metadata["command"] = "vesselid " + " ".join(sys.argv[1:]) if sys.argv else ""

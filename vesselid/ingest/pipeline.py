@@ -208,13 +208,21 @@ def ingest(
             o = [float(x) for x in origin]
             if len(o) not in (2, 3):
                 raise IngestError(f"--origin needs LAT,LON[,H], got {origin!r}")
+            if not (all(math.isfinite(x) for x in o) and -90 < o[0] < 90
+                    and -180 <= o[1] <= 180):
+                raise IngestError(f"--origin latitude/longitude out of range or not finite: "
+                                  f"{origin!r} (need -90 < lat < 90, -180 <= lon <= 180)")
             org = (o[0], o[1], o[2] if len(o) == 3 else 0.0)
         cfg = replace(cfg, origin=org,
                       max_gap=cfg.max_gap if max_gap is None else float(max_gap),
                       min_duration=cfg.min_duration if min_duration is None
                       else float(min_duration))
-        if not cfg.max_gap > 0:
-            raise IngestError("--max-gap must be positive")
+        if not (math.isfinite(cfg.max_gap) and cfg.max_gap > 0):
+            raise IngestError(f"--max-gap must be a positive number of seconds, got "
+                              f"{cfg.max_gap}")
+        if not (math.isfinite(cfg.min_duration) and cfg.min_duration >= 0):
+            raise IngestError(f"--min-duration must be a non-negative number of seconds, got "
+                              f"{cfg.min_duration}")
     _check_sizes([*nmea_files, *csv_files])
     streams: list[Stream] = []
     sources: list[dict[str, Any]] = []
@@ -361,6 +369,10 @@ def _check_sizes(files: list[Path]) -> None:
 
 
 def _grid(used: dict[str, Stream], dt: float, cfg: IngestConfig) -> dict[str, Any]:
+    empty = sorted(n for n, s in used.items() if s.t.size == 0)
+    if empty:
+        return {"segments": [], "dropped": [], "coverage": {},
+                "reason": f"no valid samples in channel(s) {empty}"}
     lo = max(s.t[0] for s in used.values())
     hi = min(s.t[-1] for s in used.values())
     names = sorted(used)
@@ -374,6 +386,9 @@ def _grid(used: dict[str, Stream], dt: float, cfg: IngestConfig) -> dict[str, An
         return {"segments": [], "dropped": [], "coverage": {},
                 "reason": f"the common time span ({(hi - lo) / 3600:.1f} h) is too long for "
                           f"dt={dt} (more than {MAX_GRID} samples); check the clocks"}
+    from vesselid import limits
+
+    limits.check_grid("ingest", k1 - k0 + 1, len(names))  # before allocating the grid
     ks = np.arange(k0, k1 + 1)
     grid = ks * dt
     ok = np.ones(ks.size, dtype=bool)
