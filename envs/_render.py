@@ -1,10 +1,28 @@
-"""Shared matplotlib rendering for the environments: one figure, ``human`` or ``rgb_array``."""
+"""Shared matplotlib rendering for the environments: one figure, ``human`` or ``rgb_array``;
+the render-mode check and the no-render-mode warning of every environment."""
 
 from __future__ import annotations
 
+import gymnasium as gym
 import numpy as np
 
-__all__ = ["FigureRenderer", "HeavePlot", "interactive_backend"]
+from vesselid.errors import VesselidError
+
+__all__ = ["FigureRenderer", "HeavePlot", "check_render_mode", "interactive_backend",
+           "warn_no_render_mode"]
+
+
+def check_render_mode(render_mode: str | None, modes: list[str]) -> str | None:
+    """``render_mode`` if it is ``None`` or one of ``modes``, else a domain error."""
+    if render_mode is not None and render_mode not in modes:
+        raise VesselidError(f"render_mode must be one of {modes} or None, got {render_mode!r}")
+    return render_mode
+
+
+def warn_no_render_mode(env_id: str) -> None:
+    """gymnasium's warning for ``render()`` on an environment made without a render mode."""
+    gym.logger.warn(f"render() called without a render_mode; e.g. gym.make({env_id!r}, "
+                    "render_mode='rgb_array')")
 
 
 def interactive_backend() -> bool:

@@ -1,15 +1,17 @@
-"""Validation of environment settings: numbers, ranges and triples (domain errors)."""
+"""Environment settings: defaults merged with the given ones, numbers, ranges and triples
+(domain errors), and the ``## Arguments`` text shared by a single and a vector class."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from vesselid.errors import VesselidError
 
-__all__ = ["finite", "pair", "triple"]
+__all__ = ["document", "finite", "merged", "pair", "triple"]
 
 
 def finite(name: str, value: Any, *, nonneg: bool = False, positive: bool = False) -> float:
@@ -41,3 +43,17 @@ def triple(name: str, value: Any) -> tuple[float, float, float]:
     if not np.all(np.isfinite(arr)):
         raise VesselidError(f"{name} must be finite, got {value!r}")
     return (float(arr[0]), float(arr[1]), float(arr[2]))
+
+
+def merged(settings: Mapping[str, Any], defaults: Mapping[str, Any]) -> dict[str, Any]:
+    """``defaults`` updated by ``settings``; an unknown setting is a domain error."""
+    unknown = sorted(set(settings) - set(defaults))
+    if unknown:
+        raise VesselidError(f"unknown settings {unknown}; known: {sorted(defaults)}")
+    return {**defaults, **settings}
+
+
+def document(arguments: str, *classes: type) -> None:
+    """Put the ``arguments`` text in place of ``{arguments}`` in each class docstring."""
+    for cls in classes:
+        cls.__doc__ = (cls.__doc__ or "").replace("{arguments}", arguments.strip())

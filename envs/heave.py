@@ -11,7 +11,6 @@ core with ``n = 1``; :class:`HeaveVectorEnv` steps ``n`` (next-step autoreset).
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any, ClassVar, SupportsFloat
 
 import gymnasium as gym
@@ -20,9 +19,8 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from vesselid.disturbances import Gaussian, Process
-from vesselid.envs._render import HeavePlot
-from vesselid.envs._settings import finite, pair
+from vesselid.envs._render import HeavePlot, check_render_mode, warn_no_render_mode
+from vesselid.envs._settings import document, finite, merged, pair
 from vesselid.envs._validate import check_action, require_reset
 from vesselid.errors import VesselidError
 from vesselid.model import ModelSpec
@@ -36,13 +34,6 @@ SINGLE_BLOCK, VECTOR_BLOCK_ELEMENTS = 1024, 1 << 16
 # Per instant and env: 4 standard normals (current, ξ, e1, e2; scaled by the system's
 # Gaussian disturbances) and 3 uniforms (reference level and hold, initial velocity).
 _NZ, _NU = 4, 3
-
-
-def _gauss(proc: Process | None) -> tuple[float, float]:
-    """``(mean, std)`` of a white Gaussian disturbance of the system (None: zero)."""
-    if proc is not None and not isinstance(proc, Gaussian):
-        raise VesselidError(f"the heave environment needs white Gaussian noise, got {proc!r}")
-    return (0.0, 0.0) if proc is None else (proc.mean, proc.std)
 
 
 #: Numeric settings and their validation.
@@ -82,13 +73,8 @@ class _HeaveConfig:
             raise VesselidError(f"reference and initial velocity must lie inside "
                                 f"velocity_limit={self.velocity_limit}")
         # the plant: the catalogue heave system with the environment's noise levels
-        system = heave(current_mean=cm, current_sensor=sensor, xi_mean=xm)
-        e2 = v["current_sensor_std"]
-        system = dataclasses.replace(
-            system, current={"w": Gaussian(cm, v["current_std"])},
-            process_noise={"w": Gaussian(system.process_noise["w"].mean, v["xi_std"])},
-            sensor_noise={"w": Gaussian(0.0, v["sensor_std"])},
-            current_sensor_noise={"w": Gaussian(0.0, e2)} if sensor else {})
+        system = heave(current_mean=cm, current_sensor=sensor, xi_mean=xm, stds={
+            k: v[f"{k}_std"] for k in ("current", "xi", "sensor", "current_sensor")})
         self.system: System = system
         self.model_spec: ModelSpec = system.identification_spec()
         self.sensor = sensor
@@ -96,16 +82,14 @@ class _HeaveConfig:
         spec = system.spec
         self.layout = (spec.codes.factors, spec.codes.equation, spec.theta0_vector())
         self.sign = float(system.sign("w"))
-        self.q, self.xi = _gauss(system.current.get("w")), _gauss(system.process_noise.get("w"))
-        self.e1 = _gauss(system.sensor_noise.get("w"))[1]
-        self.e2 = _gauss(system.current_sensor_noise["w"])[1] if sensor else e2
-        self.settings: dict[str, Any] = {
-            "current_mean": self.q[0], "current_std": self.q[1], "xi_mean": self.xi[0],
-            "xi_std": self.xi[1], "sensor_std": self.e1, "current_sensor": sensor,
-            "current_sensor_std": self.e2, "thrust_range": list(self.thrust_range),
-            "reference": reference, "reference_range": list(self.ref),
-            "reference_hold": [int(h) for h in self.hold], "action_cost": self.cost,
-            "initial_velocity": list(self.w0), "velocity_limit": self.velocity_limit}
+        # (mean, std) of the system's white Gaussian current and ξ, std of e1 and e2
+        self.q = (system.current["w"].mean, system.current["w"].std)
+        self.xi = (system.process_noise["w"].mean, system.process_noise["w"].std)
+        self.e1, self.e2 = system.sensor_noise["w"].std, v["current_sensor_std"]
+        given = {**v, "xi_mean": self.xi[0], "current_sensor": sensor, "reference": reference,
+                 "thrust_range": list(self.thrust_range), "reference_range": list(self.ref),
+                 "reference_hold": [int(h) for h in self.hold], "initial_velocity": list(self.w0)}
+        self.settings: dict[str, Any] = {k: given[k] for k in DEFAULTS}
 
     def spaces(self) -> tuple[spaces.Box, spaces.Box]:
         high = np.full(3 if self.sensor else 2, 2.0 * self.velocity_limit, dtype=np.float32)
@@ -182,8 +166,6 @@ class _Core:
 
     def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """One sample for every environment; returns reward, terminated, truncated."""
-        if self.rng is None:
-            raise gym.error.ResetNeeded("call reset() before step()")
         cfg, s = self.cfg, self.s
         z, u = self._draw()
         go = ~self.prev_done
@@ -259,15 +241,9 @@ class _HeaveBase:
 
     def _setup(self, n: int, block: int, max_steps: int, render_mode: str | None,
                render_window: int, settings: dict[str, Any]) -> None:
-        unknown = sorted(set(settings) - set(DEFAULTS))
-        if unknown:
-            raise VesselidError(f"unknown settings {unknown}; known: {sorted(DEFAULTS)}")
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise VesselidError(f"render_mode must be one of {self.metadata['render_modes']} "
-                                f"or None, got {render_mode!r}")
-        self._cfg = _HeaveConfig(**{**DEFAULTS, **settings})
+        self.render_mode = check_render_mode(render_mode, self.metadata["render_modes"])
+        self._cfg = _HeaveConfig(**merged(settings, DEFAULTS))
         self._core = _Core(self._cfg, n, block, max_steps)
-        self.render_mode = render_mode
         #: Identification structure of the recorded data (recorder contract).
         self.model_spec: ModelSpec = self._cfg.model_spec
         #: Sample time.
@@ -290,8 +266,7 @@ class _HeaveBase:
 
     def _frames(self) -> list[np.ndarray | None] | None:
         if self._plot is None:
-            gym.logger.warn("You are calling render method without specifying any render "
-                            'mode, e.g. render_mode="rgb_array"')
+            warn_no_render_mode("vesselid/Heave-v0")
             return None
         if not self._plot.length:
             raise VesselidError("call reset() before render()")
@@ -409,8 +384,7 @@ class HeaveEnv(_HeaveBase, gym.Env[np.ndarray, np.ndarray]):
         frames = self._frames()
         return None if frames is None else frames[0]
 
-    def close(self) -> None:
-        self.close_extras()
+    close = _HeaveBase.close_extras
 
 
 class HeaveVectorEnv(_HeaveBase, VectorEnv):
@@ -454,10 +428,8 @@ class HeaveVectorEnv(_HeaveBase, VectorEnv):
         return self._core.obs(), self._info()
 
     def _info(self) -> dict[str, np.ndarray]:
-        info: dict[str, np.ndarray] = {}
-        for k, v in self._core.info().items():
-            info[k], info[f"_{k}"] = v, self._mask
-        return info
+        info = self._core.info()
+        return info | {f"_{k}": self._mask for k in info}
 
     def step(self, actions: Any
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
@@ -475,6 +447,4 @@ class HeaveVectorEnv(_HeaveBase, VectorEnv):
         return None if frames is None else tuple(frames)
 
 
-HeaveEnv.__doc__ = (HeaveEnv.__doc__ or "").replace("{arguments}", _DOC_ARGS.strip())
-HeaveVectorEnv.__doc__ = (HeaveVectorEnv.__doc__ or "").replace(
-    "{arguments}", _DOC_ARGS.strip())
+document(_DOC_ARGS, HeaveEnv, HeaveVectorEnv)

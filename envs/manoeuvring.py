@@ -31,8 +31,8 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from vesselid.catalogue import vessel_module
-from vesselid.envs._render import FigureRenderer
-from vesselid.envs._settings import triple
+from vesselid.envs._render import FigureRenderer, check_render_mode, warn_no_render_mode
+from vesselid.envs._settings import document, merged, triple
 from vesselid.envs._validate import check_action, require_reset
 from vesselid.errors import VesselidError
 from vesselid.model import ModelSpec
@@ -87,13 +87,6 @@ DEFAULTS: dict[str, Any] = {
     "initial_speed": (0.0, 0.4),
     "velocity_limit": None,
 }
-
-
-def _settings(settings: Mapping[str, Any]) -> dict[str, Any]:
-    unknown = sorted(set(settings) - set(DEFAULTS))
-    if unknown:
-        raise VesselidError(f"unknown settings {unknown}; known: {sorted(DEFAULTS)}")
-    return {**DEFAULTS, **settings}
 
 
 class _Core:
@@ -356,10 +349,7 @@ class _ManoeuvringBase:
     render_mode: str | None
 
     def _attach(self, render_mode: str | None, render_window: int) -> None:
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise VesselidError(f"render_mode must be one of "
-                                f"{self.metadata['render_modes']} or None, got {render_mode!r}")
-        self.render_mode = render_mode
+        self.render_mode = check_render_mode(render_mode, self.metadata["render_modes"])
         #: Identification structure of the recorded data (recorder contract).
         self.model_spec: ModelSpec = self._core.model.spec
         #: Sample time (s).
@@ -373,8 +363,7 @@ class _ManoeuvringBase:
 
     def _frame(self) -> np.ndarray | None:
         if self.render_mode is None:
-            gym.logger.warn("render() called without a render_mode; "
-                            "e.g. gym.make('vesselid/Manoeuvring3DOF-v0', render_mode='rgb_array')")
+            warn_no_render_mode("vesselid/Manoeuvring3DOF-v0")
             return None
         if self._plot is None:
             self._plot = _Plot(self.render_mode, self.metadata["render_fps"],
@@ -476,7 +465,7 @@ class Manoeuvring3DOFEnv(_ManoeuvringBase, gym.Env[np.ndarray, np.ndarray]):
 
     def __init__(self, render_mode: str | None = None, *, render_window: int = 600,
                  **settings: Any) -> None:
-        self._core = _Core(1, parallel=False, block=SINGLE_BLOCK, **_settings(settings))
+        self._core = _Core(1, parallel=False, block=SINGLE_BLOCK, **merged(settings, DEFAULTS))
         self.action_space, self.observation_space = self._core.spaces()
         self._attach(render_mode, render_window)
         self._skip = self._core.no_skip
@@ -559,7 +548,7 @@ class Manoeuvring3DOFVectorEnv(_ManoeuvringBase, VectorEnv):
         if parallel is None:
             parallel = numba.get_num_threads() >= 4 and self.num_envs >= 256
         self._core = _Core(self.num_envs, parallel=bool(parallel), block=block,
-                           **_settings(settings))
+                           **merged(settings, DEFAULTS))
         self.single_action_space, self.single_observation_space = self._core.spaces()
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -610,9 +599,4 @@ class Manoeuvring3DOFVectorEnv(_ManoeuvringBase, VectorEnv):
         return self._frame()
 
 
-Manoeuvring3DOFEnv.__doc__ = (Manoeuvring3DOFEnv.__doc__ or "").replace(
-    "{arguments}", _DOC_ARGS.strip()
-)
-Manoeuvring3DOFVectorEnv.__doc__ = (Manoeuvring3DOFVectorEnv.__doc__ or "").replace(
-    "{arguments}", _DOC_ARGS.strip()
-)
+document(_DOC_ARGS, Manoeuvring3DOFEnv, Manoeuvring3DOFVectorEnv)

@@ -347,6 +347,7 @@ def heave(
     pulse_max_width: int | None = None,
     pulse_design: str = "random",
     x0: float = 1.3,
+    stds: Mapping[str, float] | None = None,
 ) -> System:
     """Heave motion of an underwater vehicle, paper §6 (eq. (15) restructured).
 
@@ -380,6 +381,10 @@ def heave(
         design :mod:`vesselid.reproduce` uses; evidence in its docstring).
     x0 : float
         Initial heave velocity (inside the range the pulses drive it to).
+    stds : mapping, optional
+        Standard deviations that differ from ``sqrt(variance)``, by source: ``"current"``
+        (w_c), ``"xi"`` (ξ), ``"sensor"`` (e1), ``"current_sensor"`` (e2) (the heave
+        environment's settings ``<source>_std``).
     """
     if current_sensor is None:
         current_sensor = current_mean != 0.0
@@ -397,6 +402,11 @@ def heave(
         raise VesselidError(
             f"pulse_design must be 'random' or 'alternating', got {pulse_design!r}")
     std = float(np.sqrt(variance))
+    sd = {k: std for k in ("current", "xi", "sensor", "current_sensor")}
+    if set(stds or {}) - set(sd):
+        raise VesselidError(f"stds: unknown sources {sorted(set(stds) - set(sd))}; "
+                            f"known {list(sd)}")
+    sd |= dict(stds or {})
     spec = ModelSpec(
         name="heave",
         states=["w"],
@@ -409,11 +419,11 @@ def heave(
     return System(
         spec=spec,
         inputs={"tau": design},
-        current={"w": Gaussian(current_mean, std)},
+        current={"w": Gaussian(current_mean, sd["current"])},
         current_sign={"w": -1},
-        process_noise={"w": Gaussian(xi, std)},
-        sensor_noise={"w": Gaussian(0.0, std)},
-        current_sensor_noise={"w": Gaussian(0.0, std)} if current_sensor else {},
+        process_noise={"w": Gaussian(xi, sd["xi"])},
+        sensor_noise={"w": Gaussian(0.0, sd["sensor"])},
+        current_sensor_noise={"w": Gaussian(0.0, sd["current_sensor"])} if current_sensor else {},
         x0={"w": x0},
         description="Heave of an underwater vehicle, Ljungberg & Enqvist §6",
     )
