@@ -155,6 +155,12 @@ def _check_raw_request(raw: str, system: Any) -> None:
     if missing:
         raise CLIError(f"--raw needs a surface vessel with surge u, sway v and yaw rate r "
                        f"(e.g. --system cybership2); {system.spec.name!r} has states {states}")
+    check_raw_dir(raw)
+
+
+def check_raw_dir(raw: str) -> None:
+    """``--raw DIR`` (simulate, sea-trial): refuse a path that cannot become a directory
+    before anything is simulated or written (all outputs or none)."""
     path = Path(raw)
     if path.exists() and not path.is_dir():
         raise NotADirectoryError(20, "--raw must be a directory, not an existing file", raw)
