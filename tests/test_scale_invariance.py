@@ -55,6 +55,12 @@ def test_overflowing_moments_are_named(log):
         identify(_scaled(log, 1e150), method="ls")
 
 
+def test_underflowing_moments_are_named(log):
+    """Signals of ~1e-170: w·|w| underflows; said so, not "collinear regressors"."""
+    with pytest.raises(IdentificationError, match=r"'w: w' reaches only .* underflow float64"):
+        identify(_scaled(log, 1e-170), method="ls")
+
+
 # ---------------------------------------------------------- every estimator, both forms
 def _all_estimators() -> list[tuple[str, str]]:
     from vesselid.identify import ESTIMATORS

@@ -150,7 +150,8 @@ def collinear_terms(
 
 
 def check_moment_range(phi: np.ndarray, names: Sequence[str]) -> None:
-    """Refuse regressors whose moment sums ``ΦᵀΦ``/``ZᵀΦ`` would overflow float64.
+    """Refuse regressors whose moment sums ``ΦᵀΦ``/``ZᵀΦ`` would overflow (or underflow)
+    float64.
 
     Every moment is a sum of ``N`` products of two regressors, so a regressor above
     ``sqrt(max float64 / (N P))`` can make a sum infinite (e.g. signals of ~1e150, or
@@ -170,6 +171,16 @@ def check_moment_range(phi: np.ndarray, names: Sequence[str]) -> None:
     with np.errstate(invalid="ignore"):
         big = np.max(np.abs(phi), axis=0)
     limit = math.sqrt(np.finfo(float).max / (phi.shape[0] * max(phi.shape[1], 1))) / 16.0
+    # below this a regressor's squares leave float64's normal range (precision is lost in
+    # subnormals, or the products round to zero): the "collinear" it would cause is units
+    floor = math.sqrt(np.finfo(float).tiny) * 2.0**26
+    tiny = (big > 0) & (big < floor)
+    if tiny.any():
+        j = int(np.flatnonzero(tiny)[0])
+        raise IdentificationError(
+            f"regressor {names[j]!r} reaches only {big[j]:.3g}: its products underflow "
+            f"float64 (its moments need values above ~{floor:.2g}); rescale the signals "
+            "(e.g. to SI units)")
     bad = ~(big <= limit)
     if bad.any():
         j = int(np.flatnonzero(bad)[0])

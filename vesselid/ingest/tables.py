@@ -29,6 +29,19 @@ def _numeric(col: pd.Series) -> np.ndarray:
     return pd.to_numeric(col, errors="coerce").to_numpy(dtype=float)
 
 
+def _duplicated_header(path: Path) -> list[str]:
+    """Names that occur more than once in the header line (issue 11)."""
+    import csv
+
+    try:
+        with open(path, encoding="utf-8", newline="") as fh:
+            header = next(csv.reader(fh, skipinitialspace=True), [])
+    except (OSError, UnicodeDecodeError, csv.Error):
+        return []  # read_csv reports it
+    names = [h.strip() for h in header]
+    return sorted({n for n in names if names.count(n) > 1})
+
+
 def read_csv_streams(path: str | Path, mapping: CsvMapping) -> tuple[list[Stream], dict[str, Any]]:
     """Read one mapped CSV file.
 
@@ -49,6 +62,9 @@ def read_csv_streams(path: str | Path, mapping: CsvMapping) -> tuple[list[Stream
         frame = pd.read_csv(path, skipinitialspace=True)
     except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise IngestError(f"cannot read CSV {path}: {str(exc).splitlines()[0]}") from exc
+    dup = _duplicated_header(path)
+    if dup:  # pandas would rename the second one ('x.1') and read the first silently
+        raise IngestError(f"{path.name}: CSV header has duplicated column names {dup}")
     need = [mapping.time, *(c.column for c in mapping.columns.values())]
     missing = [c for c in need if c not in frame.columns]
     if missing:
