@@ -158,7 +158,7 @@ def _check_raw_request(raw: str, system: Any) -> None:
     check_raw_dir(raw)
 
 
-def _check_output_file(option: str, target: str) -> None:
+def check_output_file(option: str, target: str) -> None:
     """An output file path: not a directory, and no regular file among its parents."""
     path = Path(target)
     if path.is_dir():
@@ -182,7 +182,7 @@ def check_raw_dir(raw: str) -> None:
 def cmd_identify(args: argparse.Namespace) -> int:
     for option, target in (("--json", args.json), ("--export", getattr(args, "export", None))):
         if target and target != "-":  # fail before the work (and the imports), not after it
-            _check_output_file(option, target)
+            check_output_file(option, target)
     from vesselid import limits
     from vesselid._io import atomic_write_text
     from vesselid.identify import covariance_api, identify
