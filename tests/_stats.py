@@ -9,6 +9,8 @@ errors of the same run, never seed-tuned constants.
 * :func:`std_se` — standard error of a sample standard deviation (Gaussian, AR(1)).
 * :func:`assert_mean_within` / :func:`assert_std_within` — the two checks above, with
   a message that shows the derived tolerance.
+* :func:`log_sd_ratio_se` — standard error of ``log(s₁/s₂)`` of two independent samples
+  (any kurtosis); :func:`bonferroni_z` — the two-sided critical value for ``m`` tests.
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ __all__ = [
     "assert_mean_within",
     "assert_std_within",
     "binomial_ok",
+    "bonferroni_z",
+    "log_sd_ratio_se",
     "std_se",
     "wilson_interval",
     "within_se",
@@ -86,3 +90,17 @@ def assert_std_within(samples, target: float, *, k: float = 5.0, pole: float = 0
     se = std_se(target, x.size, pole)
     assert within_se(x.std(), target, se, k), (
         f"std {x.std():.6g} not within {k} SE ({se:.3g}) of {target:.6g}")
+
+
+def log_sd_ratio_se(kurtosis: float, n1: int, n2: int) -> float:
+    """Large-sample standard error of ``log(s₁ / s₂)`` for two independent samples of
+    sizes ``n1``, ``n2`` from distributions with (non-excess) ``kurtosis`` κ:
+    ``Var(log s) ≈ (κ − 1) / (4n)`` per sample (delta method; κ = 3: ``1/(2n)``)."""
+    k = float(kurtosis)
+    return float(np.sqrt((k - 1.0) / (4.0 * int(n1)) + (k - 1.0) / (4.0 * int(n2))))
+
+
+def bonferroni_z(m: int, alpha: float = 1e-3) -> float:
+    """Two-sided normal critical value that keeps the family-wise level ``alpha`` over
+    ``m`` comparisons."""
+    return float(stats.norm.ppf(1.0 - float(alpha) / (2.0 * max(int(m), 1))))

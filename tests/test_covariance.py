@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import itertools
 
+import linearmodels.iv as lm_iv
+import linearmodels.iv.covariance as lm_cov
 import numpy as np
 import pytest
 
@@ -15,9 +17,6 @@ from vesselid.identify.covariance import (
     iv_covariance,
     kernel_weights,
 )
-
-lm_iv = pytest.importorskip("linearmodels.iv")
-lm_cov = pytest.importorskip("linearmodels.iv.covariance")
 
 TOL = 1e-10
 
@@ -190,7 +189,7 @@ def test_kernel_weights_match_linearmodels(kernel, bandwidth):
 
 
 def test_bartlett_weights_match_statsmodels():
-    sw = pytest.importorskip("statsmodels.stats.sandwich_covariance")
+    import statsmodels.stats.sandwich_covariance as sw
     for lags in (0, 1, 5, 12):
         np.testing.assert_allclose(kernel_weights("bartlett", lags, lags),
                                    sw.weights_bartlett(lags))

@@ -12,7 +12,7 @@ from gymnasium.utils.env_checker import check_env
 from vesselid.envs import register_envs
 from vesselid.envs.manoeuvring import Manoeuvring3DOFEnv, Manoeuvring3DOFVectorEnv
 from vesselid.simulate import simulate_states
-from vesselid.vessels import CyberShip2Sensors, cybership2_spec
+from vesselid.vessels import CyberShip2Sensors, cybership2_spec, get_hull
 
 ENV_ID = "vesselid/Manoeuvring3DOF-v0"
 CALM = {"current_speed": 0.0, "current_variation": 0.0, "wind_speed": 0.0, "wind_gust": 0.0,
@@ -55,7 +55,8 @@ def test_calm_env_matches_simulate_states() -> None:
     rec = _rollout(env, acts, seed=0, options={"nu": nu0})
     ref = simulate_states(cybership2_spec(), rec["tau"][1:], x0=nu0)
     np.testing.assert_allclose(rec["nu"][:-1], ref, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(rec["tau"][1:], np.clip(acts, -1, 1) * [2.0, 1.5, 1.0])
+    fmax = np.array(get_hull("cybership2").force_max)
+    np.testing.assert_allclose(rec["tau"][1:], np.clip(acts, -1, 1) * fmax)
 
 
 def test_current_enters_as_papers_v_and_w() -> None:

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pymap3d  # noqa: F401  (a missing test dependency fails)
+import pynmea2
 import pytest
 
 from vesselid.cli import main
@@ -17,9 +19,6 @@ from vesselid.logs import TrialLog
 from vesselid.nmea import checksums, hex_checksums
 from vesselid.rawstreams import RawStreamConfig, write_raw_streams
 from vesselid.systems import get_system
-
-pynmea2 = pytest.importorskip("pynmea2")
-pytest.importorskip("pymap3d")
 
 SAMPLES = 3000
 

@@ -5,12 +5,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pytest
+import pymap3d  # noqa: F401  (a missing test dependency fails)
 
 from vesselid.ingest import ingest
-
-rosbags = pytest.importorskip("rosbags")
-pytest.importorskip("pymap3d")
 
 
 def _write_bag(path, n=700, dt=0.05):

@@ -46,7 +46,6 @@ def test_help_and_argument_errors_load_no_kernels(argv: list[str]) -> None:
 
 
 def test_environments_registered_when_gymnasium_is_imported_later() -> None:
-    pytest.importorskip("gymnasium")
     code = ("import vesselid, sys\n"
             "assert 'gymnasium' not in sys.modules\n"
             "import gymnasium\n"

@@ -38,7 +38,6 @@ def test_available_memory_is_positive():
 @pytest.mark.parametrize("suffix", [".csv", ".parquet"])
 def test_batched_file_equals_in_memory_file(tmp_path, suffix):
     """Batches of whole runs change no value; one batch writes the same bytes."""
-    pytest.importorskip("pyarrow")
     system = get_system("heave")
     ref = system.simulate(300, n_runs=5, seed=2).to_log()
     one = tmp_path / f"one{suffix}"
@@ -161,7 +160,6 @@ def test_sidecar_nan_constant_and_binary(saved):
 
 
 def test_corrupted_parquet_page_is_detected(tmp_path):
-    pytest.importorskip("pyarrow")
     path = tmp_path / "t.parquet"
     get_system("heave").simulate(2000, seed=0).to_log().save(path)
     raw = bytearray(path.read_bytes())

@@ -92,7 +92,7 @@ def test_csv_sidecar_contents(tmp_path: Path, log: TrialLog) -> None:
 
 
 def test_parquet_metadata_in_schema(tmp_path: Path, log: TrialLog) -> None:
-    pq = pytest.importorskip("pyarrow.parquet")
+    import pyarrow.parquet as pq
     log.save(tmp_path / "trial.parquet")
     schema_meta = pq.read_schema(tmp_path / "trial.parquet").metadata
     assert json.loads(schema_meta[PARQUET_METADATA_KEY])["metadata"] == log.metadata
@@ -221,7 +221,7 @@ def test_atomic_sidecar_writer_raises_keeps_old_files(
 def test_atomic_parquet_writer_raises(
     tmp_path: Path, log: TrialLog, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    pq = pytest.importorskip("pyarrow.parquet")
+    import pyarrow.parquet as pq
 
     real = pq.ParquetWriter.write_table
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import warnings
 
+import control as ct
 import numpy as np
 import pytest
 
@@ -13,8 +14,6 @@ from vesselid.model import ModelSpec
 from vesselid.modelio import export_model, load_model, to_control
 from vesselid.simulate import simulate_states
 from vesselid.systems import get_system
-
-ct = pytest.importorskip("control")
 
 
 @pytest.fixture(scope="module")

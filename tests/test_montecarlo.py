@@ -70,7 +70,7 @@ def test_parallel_kernels_path_matches_small_batches():
 
 
 def test_dask_local_cluster_bit_identical(reference):
-    distributed = pytest.importorskip("distributed")
+    import distributed
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
                                   dashboard_address=None) as cluster, \
             distributed.Client(cluster) as client:
@@ -117,8 +117,6 @@ def test_paper_table_format(reference):
 
 @pytest.mark.parametrize("suffix", [".csv", ".parquet"])
 def test_save_load_round_trip(reference, tmp_path, suffix):
-    if suffix == ".parquet":
-        pytest.importorskip("pyarrow")
     path = save_results(reference, tmp_path / f"res{suffix}")
     back = load_results(path)
     pd.testing.assert_frame_equal(back, reference, check_dtype=False, check_categorical=False)

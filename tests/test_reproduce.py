@@ -180,12 +180,30 @@ def test_cli_json_stdout_and_bad_input(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_paper_size_matches_published_tables():
-    """1000 runs × 10⁴ samples: every mean within 1.5 published sd of the published mean,
-    every sd within ×/÷ 1.25 of the published sd, and all claims hold."""
-    res = reproduce(progress=False)
+    """1000 runs × 10⁴ samples, every row with published numbers: all claims hold; every
+    mean within 1.5 published sd of the published mean (a reproduction-fidelity tolerance:
+    the paper does not give its pulse widths, so means differ by more than Monte Carlo
+    error, README "Reproducing the paper"); every sd equal to the published sd within
+    Monte Carlo error — ``|log(sd / published sd)|`` below the Bonferroni critical value
+    (family-wise level 10⁻³) times its standard error, from the kurtosis of this run's
+    estimates and the two run counts (the paper's: 1000)."""
+    from _stats import bonferroni_z, log_sd_ratio_se
+    from scipy import stats
+
+    res = reproduce(progress=False, figures=False)
     assert res.ok, res.to_text()
+    rows = []
     for t in (1, 2):
-        c = res.comparisons[t]
+        c = res.comparisons[t].dropna(subset=["published_mean", "published_sd"])
+        assert len(c) == 9 and c["failed"].sum() == 0
         assert np.all(np.abs(c["diff_sd"]) < 1.5), c
-        assert np.all((c["sd_ratio"] > 0.8) & (c["sd_ratio"] < 1.25)), c
-        assert c["failed"].sum() == 0
+        r = res.results[t]
+        for _, row in c.iterrows():
+            e = r.loc[(r["method"] == row["method"]) & (r["term"] == row["term"]),
+                      "normalized_error"].to_numpy(float)
+            e = e[np.isfinite(e)]
+            se = log_sd_ratio_se(stats.kurtosis(e, fisher=False), e.size, 1000)
+            rows.append((t, row["method"], row["parameter"], np.log(row["sd_ratio"]) / se))
+    z = bonferroni_z(len(rows))
+    bad = [r for r in rows if abs(r[3]) > z]
+    assert not bad, f"sd differs from the published sd beyond {z:.2f} SE: {bad}"

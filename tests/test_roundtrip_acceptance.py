@@ -5,6 +5,8 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+import pymap3d  # noqa: F401  (a missing test dependency fails)
+import pynmea2  # noqa: F401  (a missing test dependency fails)
 import pytest
 
 from vesselid.cli import main
@@ -12,9 +14,6 @@ from vesselid.identify import identify
 from vesselid.ingest import ingest
 from vesselid.logs import TrialLog
 from vesselid.model import ModelSpec
-
-pytest.importorskip("pynmea2")
-pytest.importorskip("pymap3d")
 
 
 @pytest.mark.slow

@@ -86,11 +86,18 @@ def fits(log):
     return fit
 
 
-@pytest.mark.parametrize(("method", "combine"), _all_estimators())
-@pytest.mark.parametrize("s", [1e6, 1e-6])
+EXTREME = [(m, c, s) for m, c in [("ls", "stacked"), ("iv", "stacked"), ("iv-zero-mean", "pooled"),
+                                  ("lagged-2sls", "pooled"), ("sriv", "pooled"),
+                                  ("auto", "pooled")] for s in (1e60, 1e-60)]
+
+
+@pytest.mark.parametrize(("method", "combine", "s"),
+                         [(m, c, s) for m, c in _all_estimators() for s in (1e6, 1e-6)] + EXTREME)
 def test_every_estimator_and_combine_mode_is_unit_invariant(fits, method, combine, s):
     """Estimates to 1e-8 (the closed forms agree to ~1e-12; the refined iterations stop on
-    a relative residual in parameter units, so they may stop one step apart: ≤ ~1e-9)."""
+    a relative residual in parameter units, so they may stop one step apart: ≤ ~1e-9).
+    1e±60: the GMM weights and the stacked covariance are fourth-order sums that would
+    leave float64 in raw units."""
     ref, res = fits(method, combine, 1), fits(method, combine, s)
     unit = np.array([1.0, s, 1.0])
     np.testing.assert_allclose(res.params.to_numpy() * unit, ref.params.to_numpy(), rtol=1e-8)

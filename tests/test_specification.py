@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import linearmodels.iv as lm_iv
 import numpy as np
 import pytest
 
@@ -13,8 +14,6 @@ from vesselid.identify.specification import (
     ljung_box,
     residual_correlations,
 )
-
-lm_iv = pytest.importorskip("linearmodels.iv")
 
 
 def _endogenous(rng, n=600, rho=0.6, const=0.2):
@@ -80,7 +79,7 @@ def test_endogeneity_test_matches_wu_hausman_and_says_it_plainly():
 
 
 def test_ljung_box_sums_experiments_and_matches_statsmodels():
-    sm = pytest.importorskip("statsmodels.stats.diagnostic")
+    import statsmodels.stats.diagnostic as sm
     rng = np.random.default_rng(4)
     white = rng.normal(size=2000)
     ma = np.convolve(rng.normal(size=2001), [1.0, -0.7], "valid")

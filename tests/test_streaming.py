@@ -5,14 +5,13 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+import pyarrow  # noqa: F401  (a missing test dependency fails)
 import pytest
 
 from vesselid.identify import identify
 from vesselid.logs import TrialLog
 from vesselid.streaming import ParquetExperiments, identify_stream
 from vesselid.systems import get_system
-
-pytest.importorskip("pyarrow")
 
 
 @pytest.fixture(scope="module")
@@ -129,7 +128,7 @@ def test_cli_identify_stream(logs, tmp_path, capsys):
 
 
 def test_dask_cluster_equals_local(logs):
-    distributed = pytest.importorskip("distributed")
+    import distributed
     d, _log = logs
     local = identify_stream(d, method="iv-zero-mean")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,

@@ -156,6 +156,22 @@ def _check_raw_request(raw: str, system: Any) -> None:
     if missing:
         raise CLIError(f"--raw needs a surface vessel with surge u, sway v and yaw rate r "
                        f"(e.g. --system cybership2); {system.spec.name!r} has states {states}")
+    check_raw_dir(raw)
+
+
+def check_output_file(option: str, target: str) -> None:
+    """An output file path: not a directory, and no regular file among its parents."""
+    path = Path(target)
+    if path.is_dir():
+        raise IsADirectoryError(21, f"{option} path is a directory", target)
+    parent = next((p for p in path.absolute().parents if p.exists()), None)
+    if parent is not None and not parent.is_dir():
+        raise NotADirectoryError(20, f"{option}: not a directory", str(parent))
+
+
+def check_raw_dir(raw: str) -> None:
+    """``--raw DIR`` (simulate, sea-trial): refuse a path that cannot become a directory
+    before anything is simulated or written (all outputs or none)."""
     path = Path(raw)
     if path.exists() and not path.is_dir():
         raise NotADirectoryError(20, "--raw must be a directory, not an existing file", raw)
@@ -165,6 +181,9 @@ def _check_raw_request(raw: str, system: Any) -> None:
 
 
 def cmd_identify(args: argparse.Namespace) -> int:
+    for option, target in (("--json", args.json), ("--export", getattr(args, "export", None))):
+        if target and target != "-":  # fail before the work (and the imports), not after it
+            check_output_file(option, target)
     if getattr(args, "stream", False):
         return _identify_stream(args)
     from vesselid import limits
@@ -181,8 +200,6 @@ def cmd_identify(args: argparse.Namespace) -> int:
     if args.cov is not None and args.cov not in covariance_api.available():
         raise CLIError(f"argument --cov: invalid choice {args.cov!r} "
                        f"(choose from {', '.join(covariance_api.available())})")
-    if args.json and args.json != "-" and Path(args.json).is_dir():
-        raise IsADirectoryError(21, "--json path is a directory", args.json)
     spec = ModelSpec.load(args.model) if args.model else None
     rows, cols = estimate_shape(args.log)
     limits.check("identify", f"{args.log} (~{rows:.3g} rows × {cols} columns)",
@@ -214,8 +231,6 @@ def _identify_stream(args: argparse.Namespace) -> int:
                        f"(choose from {', '.join(covariance_api.available())})")
     if args.target != "measured":
         raise CLIError("--target aggregated is not available with --stream")
-    if args.json and args.json != "-" and Path(args.json).is_dir():
-        raise IsADirectoryError(21, "--json path is a directory", args.json)
     spec = ModelSpec.load(args.model) if args.model else None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

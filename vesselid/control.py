@@ -193,7 +193,8 @@ class ControlExperiment:
         Per controller: RMS surge-speed error (m/s), RMS heading error (deg), mean |X|,
         mean |N| (after ``settle`` seconds).
     traces : dict name -> DataFrame
-        Time series ``t, u, u_ref, psi, psi_ref, X, N`` (true states).
+        Time series ``t, u, u_ref, psi, psi_ref, X, N, r`` (true states; the forces
+        applied at ``t``).
     """
 
     table: pd.DataFrame
@@ -292,21 +293,21 @@ def run_control_experiment(
                        force_max=tuple(ctrl.fmax), **dict(env_options or {}))
         _, info = env.reset(seed=seed, options={"nu": [initial_speed, 0.0, 0.0],
                                                 "eta": [0.0, 0.0, 0.0]})
-        rec = np.zeros((steps, 7))
+        rec = np.zeros((steps, 8))
         diverged = False
         for k in range(steps):
             t = k * ctrl.dt
             u_ref, psi_ref = reference(t)
             a = ctrl(info, t)
             rec[k] = (t, info["nu"][0], u_ref, info["eta"][2], psi_ref,
-                      a[0] * ctrl.fmax[0], a[2] * ctrl.fmax[2])
+                      a[0] * ctrl.fmax[0], a[2] * ctrl.fmax[2], info["nu"][2])
             _, _, term, _trunc, info = env.step(a)
             if term:
                 diverged = True
                 rec = rec[:k + 1]
                 break
         env.close()
-        tr = pd.DataFrame(rec, columns=["t", "u", "u_ref", "psi", "psi_ref", "X", "N"])
+        tr = pd.DataFrame(rec, columns=["t", "u", "u_ref", "psi", "psi_ref", "X", "N", "r"])
         traces[name] = tr
         m = tr["t"] >= settle
         e_psi = np.angle(np.exp(1j * (tr["psi"][m] - tr["psi_ref"][m])))

@@ -429,6 +429,8 @@ class Prediction:
 
 def predict_covariance(info: Centred | Information, spec: ModelSpec) -> Prediction:
     """``Cov θ̂ = A⁻¹ S A⁻ᵀ`` per equation (block diagonal) and the wind bias ``A⁻¹ b``."""
+    from vesselid.identify.linalg import condition_number
+
     if isinstance(info, Information):
         info = info.centred()
     p = spec.n_params
@@ -441,7 +443,8 @@ def predict_covariance(info: Centred | Information, spec: ModelSpec) -> Predicti
             a_inv = np.linalg.inv(info.a[i])
             c = a_inv @ info.s[i] @ a_inv.T
             bi = a_inv @ info.b[i]
-            if not (np.all(np.isfinite(c)) and np.linalg.cond(info.a[i]) < 1e14):
+            # equilibrated: a design is not singular because of the units of its terms
+            if not (np.all(np.isfinite(c)) and condition_number(info.a[i]) < 1e14):
                 raise np.linalg.LinAlgError
         except np.linalg.LinAlgError:
             c = np.full((len(cols), len(cols)), np.inf)

@@ -899,11 +899,11 @@ def add_parser(subparsers: Any) -> None:
                                                           "moderate", "rough"],
                    help="waves (JONSWAP, Froude-scaled 1:70): first-order wave-induced "
                         "motion on the measurements; default none")
-    p.add_argument("--wave-height", type=float, default=None,
+    p.add_argument("--wave-height", type=finite_float, default=None,
                    help="full-scale significant wave height H_s (m); overrides --sea-state")
-    p.add_argument("--wave-period", type=float, default=None,
+    p.add_argument("--wave-period", type=finite_float, default=None,
                    help="full-scale peak period T_p (s)")
-    p.add_argument("--wave-direction", type=float, default=45.0,
+    p.add_argument("--wave-direction", type=finite_float, default=45.0,
                    help="going-to direction of the waves, degrees from north")
     p.add_argument("--source", default="batch", choices=["batch", "env"],
                    help="batch simulator or Manoeuvring3DOF-v0 through the recorder")
@@ -968,6 +968,10 @@ def cmd_sea_trial(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise SeaTrialError(f"--out must be a directory, got the file {out}")
+    if getattr(args, "raw", None):  # before simulating: all outputs or none
+        from vesselid.cli import check_raw_dir
+
+        check_raw_dir(args.raw)
     _guard(args)
     out.mkdir(parents=True, exist_ok=True)
     opts = {"current_speed": args.current_speed,

@@ -381,7 +381,14 @@ def square_designs(data: RegressionData, spec: ModelSpec, z: np.ndarray, phi: np
         if combine == "stacked" and starts.size > 2:
             a_n = np.stack([d.z[a:b].T @ d.phi[a:b] / max(b - a, 1)
                             for a, b in itertools.pairwise(starts)])
-            d.weight = np.diag(linalg.stacked_row_weights(a_n))
+            w = linalg.stacked_row_weights(a_n)
+            # the global factor is free: make W O(1) against the unit-norm instrument
+            # columns the covariance works with (no overflow for signals of 1e±60)
+            zs = np.sqrt(np.einsum("ij,ij->j", d.z, d.z))
+            ok = (zs > 0) & np.isfinite(zs)
+            if ok.any():
+                w = w / np.exp(np.mean(np.log(w[ok] * zs[ok] ** 2)))
+            d.weight = np.diag(w)
         out.append(d)
     return out
 

@@ -263,6 +263,11 @@ def solve_equations(
         stack = np.column_stack([z, phi[:, sl], data.target[:, i]])
         valid = np.all(np.isfinite(stack), axis=1)
         stack = np.where(valid[:, None], stack, 0.0)
+        # equilibrate every column exactly (powers of two, undone below): the weights and
+        # Hansen's J are fourth-order sums (Σ (zε)²) that over/underflow for signals of
+        # 1e±50 in raw units; filtering and centring commute with the scaling
+        col = linalg.pow2_scale(np.max(np.abs(stack), axis=0, initial=0.0))
+        stack = stack * col
         if ar is not None:
             stack, valid = ivk.ar_filter(stack, data.starts, valid,
                                          np.ascontiguousarray(ar[data.group, i]))
@@ -301,11 +306,12 @@ def solve_equations(
                     j_r = 0.0
                 c_stat[:, i] = j_stat[:, i] - j_r
                 c_df[i] = n_lag
-        theta[:, sl] = th
+        c_z, c_p, c_y = col[:k_i], col[k_i:k_i + p_i], col[-1]
+        theta[:, sl] = th * c_p / c_y  # back to the units of the data
         ok &= ok_i
         if designs is not None:
-            designs.append((zz[valid], pp[valid], yy[valid], valid,
-                            None if w is None else np.asarray(w)[0]))
+            designs.append((zz[valid] / c_z, pp[valid] / c_p, yy[valid] / c_y, valid,
+                            None if w is None else np.asarray(w)[0] * np.outer(c_z, c_z)))
     theta[~ok] = np.nan
     return GMMSolution(theta=theta, ok=ok, j=j_stat, df=df, c=c_stat, c_df=c_df,
                        designs=designs)

@@ -53,8 +53,10 @@ def cmd_ingest(args: argparse.Namespace) -> int:
         except ValueError:
             raise IngestError(f"--origin needs LAT,LON[,H], got {args.origin!r}") from None
     from vesselid import limits
+    from vesselid.cli import check_output_file
 
-    limits.check_inputs("ingest", args.inputs)  # before parsing anything
+    check_output_file("--out", args.out)  # before parsing anything
+    limits.check_inputs("ingest", args.inputs)
     log = ingest(args.inputs, args.dt, config=args.config, origin=origin,
                  max_gap=args.max_gap, min_duration=args.min_duration)
     log.metadata["command"] = "vesselid " + " ".join(sys.argv[1:]) if sys.argv else ""
