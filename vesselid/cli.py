@@ -4,6 +4,7 @@
 
     vesselid simulate  --system heave --samples 10000 --seed 0 --out trial.csv
     vesselid identify  trial.csv --model heave.toml [--method NAME] [--cov NAME] [--json PATH|-]
+    vesselid identify  LOGS_DIR --stream [--method ls|iv|iv-zero-mean]   # Parquet, bounded memory
     vesselid reproduce [--table 1|2|all] [--runs 1000] [--samples 10000] [--seed 0] [--out DIR]
     vesselid sea-trial --vessel cybership2 --experiments 6 --samples 20000 --seed 0 --out DIR
 
@@ -183,8 +184,9 @@ def cmd_identify(args: argparse.Namespace) -> int:
     for option, target in (("--json", args.json), ("--export", getattr(args, "export", None))):
         if target and target != "-":  # fail before the work (and the imports), not after it
             check_output_file(option, target)
+    if getattr(args, "stream", False):
+        return _identify_stream(args)
     from vesselid import limits
-    from vesselid._io import atomic_write_text
     from vesselid.identify import covariance_api, identify
     from vesselid.identify.registry import DEFAULT_METHOD, ESTIMATORS
     from vesselid.logs import TrialLog, estimate_shape
@@ -209,6 +211,37 @@ def cmd_identify(args: argparse.Namespace) -> int:
         warnings.simplefilter("always")
         result = identify(log, spec, method=args.method, combine=args.combine,
                           target=args.target, cov_type=args.cov, max_iter=args.max_iter)
+    return _report_identify(args, result, caught)
+
+
+def _identify_stream(args: argparse.Namespace) -> int:
+    """``identify --stream``: Parquet logs read one experiment at a time (bounded memory)."""
+    from vesselid.identify import covariance_api
+    from vesselid.model import ModelSpec
+    from vesselid.streaming import DEFAULT_STREAM_METHOD, STREAM_METHODS, identify_stream
+
+    if args.method is None:
+        args.method = DEFAULT_STREAM_METHOD
+    if args.method not in STREAM_METHODS:
+        raise CLIError(f"argument --method: {args.method!r} cannot be streamed (its estimate is "
+                       f"not a sum over experiments); with --stream choose from "
+                       f"{', '.join(STREAM_METHODS)}")
+    if args.cov is not None and args.cov not in covariance_api.available():
+        raise CLIError(f"argument --cov: invalid choice {args.cov!r} "
+                       f"(choose from {', '.join(covariance_api.available())})")
+    if args.target != "measured":
+        raise CLIError("--target aggregated is not available with --stream")
+    spec = ModelSpec.load(args.model) if args.model else None
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = identify_stream(args.log, spec, method=args.method, combine=args.combine,
+                                 cov_type=args.cov, max_iter=args.max_iter)
+    return _report_identify(args, result, caught)
+
+
+def _report_identify(args: argparse.Namespace, result: Any, caught: list) -> int:
+    from vesselid._io import atomic_write_text
+
     if args.json:
         text = result.to_json(indent=2)
         if args.json == "-":
@@ -290,7 +323,8 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
                     "help": f"covariance estimator (default {covariance_api.default_cov_type()})"}
     p = sub.add_parser("identify", help="identify a model from a trial log",
                        description="Identify θ from a trial log (CSV or Parquet).")
-    p.add_argument("log", help="trial log (.csv with optional .json sidecar, or .parquet)")
+    p.add_argument("log", help="trial log (.csv with optional .json sidecar, or .parquet); "
+                               "with --stream a Parquet log or a directory of them")
     p.add_argument("--model", help="model spec TOML (default: the spec stored in the log)")
     p.add_argument("--method", **method_opts)
     p.add_argument("--cov", **cov_opts)
@@ -302,6 +336,9 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
                         "stacked least-squares form (6)")
     p.add_argument("--max-iter", type=int_at_least(1), default=100)
     p.add_argument("--json", metavar="PATH|-", help="write the result as JSON ('-' = stdout)")
+    p.add_argument("--stream", action="store_true",
+                   help="logs larger than memory: read the Parquet log(s) one experiment at a "
+                        "time (methods ls, iv, iv-zero-mean; default iv-zero-mean)")
     p.add_argument("--export", metavar="MODEL.toml",
                    help="write the identified model (spec with θ̂ and its covariance) for reuse")
     p.set_defaults(func=cmd_identify)

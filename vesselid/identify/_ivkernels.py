@@ -17,11 +17,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from vesselid.regressors import fill_factors_xu, kernel, one_step, regressors
+
 __all__ = ["ar_filter", "autocov", "center", "combined_moments", "cross_sums",
            "simulated_regressors"]
 
 
-@njit(cache=True)
+@kernel()
 def simulated_regressors(target, u, starts, group, theta, fac, eq, limit):
     """``ζ(k) = Φ([x̂(k−1); u(k−1)])`` with ``x̂`` simulated from ``theta[group[s]]``.
 
@@ -31,11 +33,9 @@ def simulated_regressors(target, u, starts, group, theta, fac, eq, limit):
     t_len, n = target.shape
     m = u.shape[1]
     n_par = fac.shape[0]
-    n_f = 2 * (n + m) + 1
     z = np.full((t_len, n_par), np.nan)
     ok = np.ones(starts.shape[0] - 1, dtype=np.bool_)
-    f = np.empty(n_f)
-    f[n_f - 1] = 1.0
+    f = np.empty(2 * (n + m) + 1)
     xh = np.empty(n)
     for s in range(starts.shape[0] - 1):
         a = starts[s]
@@ -44,17 +44,10 @@ def simulated_regressors(target, u, starts, group, theta, fac, eq, limit):
         for i in range(n):
             xh[i] = target[a, i]
         for k in range(a + 1, b):
-            for i in range(n):
-                f[i] = xh[i]
-                f[n + m + i] = abs(xh[i])
-                xh[i] = 0.0
-            for j in range(m):
-                f[n + j] = u[k - 1, j]
-                f[2 * n + m + j] = abs(u[k - 1, j])
-            for p in range(n_par):
-                zp = f[fac[p, 0]] * f[fac[p, 1]]
-                z[k, p] = zp
-                xh[eq[p]] += th[p] * zp
+            fill_factors_xu(xh, u[k - 1], f)
+            xh[:] = 0.0
+            regressors(fac, f, z[k])
+            one_step(eq, th, z[k], xh)
             bad = False
             for i in range(n):
                 if not abs(xh[i]) <= limit[s]:
@@ -181,34 +174,13 @@ def cross_sums(z, phi, y, starts, valid):
 
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def _combined_row(k, regsig, u, xh, fac, ztype, zpar, f_dat, f_sim, f_l2, f_l3, phi, z):
-    n = regsig.shape[1]
-    m = u.shape[1]
-    for i in range(n):
-        d = regsig[k - 1, i]
-        f_dat[i] = d
-        f_dat[n + m + i] = abs(d)
-        f_sim[i] = xh[i]
-        f_sim[n + m + i] = abs(xh[i])
-        d2 = regsig[k - 2, i]
-        f_l2[i] = d2
-        f_l2[n + m + i] = abs(d2)
-        d3 = regsig[k - 3, i]
-        f_l3[i] = d3
-        f_l3[n + m + i] = abs(d3)
-    for j in range(m):
-        v = u[k - 1, j]
-        f_dat[n + j] = v
-        f_dat[2 * n + m + j] = abs(v)
-        f_sim[n + j] = v
-        f_sim[2 * n + m + j] = abs(v)
-        f_l2[n + j] = v
-        f_l2[2 * n + m + j] = abs(v)
-        f_l3[n + j] = v
-        f_l3[2 * n + m + j] = abs(v)
-    for p in range(fac.shape[0]):
-        phi[p] = f_dat[fac[p, 0]] * f_dat[fac[p, 1]]
+    fill_factors_xu(regsig[k - 1], u[k - 1], f_dat)
+    fill_factors_xu(xh, u[k - 1], f_sim)
+    fill_factors_xu(regsig[k - 2], u[k - 1], f_l2)
+    fill_factors_xu(regsig[k - 3], u[k - 1], f_l3)
+    regressors(fac, f_dat, phi)
     for c in range(ztype.shape[0]):
         p = zpar[c]
         t = ztype[c]
@@ -220,7 +192,7 @@ def _combined_row(k, regsig, u, xh, fac, ztype, zpar, f_dat, f_sim, f_l2, f_l3, 
             z[c] = f_l3[fac[p, 0]] * f_l3[fac[p, 1]]
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def combined_moments(regsig, target, u, starts, group, theta, active, fac, eq, ztype, zpar,
                      zeq, limit, second, theta1, means_z, means_phi, means_y, means_g, lags,
                      s_a, s_b, s_m, s_z, s_phi, s_y, count, status, s_hac):
@@ -250,12 +222,9 @@ def combined_moments(regsig, target, u, starts, group, theta, active, fac, eq, z
         f_sim = np.empty(n_f)
         f_l2 = np.empty(n_f)
         f_l3 = np.empty(n_f)
-        f_dat[n_f - 1] = 1.0
-        f_sim[n_f - 1] = 1.0
-        f_l2[n_f - 1] = 1.0
-        f_l3[n_f - 1] = 1.0
         xh = np.empty(n)
         phi = np.empty(n_par)
+        phi_sim = np.empty(n_par)
         z = np.empty(k_tot)
         e = np.empty(n)
         sc = np.empty(k_tot)
@@ -308,17 +277,10 @@ def combined_moments(regsig, target, u, starts, group, theta, active, fac, eq, z
                         for c2 in range(c, k_tot):
                             l_h[c, c2] += hc * h[c2]
             # advance the auxiliary model: x̂(k) from x̂(k−1), u(k−1)
-            for i in range(n):
-                f_sim[i] = xh[i]
-                f_sim[n + m + i] = abs(xh[i])
-            for j in range(m):
-                v = u[k - 1, j]
-                f_sim[n + j] = v
-                f_sim[2 * n + m + j] = abs(v)
-            for i in range(n):
-                xh[i] = 0.0
-            for p in range(n_par):
-                xh[eq[p]] += th[p] * (f_sim[fac[p, 0]] * f_sim[fac[p, 1]])
+            fill_factors_xu(xh, u[k - 1], f_sim)
+            xh[:] = 0.0
+            regressors(fac, f_sim, phi_sim)
+            one_step(eq, th, phi_sim, xh)
             bad = False
             for i in range(n):
                 if not abs(xh[i]) <= limit[s]:

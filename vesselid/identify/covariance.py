@@ -473,8 +473,17 @@ class CovarianceEstimator:
         cond = np.array([_condition(a_sum[np.ix_(z_equation == i, equation == i)])
                          for i in range(n_eq)])
         try:
-            h_inv = np.linalg.inv(h)
-            cov = h_inv @ middle @ h_inv.T
+            if n_ins == n_par and weight is None and (combine == "pooled" or len(segs) == 1):
+                # just identified, pooled: H⁻¹ A_Σᵀ = A_Σ⁻¹, and A_Σ⁻¹ (Σ S_E) A_Σ⁻ᵀ keeps the
+                # accuracy that forming H = A_ΣᵀA_Σ (condition number squared) loses
+                a_inv = np.linalg.inv(a_sum)
+                cov = a_inv @ sum(s_list) @ a_inv.T
+            elif combine == "stacked" and _is_positive_diagonal(w_mat):
+                cov = _stacked_qr_sandwich(a_list, s_list, np.diag(w_mat),
+                                           [s.stop - s.start for s in segs])
+            else:
+                h_inv = np.linalg.inv(h)
+                cov = h_inv @ middle @ h_inv.T
             cov = 0.5 * (cov + cov.T)
         except np.linalg.LinAlgError:
             cov = np.full((n_par, n_par), np.inf)
@@ -491,6 +500,30 @@ class CovarianceEstimator:
             starts: np.ndarray | None = None, **options: Any) -> np.ndarray:
         """Shortcut: ``estimate(...).cov``."""
         return self.estimate(z, phi, resid, starts, **options).cov
+
+
+def _is_positive_diagonal(w: np.ndarray) -> bool:
+    return bool(np.all(np.diag(w) > 0) and np.count_nonzero(w - np.diag(np.diag(w))) == 0)
+
+
+def _stacked_qr_sandwich(a_list: list[np.ndarray], s_list: list[np.ndarray],
+                         w_diag: np.ndarray, n_list: list[int]) -> np.ndarray:
+    """``H⁻¹ (Σ_E G_E S_E G_Eᵀ) H⁻ᵀ`` of the stacked form without forming ``H``.
+
+    With ``B = [W^½ A_E / N_E]_E = QR`` (reduced QR), ``H = BᵀB = RᵀR`` and
+    ``H⁻¹ G_E = R⁻¹ Q_Eᵀ W^½ / N_E``, so the covariance is ``R⁻¹ (Σ_E C_E S_E C_Eᵀ) R⁻ᵀ``
+    with ``C_E = Q_Eᵀ W^½ / N_E``: the condition number of ``B`` enters once, not squared.
+    """
+    root = np.sqrt(w_diag)
+    b = np.vstack([root[:, None] * a / n for a, n in zip(a_list, n_list, strict=True)])
+    q, r = np.linalg.qr(b)
+    k = root.size
+    middle = np.zeros((r.shape[0], r.shape[0]))
+    for e, (s_e, n) in enumerate(zip(s_list, n_list, strict=True)):
+        c = q[e * k:(e + 1) * k].T * root[None, :] / n
+        middle += c @ s_e @ c.T
+    x = np.linalg.solve(r, middle)
+    return np.linalg.solve(r, x.T)
 
 
 def _column_scale(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
