@@ -23,8 +23,9 @@ Registration uses string entry points, so nothing here imports an environment mo
 
 from __future__ import annotations
 
-import importlib
 from typing import Any
+
+from vesselid._lazy import lazy_attributes
 
 __all__ = [
     "ENV_IDS",
@@ -82,14 +83,4 @@ def register_envs() -> None:
             gymnasium.register(id=env_id, **kwargs)
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_attributes(__name__, _LAZY, __all__)

@@ -1,4 +1,4 @@
-"""Estimator study: which estimator should be the package default? (issue 10)
+"""Estimator study: which estimator should be the package default?
 
 Monte Carlo on the heave system of §6, N = 10⁴ samples per run, for
 

@@ -13,6 +13,7 @@ __version__ = "0.1.0"
 import sys
 from typing import Any
 
+from vesselid._lazy import lazy_attributes
 from vesselid.errors import (
     ConvergenceWarning,
     ExperimentDesignWarning,
@@ -46,19 +47,7 @@ __all__ = [
 _LAZY = {"Aggregate": "vesselid.model", "ModelSpec": "vesselid.model", "Term": "vesselid.terms"}
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_attributes(__name__, _LAZY, __all__)
 
 
 class _RegisterWithGymnasium:

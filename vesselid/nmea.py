@@ -133,36 +133,32 @@ def _fixed(values: np.ndarray, decimals: int) -> list[str]:
     return [fmt.format(v) for v in np.asarray(values, dtype=float).tolist()]
 
 
-def format_latitude(lat_deg: np.ndarray, decimals: int = 7) -> tuple[list[str], list[str]]:
-    """``ddmm.mmmmmmm`` and ``N``/``S`` columns."""
-    lat = np.asarray(lat_deg, dtype=float)
-    a = np.abs(lat)
+def _format_angle(deg_value: np.ndarray, decimals: int, deg_digits: int,
+                  hemispheres: tuple[str, str]) -> tuple[list[str], list[str]]:
+    """Degrees and decimal minutes (``deg_digits`` degree digits) and the hemisphere
+    letter (``hemispheres = (positive, negative)``); minutes that round to 60 carry."""
+    x = np.asarray(deg_value, dtype=float)
+    a = np.abs(x)
     deg = np.floor(a)
     minutes = np.round((a - deg) * 60.0, decimals)
     carry = minutes >= 60.0
     deg = deg + carry
     minutes = np.where(carry, minutes - 60.0, minutes)
     w = 3 + decimals
-    text = [f"{int(d):02d}{m:0{w}.{decimals}f}" for d, m in zip(deg.tolist(), minutes.tolist(),
-                                                                 strict=True)]
-    hemi = np.where(lat < 0, "S", "N").tolist()
+    text = [f"{int(d):0{deg_digits}d}{m:0{w}.{decimals}f}"
+            for d, m in zip(deg.tolist(), minutes.tolist(), strict=True)]
+    hemi = np.where(x < 0, hemispheres[1], hemispheres[0]).tolist()
     return text, hemi
+
+
+def format_latitude(lat_deg: np.ndarray, decimals: int = 7) -> tuple[list[str], list[str]]:
+    """``ddmm.mmmmmmm`` and ``N``/``S`` columns."""
+    return _format_angle(lat_deg, decimals, 2, ("N", "S"))
 
 
 def format_longitude(lon_deg: np.ndarray, decimals: int = 7) -> tuple[list[str], list[str]]:
     """``dddmm.mmmmmmm`` and ``E``/``W`` columns."""
-    lon = np.asarray(lon_deg, dtype=float)
-    a = np.abs(lon)
-    deg = np.floor(a)
-    minutes = np.round((a - deg) * 60.0, decimals)
-    carry = minutes >= 60.0
-    deg = deg + carry
-    minutes = np.where(carry, minutes - 60.0, minutes)
-    w = 3 + decimals
-    text = [f"{int(d):03d}{m:0{w}.{decimals}f}" for d, m in zip(deg.tolist(), minutes.tolist(),
-                                                                 strict=True)]
-    hemi = np.where(lon < 0, "W", "E").tolist()
-    return text, hemi
+    return _format_angle(lon_deg, decimals, 3, ("E", "W"))
 
 
 def format_utc_time(unix_seconds: np.ndarray, decimals: int = 2) -> list[str]:

@@ -77,8 +77,6 @@ class RandomPulses(_Pulses):
     """
 
     kind: ClassVar[str] = "pulses"
-    low: float = 0.1
-    high: float = 0.3
     min_width: int = 10
     max_width: int = 100
 
@@ -102,11 +100,7 @@ class AlternatingPulses(_Pulses):
     varying width"); see :mod:`vesselid.reproduce`.
     """
 
-    kind: ClassVar[str] = "alternating_pulses"
-    low: float = 0.1
-    high: float = 0.3
-    min_width: int = 1
-    max_width: int = 20
+    kind: ClassVar[str] = "alternating_pulses"  # the defaults of _Pulses: 0.1–0.3, 1–20
 
     def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
         # Draw order: the starting level, then widths in blocks of about 1.1 n / mean

@@ -208,26 +208,17 @@ def _force_matrix(c: CyberShip2Coefficients) -> np.ndarray:
     f[0, col["u*|u|"]] = c.X_uu
     f[0, col["v*r"]] = c.m - c.Y_vdot
     f[0, col["r*r"]] = a
-    # sway: Y − (m − X_u̇) u r + Y_v v + Y_|v|v v|v| + Y_|r|v v|r| + Y_r r
-    #       + Y_|v|r r|v| + Y_|r|r r|r|
-    f[1, col["Y"]] = 1.0
+    # sway: Y − (m − X_u̇) u r + damping;  yaw: N − (m x_g − (N_v̇+Y_ṙ)/2) u r − (X_u̇ − Y_v̇) u v
+    # + damping; the same six damping terms in both, e.g. Y_v v + Y_|v|v v|v| + Y_|r|v v|r|
+    # + Y_r r + Y_|v|r r|v| + Y_|r|r r|r| (coefficient names Y_v, Y_vv, Y_rv, Y_r, Y_vr, Y_rr)
     f[1, col["u*r"]] = -(c.m - c.X_udot)
-    f[1, col["v"]] = c.Y_v
-    f[1, col["v*|v|"]] = c.Y_vv
-    f[1, col["v*|r|"]] = c.Y_rv
-    f[1, col["r"]] = c.Y_r
-    f[1, col["r*|v|"]] = c.Y_vr
-    f[1, col["r*|r|"]] = c.Y_rr
-    # yaw: N − (m x_g − (N_v̇+Y_ṙ)/2) u r − (X_u̇ − Y_v̇) u v + N_v v + ... + N_|r|r r|r|
-    f[2, col["N"]] = 1.0
     f[2, col["u*r"]] = -a
     f[2, col["u*v"]] = -(c.X_udot - c.Y_vdot)
-    f[2, col["v"]] = c.N_v
-    f[2, col["v*|v|"]] = c.N_vv
-    f[2, col["v*|r|"]] = c.N_rv
-    f[2, col["r"]] = c.N_r
-    f[2, col["r*|v|"]] = c.N_vr
-    f[2, col["r*|r|"]] = c.N_rr
+    damping = {"v": "v", "v*|v|": "vv", "v*|r|": "rv", "r": "r", "r*|v|": "vr", "r*|r|": "rr"}
+    for row, force in ((1, "Y"), (2, "N")):
+        f[row, col[force]] = 1.0
+        for term, name in damping.items():
+            f[row, col[term]] = getattr(c, f"{force}_{name}")
     return f
 
 
