@@ -161,14 +161,20 @@ def format_longitude(lon_deg: np.ndarray, decimals: int = 7) -> tuple[list[str],
     return _format_angle(lon_deg, decimals, 3, ("E", "W"))
 
 
-def format_utc_time(unix_seconds: np.ndarray, decimals: int = 2) -> list[str]:
-    """``hhmmss.ss`` time of day of UNIX times (rounded to ``decimals``)."""
+def _time_of_day(unix_seconds: np.ndarray, decimals: int
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Hours, minutes, seconds and ``decimals``-digit fraction of the UTC time of day."""
     scale = 10**decimals
     ticks = np.round(np.asarray(unix_seconds, dtype=float) * scale).astype(np.int64)
-    tod = ticks % (86400 * scale)
-    sec_whole, frac = np.divmod(tod, scale)
+    sec_whole, frac = np.divmod(ticks % (86400 * scale), scale)
     hh, rem = np.divmod(sec_whole, 3600)
     mm, ss = np.divmod(rem, 60)
+    return hh, mm, ss, frac
+
+
+def format_utc_time(unix_seconds: np.ndarray, decimals: int = 2) -> list[str]:
+    """``hhmmss.ss`` time of day of UNIX times (rounded to ``decimals``)."""
+    hh, mm, ss, frac = _time_of_day(unix_seconds, decimals)
     return [f"{h:02d}{m:02d}{s:02d}.{f:0{decimals}d}" for h, m, s, f in
             zip(hh.tolist(), mm.tolist(), ss.tolist(), frac.tolist(), strict=True)]
 
@@ -271,14 +277,9 @@ def longitude_fields(lon_deg: np.ndarray, decimals: int = 7) -> tuple[np.ndarray
 
 def utc_time_field(unix_seconds: np.ndarray, decimals: int = 2) -> np.ndarray:
     """``hhmmss.ss`` byte matrix (as :func:`format_utc_time`)."""
-    scale = 10**decimals
-    ticks = np.round(np.asarray(unix_seconds, dtype=float) * scale).astype(np.int64)
-    tod = ticks % (86400 * scale)
-    sec_whole, frac = np.divmod(tod, scale)
-    hh, rem = np.divmod(sec_whole, 3600)
-    mm, ss = np.divmod(rem, 60)
+    hh, mm, ss, frac = _time_of_day(unix_seconds, decimals)
     return np.hstack([_digits(hh, 2), _digits(mm, 2), _digits(ss, 2),
-                      const_field(".", ticks.size), _digits(frac, decimals)])
+                      const_field(".", hh.size), _digits(frac, decimals)])
 
 
 def utc_date_field(unix_seconds: np.ndarray) -> np.ndarray:
