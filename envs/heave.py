@@ -25,7 +25,7 @@ from vesselid.envs._validate import check_action, require_reset
 from vesselid.errors import VesselidError
 from vesselid.model import ModelSpec
 from vesselid.simulate import step_states
-from vesselid.systems import System, heave
+from vesselid.systems import System, heave, truth_columns
 
 __all__ = ["HeaveEnv", "HeaveVectorEnv"]
 
@@ -289,8 +289,8 @@ class _HeaveBase:
         the current meter (if any), ``w_ref`` and ground truth ``true_*``."""
         row = {"w": info["y1"]} | ({self._cfg.sensor_column: info["y2"]} if self.current_sensor
                                    else {})
-        return row | {"w_ref": info["w_ref"], "true_w": info["w_a"],
-                      "true_current_w": info["w_c"], "true_process_w": info["xi"]}
+        truth = dict(zip(truth_columns("w"), (info["w_a"], info["w_c"], info["xi"]), strict=True))
+        return row | {"w_ref": info["w_ref"]} | truth
 
     def log_inputs(self, action: Any) -> dict[str, Any]:
         """Physical inputs applied for ``action`` (recorder contract): ``{"tau": τ}``."""

@@ -1,4 +1,4 @@
-"""Whole-process benchmarks of the command line (issue 14: fast start).
+"""Whole-process benchmarks of the command line (fast start).
 
 Every figure is a *whole process* (interpreter start, imports, kernel loading, work,
 exit), timed from outside with ``subprocess``. The commands are run alternately —

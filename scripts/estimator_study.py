@@ -1,4 +1,4 @@
-"""Estimator study: which estimator should be the package default? (issue 10)
+"""Estimator study: which estimator should be the package default?
 
 Monte Carlo on the heave system of §6, N = 10⁴ samples per run, for
 
@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from vesselid.diagnostics import normalized_error
 from vesselid.disturbances import GaussMarkov
 from vesselid.identify import get_estimator
 from vesselid.identify.data import from_arrays
@@ -101,7 +102,7 @@ def run_design(pulses, tau, runs, samples, seed, batch=50, variants=False):
                 kept.append(res.info["instrument_set"] == "combined")
             if m == "lagged-2sls" and lm_diff is None:
                 lm_diff = linearmodels_check(sim, res.theta)
-    errors = {m: (np.vstack(v) - theta0) / theta0 for m, v in est.items()}
+    errors = {m: normalized_error(np.vstack(v), theta0) for m, v in est.items()}
     return errors, float(np.mean(np.concatenate(kept))), lm_diff, timing
 
 

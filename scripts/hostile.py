@@ -1,4 +1,4 @@
-"""Hostile input, end to end: every case of issue 11 through the real CLI and the envs.
+"""Hostile input, end to end: every bad-input case through the real CLI and the envs.
 
 Each case runs ``python -m vesselid ...`` in a subprocess (or a short Python snippet for
 the environments) in a scratch directory and is scored:

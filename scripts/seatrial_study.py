@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from vesselid.control import run_control_experiment
+from vesselid.diagnostics import normalized_error
 from vesselid.identify.data import from_arrays
 from vesselid.identify.estimators import estimate
 from vesselid.seatrial import (
@@ -100,7 +101,7 @@ def consistency(sizes, seeds_small: int, seed: int) -> pd.DataFrame:
         y, tau = simulate_arrays(design, root.spawn(n_seeds))
         est = batch_estimates(spec, y, tau, 6)
         for m in METHODS:
-            err = (est[m] - theta0.to_numpy()) / theta0.to_numpy()
+            err = normalized_error(est[m], theta0.to_numpy())
             rms = np.sqrt(np.nanmean(err**2, axis=0))
             for (eq, term), v in zip(theta0.index, rms, strict=True):
                 rows.append({"N": n, "method": m, "param": f"{eq}: {term}", "rms_err": v,
@@ -219,7 +220,7 @@ def main(argv: list[str] | None = None) -> None:
     tab = pd.DataFrame(index=[f"{eq}: {t}" for eq, t in spec.param_index])
     tab["θ0"] = [f"{v:.3g}" for v in theta0]
     for m in METHODS:
-        err = (est[m] - theta0) / theta0
+        err = normalized_error(est[m], theta0)
         tab[m] = [f"{a:+.3f} ± {b:.3f}" for a, b in zip(np.nanmean(err, 0), np.nanstd(err, 0),
                                                          strict=True)]
     tab.index.name = "parameter"

@@ -44,6 +44,34 @@ def _aligned(ideal: TrialLog, got: TrialLog, gap: float) -> pd.DataFrame:
     return a.merge(b, on="k", suffixes=("_ideal", "_raw"))
 
 
+def _decode(rows: np.ndarray) -> list[str]:
+    return [bytes(r[r != 0]).decode("ascii") for r in rows]
+
+
+def test_byte_matrix_formatting_equals_python_format():
+    """The vectorised writer's fields equal Python's str.format and the list helpers."""
+    from vesselid import nmea
+
+    rng = np.random.default_rng(0)
+    v = np.concatenate([rng.normal(size=3000) * 10.0 ** rng.integers(-6, 10, 3000),
+                        [0.0, -0.0, 0.5, 1.5, 2.5, 0.125, -0.004999, 9.9999999, 359.99999]])
+    for d in (0, 1, 2, 4, 7):
+        assert _decode(nmea.fixed_field(v, d)) == [f"{x:.{d}f}" for x in v]
+    assert _decode(nmea.fixed_field(np.array([1.0, np.nan, -np.inf]), 2)) == ["1.00", "", ""]
+    lat = rng.uniform(-89.9, 89.9, 500)
+    lon = rng.uniform(-179.9, 179.9, 500)
+    for new, old in ((nmea.latitude_fields(lat), nmea.format_latitude(lat)),
+                     (nmea.longitude_fields(lon), nmea.format_longitude(lon))):
+        assert _decode(new[0]) == old[0] and _decode(new[1]) == old[1]
+    t = 1.78e9 + np.cumsum(rng.uniform(0, 5000, 500))
+    assert _decode(nmea.utc_time_field(t)) == nmea.format_utc_time(t)
+    assert _decode(nmea.utc_date_field(t)) == nmea.format_utc_date(t)
+    fields = [nmea.fixed_field(v[:50], 2), nmea.const_field("T", 50), nmea.fixed_field(lat[:50], 1)]
+    rows = nmea.sentence_rows("HE", "HDT", fields, t[:50])
+    old = nmea.sentence_lines("HE", "HDT", [_decode(f) for f in fields], t[:50])
+    assert _decode(rows) == [x + "\r\n" for x in old]
+
+
 def test_sentences_parse_with_pynmea2_and_checksums_agree(trial):
     _log, raw, manifest = trial
     lines = (raw / "nav.nmea").read_text().splitlines()
@@ -126,6 +154,22 @@ def test_bad_sentences_are_counted(trial, tmp_path):
     assert src["corrupt"] >= 2
     assert src["talkers"]["RMC"]["GP"] == len(extra)
     assert src["ignored_talkers"]["RMC"] == len(extra)
+    # read in small chunks (lines split across reads, a line longer than a chunk): the same
+    import vesselid.ingest.nmea as nmea_reader
+
+    with (d / "nav.nmea").open("a") as fh:
+        fh.write("$GPGGA," + "9" * 9000 + "\n")
+    whole = read_nmea(d / "nav.nmea")
+    monkey = pytest.MonkeyPatch()
+    monkey.setattr(nmea_reader, "CHUNK_BYTES", 997)
+    try:
+        chunked = read_nmea(d / "nav.nmea")
+    finally:
+        monkey.undo()
+    assert chunked[1] == whole[1] and whole[1]["corrupt"] == src["corrupt"] + 1
+    for a, b in zip(whole[0], chunked[0], strict=True):
+        np.testing.assert_array_equal(a.values, b.values)
+        np.testing.assert_array_equal(a.t, b.t)
 
 
 def test_logger_clock_jump_is_absorbed_and_counted(trial, tmp_path):

@@ -21,6 +21,7 @@ __all__ = [
     "atomic_path",
     "atomic_write_text",
     "atomic_write_with",
+    "check_parents",
     "finite_or_none",
     "strict_json",
 ]
@@ -55,15 +56,21 @@ def _remove_stale(target: Path) -> None:
                 os.unlink(entry.path)
 
 
-def _check_target(target: Path) -> None:
-    """Raise a clear :class:`OSError` naming ``target`` when it cannot be written."""
-    if target.is_dir():
-        raise IsADirectoryError(21, "output path is a directory", str(target))
-    for parent in target.parents:
+def check_parents(target: Path) -> None:
+    """Raise :class:`NotADirectoryError` naming ``target`` when its nearest existing
+    ancestor is a file (nothing can be created below it)."""
+    for parent in Path(target).parents:
         if parent.exists():
             if not parent.is_dir():
                 raise NotADirectoryError(20, f"{parent} is not a directory", str(target))
             break
+
+
+def _check_target(target: Path) -> None:
+    """Raise a clear :class:`OSError` naming ``target`` when it cannot be written."""
+    if target.is_dir():
+        raise IsADirectoryError(21, "output path is a directory", str(target))
+    check_parents(target)
 
 
 def _new_temp(target: Path) -> Path:

@@ -28,7 +28,7 @@ experiment is simulated from the state the previous one left, so a :class:`Progr
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any, ClassVar
 
@@ -148,6 +148,20 @@ class _Track:
                 return True
         return False
 
+    def hold_for(self, tau: Sequence[float], seconds: float, n_max: int,
+                 until: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> bool:
+        """:meth:`hold` for ``seconds``, never past sample ``n_max``."""
+        return self.hold(tau, min(n_max - self.n, round(seconds / self.vessel.dt)), until)
+
+    def alternating(self, count: int, n_max: int, start: int = 1) -> Iterator[int]:
+        """Signs ``start, −start, ...`` for ``count`` repetitions while samples remain."""
+        s = start
+        for _ in range(int(count)):
+            if self.n >= n_max:
+                return
+            yield s
+            s = -s
+
     def schedule(self) -> np.ndarray:
         return np.vstack(self.forces) if self.forces else np.empty((0, 3))
 
@@ -227,11 +241,8 @@ class ZigZag(Manoeuvre):
         base = track.psi
         lim = math.radians(self.heading)
         timeout = round(self.timeout / track.vessel.dt)
-        for _ in range(2 * int(self.cycles)):
-            if track.n >= n_max:
-                return
-            y, n = track.vessel.steer(s * self.rudder)
-            sg = s
+        for sg in track.alternating(2 * int(self.cycles), n_max, s):
+            y, n = track.vessel.steer(sg * self.rudder)
             left = n_max - track.n
             hit = track.hold([self.thrust, y, n], min(left, timeout),
                              until=lambda x, psi, sg=sg: sg * (psi - base) >= lim)
@@ -241,7 +252,6 @@ class ZigZag(Manoeuvre):
                     f"does not reach the next execute within {self.timeout:g} s — the vessel "
                     "does not answer this rudder (directionally unstable: the rudder lies "
                     "inside the spiral loop); use a larger rudder angle")
-            s = -s
 
     def label(self) -> str:
         return f"zig-zag {self.rudder:g}/{self.heading:g}, X={self.thrust:g}"
@@ -263,10 +273,8 @@ class PullOut(Manoeuvre):
         s = _side(self.side)
         dt = track.vessel.dt
         lag = max(1, round(5.0 / dt))
-        for _ in range(int(self.repeats)):
-            if track.n >= n_max:
-                return
-            y, n = track.vessel.steer(s * self.rudder)
+        for sg in track.alternating(self.repeats, n_max, s):
+            y, n = track.vessel.steer(sg * self.rudder)
             hist: list[float] = []
 
             def steady(x: np.ndarray, psi: np.ndarray, hist: list[float] = hist) -> np.ndarray:
@@ -279,9 +287,8 @@ class PullOut(Manoeuvre):
                 hist[:] = list(r[-lag:])
                 return ok
 
-            track.hold([self.thrust, y, n], min(n_max - track.n, round(300.0 / dt)), until=steady)
-            track.hold([self.thrust, 0.0, 0.0], min(n_max - track.n, round(self.hold / dt)))
-            s = -s
+            track.hold_for([self.thrust, y, n], 300.0, n_max, until=steady)
+            track.hold_for([self.thrust, 0.0, 0.0], self.hold, n_max)
 
     def label(self) -> str:
         return f"pull-out {self.rudder:g}°, X={self.thrust:g}"
@@ -299,13 +306,12 @@ class Spiral(Manoeuvre):
     hold: float = 60.0
 
     def apply(self, track: _Track, n_max: int) -> None:
-        dt = track.vessel.dt
         down = np.linspace(self.rudder, -self.rudder, int(self.steps))
         for d in np.concatenate([down, down[::-1][1:]]):
             if track.n >= n_max:
                 return
             y, n = track.vessel.steer(float(d))
-            track.hold([self.thrust, y, n], min(n_max - track.n, round(self.hold / dt)))
+            track.hold_for([self.thrust, y, n], self.hold, n_max)
 
     def label(self) -> str:
         return f"spiral ±{self.rudder:g}°, X={self.thrust:g}"
@@ -329,18 +335,12 @@ class AccelerationStopping(Manoeuvre):
     repeats: int = 4
 
     def apply(self, track: _Track, n_max: int) -> None:
-        dt = track.vessel.dt
-        s = 1
-        for _ in range(int(self.repeats)):
-            if track.n >= n_max:
-                return
+        for s in track.alternating(self.repeats, n_max):
             y, n = track.vessel.steer(s * self.rudder)
-            track.hold([self.thrust, y, n], min(n_max - track.n, round(self.ahead / dt)))
-            track.hold([-self.astern, y, n], min(n_max - track.n, round(300.0 / dt)),
-                       until=lambda x, psi: x[:, 0] <= 0)
-            track.hold([-self.astern, y, n], min(n_max - track.n, round(self.hold / dt)))
-            track.hold([0.0, y, n], min(n_max - track.n, round(self.coast / dt)))
-            s = -s
+            track.hold_for([self.thrust, y, n], self.ahead, n_max)
+            track.hold_for([-self.astern, y, n], 300.0, n_max, until=lambda x, psi: x[:, 0] <= 0)
+            track.hold_for([-self.astern, y, n], self.hold, n_max)
+            track.hold_for([0.0, y, n], self.coast, n_max)
 
     def label(self) -> str:
         return f"acceleration/stopping ±{self.thrust:g}/{self.astern:g}"
@@ -358,14 +358,9 @@ class Crabbing(Manoeuvre):
     repeats: int = 6
 
     def apply(self, track: _Track, n_max: int) -> None:
-        dt = track.vessel.dt
-        s = 1
-        for _ in range(int(self.repeats)):
-            if track.n >= n_max:
-                return
-            track.hold([self.thrust, s * self.sway, s * self.sway * self.moment],
-                       min(n_max - track.n, round(self.hold / dt)))
-            s = -s
+        for s in track.alternating(self.repeats, n_max):
+            track.hold_for([self.thrust, s * self.sway, s * self.sway * self.moment],
+                           self.hold, n_max)
 
     def label(self) -> str:
         return f"crabbing Y=±{self.sway:g} (N/Y={self.moment:g}), X={self.thrust:g}"

@@ -884,7 +884,7 @@ def cmd_plan_trial(args: argparse.Namespace) -> int:
     plan = plan_trial(args.samples, args.experiments,
                       levels=DisturbanceLevels(wind_speed=args.wind_speed))
     if not math.isfinite(plan.worst_relative_se()):
-        # e.g. an absurd wind speed: every candidate's simulation diverges (issue 11)
+        # e.g. an absurd wind speed: every candidate's simulation diverges
         raise PlannerError(
             f"no plan has finite predicted standard errors for {args.samples} samples at "
             f"--wind-speed {args.wind_speed:g} m/s (the manoeuvre simulations diverge or the "

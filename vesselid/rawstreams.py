@@ -233,33 +233,33 @@ def _interp(exp: _Experiment, t: np.ndarray, values: np.ndarray) -> np.ndarray:
 
 
 class _Sentences:
-    """Accumulates (receive time, line) pairs of every stream."""
+    """Accumulates the sentences of every stream as byte matrices with their receive times."""
 
     def __init__(self, config: RawStreamConfig, rng: np.random.Generator) -> None:
         self.config = config
         self.rng = rng
         self.rx: list[np.ndarray] = []
-        self.lines: list[list[str]] = []
+        self.rows: list[np.ndarray] = []
         self.counts: dict[str, int] = {}
 
-    def add(self, kind: str, device: str, t_valid: np.ndarray, fields: list[list[str]]) -> None:
+    def add(self, kind: str, device: str, t_valid: np.ndarray, fields: list) -> None:
+        """Sentences of one stream; ``fields`` are byte matrices or constant strings."""
         cfg = self.config
         n = t_valid.size
         keep = self.rng.random(n) >= cfg.dropout
         jit = self.rng.uniform(0.0, cfg.jitter, n) if cfg.jitter > 0 else np.zeros(n)
         rx = t_valid + cfg.latency.get(device, 0.0) + jit + cfg.logger_clock_offset
         idx = np.flatnonzero(keep)
-        cols = [[col[i] for i in idx.tolist()] for col in fields]
-        lines = nmea.sentence_lines(cfg.talkers.get(kind, "GP"), kind, cols, rx[idx])
+        cols = [nmea.const_field(f, idx.size) if isinstance(f, str) else f[idx] for f in fields]
+        rows = nmea.sentence_rows(cfg.talkers.get(kind, "GP"), kind, cols, rx[idx])
         self.rx.append(rx[idx])
-        self.lines.append(lines)
-        self.counts[kind] = self.counts.get(kind, 0) + len(lines)
+        self.rows.append(rows)
+        self.counts[kind] = self.counts.get(kind, 0) + rows.shape[0]
 
-    def text(self) -> str:
+    def write(self, stream: Any) -> None:
+        """Every sentence in receive order, CRLF-terminated, to a binary ``stream``."""
         rx = np.concatenate(self.rx) if self.rx else np.zeros(0)
-        lines = [x for part in self.lines for x in part]
-        order = np.argsort(rx, kind="stable")
-        return "\r\n".join(lines[i] for i in order.tolist()) + "\r\n"
+        nmea.write_rows(self.rows, np.argsort(rx, kind="stable"), stream)
 
 
 def _geodetic(north: np.ndarray, east: np.ndarray, down: np.ndarray, origin) -> tuple:
@@ -273,6 +273,7 @@ def _emit(exp: _Experiment, out: _Sentences, dt: float) -> None:
     cfg = out.config
     rng = out.rng
     rates = cfg.rates
+    fixed = nmea.fixed_field
     # GGA: position with GNSS noise
     t = _times(exp, rates["GGA"])
     n = t.size
@@ -280,12 +281,12 @@ def _emit(exp: _Experiment, out: _Sentences, dt: float) -> None:
     east = _interp(exp, t, exp.east) + rng.normal(0.0, cfg.position_noise, n)
     down = rng.normal(0.0, 2.0 * cfg.position_noise, n)
     lat, lon, h = _geodetic(north, east, down, cfg.origin)
-    la, lad = nmea.format_latitude(lat)
-    lo, lod = nmea.format_longitude(lon)
+    la, lad = nmea.latitude_fields(lat)
+    lo, lod = nmea.longitude_fields(lon)
     tabs = exp.t0 + t
     out.add("GGA", "gnss", tabs, [
-        nmea.format_utc_time(tabs), la, lad, lo, lod, ["4"] * n, ["14"] * n, ["0.7"] * n,
-        nmea.fixed(h, 3), ["M"] * n, ["39.5"] * n, ["M"] * n, ["1.0"] * n, ["0000"] * n])
+        nmea.utc_time_field(tabs), la, lad, lo, lod, "4", "14", "0.7", fixed(h, 3), "M",
+        "39.5", "M", "1.0", "0000"])
     # RMC: measured body velocity rotated by the true heading
     t = _times(exp, rates["RMC"])
     n = t.size
@@ -297,45 +298,38 @@ def _emit(exp: _Experiment, out: _Sentences, dt: float) -> None:
     cog = np.degrees(np.arctan2(ve, vn)) % 360.0
     north, east = _interp(exp, t, exp.north), _interp(exp, t, exp.east)
     lat, lon, _ = _geodetic(north, east, np.zeros(n), cfg.origin)
-    la, lad = nmea.format_latitude(lat)
-    lo, lod = nmea.format_longitude(lon)
+    la, lad = nmea.latitude_fields(lat)
+    lo, lod = nmea.longitude_fields(lon)
     tabs = exp.t0 + t
     out.add("RMC", "gnss", tabs, [
-        nmea.format_utc_time(tabs), ["A"] * n, la, lad, lo, lod, nmea.fixed(sog, 4),
-        nmea.fixed(cog, 3), nmea.format_utc_date(tabs), [""] * n, [""] * n, ["R"] * n])
+        nmea.utc_time_field(tabs), "A", la, lad, lo, lod, fixed(sog, 4), fixed(cog, 3),
+        nmea.utc_date_field(tabs), "", "", "R"])
     # HDT: true heading with compass noise
     t = _times(exp, rates["HDT"])
     n = t.size
     hdg = (np.degrees(_interp(exp, t, exp.psi)) + rng.normal(0.0, cfg.heading_noise, n)) % 360.0
-    out.add("HDT", "gnss", exp.t0 + t, [nmea.fixed(hdg, 2), ["T"] * n])
+    out.add("HDT", "gnss", exp.t0 + t, [fixed(hdg, 2), "T"])
     # ROT: the gyro reading, deg/min (negative: bow turns to port)
     t = _times(exp, rates["ROT"])
-    n = t.size
     rot = np.degrees(_interp(exp, t, exp.r)) * 60.0
-    out.add("ROT", "gnss", exp.t0 + t, [nmea.fixed(rot, 2), ["A"] * n])
+    out.add("ROT", "gnss", exp.t0 + t, [fixed(rot, 2), "A"])
     # speed through water
     if exp.v_log is not None:
         t = _times(exp, rates["VBW"])
-        n = t.size
         ul, vl = _interp(exp, t, exp.u_log), _interp(exp, t, exp.v_log)
         out.add("VBW", "speed_log", exp.t0 + t, [
-            nmea.fixed(ul / nmea.KNOT, 4), nmea.fixed(vl / nmea.KNOT, 4), ["A"] * n,
-            [""] * n, [""] * n, ["V"] * n])
+            fixed(ul / nmea.KNOT, 4), fixed(vl / nmea.KNOT, 4), "A", "", "", "V"])
     else:
         t = _times(exp, rates["VHW"])
-        n = t.size
         ul = _interp(exp, t, exp.u_log) / nmea.KNOT
         hdg = np.degrees(_interp(exp, t, exp.psi)) % 360.0
         out.add("VHW", "speed_log", exp.t0 + t, [
-            nmea.fixed(hdg, 1), ["T"] * n, [""] * n, ["M"] * n, nmea.fixed(ul, 3), ["N"] * n,
-            nmea.fixed(ul * nmea.KNOT * 3.6, 3), ["K"] * n])
+            fixed(hdg, 1), "T", "", "M", fixed(ul, 3), "N", fixed(ul * nmea.KNOT * 3.6, 3), "K"])
     # MWV: apparent wind, angle clockwise from the bow (wind from starboard: 0..180)
     t = _times(exp, rates["MWV"])
-    n = t.size
     ang = (-np.degrees(_interp(exp, t, exp.wind_angle))) % 360.0
     spd = _interp(exp, t, exp.wind_speed)
-    out.add("MWV", "anemometer", exp.t0 + t, [
-        nmea.fixed(ang, 1), ["R"] * n, nmea.fixed(spd, 2), ["M"] * n, ["A"] * n])
+    out.add("MWV", "anemometer", exp.t0 + t, [fixed(ang, 1), "R", fixed(spd, 2), "M", "A"])
 
 
 def write_raw_streams(
@@ -394,18 +388,23 @@ def write_raw_streams(
         _emit(exp, out, dt)
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    with atomic_path(directory / "nav.nmea") as tmp:
-        tmp.write_bytes(out.text().encode("ascii"))
-    # actuator commands with the control computer's UTC timestamps
-    frames = []
+    with atomic_path(directory / "nav.nmea") as tmp, open(tmp, "wb") as stream:
+        out.write(stream)
+    # actuator commands with the control computer's UTC timestamps: time to 0.1 ms, the
+    # commands as the shortest decimal that reads back to the same float64
+    blocks = []
     for exp in exps:
         n = exp.time.size
         jit = rng.uniform(-0.5, 0.5, n) * config.controller_jitter
-        part = pd.DataFrame(exp.inputs, columns=[f"{c}_cmd" for c in spec.inputs])
-        part.insert(0, "time", [f"{x:.4f}" for x in (exp.t0 + exp.time + jit).tolist()])
-        frames.append(part)
-    with atomic_path(directory / "actuators.csv") as tmp:
-        pd.concat(frames, ignore_index=True).to_csv(tmp, index=False, float_format="%.17g")
+        cols = [nmea.fixed_field(exp.t0 + exp.time + jit, 4)]
+        for j in range(exp.inputs.shape[1]):
+            text = np.ascontiguousarray(exp.inputs[:, j]).astype("S32")
+            cols += [nmea.const_field(",", n), text.view(np.uint8).reshape(n, 32)]
+        blocks.append(np.hstack([*cols, nmea.const_field("\n", n)]))
+    header = ",".join(["time", *(f"{c}_cmd" for c in spec.inputs)]) + "\n"
+    with atomic_path(directory / "actuators.csv") as tmp, open(tmp, "wb") as stream:
+        stream.write(header.encode("ascii"))
+        nmea.write_rows(blocks, np.arange(sum(b.shape[0] for b in blocks)), stream)
     gnss_lat = config.latency.get("gnss", 0.0)
     ingest_cfg = {
         "origin": [float(x) for x in config.origin],

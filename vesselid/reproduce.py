@@ -68,7 +68,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from vesselid._io import atomic_write_text, strict_json
+from vesselid._io import atomic_write_text, check_parents, strict_json
 from vesselid._json import strict
 from vesselid.errors import VesselidError
 from vesselid.identify.registry import DEFAULT_METHOD, ESTIMATORS, PAPER_METHODS, method_labels
@@ -538,11 +538,7 @@ def _guard(args: argparse.Namespace) -> None:
                                      str(path))
         if opt == "--json" and path.is_dir():
             raise IsADirectoryError(21, "--json path is a directory", str(path))
-        for parent in path.parents:
-            if parent.exists():
-                if not parent.is_dir():
-                    raise NotADirectoryError(20, f"{parent} is not a directory", str(path))
-                break
+        check_parents(path)
     n_tables = len(_tables(args.table))
     batch = min(args.runs, args.batch_size or DEFAULT_BATCH_SIZE)
     # per batch: ~40 float64 arrays of samples per run (signals, states, regressors,

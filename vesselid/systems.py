@@ -30,9 +30,17 @@ from vesselid.signals import AlternatingPulses, InputSignal, RandomPulses, Stati
 from vesselid.simulate import DEFAULT_DIVERGENCE_LIMIT, simulate_states
 from vesselid.simulation import SimulationResult
 
-__all__ = ["SYSTEMS", "Simulation", "System", "get_system", "heave", "siso_example"]
+__all__ = ["SYSTEMS", "Simulation", "System", "get_system", "heave", "siso_example",
+           "truth_columns"]
 
 SeedLike = int | np.random.SeedSequence | None
+
+
+def truth_columns(state: str) -> tuple[str, str, str]:
+    """Trial-log ground-truth columns of a state of a :class:`System`: the true state, the
+    physical current and the process disturbance (``true_w, true_current_w,
+    true_process_w``); the one naming rule of simulations and the heave environment."""
+    return f"true_{state}", f"true_current_{state}", f"true_process_{state}"
 
 
 @dataclass(frozen=True)
@@ -307,12 +315,13 @@ class Simulation(SimulationResult):
         for j, s in enumerate(sysm.sensor_states):
             cols[sysm.sensor_name(s)] = self.y2[:, :, j].ravel()
         for i, s in enumerate(spec.states):
-            cols[f"true_{s}"] = self.x[:, :, i].ravel()
+            cols[truth_columns(s)[0]] = self.x[:, :, i].ravel()
         for i, s in enumerate(spec.states):
+            _, current, process = truth_columns(s)
             if s in sysm.current and not sysm.current[s].is_zero:
-                cols[f"true_current_{s}"] = self.q[:, :, i].ravel()
+                cols[current] = self.q[:, :, i].ravel()
             if s in sysm.process_noise and not sysm.process_noise[s].is_zero:
-                cols[f"true_process_{s}"] = self.w[:, :, i].ravel()
+                cols[process] = self.w[:, :, i].ravel()
         return cols
 
     def to_log(self, *, aggregate: bool | None = None):

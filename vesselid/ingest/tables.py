@@ -30,7 +30,7 @@ def _numeric(col: pd.Series) -> np.ndarray:
 
 
 def _duplicated_header(path: Path) -> list[str]:
-    """Names that occur more than once in the header line (issue 11)."""
+    """Names that occur more than once in the header line."""
     import csv
 
     try:
