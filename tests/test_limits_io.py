@@ -173,3 +173,22 @@ def test_corrupted_parquet_page_is_detected(tmp_path):
 def test_estimate_shape(tmp_path, saved):
     rows, cols = estimate_shape(saved)
     assert cols == 7 and 40 <= rows <= 60
+
+
+def test_raw_inputs_and_grids_refused_before_reading(tmp_path, monkeypatch):
+    """ingest's guard: a 200 GB (sparse) raw file by its size, a grid by its points."""
+    d = tmp_path / "raw"
+    d.mkdir()
+    with open(d / "nav.nmea", "wb") as fh:
+        fh.truncate(200 * 10**9)
+    with pytest.raises(ResourceLimitError, match=r"ingest: 1 raw input file\(s\), 200 GB"):
+        limits.check_inputs("ingest", [d])
+    with pytest.raises(ResourceLimitError, match="200 GB"):
+        limits.check_file_size(d / "nav.nmea")
+    (d / "nav.nmea").unlink()
+    (d / "small.nmea").write_text("$GPGGA\n")
+    limits.check_inputs("ingest", [d])  # tiny: passes
+    monkeypatch.setenv("VESSELID_MAX_MEMORY", "1G")
+    with pytest.raises(ResourceLimitError, match="grid of 1e\\+09 samples"):
+        limits.check_grid("ingest", 1e9, 12)
+    limits.check_grid("ingest", 1e5, 12)
