@@ -154,6 +154,22 @@ def test_bad_sentences_are_counted(trial, tmp_path):
     assert src["corrupt"] >= 2
     assert src["talkers"]["RMC"]["GP"] == len(extra)
     assert src["ignored_talkers"]["RMC"] == len(extra)
+    # read in small chunks (lines split across reads, a line longer than a chunk): the same
+    import vesselid.ingest.nmea as nmea_reader
+
+    with (d / "nav.nmea").open("a") as fh:
+        fh.write("$GPGGA," + "9" * 9000 + "\n")
+    whole = read_nmea(d / "nav.nmea")
+    monkey = pytest.MonkeyPatch()
+    monkey.setattr(nmea_reader, "CHUNK_BYTES", 997)
+    try:
+        chunked = read_nmea(d / "nav.nmea")
+    finally:
+        monkey.undo()
+    assert chunked[1] == whole[1] and whole[1]["corrupt"] == src["corrupt"] + 1
+    for a, b in zip(whole[0], chunked[0], strict=True):
+        np.testing.assert_array_equal(a.values, b.values)
+        np.testing.assert_array_equal(a.t, b.t)
 
 
 def test_logger_clock_jump_is_absorbed_and_counted(trial, tmp_path):

@@ -269,6 +269,108 @@ def _runs(offset: np.ndarray, jump: float = 0.5, min_run: int = 3):
     return run, med, outlier, jumps
 
 
+# ------------------------------------------------------------------------------- chunks
+#: Bytes read at a time (whole lines): the per-byte work of :func:`_scan` and
+#: :func:`_split_fields` runs on one chunk, so memory grows with the number of sentences,
+#: not with several times the file size.
+CHUNK_BYTES = 1 << 24
+
+
+def _scan_chunk(raw: bytes, out: dict[str, Any]) -> None:
+    """Scan the complete lines in ``raw`` (numbered after the ``out["n"]`` kept so far)."""
+    buf = np.frombuffer(raw, dtype=np.uint8)
+    nl = np.flatnonzero(buf == 10)
+    off = np.concatenate([[0], nl + 1]).astype(np.int64)
+    end = np.concatenate([nl, [buf.size]]).astype(np.int64)
+    cr = (end > off) & (buf[np.maximum(end - 1, 0)] == 13) if buf.size else end > off
+    end = end - cr
+    ln = end - off
+    keep = ln > 0
+    off, ln = off[keep], ln[keep]
+    out["lines"] += int(off.size)
+    long = ln > MAX_LINE
+    if long.any():
+        off, ln = off[~long], ln[~long]
+    out["corrupt"] += int(long.sum())
+    if off.size == 0:
+        return
+    sc = _scan(buf, off, ln)
+    bad_cs = sc["structure"] & ~sc["cs_ok"]
+    corrupt = ~sc["structure"] | ~sc["sep_ok"]
+    bad_tag = sc["tag"] & ~sc["tag_ok"]
+    good = sc["cs_ok"] & sc["sep_ok"] & ~bad_tag
+    out["bad_checksum"] += int((bad_cs & sc["sep_ok"]).sum() + (bad_tag & sc["cs_ok"]).sum())
+    out["corrupt"] += int(corrupt.sum())
+    rx = sc["rx"].copy()
+    no_tag = good & ~sc["tag"] & (sc["start"] > 0)
+    if no_tag.any():
+        idx = np.flatnonzero(no_tag)
+        rx[idx] = _prefix_times(raw, off, idx, sc["start"])
+    for key, value in (("good", good), ("rx", rx), ("fmt", sc["fmt"]),
+                       ("talker", sc["talker"])):
+        out.setdefault(key, []).append(value)
+    nf = sc["commas"]  # the comma after the formatter opens field 1
+    for kind in SUPPORTED:
+        sel = good & (sc["fmt"] == _code(kind))
+        if not sel.any():
+            continue
+        mn, mx, _ = _fields(kind)
+        ok_count = sel & (nf >= mn) & (nf <= mx)
+        out["corrupt"] += int((sel & ~ok_count).sum())
+        idx = np.flatnonzero(ok_count)
+        if idx.size:
+            frame = _split_fields(buf, off, idx, sc["start"], sc["star"], nf, kind)
+            out["frames"].setdefault(kind, []).append((idx + out["n"], frame))
+    out["n"] += int(off.size)
+
+
+def _scan_file(path: Path, chunk: int | None = None) -> dict[str, Any]:
+    """Per-line scan of an NMEA file, read ``chunk`` bytes at a time (whole lines).
+
+    Returns the line counts, per-line arrays of the lines kept (``good``, ``rx``, ``fmt``,
+    ``talker``; ``n`` of them) and, per supported sentence type, the line numbers and
+    fields of its well-formed sentences.
+    """
+    chunk = chunk or CHUNK_BYTES
+    out: dict[str, Any] = {"lines": 0, "n": 0, "bad_checksum": 0, "corrupt": 0, "frames": {}}
+    carry = b""
+    skipping = False  # inside a line far longer than MAX_LINE: dropped up to its end
+    with open(path, "rb") as fh:
+        while True:
+            block = fh.read(chunk)
+            eof = not block
+            if skipping:
+                nl = block.find(b"\n")
+                if nl < 0:
+                    if eof:
+                        break
+                    continue
+                block, skipping = block[nl + 1:], False
+            data, carry = carry + block, b""
+            if not eof:
+                cut = data.rfind(b"\n") + 1
+                if cut == 0:  # no line end in the data
+                    if len(data) <= max(chunk, 2 * MAX_LINE):
+                        carry = data  # read on
+                        continue
+                    out["lines"] += 1  # one overlong line: corrupt, as if read whole
+                    out["corrupt"] += 1
+                    skipping = True
+                    continue
+                data, carry = data[:cut], data[cut:]
+            if data:
+                _scan_chunk(data, out)
+            if eof:
+                break
+    for key in ("good", "rx", "fmt", "talker"):
+        parts = out.get(key, [])
+        out[key] = np.concatenate(parts) if parts else np.zeros(0)
+    out["frames"] = {kind: (np.concatenate([i for i, _ in parts]),
+                            pd.concat([f for _, f in parts], ignore_index=True))
+                     for kind, parts in out["frames"].items()}
+    return out
+
+
 # ------------------------------------------------------------------------------- reader
 def read_nmea(
     path: str | Path,
@@ -307,68 +409,33 @@ def read_nmea(
     """
     path = Path(path)
     rel = {k.upper(): float(v) for k, v in (relative_latency or {}).items()}
+    q: dict[str, Any] = {"file": str(path)}
     try:
-        raw = path.read_bytes()
+        lines = _scan_file(path)
     except OSError as exc:
         raise NmeaError(f"cannot read {path}: {exc.strerror or exc}") from exc
-    buf = np.frombuffer(raw, dtype=np.uint8)
-    nl = np.flatnonzero(buf == 10)
-    off = np.concatenate([[0], nl + 1]).astype(np.int64)
-    end = np.concatenate([nl, [buf.size]]).astype(np.int64)
-    cr = (end > off) & (buf[np.maximum(end - 1, 0)] == 13) if buf.size else end > off
-    end = end - cr
-    ln = end - off
-    keep = ln > 0
-    off, ln = off[keep], ln[keep]
-    q: dict[str, Any] = {"file": str(path), "lines": int(off.size)}
-    long = ln > MAX_LINE
-    if long.any():
-        off, ln = off[~long], ln[~long]
-    if off.size == 0:
+    q["lines"] = lines["lines"]
+    if lines["n"] == 0:
         raise NmeaError(f"{path} holds no NMEA 0183 lines")
-    sc = _scan(buf, off, ln)
-    n = int(off.size)
-    bad_cs = sc["structure"] & ~sc["cs_ok"]
-    corrupt = ~sc["structure"] | ~sc["sep_ok"]
-    bad_tag = sc["tag"] & ~sc["tag_ok"]
-    good = sc["cs_ok"] & sc["sep_ok"] & ~bad_tag
-    q["bad_checksum"] = int((bad_cs & sc["sep_ok"]).sum() + (bad_tag & sc["cs_ok"]).sum())
-    q["corrupt"] = int(corrupt.sum() + long.sum())
-    # receive times
-    rx = sc["rx"].copy()
-    no_tag = good & ~sc["tag"] & (sc["start"] > 0)
-    if no_tag.any():
-        idx = np.flatnonzero(no_tag)
-        rx[idx] = _prefix_times(raw, off, idx, sc["start"])
+    n = lines["n"]
+    good, rx, fmt = lines["good"], lines["rx"], lines["fmt"]
+    sc = {"talker": lines["talker"]}
+    q["bad_checksum"] = lines["bad_checksum"]
+    q["corrupt"] = lines["corrupt"]
     has_rx = np.isfinite(rx)
     # clock jumps in the receive time itself are handled through the GNSS offsets below
-    fmt = sc["fmt"]
     supported = {k: _code(k) for k in SUPPORTED}
     known = np.isin(fmt, list(supported.values()))
     unsup = good & ~known
     q["unsupported"] = {_decode(int(c), 3): int(k) for c, k in
                         zip(*np.unique(fmt[unsup], return_counts=True), strict=True)}
     q["sentences"] = int(good.sum())
-    frames: dict[str, tuple[np.ndarray, pd.DataFrame]] = {}
+    frames: dict[str, tuple[np.ndarray, pd.DataFrame]] = lines["frames"]
     invalid: dict[str, int] = {}
     talkers: dict[str, dict[str, int]] = {}
-    wrong_count = 0
-    for kind, code in supported.items():
-        sel = good & (fmt == code)
-        if not sel.any():
-            continue
-        mn, mx, _ = _fields(kind)
-        nf = sc["commas"]  # the comma after the formatter opens field 1
-        ok_count = sel & (nf >= mn) & (nf <= mx)
-        wrong_count += int((sel & ~ok_count).sum())
-        idx = np.flatnonzero(ok_count)
-        if idx.size == 0:
-            continue
-        frame = _split_fields(buf, off, idx, sc["start"], sc["star"], nf, kind)
-        frames[kind] = (idx, frame)
+    for kind, (idx, _frame) in frames.items():
         tk, cnt = np.unique(sc["talker"][idx], return_counts=True)
         talkers[kind] = {_decode(int(t), 2): int(c) for t, c in zip(tk, cnt, strict=True)}
-    q["corrupt"] += wrong_count
     q["talkers"] = talkers
     if not frames:
         raise NmeaError(
