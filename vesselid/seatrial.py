@@ -83,7 +83,7 @@ AGGREGATES: dict[str, dict[str, str] | None] = {
 #: experiments are steady turns to both sides with the sway force of either sign (different
 #: ``v/r`` ratios). With the default pulses (±0.45 N, ±0.5 N, ±0.1 N m) the nominal design
 #: keeps ``u ≥ 0.092`` m/s, ``|v| ≥ 0.13`` m/s and ``|r| ≥ 0.072`` rad/s even over 10⁶
-#: samples per experiment (seeds 0, 1), within the environment's force limits (2, 1.5, 1).
+#: samples per experiment (seeds 0, 1), within the hull's force limits (``FORCE_MAX``).
 DEFAULT_LEVELS: tuple[tuple[float, float, float, int], ...] = (
     (1.55, 0.0, 0.22, +1),
     (1.55, 0.0, 0.22, -1),
