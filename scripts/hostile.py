@@ -9,9 +9,9 @@ the environments) in a scratch directory and is scored:
 * ``slow refusal``: an absurd size not refused within 10 s;
 * ``ok``: everything else (exit 2 with a one-line reason, or a valid result).
 
-Run: ``python scripts/hostile.py`` (about 3-6 minutes on 2 cores; ``-k WORD`` runs the
-cases whose name contains WORD; ``--list`` lists them). Prints one line per case and
-the counts; exits 1 if any case failed.
+Run: ``python scripts/hostile.py`` (about 220 cases, 10-15 minutes on 2 busy cores;
+``-k WORD`` runs the cases whose name contains WORD; ``--list`` lists them). Prints one
+line per case and the counts; exits 1 if any case failed.
 """
 
 from __future__ import annotations
