@@ -61,6 +61,9 @@ class ParquetExperiments:
             raise LogValidationError("no Parquet trial logs found")
         self.files = files
         self.index: list[tuple[Path, Any]] = []
+        #: rows of every experiment (same order as :attr:`index`), and columns of the logs
+        self.rows: list[int] = []
+        self.columns = 0
         for f in files:
             try:
                 schema = pq.read_schema(f)
@@ -68,13 +71,16 @@ class ParquetExperiments:
                 reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
                 raise LogValidationError(f"{f} is not a readable Parquet trial log "
                                          f"({reason})") from None
+            self.columns = max(self.columns, len(schema.names))
             if "experiment" in schema.names:
-                ids = pd.unique(pq.read_table(f, columns=["experiment"])["experiment"]
-                                .to_numpy())
-                self.index += [(f, v.item() if hasattr(v, "item") else v)
-                               for v in sorted(ids.tolist())]
+                counts = (pq.read_table(f, columns=["experiment"])["experiment"].to_pandas()
+                          .value_counts())
+                for v in sorted(counts.index.tolist()):
+                    self.index.append((f, v.item() if hasattr(v, "item") else v))
+                    self.rows.append(int(counts[v]))
             else:
                 self.index.append((f, None))
+                self.rows.append(int(pq.ParquetFile(f).metadata.num_rows))
         self.metadata = _metadata(files[0])
 
     @property
