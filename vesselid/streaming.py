@@ -11,6 +11,14 @@ needs the instruments simulated from the latest estimate, i.e. one sequential pa
 experiment per iteration; it gets its moments from the stream through its
 ``moment_source`` hook. Memory is bounded by the largest experiment.
 
+Standard errors come from one more pass at the estimate: the registered estimator's own
+final instruments, regressors and residuals (``equation_designs``) of each experiment
+are reduced to the sums the covariance sandwich needs — ``A_E = Σ z φᵀ``, ``Σ z zᵀ``,
+column norms, ``Σ ε²``, the score sum and the score lag products ``Γ_E(j)`` — from which
+the unadjusted, HAC (automatic bandwidth included) and cluster covariances of
+:mod:`vesselid.identify.covariance` follow as in memory (to ~1e-10). The result is an
+:class:`~vesselid.identify.results.IdentificationResult`.
+
 With a Dask ``client`` the per-experiment passes run on the cluster (one task per
 experiment and iteration; the workers read the Parquet files themselves); the moments are
 gathered in experiment order and summed locally, so the results equal the local ones.
