@@ -326,7 +326,7 @@ _DOC_ARGS = """
       identification spec is misspecified).
     - ``vessel``: catalogue vessel (:func:`vesselid.catalogue.vessel_names`; ``"cybership2"``).
     - ``force_max``: physical ``[X, Y, N]`` at action ±1; default the vessel's actuator
-      limits (CyberShip II: ``(2.0, 1.5, 1.0)`` N, N, N m).
+      limits (``Hull.force_max``; CyberShip II: 2 N, 1.5 N, 1 N m).
     - ``u_ref``, ``psi_ref``: reference surge speed (0.3 m/s) and heading (0 rad).
     - ``reward_weights``: ``(w_u, w_ψ, w_a)`` of the reward (``(10, 1, 0.01)``).
     - ``initial_speed``: range of the uniform initial surge speed (``(0.0, 0.4)`` m/s).

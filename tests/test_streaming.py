@@ -125,6 +125,15 @@ def test_cli_identify_stream(logs, tmp_path, capsys):
     assert main(["identify", str(d), "--stream", "--method", "auto"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "cannot be streamed" in err[0]
+    # the size guard looks at the largest experiment, not the whole directory
+    monkey = pytest.MonkeyPatch()
+    monkey.setenv("VESSELID_MAX_MEMORY", "1M")
+    try:
+        assert main(["identify", str(d), "--stream"]) == 2
+    finally:
+        monkey.undo()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "largest experiment ~2e+03 rows" in err[0]
 
 
 def test_dask_cluster_equals_local(logs):

@@ -216,9 +216,15 @@ def cmd_identify(args: argparse.Namespace) -> int:
 
 def _identify_stream(args: argparse.Namespace) -> int:
     """``identify --stream``: Parquet logs read one experiment at a time (bounded memory)."""
+    from vesselid import limits
     from vesselid.identify import covariance_api
     from vesselid.model import ModelSpec
-    from vesselid.streaming import DEFAULT_STREAM_METHOD, STREAM_METHODS, identify_stream
+    from vesselid.streaming import (
+        DEFAULT_STREAM_METHOD,
+        STREAM_METHODS,
+        ParquetExperiments,
+        identify_stream,
+    )
 
     if args.method is None:
         args.method = DEFAULT_STREAM_METHOD
@@ -232,9 +238,16 @@ def _identify_stream(args: argparse.Namespace) -> int:
     if args.target != "measured":
         raise CLIError("--target aggregated is not available with --stream")
     spec = ModelSpec.load(args.model) if args.model else None
+    source = ParquetExperiments(args.log)
+    # memory: the largest experiment (with its regressors and instruments); time: one pass
+    biggest = max(source.rows, default=0)
+    limits.check("identify", f"{args.log} (largest experiment ~{biggest:.3g} rows × "
+                 f"{source.columns} columns, streamed)",
+                 memory=limits.read_memory(biggest, source.columns),
+                 seconds=limits.read_seconds(sum(source.rows), source.columns))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        result = identify_stream(args.log, spec, method=args.method, combine=args.combine,
+        result = identify_stream(source, spec, method=args.method, combine=args.combine,
                                  cov_type=args.cov, max_iter=args.max_iter)
     return _report_identify(args, result, caught)
 

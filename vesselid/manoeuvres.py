@@ -36,6 +36,7 @@ import numpy as np
 
 from vesselid.errors import VesselidError
 from vesselid.model import ModelSpec
+from vesselid.vessels.cybership2 import FORCE_MAX
 
 __all__ = [
     "FORCE_LIMITS",
@@ -54,8 +55,9 @@ __all__ = [
     "manoeuvre_from_dict",
 ]
 
-#: Actuator limits ``(X, Y, N)`` (N, N, N m) of CyberShip II (the environment's force_max).
-FORCE_LIMITS = (2.0, 1.5, 1.0)
+#: Actuator limits ``(X, Y, N)`` (N, N, N m) of CyberShip II: its hull's ``force_max`` (the
+#: environment's limits too); defined once, in :mod:`vesselid.vessels.cybership2`.
+FORCE_LIMITS: tuple[float, float, float] = tuple(FORCE_MAX)
 #: Full-deflection rudder forces ``(Y_δ, N_δ)`` at ``δ_max = 35°`` for a starboard rudder:
 #: a lateral force to port at ``x_r = −0.5 L ≈ −0.63 m`` gives ``N = x_r Y``.
 RUDDER = (-1.2, 0.75)

@@ -83,7 +83,7 @@ AGGREGATES: dict[str, dict[str, str] | None] = {
 #: experiments are steady turns to both sides with the sway force of either sign (different
 #: ``v/r`` ratios). With the default pulses (±0.45 N, ±0.5 N, ±0.1 N m) the nominal design
 #: keeps ``u ≥ 0.092`` m/s, ``|v| ≥ 0.13`` m/s and ``|r| ≥ 0.072`` rad/s even over 10⁶
-#: samples per experiment (seeds 0, 1), within the environment's force limits (2, 1.5, 1).
+#: samples per experiment (seeds 0, 1), within the hull's force limits (``FORCE_MAX``).
 DEFAULT_LEVELS: tuple[tuple[float, float, float, int], ...] = (
     (1.55, 0.0, 0.22, +1),
     (1.55, 0.0, 0.22, -1),
@@ -299,7 +299,6 @@ def design_sea_trial(
     SeaTrialDesign
     """
     from vesselid.catalogue import vessel_module
-    from vesselid.diagnostics import design_margins
     from vesselid.vessels import VesselSensors, simulate_vessel
 
     module = vessel_module(vessel)
@@ -346,12 +345,7 @@ def design_sea_trial(
     spec = seatrial_spec(dt, None, vessel=vessel)
     eta_used = {"u": 0.08, "v": 0.08, "r": 0.02} if eta is None else {
         s: float(eta.get(s, 0.0)) for s in spec.states}
-    starts = np.arange(n_e + 1, dtype=np.int64) * n_d
-    margins = design_margins(nominal.reshape(-1, 3), starts, spec, eta_used, list(range(n_e)),
-                             threshold=0.0)
-    for j, s in enumerate(spec.states):
-        table[f"mean_{s}"] = nominal[:, :, j].mean(axis=1)
-        table[f"min_abs_{s}"] = np.abs(nominal[:, :, j]).min(axis=1)
+    margins = _nominal_margins(nominal, spec, eta_used, table)
     design.margins, design.eta, design.nominal = margins, eta_used, nominal
     if check and not design.ok:
         bad = design.violations().iloc[0]
@@ -399,7 +393,6 @@ def planned_sea_trial_design(
     SeaTrialDesign
         With ``plan`` holding the :class:`~vesselid.planner.TrialPlan`.
     """
-    from vesselid.diagnostics import design_margins
     from vesselid.manoeuvres import NominalVessel
     from vesselid.planner import plan_trial
 
@@ -424,16 +417,27 @@ def planned_sea_trial_design(
     table = pd.DataFrame(rows)
     spec = seatrial_spec(dt, None, "full")
     eta_used = {"u": 0.08, "v": 0.08, "r": 0.02}
-    starts = np.arange(n_e + 1, dtype=np.int64) * n_d
-    margins = design_margins(nominal.reshape(-1, 3), starts, spec, eta_used, list(range(n_e)),
-                             threshold=0.0)
-    for j, st in enumerate(spec.states):
-        table[f"mean_{st}"] = nominal[:, :, j].mean(axis=1)
-        table[f"min_abs_{st}"] = np.abs(nominal[:, :, j]).min(axis=1)
+    margins = _nominal_margins(nominal, spec, eta_used, table)
     return SeaTrialDesign(
         inputs=np.ascontiguousarray(forces[:, n_warm:]), table=table, margins=margins,
         eta=eta_used, warmup=n_warm, dt=float(dt), nominal=nominal, name="planned",
         structure="full", warmup_forces=np.ascontiguousarray(forces[:, :n_warm]), plan=plan)
+
+
+def _nominal_margins(nominal: np.ndarray, spec: ModelSpec, eta: Mapping[str, float],
+                     table: pd.DataFrame) -> pd.DataFrame:
+    """A10/A15 margins of a noise-free design ``nominal`` (experiments × samples × 3); adds
+    each experiment's mean and min |x| per state to ``table``."""
+    from vesselid.diagnostics import design_margins
+
+    n_e, n_d = nominal.shape[:2]
+    starts = np.arange(n_e + 1, dtype=np.int64) * n_d
+    margins = design_margins(nominal.reshape(-1, 3), starts, spec, eta, list(range(n_e)),
+                             threshold=0.0)
+    for j, s in enumerate(spec.states):
+        table[f"mean_{s}"] = nominal[:, :, j].mean(axis=1)
+        table[f"min_abs_{s}"] = np.abs(nominal[:, :, j]).min(axis=1)
+    return margins
 
 
 def _make_design(name: str | None, experiments: int, samples: int, dt: float, seed: Any,

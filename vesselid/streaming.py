@@ -11,6 +11,14 @@ needs the instruments simulated from the latest estimate, i.e. one sequential pa
 experiment per iteration; it gets its moments from the stream through its
 ``moment_source`` hook. Memory is bounded by the largest experiment.
 
+Standard errors come from one more pass at the estimate: the registered estimator's own
+final instruments, regressors and residuals (``equation_designs``) of each experiment
+are reduced to the sums the covariance sandwich needs — ``A_E = Σ z φᵀ``, ``Σ z zᵀ``,
+column norms, ``Σ ε²``, the score sum and the score lag products ``Γ_E(j)`` — from which
+the unadjusted, HAC (automatic bandwidth included) and cluster covariances of
+:mod:`vesselid.identify.covariance` follow as in memory (to ~1e-10). The result is an
+:class:`~vesselid.identify.results.IdentificationResult`.
+
 With a Dask ``client`` the per-experiment passes run on the cluster (one task per
 experiment and iteration; the workers read the Parquet files themselves); the moments are
 gathered in experiment order and summed locally, so the results equal the local ones.
@@ -61,6 +69,9 @@ class ParquetExperiments:
             raise LogValidationError("no Parquet trial logs found")
         self.files = files
         self.index: list[tuple[Path, Any]] = []
+        #: rows of every experiment (same order as :attr:`index`), and columns of the logs
+        self.rows: list[int] = []
+        self.columns = 0
         for f in files:
             try:
                 schema = pq.read_schema(f)
@@ -68,13 +79,16 @@ class ParquetExperiments:
                 reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
                 raise LogValidationError(f"{f} is not a readable Parquet trial log "
                                          f"({reason})") from None
+            self.columns = max(self.columns, len(schema.names))
             if "experiment" in schema.names:
-                ids = pd.unique(pq.read_table(f, columns=["experiment"])["experiment"]
-                                .to_numpy())
-                self.index += [(f, v.item() if hasattr(v, "item") else v)
-                               for v in sorted(ids.tolist())]
+                counts = (pq.read_table(f, columns=["experiment"])["experiment"].to_pandas()
+                          .value_counts())
+                for v in sorted(counts.index.tolist()):
+                    self.index.append((f, v.item() if hasattr(v, "item") else v))
+                    self.rows.append(int(counts[v]))
             else:
                 self.index.append((f, None))
+                self.rows.append(int(pq.ParquetFile(f).metadata.num_rows))
         self.metadata = _metadata(files[0])
 
     @property
