@@ -29,9 +29,9 @@ def test_import_vesselid_is_light() -> None:
 
 @pytest.mark.parametrize("argv", [
     ["--help"], ["--version"], [],
-    pytest.param(["identify", "--method", "nonsense", "x.csv"], marks=pytest.mark.xfail(
-        strict=True, reason="known gap (issue 14): checking --method against the estimator "
-        "registry imports vesselid.identify, which loads the compiled kernels")),
+    ["identify", "--method", "nonsense", "x.csv"],
+    ["identify", "--cov", "nonsense", "x.csv"],
+    ["identify", "--stream", "--method", "gmm", "logs"],
 ])
 def test_help_and_argument_errors_load_no_kernels(argv: list[str]) -> None:
     code = ("from vesselid.cli import main\n"
@@ -66,3 +66,18 @@ def test_lazy_top_level_names() -> None:
     assert set(vesselid.__all__) <= set(dir(vesselid))
     with pytest.raises(AttributeError):
         vesselid.nonexistent  # noqa: B018
+
+
+def test_static_names_equal_the_registries() -> None:
+    """The CLI's static ``--method``/``--cov`` names (no kernels loaded) are the registries'."""
+    from vesselid import _names
+    from vesselid.identify import covariance_api
+    from vesselid.identify.registry import DEFAULT_METHOD, ESTIMATORS
+    from vesselid.streaming import DEFAULT_STREAM_METHOD, STREAM_METHODS
+
+    assert _names.METHODS == tuple(ESTIMATORS)
+    assert _names.DEFAULT_METHOD == DEFAULT_METHOD
+    assert _names.STREAM_METHODS == tuple(STREAM_METHODS)
+    assert _names.DEFAULT_STREAM_METHOD == DEFAULT_STREAM_METHOD
+    assert _names.COV_TYPES == tuple(covariance_api.available())
+    assert _names.DEFAULT_COV_TYPE == covariance_api.default_cov_type()

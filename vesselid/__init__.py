@@ -79,6 +79,45 @@ class _RegisterWithGymnasium:
         return spec
 
 
+class _SourceTreeEnvs:
+    """Finds ``vesselid.envs`` in a source checkout (folder ``envs/`` beside ``vesselid/``).
+
+    The wheel installs the folder ``envs/`` as ``vesselid.envs`` (``package-dir`` in
+    ``pyproject.toml``); an editable install maps it the same way. A plain source tree on
+    ``sys.path`` (``python -c ...`` run in the checkout, which shadows a non-editable
+    install) has no ``vesselid/envs``: this finder supplies the mapping, so that the
+    environments — and their registration with gymnasium — are the same in all three.
+    """
+
+    def __init__(self, folder: str) -> None:
+        self.folder = folder
+
+    def find_spec(self, fullname: str, path: Any = None, target: Any = None) -> Any:
+        if fullname != "vesselid.envs":
+            return None
+        import importlib.util
+        import os
+
+        return importlib.util.spec_from_file_location(
+            fullname, os.path.join(self.folder, "__init__.py"),
+            submodule_search_locations=[self.folder])
+
+
+def _install_source_tree_envs() -> None:
+    import os
+
+    here = os.path.dirname(os.path.abspath(__file__))
+    if os.path.isdir(os.path.join(here, "envs")):  # installed: vesselid/envs exists
+        return
+    folder = os.path.join(os.path.dirname(here), "envs")
+    if (os.path.isfile(os.path.join(folder, "__init__.py"))
+            and not any(isinstance(f, _SourceTreeEnvs) for f in sys.meta_path)):
+        sys.meta_path.append(_SourceTreeEnvs(folder))
+
+
+_install_source_tree_envs()
+
+
 def _register() -> None:
     try:
         from vesselid.envs import register_envs

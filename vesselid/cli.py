@@ -180,26 +180,34 @@ def check_raw_dir(raw: str) -> None:
         raise NotADirectoryError(20, "not a directory", str(parent))
 
 
+def _check_cov(cov: str | None) -> None:
+    from vesselid import _names
+
+    if cov is not None and cov not in _names.COV_TYPES:
+        raise CLIError(f"argument --cov: invalid choice {cov!r} "
+                       f"(choose from {', '.join(_names.COV_TYPES)})")
+
+
 def cmd_identify(args: argparse.Namespace) -> int:
     for option, target in (("--json", args.json), ("--export", getattr(args, "export", None))):
         if target and target != "-":  # fail before the work (and the imports), not after it
             check_output_file(option, target)
     if getattr(args, "stream", False):
         return _identify_stream(args)
+    from vesselid import _names
+
+    # static names: an argument error loads neither the registry nor the compiled kernels
+    if args.method is None:
+        args.method = _names.DEFAULT_METHOD
+    if args.method not in _names.METHODS:
+        raise CLIError(f"argument --method: invalid choice {args.method!r} "
+                       f"(choose from {', '.join(_names.METHODS)})")
+    _check_cov(args.cov)
     from vesselid import limits
-    from vesselid.identify import covariance_api, identify
-    from vesselid.identify.registry import DEFAULT_METHOD, ESTIMATORS
+    from vesselid.identify import identify
     from vesselid.logs import TrialLog, estimate_shape
     from vesselid.model import ModelSpec
 
-    if args.method is None:
-        args.method = DEFAULT_METHOD
-    if args.method not in ESTIMATORS:
-        raise CLIError(f"argument --method: invalid choice {args.method!r} "
-                       f"(choose from {', '.join(ESTIMATORS)})")
-    if args.cov is not None and args.cov not in covariance_api.available():
-        raise CLIError(f"argument --cov: invalid choice {args.cov!r} "
-                       f"(choose from {', '.join(covariance_api.available())})")
     spec = ModelSpec.load(args.model) if args.model else None
     rows, cols = estimate_shape(args.log)
     limits.check("identify", f"{args.log} (~{rows:.3g} rows × {cols} columns)",
@@ -216,25 +224,19 @@ def cmd_identify(args: argparse.Namespace) -> int:
 
 def _identify_stream(args: argparse.Namespace) -> int:
     """``identify --stream``: Parquet logs read one experiment at a time (bounded memory)."""
-    from vesselid import limits
-    from vesselid.identify import covariance_api
-    from vesselid.model import ModelSpec
-    from vesselid.streaming import (
-        DEFAULT_STREAM_METHOD,
-        STREAM_METHODS,
-        ParquetExperiments,
-        identify_stream,
-    )
+    from vesselid import _names
 
     if args.method is None:
-        args.method = DEFAULT_STREAM_METHOD
-    if args.method not in STREAM_METHODS:
+        args.method = _names.DEFAULT_STREAM_METHOD
+    if args.method not in _names.STREAM_METHODS:
         raise CLIError(f"argument --method: {args.method!r} cannot be streamed (its estimate is "
                        f"not a sum over experiments); with --stream choose from "
-                       f"{', '.join(STREAM_METHODS)}")
-    if args.cov is not None and args.cov not in covariance_api.available():
-        raise CLIError(f"argument --cov: invalid choice {args.cov!r} "
-                       f"(choose from {', '.join(covariance_api.available())})")
+                       f"{', '.join(_names.STREAM_METHODS)}")
+    _check_cov(args.cov)
+    from vesselid import limits
+    from vesselid.model import ModelSpec
+    from vesselid.streaming import ParquetExperiments, identify_stream
+
     if args.target != "measured":
         raise CLIError("--target aggregated is not available with --stream")
     spec = ModelSpec.load(args.model) if args.model else None
