@@ -81,3 +81,12 @@ def test_static_names_equal_the_registries() -> None:
     assert _names.DEFAULT_STREAM_METHOD == DEFAULT_STREAM_METHOD
     assert _names.COV_TYPES == tuple(covariance_api.available())
     assert _names.DEFAULT_COV_TYPE == covariance_api.default_cov_type()
+
+
+def test_identify_does_not_import_scipy_stats() -> None:
+    """``scipy.stats`` alone costs ~1 s of process start; the estimators use scipy.special."""
+    code = ("import sys, vesselid.identify, vesselid.identify.registry\n"
+            "print('STATS', 'scipy.stats' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout
+    assert "STATS False" in out

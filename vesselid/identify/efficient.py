@@ -27,7 +27,6 @@ from __future__ import annotations
 from typing import Any, ClassVar
 
 import numpy as np
-from scipy import stats
 
 from vesselid.errors import IdentificationError
 from vesselid.identify import gmm, kernels
@@ -100,9 +99,17 @@ class LaggedIV(Estimator):
                 "sargan_hansen_j": _jdict(sol.j[0], sol.df)}
 
 
+def _chi2_sf(x: Any, df: Any) -> Any:
+    """``scipy.stats.chi2.sf(x, df)`` for ``df > 0`` (identical values, ``x < 0`` -> 1)
+    through ``scipy.special``: importing ``scipy.stats`` costs ~1 s of process start."""
+    from scipy.special import chdtrc
+
+    return chdtrc(df, np.maximum(x, 0.0))
+
+
 def _jdict(j: np.ndarray, df: np.ndarray) -> list[dict[str, float]]:
     return [{"stat": float(j[i]), "df": int(df[i]),
-             "pvalue": float(stats.chi2.sf(j[i], df[i])) if df[i] else float("nan")}
+             "pvalue": float(_chi2_sf(j[i], df[i])) if df[i] else float("nan")}
             for i in range(len(df))]
 
 
@@ -238,7 +245,7 @@ class InstrumentalGMM(Estimator):
             pvals = np.ones((n, spec.n_states))
             for i in range(spec.n_states):
                 if sol.c_df[i]:
-                    pvals[:, i] = stats.chi2.sf(sol.c[:, i], sol.c_df[i])
+                    pvals[:, i] = _chi2_sf(sol.c[:, i], sol.c_df[i])
             c_p = pvals.min(axis=1)
             info.update(c_stat=sol.c.copy(), c_df=sol.c_df.copy(), c_pvalue=c_p,
                         j_stat=sol.j.copy(), j_df=sol.df.copy())
