@@ -15,8 +15,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import signal as sps
-from scipy import stats
 
 from vesselid.errors import VesselidError
 
@@ -230,6 +228,8 @@ class TruncatedGaussian(Process):
 
     @property
     def _dist(self):
+        from scipy import stats  # lazily: importing scipy.stats costs ~1 s of process start
+
         b = self.bound_ / self.sigma
         return stats.truncnorm(-b, b, loc=self.mean_, scale=self.sigma)
 
@@ -300,8 +300,10 @@ class GaussMarkov(Process):
         a = self.pole
         innov = rng.normal(0.0, self.std_ * math.sqrt(1 - a * a), n)
         innov[0] = rng.normal(0.0, self.std_)
+        from scipy.signal import lfilter  # lazily (scipy.signal: ~1 s of process start)
+
         # g(k) = a g(k-1) + innov(k), started from its stationary draw
-        g = sps.lfilter([1.0], [1.0, -a], innov)
+        g = lfilter([1.0], [1.0, -a], innov)
         if math.isfinite(self.bound_):
             g = self.bound_ * np.tanh(g / self.bound_)
         return g + self.mean_

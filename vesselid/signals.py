@@ -12,7 +12,6 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
-from scipy import signal as sps
 
 from vesselid.disturbances import Process, process_from_dict
 from vesselid.errors import VesselidError
@@ -180,7 +179,9 @@ class PRBS(InputSignal):
             state[0] = 1
         n_bits_needed = -(-n // int(self.hold))
         period = 2**nbits - 1
-        seq, _ = sps.max_len_seq(nbits, state=state, length=min(n_bits_needed, period))
+        from scipy.signal import max_len_seq  # lazily (scipy.signal: ~1 s of process start)
+
+        seq, _ = max_len_seq(nbits, state=state, length=min(n_bits_needed, period))
         if n_bits_needed > period:
             seq = np.resize(seq, n_bits_needed)
         bits = np.repeat(seq, int(self.hold))[:n]
