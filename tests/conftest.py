@@ -12,9 +12,6 @@ from __future__ import annotations
 import pytest
 
 KNOWN_FAILURES: dict[str, str] = {
-    "tests/test_calibration.py::test_default_covariance_covers_95_percent":
-        "calibration's switch to the registry default estimator is untested (IndexError in "
-        "the experiment segmentation) (issue 10)",
     "tests/test_lazy_imports.py::test_environments_registered_when_gymnasium_is_imported_later":
         "gymnasium registration hook does not fire in a non-editable install (issue 14)",
     "tests/test_reproduce.py::test_paper_size_matches_published_tables":
