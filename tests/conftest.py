@@ -19,10 +19,6 @@ KNOWN_FAILURES: dict[str, str] = {
         "IV_E{zeta}=0 is ~12 % below the published sd, z = -4.1 and -4.15 against the "
         "Bonferroni 4.03 (the unpublished pulse widths); the NaN default-estimator row is "
         "excluded",
-    "tests/test_seatrial.py::test_data_margins_in_identification_diagnostics":
-        "design-margin diagnostics of the estimator objects differ from the old path (issue 10)",
-    "tests/test_seatrial.py::test_consistency_trend_fixed_seeds":
-        "iv-zero-mean through the estimator objects: trend threshold not met (issue 10/12)",
 }
 
 
