@@ -12,18 +12,11 @@ from __future__ import annotations
 import pytest
 
 KNOWN_FAILURES: dict[str, str] = {
-    "tests/test_calibration.py::test_default_covariance_covers_95_percent":
-        "calibration's switch to the registry default estimator is untested (IndexError in "
-        "the experiment segmentation) (issue 10)",
     "tests/test_reproduce.py::test_paper_size_matches_published_tables":
         "sd band now derived from Monte Carlo SEs (issue 9): the f sd of Table 2 IV and "
         "IV_E{zeta}=0 is ~12 % below the published sd, z = -4.1 and -4.15 against the "
         "Bonferroni 4.03 (the unpublished pulse widths); the NaN default-estimator row is "
         "excluded",
-    "tests/test_seatrial.py::test_data_margins_in_identification_diagnostics":
-        "design-margin diagnostics of the estimator objects differ from the old path (issue 10)",
-    "tests/test_seatrial.py::test_consistency_trend_fixed_seeds":
-        "iv-zero-mean through the estimator objects: trend threshold not met (issue 10/12)",
 }
 
 

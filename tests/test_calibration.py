@@ -32,20 +32,22 @@ def test_coverage_table_counts_and_ratios():
 @pytest.mark.slow
 @pytest.mark.parametrize("scenario", ["table1-random", "gm-current-random"])
 def test_default_covariance_covers_95_percent(scenario):
-    """The default covariance's 95 % intervals cover θ0 at the nominal rate on the paper's
-    white design and under a coloured (Gauss–Markov) current, where the white-noise
-    formula covers only ~60 %: binomial test at α = 0.001 on 150 runs per parameter."""
+    """The default estimator's default-covariance 95 % intervals cover θ0 at the nominal
+    rate on the paper's white design and under a coloured (Gauss–Markov) current:
+    binomial test at α = 0.001 on 150 runs per parameter. The test can fail: on the
+    coloured current the white-noise formula applied to the paper's IV_{E{ζ}=0} (whose
+    equation error stays coloured, unlike the default's prefiltered one) covers ~60 %."""
     from vesselid.calibration import coverage_study
 
     runs = 150
-    tab = coverage_study(scenario, runs, seed=11, covariances={"hac": ("hac", {}),
-                                                              "unadjusted": ("unadjusted", {})})
-    hac = tab[tab["covariance"] == "hac"]
-    for _, r in hac.iterrows():
+    tab = coverage_study(scenario, runs, seed=11, covariances={"hac": ("hac", {})})
+    assert (tab["runs"] == runs).all()
+    for _, r in tab.iterrows():
         hits = round(r["coverage"] * r["runs"])
         assert binomial_ok(hits, int(r["runs"]), 0.95), (scenario, r["parameter"], r["coverage"])
     if scenario == "gm-current-random":
-        unadj = tab[tab["covariance"] == "unadjusted"]
+        unadj = coverage_study(scenario, runs, seed=11, method="iv-zero-mean",
+                               covariances={"unadjusted": ("unadjusted", {})})
         worst = unadj.sort_values("coverage").iloc[0]
         assert not binomial_ok(round(worst["coverage"] * worst["runs"]),
                                int(worst["runs"]), 0.95)

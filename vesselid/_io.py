@@ -181,28 +181,16 @@ def atomic_write_with(path: str | os.PathLike[str], writer: Callable[[Path], Non
 
 
 def finite_or_none(obj: object) -> object:
-    """Replace every non-finite float (NaN, ±inf) in nested dicts/lists by ``None``."""
-    import math
+    """Replace every non-finite float (NaN, ±inf) in nested dicts/lists by ``None``
+    (numpy values as Python values): :func:`vesselid._json.strict`, the one rule."""
+    from vesselid._json import strict
 
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: finite_or_none(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [finite_or_none(v) for v in obj]
-    try:
-        import numpy as np
-    except ImportError:  # pragma: no cover
-        return obj
-    if isinstance(obj, np.generic):
-        return finite_or_none(obj.item())
-    if isinstance(obj, np.ndarray):
-        return finite_or_none(obj.tolist())
-    return obj
+    return strict(obj)
 
 
 def strict_json(obj: object, **kwargs: object) -> str:
-    """``json.dumps`` that never writes ``NaN``/``Infinity``: non-finite numbers become ``null``."""
-    import json
+    """``json.dumps`` that never writes ``NaN``/``Infinity``: non-finite numbers become
+    ``null`` (:func:`vesselid._json.dumps`, the one strict-JSON implementation)."""
+    from vesselid._json import dumps
 
-    return json.dumps(finite_or_none(obj), allow_nan=False, **kwargs)
+    return dumps(obj, **kwargs)

@@ -517,7 +517,16 @@ def registry_covariances(
         phi = kernels.regressor_matrix(sub.regsig, sub.u, sub.starts, spec.codes.factors)
         try:
             designs = est.equation_designs(sub, spec, it_g, phi, combine)
+            if len(designs) < spec.n_states:
+                # estimators that keep their final design rows only on the checked
+                # one-group path (GMM/SRIV: ``keep_history``): rerun it as ``fit`` does
+                it_g = est.estimate_parameters(sub, spec, combine=combine, keep_history=True)
+                if not np.all(np.isfinite(it_g.theta[0])):
+                    continue
+                designs = est.equation_designs(sub, spec, it_g, phi, combine)
         except (ValueError, np.linalg.LinAlgError):
+            continue
+        if len(designs) < spec.n_states:
             continue
         for label, ce in cov_est.items():
             for i in range(spec.n_states):
