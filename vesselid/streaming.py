@@ -288,7 +288,7 @@ def _sandwich(parts: list[dict], meat: list[np.ndarray], combine: str) -> np.nda
     instruments and regressors, as
     :meth:`vesselid.identify.covariance.CovarianceEstimator.estimate` forms it: pooled
     ``A_Σ⁻¹ (Σ_E S_E) A_Σ⁻ᵀ``; stacked ``H⁻¹ (Σ_E G_E S_E G_Eᵀ) H⁻ᵀ`` in its QR form."""
-    from vesselid.identify.covariance import _stacked_qr_sandwich
+    from vesselid.identify.covariance import sandwich_from_sums
     from vesselid.identify.linalg import stacked_row_weights
 
     def scale(key: str) -> np.ndarray:
@@ -298,19 +298,13 @@ def _sandwich(parts: list[dict], meat: list[np.ndarray], combine: str) -> np.nda
     zs, ps = scale("zsq"), scale("psq")
     a_list = [p["a"] / np.outer(zs, ps) for p in parts]
     s_list = [m / np.outer(zs, zs) for m in meat]
-    k = zs.size
-    try:
-        if combine == "stacked" and len(parts) > 1:
-            w_row = stacked_row_weights(np.stack([p["a"] / max(p["n"], 1) for p in parts]))
-            cov = _stacked_qr_sandwich(a_list, s_list, w_row * zs**2, [p["n"] for p in parts])
-        else:
-            a_inv = np.linalg.inv(sum(a_list))
-            cov = a_inv @ sum(s_list) @ a_inv.T
-        cov = 0.5 * (cov + cov.T)
-    except np.linalg.LinAlgError:
-        return np.full((k, k), np.inf)
+    row_weight = None
+    if combine == "stacked" and len(parts) > 1:
+        w_row = stacked_row_weights(np.stack([p["a"] / max(p["n"], 1) for p in parts]))
+        row_weight = w_row * zs**2
+    cov = sandwich_from_sums(a_list, s_list, [p["n"] for p in parts], row_weight=row_weight)
     if not np.all(np.isfinite(cov)):
-        return np.full((k, k), np.inf)
+        return cov
     return cov / np.outer(ps, ps)
 
 

@@ -82,6 +82,7 @@ __all__ = [
     "iv_covariance",
     "kernel_weights",
     "long_run_covariance",
+    "sandwich_from_sums",
     "scores",
 ]
 
@@ -461,35 +462,18 @@ class CovarianceEstimator:
             if w_mat.shape != (n_ins, n_ins) or not np.all(np.isfinite(w_mat)):
                 raise CovarianceError(f"weight must be a finite ({n_ins}, {n_ins}) matrix")
             w_mat = w_mat * np.outer(z_scale, z_scale)
-        if combine == "pooled" or len(segs) == 1:
-            g_list = [a_sum.T @ w_mat] * len(segs)
-        else:
-            g_list = [a.T @ w_mat / (s.stop - s.start) ** 2
-                      for a, s in zip(a_list, segs, strict=True)]
-        h = sum(gm @ a for gm, a in zip(g_list, a_list, strict=True))
         s_list, used = self.meat(g, z, eps, segs, z_equation)
-        middle = sum(gm @ s_e @ gm.T for gm, s_e in zip(g_list, s_list, strict=True))
         n_eq = int(equation.max()) + 1 if n_par else 0
         cond = np.array([_condition(a_sum[np.ix_(z_equation == i, equation == i)])
                          for i in range(n_eq)])
-        try:
-            if n_ins == n_par and weight is None and (combine == "pooled" or len(segs) == 1):
-                # just identified, pooled: H⁻¹ A_Σᵀ = A_Σ⁻¹, and A_Σ⁻¹ (Σ S_E) A_Σ⁻ᵀ keeps the
-                # accuracy that forming H = A_ΣᵀA_Σ (condition number squared) loses
-                a_inv = np.linalg.inv(a_sum)
-                cov = a_inv @ sum(s_list) @ a_inv.T
-            elif combine == "stacked" and _is_positive_diagonal(w_mat):
-                cov = _stacked_qr_sandwich(a_list, s_list, np.diag(w_mat),
-                                           [s.stop - s.start for s in segs])
-            else:
-                h_inv = np.linalg.inv(h)
-                cov = h_inv @ middle @ h_inv.T
-            cov = 0.5 * (cov + cov.T)
-        except np.linalg.LinAlgError:
-            cov = np.full((n_par, n_par), np.inf)
-        if not np.all(np.isfinite(cov)):
-            cov = np.full((n_par, n_par), np.inf)
+        n_list = [s.stop - s.start for s in segs]
+        if n_ins == n_par and weight is None and (combine == "pooled" or len(segs) == 1):
+            cov = sandwich_from_sums(a_list, s_list, n_list)
+        elif combine == "stacked" and _is_positive_diagonal(w_mat):
+            cov = sandwich_from_sums(a_list, s_list, n_list, row_weight=np.diag(w_mat))
         else:
+            cov = _general_sandwich(a_list, a_sum, s_list, w_mat, n_list, combine)
+        if np.all(np.isfinite(cov)):
             cov = cov / np.outer(phi_scale, phi_scale)
         config = {**self.config(), **used}
         return CovarianceResult(cov=cov, cov_type=self.name, config=config,
@@ -500,6 +484,53 @@ class CovarianceEstimator:
             starts: np.ndarray | None = None, **options: Any) -> np.ndarray:
         """Shortcut: ``estimate(...).cov``."""
         return self.estimate(z, phi, resid, starts, **options).cov
+
+
+def sandwich_from_sums(a_list: list[np.ndarray], s_list: list[np.ndarray], n_list: list[int],
+                       *, row_weight: np.ndarray | None = None) -> np.ndarray:
+    """Covariance of a just-identified IV estimate from per-experiment sums.
+
+    ``a_list`` holds ``A_E = Σ_k z φᵀ`` and ``s_list`` the long-run score covariances
+    ``S_E`` of every experiment, both on column-equilibrated instruments and regressors
+    (the covariance comes back in those units). Without ``row_weight``: the pooled
+    ``A_Σ⁻¹ (Σ_E S_E) A_Σ⁻ᵀ`` (``H⁻¹ A_Σᵀ = A_Σ⁻¹``, so the condition number of ``A_Σ``
+    enters once, not squared as in ``H = A_ΣᵀA_Σ``). With the diagonal ``row_weight`` of
+    the stacked form (6)/(10): :func:`_stacked_qr_sandwich`. Used by
+    :meth:`CovarianceEstimator.estimate` and by the streamed identification, which
+    gathers the same sums one experiment at a time. A singular or non-finite result is
+    an all-``inf`` matrix.
+    """
+    k = a_list[0].shape[1]
+    try:
+        if row_weight is None:
+            a_inv = np.linalg.inv(sum(a_list))
+            cov = a_inv @ sum(s_list) @ a_inv.T
+        else:
+            cov = _stacked_qr_sandwich(a_list, s_list, row_weight, n_list)
+        cov = 0.5 * (cov + cov.T)
+    except np.linalg.LinAlgError:
+        return np.full((k, k), np.inf)
+    return cov if np.all(np.isfinite(cov)) else np.full((k, k), np.inf)
+
+
+def _general_sandwich(a_list: list[np.ndarray], a_sum: np.ndarray, s_list: list[np.ndarray],
+                      w_mat: np.ndarray, n_list: list[int], combine: str) -> np.ndarray:
+    """``H⁻¹ (Σ_E G_E S_E G_Eᵀ) H⁻ᵀ`` with ``G_E = AᵀW`` (pooled) or ``A_EᵀW / N_E²``
+    (stacked) and ``H = Σ_E G_E A_E`` (module docstring); all-``inf`` when singular."""
+    if combine == "pooled" or len(a_list) == 1:
+        g_list = [a_sum.T @ w_mat] * len(a_list)
+    else:
+        g_list = [a.T @ w_mat / n**2 for a, n in zip(a_list, n_list, strict=True)]
+    h = sum(gm @ a for gm, a in zip(g_list, a_list, strict=True))
+    middle = sum(gm @ s_e @ gm.T for gm, s_e in zip(g_list, s_list, strict=True))
+    k = h.shape[0]
+    try:
+        h_inv = np.linalg.inv(h)
+    except np.linalg.LinAlgError:
+        return np.full((k, k), np.inf)
+    cov = h_inv @ middle @ h_inv.T
+    cov = 0.5 * (cov + cov.T)
+    return cov if np.all(np.isfinite(cov)) else np.full((k, k), np.inf)
 
 
 def _is_positive_diagonal(w: np.ndarray) -> bool:
