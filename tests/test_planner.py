@@ -83,6 +83,20 @@ def test_zigzag_switches_at_the_heading_and_small_rudder_is_reported():
     assert Programme.from_dict(json.loads(json.dumps(p.to_dict()))) == p
 
 
+def test_acceleration_stopping_with_a_floor_keeps_u_positive():
+    v = NominalVessel.cybership2()
+    old = AccelerationStopping(thrust=2.0, astern=2.0, repeats=2)
+    new = AccelerationStopping(thrust=2.0, astern=2.0, repeats=2, floor=0.05)
+    x_old = v.run(Programme([old]).schedule(v, 4000, warmup=300), np.zeros(3))
+    x_new = v.run(Programme([new]).schedule(v, 4000, warmup=300), np.zeros(3))
+    assert x_old[300:, 0].min() < 0  # the crash stop reverses the surge speed
+    u = x_new[300:, 0]
+    assert u.min() > 0.02 and u.max() > 4 * u.min()  # between two positive speeds
+    assert "floor" not in old.to_dict() and manoeuvre_from_dict(new.to_dict()) == new
+    with pytest.raises(ManoeuvreError, match="floor"):
+        Programme([AccelerationStopping(floor=-1.0)]).schedule(v, 100)
+
+
 def test_plan_trial_small_budget_and_cli(capsys):
     plan = plan_trial(8000, 2, block=2000, evaluate_block=1000)
     t = plan.table()

@@ -325,6 +325,9 @@ class AccelerationStopping(Manoeuvre):
     current state full ahead (``thrust``) for ``ahead`` seconds, then full astern
     (``−astern``) until the ship stops (``u ≤ 0``), astern ``hold`` seconds more, then
     engine stop (coasting, the stopping inertia test §2.2.8) for ``coast`` seconds;
+    with ``floor > 0`` the stop ends at ``u = floor`` and the coast ends at ``u = floor/2``
+    (speed changes between two positive speeds: ``u`` never reaches zero, as the
+    identification's assumptions A10/A15 need);
     ``rudder`` (degrees, + starboard) is held throughout, ``repeats`` times with
     alternating rudder."""
 
@@ -335,17 +338,36 @@ class AccelerationStopping(Manoeuvre):
     coast: float = 30.0
     rudder: float = 10.0
     repeats: int = 4
+    floor: float = 0.0
 
     def apply(self, track: _Track, n_max: int) -> None:
+        floor = float(self.floor)
+        if floor < 0:
+            raise ManoeuvreError(f"acceleration/stopping: floor must be >= 0, got {floor:g}")
         for s in track.alternating(self.repeats, n_max):
             y, n = track.vessel.steer(s * self.rudder)
             track.hold_for([self.thrust, y, n], self.ahead, n_max)
-            track.hold_for([-self.astern, y, n], 300.0, n_max, until=lambda x, psi: x[:, 0] <= 0)
+            track.hold_for([-self.astern, y, n], 300.0, n_max,
+                           until=lambda x, psi: x[:, 0] <= floor)
+            if floor > 0:
+                # crash stop to a positive speed: coast without reversing u (the paper's
+                # A10/A15 need u away from zero), never below half the floor speed
+                track.hold_for([0.0, y, n], self.coast, n_max,
+                               until=lambda x, psi: x[:, 0] <= 0.5 * floor)
+                continue
             track.hold_for([-self.astern, y, n], self.hold, n_max)
             track.hold_for([0.0, y, n], self.coast, n_max)
 
     def label(self) -> str:
+        if self.floor > 0:
+            return f"acceleration/stopping ±{self.thrust:g}/{self.astern:g} to u={self.floor:g}"
         return f"acceleration/stopping ±{self.thrust:g}/{self.astern:g}"
+
+    def to_dict(self) -> dict[str, Any]:
+        d = super().to_dict()
+        if not self.floor:
+            d.pop("floor")  # the crash stop through u = 0 keeps its old record
+        return d
 
 
 @dataclass(frozen=True)
