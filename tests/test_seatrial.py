@@ -87,6 +87,27 @@ def test_noise_free_recovers_theta0():
             assert np.all(np.isfinite(err))
 
 
+def test_wind_load_from_the_anemometer_is_a_known_input():
+    """With wind (no gusts, noise-free sensors, no force noise) the regression is exact
+    once the anemometer's wind load is added to the forces; without it it is not."""
+    windy = dict(QUIET, wind_speed=1.0)
+    log = simulate_sea_trial(4, 1500, seed=0, **windy)
+    fr = log.to_frame()
+    assert log.metadata["wind_input"] == "anemometer"
+    np.testing.assert_allclose(fr["X"], fr["X_cmd"] + fr["X_wind"])
+    assert np.abs(fr["Y_wind"]).max() > 1e-3
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        known = identify(log, method="ls").params.to_numpy()
+        old = identify(simulate_sea_trial(4, 1500, seed=0, wind_input="none", **windy),
+                       method="ls").params.to_numpy()
+    theta0 = log.spec.theta0_vector()
+    assert np.max(np.abs(known - theta0)) < 1e-8
+    assert np.max(np.abs(old - theta0)) > 1e-6
+    with pytest.raises(SeaTrialError, match="wind input"):
+        simulate_sea_trial(2, 100, seed=0, wind_input="sonar")
+
+
 @pytest.mark.parametrize("agg", ["speed_log", "current_meter", "none"])
 def test_aggregate_specs_noise_free(agg):
     log = simulate_sea_trial(4, 1500, seed=0, aggregate=agg, **QUIET)

@@ -23,9 +23,11 @@ of ``ε`` implied by the disturbance levels (linearised):
 * waves (:mod:`vesselid.waves`): coloured sensor noise ``ξ``, ``ε ≈ ξ(k) − ξ(k−1)``,
   stationary autocovariance from the wave spectrum and response (FFT).
 
-The mean wind load is a deterministic, heading-dependent force that the estimator does
-not know; its predicted *bias* ``A_i⁻¹ Σ ζ̃ ε_wind`` is reported next to the standard
-errors.
+With the load of the mean wind as a known input (``wind_input="anemometer"``, the
+sea-trial default) only the gusts and direction changes remain. Without it
+(``"none"``) the mean wind load is a deterministic, heading-dependent force that the
+estimator does not know; its predicted *bias* ``A_i⁻¹ Σ ζ̃ ε_wind`` is reported next to
+the standard errors.
 
 Design
 ------
@@ -112,6 +114,11 @@ class DisturbanceLevels:
         Mean wind (m/s, going-to rad) and its Gauss–Markov variations.
     waves : vesselid.waves.WaveConditions, optional
         Sea state (first-order wave-induced motion on the measurements).
+    wind_input : {"anemometer", "none"}
+        ``"anemometer"`` (the sea-trial default): the load of the mean wind (estimated
+        from the anemometer per experiment) is part of the logged forces, so only the
+        gusts and direction changes remain in the equation error; ``"none"``: the whole
+        wind load does (its mean a bias).
     """
 
     sensor_std: tuple[float, float, float] = (0.005, 0.005, 0.002)
@@ -125,6 +132,7 @@ class DisturbanceLevels:
     wind_direction_std: float = 0.1
     wind_direction_time_constant: float = 30.0
     waves: Any = None
+    wind_input: str = "anemometer"
 
     def to_dict(self) -> dict[str, Any]:
         d = {k: getattr(self, k) for k in self.__dataclass_fields__ if k != "waves"}
@@ -167,14 +175,19 @@ class _Vessel:
                    dt * cybership2.HULL.mass_matrix_inverse(), blendermann_wind_force)
 
 
-def _wind_load(vessel: _Vessel, x: np.ndarray, psi: np.ndarray, speed: float,
-               direction: np.ndarray | float) -> np.ndarray:
-    """Wind force ``(N, 3)`` along states ``x`` and heading ``psi``."""
+def _apparent_wind(x: np.ndarray, psi: np.ndarray, speed: float,
+                   direction: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+    """Apparent wind angle ``γ_rw`` and speed along states ``x`` and heading ``psi``."""
     d = direction - psi
     urw = x[:, 0] - speed * np.cos(d)
     vrw = x[:, 1] - speed * np.sin(d)
-    gam = -np.arctan2(vrw, urw)
-    return vessel.wind_force(gam, np.hypot(urw, vrw))
+    return -np.arctan2(vrw, urw), np.hypot(urw, vrw)
+
+
+def _wind_load(vessel: _Vessel, x: np.ndarray, psi: np.ndarray, speed: float,
+               direction: np.ndarray | float) -> np.ndarray:
+    """Wind force ``(N, 3)`` along states ``x`` and heading ``psi``."""
+    return vessel.wind_force(*_apparent_wind(x, psi, speed, direction))
 
 
 # ----------------------------------------------------------------- information
@@ -347,6 +360,9 @@ def design_information(
     eps_det = pred_full - predict_regressors(codes, spec.theta0_vector(), sig_t[:-1])
     # wind: mean load (deterministic bias) and gains of gust / direction changes
     wind_on = levels.wind_speed > 0 or levels.gust_std > 0
+    if levels.wind_input not in ("anemometer", "none"):
+        raise PlannerError(f"unknown wind input {levels.wind_input!r}; choose 'anemometer' "
+                           "or 'none'")
     if wind_on:
         base = _wind_load(vessel, xs[:-1], psi[:-1], levels.wind_speed, levels.wind_direction)
         dv = 1e-4
@@ -354,7 +370,10 @@ def design_information(
                               levels.wind_direction) - base) / dv
         g_dir = (_wind_load(vessel, xs[:-1], psi[:-1], levels.wind_speed,
                             levels.wind_direction + dv) - base) / dv
-        eps_det = eps_det + base @ vessel.dt_minv.T
+        if levels.wind_input == "none":
+            # the mean load is a deterministic equation error (a bias); with the load
+            # of the anemometer's mean wind as a known input only the variations remain
+            eps_det = eps_det + base @ vessel.dt_minv.T
         g_speed = g_speed @ vessel.dt_minv.T
         g_dir = g_dir @ vessel.dt_minv.T
     sig = np.asarray(levels.sensor_std, float) ** 2 * _clipped_variance(levels.sensor_clip)

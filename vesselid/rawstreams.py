@@ -216,7 +216,10 @@ def _experiments(log: Any, config: RawStreamConfig, rng: np.random.Generator, dt
             t0=t0, time=time, u=_col(frame, "u"), v=_col(frame, "v"), r=_col(frame, "r"),
             north=north, east=east, psi=psi, u_log=u_log, v_log=v_log,
             wind_speed=np.abs(ws), wind_angle=wa,
-            inputs=frame[list(spec.inputs)].to_numpy(dtype=float)))
+            # actuator commands (a sea-trial log with the wind load as a known input
+            # keeps the commands in X_cmd, ...)
+            inputs=frame[[f"{c}_cmd" if f"{c}_cmd" in frame else c
+                          for c in spec.inputs]].to_numpy(dtype=float)))
         duration = float(time[-1]) + dt
         t0 = t0 + math.ceil((duration + config.experiment_gap) / dt) * dt
     return out

@@ -56,6 +56,7 @@ __all__ = [
     "AGGREGATES",
     "DEFAULT_LEVELS",
     "DESIGNS",
+    "WIND_INPUTS",
     "SeaTrialDesign",
     "SeaTrialResult",
     "add_parser",
@@ -506,6 +507,7 @@ def simulate_sea_trial(
     dt: float = 0.1,
     vessel: str = "cybership2",
     waves: Any = None,
+    wind_input: str | None = "anemometer",
     **design_options: Any,
 ):
     """Simulate a multi-experiment CyberShip II sea trial and return its trial log.
@@ -549,6 +551,18 @@ def simulate_sea_trial(
         Sea state: first-order wave-induced motion (JONSWAP, :mod:`vesselid.waves`) added
         to the measured velocities (GNSS, speed log, gyro) and heading as a coloured
         sensor disturbance, drawn from the same seed; recorded in the metadata.
+    wind_input : {"anemometer", "none", None}
+        ``"anemometer"`` (default): the load of the mean wind measured by the anemometer
+        (per experiment, with the GNSS velocity and heading; :func:`_add_wind_input`)
+        under the vessel's known wind model (Blendermann 1994, the hull's
+        :class:`~vesselid.vessels.wind.BlendermannWind`) is a *measured input*: the
+        columns ``X, Y, N`` hold commanded force + wind load (the commands move to
+        ``X_cmd, Y_cmd, N_cmd``, the load to ``X_wind, Y_wind, N_wind``). The mean wind
+        load depends on the heading, which the manoeuvres correlate with the
+        instruments; left in the equation error it biases every instrumental-variable
+        estimate (measured: 4–8 SE on the sway/yaw couplings of the planned design).
+        ``"none"``/``None``: ``X, Y, N`` are the commands only (the wind load is an
+        unmodelled disturbance, the behaviour before).
 
     Returns
     -------
@@ -578,6 +592,9 @@ def simulate_sea_trial(
     else:
         raise SeaTrialError(f"source must be 'batch' or 'env', got {source!r}")
     frame = log.to_frame()
+    wind_key = _wind_input_key(wind_input)
+    if wind_key == "anemometer" and dist.wind_on:
+        _add_wind_input(frame, design.vessel)
     if waves is not None:
         _add_waves(frame, waves, design.dt, root.spawn(1)[0])
     if key == "relative":
@@ -598,12 +615,68 @@ def simulate_sea_trial(
         "warmup_samples_discarded": design.warmup,
         "samples_per_experiment": design.n_samples,
         "experiments": design.n_experiments,
+        "wind_input": wind_key if dist.wind_on else "none",
     })
     if design.plan is not None:
         meta["plan"] = design.plan.to_dict()
     if waves is not None:
         meta["waves"] = waves.to_dict()
     return TrialLog(frame, meta)
+
+
+#: How the wind load enters the identification (:func:`simulate_sea_trial`).
+WIND_INPUTS = ("anemometer", "none")
+
+
+def _wind_input_key(wind_input: str | None) -> str:
+    key = "none" if wind_input is None else str(wind_input)
+    if key not in WIND_INPUTS:
+        raise SeaTrialError(f"unknown wind input {wind_input!r}; choose from {list(WIND_INPUTS)}")
+    return key
+
+
+def _add_wind_input(frame: pd.DataFrame, vessel: str) -> None:
+    """Wind load of the measured mean wind added to the force columns ``X, Y, N``.
+
+    Per experiment the true wind (earth frame) is the mean of apparent wind
+    (anemometer) plus ground velocity (GNSS) rotated with the heading; the load at each
+    sample is the vessel's wind model (:func:`~vesselid.vessels.wind.blendermann_wind_force`)
+    at the apparent wind of that mean wind and the measured velocity and heading. Using
+    the mean wind rather than each anemometer reading keeps the sensor noise out of the
+    force columns (which are their own instruments: noise there biases the input
+    coefficients); gusts stay an unmodelled zero-mean disturbance. Commands are kept in
+    ``X_cmd, Y_cmd, N_cmd``, the load in ``X_wind, Y_wind, N_wind``.
+    """
+    from vesselid.catalogue import vessel_module
+    from vesselid.vessels.wind import blendermann_wind_force
+
+    need = ("wind_speed", "wind_angle", "u", "v", "psi")
+    missing = [c for c in need if c not in frame]
+    if missing:
+        raise SeaTrialError(f"wind_input='anemometer' needs the anemometer, GNSS and heading "
+                            f"columns (missing {missing}); enable them or use wind_input='none'")
+    speed = np.abs(frame["wind_speed"].to_numpy())
+    gam = frame["wind_angle"].to_numpy()
+    u, v, psi = (frame[c].to_numpy() for c in ("u", "v", "psi"))
+    c, s = np.cos(psi), np.sin(psi)
+    # air velocity in the body frame: ground velocity minus apparent wind (u_rw, v_rw)
+    wu = u - speed * np.cos(gam)
+    wv = v + speed * np.sin(gam)
+    north, east = c * wu - s * wv, s * wu + c * wv
+    exp = frame["experiment"].to_numpy() if "experiment" in frame else np.zeros(len(frame))
+    _, inv = np.unique(exp, return_inverse=True)
+    count = np.bincount(inv)
+    north = (np.bincount(inv, north) / count)[inv]
+    east = (np.bincount(inv, east) / count)[inv]
+    urw = u - (c * north + s * east)
+    vrw = v - (-s * north + c * east)
+    load = blendermann_wind_force(-np.arctan2(vrw, urw), np.hypot(urw, vrw),
+                                  vessel_module(vessel).HULL.wind)
+    for j, name in enumerate(("X", "Y", "N")):
+        cmd = frame[name].to_numpy()
+        frame[f"{name}_cmd"] = cmd
+        frame[f"{name}_wind"] = load[:, j]
+        frame[name] = cmd + load[:, j]
 
 
 def _add_waves(frame: pd.DataFrame, waves: Any, dt: float, seed: np.random.SeedSequence) -> None:
@@ -889,6 +962,11 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--current-direction", type=finite_float, default=30.0,
                    help="going-to direction, degrees from north")
     p.add_argument("--wind-speed", type=finite_float, default=1.0, help="m/s (model scale)")
+    p.add_argument("--wind-input", default="anemometer", choices=list(WIND_INPUTS),
+                   help="wind load from the anemometer and the vessel's wind model added to "
+                        "the logged forces X, Y, N as a known input (anemometer, default; "
+                        "commands kept in X_cmd, Y_cmd, N_cmd) or left as an unmodelled "
+                        "disturbance (none)")
     p.add_argument("--aggregate", default="relative",
                    choices=["relative", "speed_log", "current_meter", "none"],
                    help="signals for u, v: speed log as target and regressors (relative, "
@@ -980,7 +1058,8 @@ def cmd_sea_trial(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     opts = {"current_speed": args.current_speed,
             "current_direction": math.radians(args.current_direction),
-            "wind_speed": args.wind_speed, "waves": waves_from_args(args)}
+            "wind_speed": args.wind_speed, "waves": waves_from_args(args),
+            "wind_input": args.wind_input}
     opts["vessel"] = args.vessel
     log = simulate_sea_trial(args.experiments, args.samples, args.seed,
                              aggregate=args.aggregate, source=args.source,
