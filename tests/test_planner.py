@@ -12,6 +12,7 @@ from vesselid.manoeuvres import (
     ManoeuvreError,
     NominalVessel,
     Programme,
+    ThrusterSquare,
     TurningCircle,
     ZigZag,
     manoeuvre_from_dict,
@@ -95,6 +96,20 @@ def test_acceleration_stopping_with_a_floor_keeps_u_positive():
     assert "floor" not in old.to_dict() and manoeuvre_from_dict(new.to_dict()) == new
     with pytest.raises(ManoeuvreError, match="floor"):
         Programme([AccelerationStopping(floor=-1.0)]).schedule(v, 100)
+
+
+def test_thruster_square_visits_all_sign_combinations():
+    v = NominalVessel.cybership2()
+    m = ThrusterSquare(thrust=1.4, hold_y=10.0, hold_n=7.0)
+    f = Programme([m]).schedule(v, 3000, warmup=300)[300:]
+    assert f.shape == (3000, 3) and np.all(np.abs(f) <= np.array(v.limits) + 1e-12)
+    combos = {(np.sign(y), np.sign(n)) for y, n in f[:, 1:]}
+    assert combos == {(1, 1), (1, -1), (-1, 1), (-1, -1)}
+    assert np.count_nonzero(np.diff(np.sign(f[:, 1]))) == 2999 // 100  # every 10 s
+    x = v.run(np.vstack([np.tile([1.4, 0, 0], (300, 1)), f]), np.zeros(3))[300:]
+    vr = x[:, 1] * x[:, 2]
+    assert (vr > 0).mean() > 0.1 and (vr < 0).mean() > 0.1  # both sign relations
+    assert manoeuvre_from_dict(m.to_dict()) == m
 
 
 def test_plan_trial_small_budget_and_cli(capsys):

@@ -50,6 +50,7 @@ __all__ = [
     "Programme",
     "PullOut",
     "Spiral",
+    "ThrusterSquare",
     "TurningCircle",
     "ZigZag",
     "manoeuvre_from_dict",
@@ -390,10 +391,48 @@ class Crabbing(Manoeuvre):
         return f"crabbing Y=±{self.sway:g} (N/Y={self.moment:g}), X={self.thrust:g}"
 
 
+@dataclass(frozen=True)
+class ThrusterSquare(Manoeuvre):
+    """Thruster test with independent sway force and yaw moment (ITTC §2.2.13–2.2.14
+    with both thrusters; a multistep input in the sense of system-identification flight
+    tests): ``Y = ±sway`` reversed every ``hold_y`` seconds and ``N = ±moment`` every
+    ``hold_n`` seconds; with ``low < 1`` the engine setting alternates between
+    ``thrust`` and ``low · thrust`` every ``hold_x`` seconds (surge excited too).
+    Incommensurate periods visit all four sign combinations of ``(Y, N)``, so ``v``
+    and ``r`` take both equal and opposite signs in the transients (rudder manoeuvres
+    give ``v·r < 0`` in every steady turn), which separates ``v·|r|``, ``r·|v|`` and ``r·|r|``."""
+
+    kind: ClassVar[str] = "thruster_square"
+    sway: float = 1.5
+    moment: float = 1.0
+    hold_y: float = 10.0
+    hold_n: float = 7.0
+    hold_x: float = 30.0
+    low: float = 1.0
+
+    def apply(self, track: _Track, n_max: int) -> None:
+        dt = track.vessel.dt
+        ky = max(1, round(self.hold_y / dt))
+        kn = max(1, round(self.hold_n / dt))
+        kx = max(1, round(self.hold_x / dt))
+        k = 0
+        while track.n < n_max:
+            sy = 1.0 if (k // ky) % 2 == 0 else -1.0
+            sn = 1.0 if (k // kn) % 2 == 0 else -1.0
+            x = self.thrust if (k // kx) % 2 == 0 else self.low * self.thrust
+            step = min(ky - k % ky, kn - k % kn, kx - k % kx, n_max - track.n)
+            track.hold([x, sy * self.sway, sn * self.moment], step)
+            k += step
+
+    def label(self) -> str:
+        return (f"thruster square Y=±{self.sway:g}/{self.hold_y:g} s, "
+                f"N=±{self.moment:g}/{self.hold_n:g} s, X={self.thrust:g}")
+
+
 #: Manoeuvre classes by name (``kind``).
 MANOEUVRES: dict[str, type[Manoeuvre]] = {
     c.kind: c for c in (TurningCircle, ZigZag, PullOut, Spiral, AccelerationStopping,
-                        Crabbing)
+                        Crabbing, ThrusterSquare)
 }
 
 

@@ -66,6 +66,7 @@ from vesselid.manoeuvres import (
     Programme,
     PullOut,
     Spiral,
+    ThrusterSquare,
     TurningCircle,
     ZigZag,
 )
@@ -481,7 +482,9 @@ def candidate_library(limits: Sequence[float] = FORCE_LIMITS) -> list[Manoeuvre]
 
     Turning circles (35°, both sides), zig-zags (10/10, 20/20, 35/20, 35/35) at a low
     and a high engine setting, a pull-out, a spiral, acceleration/stopping with three
-    rudder angles and thruster (crabbing) tests with three moment ratios.
+    rudder angles, thruster (crabbing) tests with three moment ratios, and thruster
+    tests with independent sway force and yaw moment (:class:`ThrusterSquare`) at three
+    engine settings.
     """
     lo, hi = min(0.8, limits[0]), limits[0]
     out: list[Manoeuvre] = [TurningCircle(thrust=hi, rudder=35.0, side=1, turn=360.0),
@@ -495,6 +498,8 @@ def candidate_library(limits: Sequence[float] = FORCE_LIMITS) -> list[Manoeuvre]
             for r in (0.0, 15.0, 35.0)]
     out += [Crabbing(thrust=x, sway=limits[1], moment=m) for x in (0.0, 0.75 * hi)
             for m in (-0.5, 0.0, 0.5)]
+    out += [ThrusterSquare(thrust=x, sway=limits[1], moment=limits[2], hold_y=hy, hold_n=hn)
+            for x in (lo, 0.7 * hi, hi) for hy, hn in ((10.0, 7.0), (20.0, 13.0))]
     return out
 
 
@@ -846,6 +851,15 @@ def plan_trial(
         e_info = design_information(f, vessel, lv, warmup=warmup).centred()
         info = e_info if info is None else info + e_info
     pred = predict_covariance(info, spec)
+    worst = np.sqrt(np.diag(pred.cov.to_numpy()))[relevant]
+    if candidates is None and not np.all(np.isfinite(worst)):
+        # small budgets: the greedy choice among thruster squares at one engine setting
+        # can leave the surge equation unexcited; plan with the rudder manoeuvres only
+        lib = [c for c in cands if not isinstance(c, ThrusterSquare)]
+        return plan_trial(samples, experiments, levels=levels, candidates=lib, block=block,
+                          warmup=warmup, dt=dt, relevance=relevance, target=target,
+                          limits=limits, max_exchange=max_exchange,
+                          evaluate_block=evaluate_block, structure=structure)
     return TrialPlan(programmes=programmes, experiments=n_e, samples=n_d, warmup=int(warmup),
                      dt=float(dt), prediction=pred, candidates=cand_table,
                      identifiability=_identifiability(pred, target, relevance),
