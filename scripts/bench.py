@@ -166,6 +166,7 @@ BENCHES: dict[str, Callable[[], Callable | None]] = {
     "manoeuvring_env": lambda: _load("bench_envs", "bench_manoeuvring"),
     "reproduce": lambda: _load("bench_reproduce", "bench_reproduce"),
     "seatrial": lambda: _load("bench_seatrial", "bench_seatrial"),
+    "seatrial_cli": lambda: _load("bench_seatrial", "bench_seatrial_cli"),
     "startup": lambda: _load("bench_startup", "bench_startup"),
     "cold_start": lambda: _load("bench_startup", "bench_cold_start"),
     "ingest": lambda: _load("bench_ingest", "bench_ingest"),

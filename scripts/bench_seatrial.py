@@ -42,3 +42,29 @@ def bench_seatrial(repeats: int = 3, experiments: int = 6, samples: int = 20_000
 
 if __name__ == "__main__":
     print(json.dumps(bench_seatrial(), indent=2))
+
+
+def bench_seatrial_cli(repeats: int = 3) -> dict:
+    """Median whole-process wall time (s) of ``vesselid sea-trial`` (default planned
+    design, 6 × 2·10⁴ samples) plus ``vesselid plan-trial`` (default budget), each a new
+    Python process (import, planning and simulation included); target ≤ 10 s together."""
+    import subprocess
+    import sys
+    import tempfile
+
+    def one(args: list[str]) -> float:
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-m", "vesselid", *args], check=True,
+                       stdout=subprocess.DEVNULL)
+        return time.perf_counter() - t0
+
+    sea, plan = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        one(["plan-trial"])  # compiled kernels cached
+        for i in range(repeats):
+            sea.append(one(["sea-trial", "--seed", str(i), "--out", tmp]))
+            plan.append(one(["plan-trial"]))
+    both = statistics.median(s + p for s, p in zip(sea, plan, strict=True))
+    return {"seatrial_cli_s": statistics.median(sea), "plan_trial_cli_s": statistics.median(plan),
+            "seatrial_plus_plan_trial_s": both, "seatrial_plus_plan_trial_target_s": 10.0,
+            "seatrial_plus_plan_trial_within_target": both <= 10.0}

@@ -1,0 +1,121 @@
+"""Sea-trial acceptance study and planner-vs-Monte-Carlo check (issue 12).
+
+The default (planned) sea-trial design is computed once; for every seed the trial is
+simulated with the default disturbances (and optionally a moderate model-scaled sea
+state) and identified with ``auto`` (the package default) and ``iv-zero-mean``. Printed:
+the fraction of seeds where every parameter with ``|θ0| ≥ 1e-3`` is within 10 % of θ0
+and every parameter within 3.5 reported SE, and per parameter the ratio of the
+planner's predicted SE to the Monte Carlo standard deviation of the estimates. A figure
+(predicted vs observed SE) is written with ``--figure``.
+
+    nice -n 10 python scripts/planner_study.py --seeds 50 --out /tmp/study.json \
+        --figure docs/planner_vs_mc.png
+    nice -n 10 python scripts/planner_study.py --seeds 20 --sea-state moderate ...
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+import warnings
+
+import numpy as np
+
+
+def run(seeds: int, methods: list[str], sea_state: str | None, out: str | None) -> dict:
+    from vesselid.identify import identify
+    from vesselid.seatrial import planned_sea_trial_design, simulate_sea_trial
+    from vesselid.waves import SEA_STATES, WaveConditions
+
+    design = planned_sea_trial_design(6, 20000)
+    waves = None
+    if sea_state:
+        hs, tp = SEA_STATES[sea_state]
+        waves = WaveConditions(height=hs, period=tp, direction=np.radians(45.0))
+    pred = design.plan.table()
+    rec: dict = {"index": [f"{e}: {t}" for e, t in pred.index],
+                 "theta0": pred["theta0"].tolist(), "predicted_se": pred["predicted_se"].tolist(),
+                 "sea_state": sea_state, "seeds": [], **{m: {"params": [], "se": []}
+                                                          for m in methods}}
+    for s in range(seeds):
+        t = time.perf_counter()
+        log = simulate_sea_trial(6, 20000, seed=s, design=design, waves=waves)
+        for m in methods:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                r = identify(log, log.spec, method=m)
+            rec[m]["params"].append(r.params.to_numpy().tolist())
+            rec[m]["se"].append(r.std_errors.to_numpy().tolist())
+        rec["seeds"].append(s)
+        print(f"seed {s}: {time.perf_counter() - t:.1f} s", flush=True)
+        if out:
+            with open(out, "w") as f:
+                json.dump(rec, f)
+    return rec
+
+
+def summarize(rec: dict, figure: str | None = None) -> None:
+    th = np.asarray(rec["theta0"])
+    pse = np.asarray(rec["predicted_se"])
+    big = np.abs(th) >= 1e-3
+    for m in [k for k in rec if isinstance(rec[k], dict) and "params" in rec[k]]:
+        p, se = np.asarray(rec[m]["params"]), np.asarray(rec[m]["se"])
+        if p.size == 0:
+            continue
+        z = (p - th) / se
+        rel = np.abs(p - th) / np.abs(th)
+        ok10 = (rel[:, big] <= 0.10).all(axis=1)
+        ok35 = (np.abs(z) <= 3.5).all(axis=1)
+        n = p.shape[0]
+        print(f"{m}: {n} seeds; within 10 % on all |θ0|≥1e-3 and 3.5 SE on all: "
+              f"{(ok10 & ok35).sum()}/{n}; within 3.5 SE: {ok35.sum()}/{n}; "
+              f"within 10 %: {ok10.sum()}/{n}")
+        sd = p.std(axis=0, ddof=1)
+        ratio = pse / sd
+        rep = se.mean(axis=0) / sd
+        print(f"  predicted SE / MC sd: min {ratio.min():.2f} median {np.median(ratio):.2f} "
+              f"max {ratio.max():.2f}; reported SE / MC sd: min {rep.min():.2f} median "
+              f"{np.median(rep):.2f} max {rep.max():.2f}")
+        for i, name in enumerate(rec["index"]):
+            flag = "" if 0.75 <= ratio[i] <= 1.25 else "  <- outside 25 %"
+            print(f"    {name:12s} θ0 {th[i]:+.4g} pred {pse[i]:.3g} mc {sd[i]:.3g} "
+                  f"rel-mc {sd[i] / abs(th[i]):.3f} bias/sd {(p[:, i].mean() - th[i]) / sd[i]:+.2f}"
+                  f" fail10 {(rel[:, i] > 0.1).sum() if big[i] else 0}{flag}")
+        if figure and m == "auto":
+            import matplotlib.pyplot as plt
+
+            fig, ax = plt.subplots(figsize=(5, 4.5), dpi=80)
+            ax.loglog(sd, pse, "o", label="planner")
+            ax.loglog(sd, se.mean(axis=0), "x", label="reported (mean)")
+            lim = [min(sd.min(), pse.min()) / 2, max(sd.max(), pse.max()) * 2]
+            ax.plot(lim, lim, "k-", lw=0.8)
+            ax.fill_between(lim, [0.75 * x for x in lim], [1.25 * x for x in lim],
+                            color="0.85", label="±25 %")
+            ax.set_xlabel(f"Monte Carlo sd of the estimates ({p.shape[0]} seeds)")
+            ax.set_ylabel("standard error")
+            ax.set_title("Planned sea trial: predicted vs observed SE")
+            ax.legend()
+            fig.tight_layout()
+            fig.savefig(figure)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=50)
+    ap.add_argument("--methods", default="auto,iv-zero-mean")
+    ap.add_argument("--sea-state", default=None)
+    ap.add_argument("--out", default=None, help="JSON of per-seed estimates (rewritten per seed)")
+    ap.add_argument("--summarize", default=None, help="only summarise this JSON")
+    ap.add_argument("--figure", default=None)
+    a = ap.parse_args()
+    if a.summarize:
+        with open(a.summarize) as f:
+            rec = json.load(f)
+    else:
+        rec = run(a.seeds, a.methods.split(","), a.sea_state, a.out)
+    summarize(rec, a.figure)
+
+
+if __name__ == "__main__":
+    main()
