@@ -7,7 +7,10 @@ plant/kernel refactor (issue 9); a refactor must leave them unchanged. A change 
 legitimately moves a pinned output (a new default) adds a pin for the old behaviour,
 selected by an explicit option, instead of editing or deleting a pin.
 
-To print the current digests: ``python tests/test_digests.py``.
+OpenBLAS chooses its kernels from the CPU, and its AVX-512 kernels round the last bits of a
+matrix product differently from the AVX2 ones: ``tests/conftest.py`` pins the Haswell kernels
+on x86-64 before numpy loads. To print the current digests:
+``OPENBLAS_CORETYPE=Haswell python tests/test_digests.py``.
 """
 
 from __future__ import annotations
