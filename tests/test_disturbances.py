@@ -103,3 +103,16 @@ def test_static_offset_prbs_multisine():
     assert abs(m.mean() - 2.0) <= bound and m.max() <= 3.0
     for design in (s, PRBS(-1, 1, 7, 3), ms):
         assert input_from_dict(design.to_dict()).to_dict() == design.to_dict()
+
+
+def test_ar1_filter_is_lfilter_bit_for_bit() -> None:
+    from scipy import signal as sps
+
+    from vesselid._filters import ar1_filter
+
+    rng = np.random.default_rng(5)
+    x = rng.standard_normal((4, 3000))
+    y0 = rng.standard_normal(4)
+    for a in (0.0, 0.5, 0.999):
+        ref = sps.lfilter([1.0], [1.0, -a], x, axis=1, zi=(a * y0)[:, None])[0]
+        assert np.array_equal(ar1_filter(x, a, a * y0), ref)

@@ -300,10 +300,12 @@ class GaussMarkov(Process):
         a = self.pole
         innov = rng.normal(0.0, self.std_ * math.sqrt(1 - a * a), n)
         innov[0] = rng.normal(0.0, self.std_)
-        from scipy.signal import lfilter  # lazily (scipy.signal: ~1 s of process start)
+        # lazily; the compiled filter is scipy.signal.lfilter's recursion without its
+        # ~1.5 s import
+        from vesselid._filters import ar1_filter
 
         # g(k) = a g(k-1) + innov(k), started from its stationary draw
-        g = lfilter([1.0], [1.0, -a], innov)
+        g = ar1_filter(innov[None, :], a, np.zeros(1))[0]
         if math.isfinite(self.bound_):
             g = self.bound_ * np.tanh(g / self.bound_)
         return g + self.mean_

@@ -52,7 +52,6 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy import signal as sps
 from scipy.fft import next_fast_len
 
 from vesselid.errors import VesselidError
@@ -143,12 +142,11 @@ class DisturbanceLevels:
 
 def _clipped_variance(c: float) -> float:
     """Variance of a standard normal clipped at ``±c``."""
-    from scipy import stats
-
     if not math.isfinite(c):
         return 1.0
-    p = stats.norm.cdf(c) - stats.norm.cdf(-c)
-    return float(p - 2 * c * stats.norm.pdf(c) + 2 * c * c * stats.norm.sf(c))
+    p = math.erf(c / math.sqrt(2.0))
+    pdf = math.exp(-0.5 * c * c) / math.sqrt(2.0 * math.pi)
+    return float(p - 2 * c * pdf + c * c * math.erfc(c / math.sqrt(2.0)))
 
 
 # ------------------------------------------------------------------- vessel glue
@@ -264,8 +262,10 @@ def _ar1_meat(y: np.ndarray, a: float) -> np.ndarray:
     """
     if y.shape[0] == 0:
         return np.zeros((y.shape[1], y.shape[1]))
+    from vesselid._filters import ar1_filter
+
     yt = np.ascontiguousarray(y.T)
-    f = sps.lfilter([1.0], [1.0, -a], yt, axis=1)
+    f = ar1_filter(yt, a, np.zeros(yt.shape[0]))
     m = yt @ f.T
     return m + m.T - yt @ yt.T
 

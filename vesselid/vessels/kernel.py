@@ -23,8 +23,8 @@ from typing import Any
 
 import numpy as np
 from numba import njit, prange
-from scipy import signal as sps
 
+from vesselid._filters import ar1_filter
 from vesselid.errors import SimulationDivergedError, VesselidError
 from vesselid.model import ModelSpec
 from vesselid.regressors import advance, kernel
@@ -442,7 +442,7 @@ class VesselModel:
         for c, (i, a, std, bound) in enumerate(self._gm):
             innov = z[c]
             innov *= std * math.sqrt(1.0 - a * a)
-            g = sps.lfilter([1.0], [1.0, -a], innov, axis=1, zi=a * latent[:, i:i + 1])[0]
+            g = ar1_filter(innov, a, a * latent[:, i])
             latent[:, i] = g[:, -1]
             if math.isfinite(bound):
                 g *= 1.0 / bound
