@@ -987,6 +987,12 @@ def add_parser(subparsers: Any) -> None:
                    help="full-scale peak period T_p (s)")
     p.add_argument("--wave-direction", type=finite_float, default=45.0,
                    help="going-to direction of the waves, degrees from north")
+    p.add_argument("--wave-filter", type=finite_float, default=0.9, metavar="FRACTION",
+                   help="with waves: zero-phase low-pass of the logged velocities and forces "
+                        "at FRACTION x the model-scale wave peak frequency before they are "
+                        "written (vesselid.wavefilter; unfiltered columns kept as "
+                        "<name>_unfiltered; identify with iv-zero-mean); 0 writes the "
+                        "unfiltered measurements; default 0.9")
     p.add_argument("--source", default="batch", choices=["batch", "env"],
                    help="batch simulator or Manoeuvring3DOF-v0 through the recorder")
     p.add_argument("--format", default=None, choices=["csv", "parquet"],
@@ -1065,6 +1071,15 @@ def cmd_sea_trial(args: argparse.Namespace) -> int:
                              aggregate=args.aggregate, source=args.source,
                              design=args.design, **opts)
     log.metadata["command"] = "vesselid " + " ".join(sys.argv[1:]) if sys.argv else ""
+    raw_log = log
+    if opts["waves"] is not None and opts["waves"].height > 0 and args.wave_filter != 0:
+        from vesselid.wavefilter import WaveFilter, wave_filter_log
+
+        filt = WaveFilter.for_waves(opts["waves"], float(log.spec.dt or 0.1),
+                                    fraction=args.wave_filter)
+        log = wave_filter_log(log, filt)
+        print(f"wave filter: zero-phase Butterworth low-pass at {filt.cutoff:.3g} Hz "
+              f"({args.wave_filter:g} x the wave peak frequency) on {', '.join(log.spec.signals)}")
     data = out / ("seatrial.csv" if args.format == "csv" else "seatrial.parquet")
     spec_path = out / f"{args.vessel}.toml"
     log.save(data, extra={spec_path: log.spec.to_toml()})  # all files appear together
@@ -1075,7 +1090,7 @@ def cmd_sea_trial(args: argparse.Namespace) -> int:
     if getattr(args, "raw", None):
         from vesselid.rawstreams import write_raw_streams
 
-        manifest = write_raw_streams(log, args.raw, seed=args.seed)
+        manifest = write_raw_streams(raw_log, args.raw, seed=args.seed)
         print(f"wrote raw sensor streams to {args.raw} ({sum(manifest['sentences'].values())} "
               f"NMEA sentences, actuators.csv, ingest.toml, {manifest['files'][-1]})")
     if args.identify:
