@@ -394,25 +394,19 @@ def _identify_runs(
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Fit every run's log with the public ``identify`` (the user's path), once per
     covariance estimator. Failed fits give NaN rows."""
-    import inspect
     import warnings
 
     from vesselid.identify import identify
 
-    params = inspect.signature(identify).parameters
     n_par = spec.n_params
     theta = np.full((len(frames), n_par), np.nan)
     ses = {k: np.full((len(frames), n_par), np.nan) for k in covariances}
     for r, frame in enumerate(frames):
         for first, (label, (cov_type, cfg)) in enumerate(covariances.items()):
-            kw: dict[str, Any] = {}
+            kw: dict[str, Any] = {"target": target, "cov_type": cov_type,
+                                  "cov_config": dict(cfg)}
             if method is not None:
                 kw["method"] = method
-            if "target" in params:
-                kw["target"] = target
-            if "cov_type" in params:
-                kw["cov_type"] = cov_type
-                kw["cov_config"] = dict(cfg)
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
