@@ -247,8 +247,8 @@ class InstrumentalGMM(Estimator):
                             theta_start=theta_start, max_iter=max_iter, tol=tol)
         n = data.n_groups
         keep = keep_history and n == 1
-        fused = self.instruments != "simulated" and not keep
-        # the fused combined path needs no regressor rows (only a fallback subset does)
+        fused = self.instruments == "combined" and not keep
+        # the fused combined path needs no regressor rows (auto's colour test does)
         phi = None if fused else kernels.regressor_matrix(data.regsig, data.u, data.starts,
                                                           spec.codes.factors)
         lagged = None
@@ -282,11 +282,8 @@ class InstrumentalGMM(Estimator):
                 reject = (c_p < float(self.alpha)) | (w_p.min(axis=1) < float(self.colour_alpha))
                 if reject.any():
                     sub = _subset(data, reject)
-                    phi_s = (kernels.regressor_matrix(sub.regsig, sub.u, sub.starts,
-                                                      spec.codes.factors)
-                             if phi is None else phi[_rows(data, reject)])
                     sol_s, th_s, it_s = self._refine(
-                        sub, spec, phi_s, None, theta0[reject], "simulated",
+                        sub, spec, phi[_rows(data, reject)], None, theta0[reject], "simulated",
                         self.noise_order, keep, tol, steps=self.fallback_refine)
                     theta[reject] = th_s
                     iters[reject] = it_s
