@@ -174,3 +174,17 @@ def duplicate_blocks(spec: ModelSpec) -> np.ndarray:
     """For each state equation, the first equation with the same term list (or itself)."""
     keys = [tuple(str(t) for t in spec.equations[s]) for s in spec.states]
     return np.array([keys.index(k) for k in keys], dtype=np.int64)
+
+
+def segment_abs_max(values: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """``max |values[a:b]|`` of every segment ``[a, b)`` of ``starts`` (0 when empty; NaN
+    when the segment holds a NaN): the per-segment loop in one vectorised reduction
+    (a maximum is exact, so the values are those of the loop)."""
+    starts = np.asarray(starts, dtype=np.int64)
+    out = np.zeros(starts.size - 1)
+    full = np.diff(starts) > 0
+    if full.any():
+        a = np.abs(np.asarray(values, dtype=float)[:int(starts[-1])])
+        rows = a.max(axis=1) if a.ndim == 2 else a
+        out[full] = np.maximum.reduceat(rows, starts[:-1][full])
+    return out
