@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -44,6 +45,14 @@ class RegressionData:
     @property
     def lengths(self) -> np.ndarray:
         return np.diff(self.starts)
+
+    @cached_property
+    def target_abs_max(self) -> np.ndarray:
+        """``max |target|`` per segment (:func:`segment_abs_max`), computed once: every
+        refined-IV call scales its divergence limits by it."""
+        out = segment_abs_max(self.target, self.starts)
+        out.flags.writeable = False
+        return out
 
     def segment(self, s: int) -> slice:
         return slice(int(self.starts[s]), int(self.starts[s + 1]))
@@ -185,6 +194,6 @@ def segment_abs_max(values: np.ndarray, starts: np.ndarray) -> np.ndarray:
     full = np.diff(starts) > 0
     if full.any():
         a = np.abs(np.asarray(values, dtype=float)[:int(starts[-1])])
-        rows = a.max(axis=1) if a.ndim == 2 else a
-        out[full] = np.maximum.reduceat(rows, starts[:-1][full])
+        red = np.maximum.reduceat(a, starts[:-1][full], axis=0)
+        out[full] = red.max(axis=1) if red.ndim == 2 else red
     return out

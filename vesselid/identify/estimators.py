@@ -32,7 +32,6 @@ from vesselid.identify.data import (
     RegressionData,
     block_starts,
     duplicate_blocks,
-    segment_abs_max,
 )
 from vesselid.model import ModelSpec
 
@@ -84,7 +83,7 @@ def _empty_moments(n_seg: int, n_par: int, n: int) -> Moments:
 
 
 def _limits(data: RegressionData, factor: float) -> np.ndarray:
-    return factor * np.maximum(segment_abs_max(data.target, data.starts), 1.0)
+    return factor * np.maximum(data.target_abs_max, 1.0)
 
 
 def compute_moments(

@@ -40,7 +40,7 @@ import numpy as np
 from vesselid.identify import _ivkernels as ivk
 from vesselid.identify import kernels, linalg
 from vesselid.identify._fastkernels import specialised_combined
-from vesselid.identify.data import RegressionData, block_starts, segment_abs_max
+from vesselid.identify.data import RegressionData, block_starts
 from vesselid.model import ModelSpec
 
 __all__ = [
@@ -96,7 +96,7 @@ def simulated_instruments(data: RegressionData, spec: ModelSpec, theta: np.ndarr
                           limit_factor: float = 1e3) -> tuple[np.ndarray, np.ndarray]:
     """Instruments simulated from ``theta`` (G, P) per group; ``(z (T, P), ok (G,))``."""
     codes = spec.codes
-    limit = limit_factor * np.maximum(segment_abs_max(data.target, data.starts), 1.0)
+    limit = limit_factor * np.maximum(data.target_abs_max, 1.0)
     z, seg_ok = ivk.simulated_regressors(
         data.target, data.u, data.starts, data.group,
         np.ascontiguousarray(np.nan_to_num(theta), dtype=float), codes.factors,
@@ -348,7 +348,7 @@ def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, 
     codes = spec.codes
     ztype, zpar, zeq, bounds, n_lag = _combined_layout(spec)
     n_seg, k_tot, n_par, n = data.n_segments, ztype.size, spec.n_params, spec.n_states
-    limit = limit_factor * np.maximum(segment_abs_max(data.target, data.starts), 1.0)
+    limit = limit_factor * np.maximum(data.target_abs_max, 1.0)
     bw = hac_lags(int(np.median(np.diff(data.starts)))) if lags is None else int(lags)
     th = np.ascontiguousarray(np.nan_to_num(theta), dtype=float)
     active = np.all(np.isfinite(theta), axis=1)
