@@ -96,9 +96,7 @@ def simulated_instruments(data: RegressionData, spec: ModelSpec, theta: np.ndarr
                           limit_factor: float = 1e3) -> tuple[np.ndarray, np.ndarray]:
     """Instruments simulated from ``theta`` (G, P) per group; ``(z (T, P), ok (G,))``."""
     codes = spec.codes
-    scale = np.array([np.max(np.abs(data.target[data.segment(s)]), initial=0.0)
-                      for s in range(data.n_segments)])
-    limit = limit_factor * np.maximum(scale, 1.0)
+    limit = limit_factor * np.maximum(data.target_abs_max, 1.0)
     z, seg_ok = ivk.simulated_regressors(
         data.target, data.u, data.starts, data.group,
         np.ascontiguousarray(np.nan_to_num(theta), dtype=float), codes.factors,
@@ -350,9 +348,7 @@ def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, 
     codes = spec.codes
     ztype, zpar, zeq, bounds, n_lag = _combined_layout(spec)
     n_seg, k_tot, n_par, n = data.n_segments, ztype.size, spec.n_params, spec.n_states
-    scale = np.array([np.max(np.abs(data.target[data.segment(s)]), initial=0.0)
-                      for s in range(n_seg)])
-    limit = limit_factor * np.maximum(scale, 1.0)
+    limit = limit_factor * np.maximum(data.target_abs_max, 1.0)
     bw = hac_lags(int(np.median(np.diff(data.starts)))) if lags is None else int(lags)
     th = np.ascontiguousarray(np.nan_to_num(theta), dtype=float)
     active = np.all(np.isfinite(theta), axis=1)
