@@ -363,17 +363,24 @@ def _subset(data: RegressionData, groups: np.ndarray) -> RegressionData:
     from dataclasses import replace
 
     seg = groups[data.group]
-    rows = _rows(data, groups)
     lengths = np.diff(data.starts)[seg]
     new_id = np.cumsum(groups) - 1
+    # the selected segments' rows, copied slice by slice (a boolean mask over all rows
+    # costs a pass over the whole batch for the few groups a fallback usually takes)
+    pieces = [data.segment(int(s)) for s in np.flatnonzero(seg)]
+
+    def take(arr: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(np.concatenate([arr[p] for p in pieces])
+                                    if pieces else arr[:0])
+
     return replace(
         data,
-        target=np.ascontiguousarray(data.target[rows]),
-        regsig=np.ascontiguousarray(data.regsig[rows]),
-        u=np.ascontiguousarray(data.u[rows]),
+        target=take(data.target),
+        regsig=take(data.regsig),
+        u=take(data.u),
         starts=np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64),
         group=new_id[data.group[seg]].astype(np.int64),
         n_groups=int(groups.sum()),
         experiment_ids=tuple(e for e, k in zip(data.experiment_ids, seg, strict=False) if k),
-        sensor=None if data.sensor is None else data.sensor[rows],
+        sensor=None if data.sensor is None else take(data.sensor),
     )

@@ -167,9 +167,7 @@ def simulated_instruments(data: RegressionData, spec: ModelSpec, theta: np.ndarr
                           limit_factor: float = 1e3) -> tuple[np.ndarray, np.ndarray]:
     """Instruments simulated from ``theta`` (G, P) per group; ``(z (T, P), ok (G,))``."""
     codes = spec.codes
-    scale = np.array([np.max(np.abs(data.target[data.segment(s)]), initial=0.0)
-                      for s in range(data.n_segments)])
-    limit = limit_factor * np.maximum(scale, 1.0)
+    limit = limit_factor * np.maximum(data.target_abs_max, 1.0)
     z, seg_ok = ivk.simulated_regressors(
         data.target, data.u, data.starts, data.group,
         np.ascontiguousarray(np.nan_to_num(theta), dtype=float), codes.factors,
@@ -421,9 +419,7 @@ def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, 
     codes = spec.codes
     ztype, zpar, zeq, bounds, n_lag = _combined_layout(spec)
     n_seg, k_tot, n_par, n = data.n_segments, ztype.size, spec.n_params, spec.n_states
-    scale = np.array([np.max(np.abs(data.target[data.segment(s)]), initial=0.0)
-                      for s in range(n_seg)])
-    limit = limit_factor * np.maximum(scale, 1.0)
+    limit = limit_factor * np.maximum(data.target_abs_max, 1.0)
     bw = hac_lags(int(np.median(np.diff(data.starts)))) if lags is None else int(lags)
     th = np.ascontiguousarray(np.nan_to_num(theta), dtype=float)
     active = np.all(np.isfinite(theta), axis=1)
@@ -442,8 +438,10 @@ def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, 
     special = specialised_combined(n, spec.n_inputs, codes.factors, codes.equation, ztype,
                                    zpar, zeq)
 
+    parallel = n_seg > 1 and data.target.shape[0] >= ivk.PARALLEL_MIN_SAMPLES
+
     def run(*rest) -> None:  # the generated kernel when it loads, else the generic one
-        if special is None or not special(True, *args, *rest):
+        if special is None or not special(parallel, *args, *rest):
             ivk.combined_moments(*args, *rest)
 
     run(False, th, dummy, dummy, dummy, dummy, bw, s_a, s_b, s_m, s_z, s_phi, s_y, count,
