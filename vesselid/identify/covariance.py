@@ -57,6 +57,7 @@ white designs and understates them under coloured currents; the calibration stud
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -207,7 +208,7 @@ def _newey_west_bandwidth(g: np.ndarray, segs: list[slice], kernel: str, t_total
     q, c, n_exp = {"bartlett": (1, 1.1447, 2 / 9), "parzen": (2, 2.6614, 4 / 25),
                    "qs": (2, 1.3221, 2 / 25)}[kernel]
     n = math.ceil(4 * (t_total / 100) ** n_exp)
-    scale = np.sqrt(np.mean(np.concatenate([g[s] for s in segs]) ** 2, axis=0))
+    scale = np.sqrt(np.mean(_compact(g, segs) ** 2, axis=0))
     scale[scale == 0] = 1.0
     x = [np.sum(g[s] / scale, axis=1) for s in segs] if g.shape[1] > 1 else [g[s, 0] for s in segs]
     sig = np.zeros(n + 1)
@@ -260,24 +261,28 @@ def bartlett_long_run(g: np.ndarray, lags: int) -> np.ndarray:
 
     With the moving sums ``h(t) = Σ_{i=0}^{L} g(t − i)`` of the zero-padded series,
     ``Σ_t h hᵀ = Σ_l (L + 1 − |l|) Γ(l)`` (as :func:`vesselid.identify.gmm.hac_sums`).
-    The moving sums are differences of a running sum of ``g`` minus its mean (the mean
-    is added back, times the window's length), so their rounding error does not grow
-    with ``T``; the result equals the lag-by-lag sum to ~1e-15 relative.
+    The moving sums are differences of a running sum of ``g`` minus its mean (the mean's
+    share is added back as rank-one terms), so their rounding error does not grow with
+    ``T``; the result equals the lag-by-lag sum to ~1e-15 relative.
     """
     g = np.asarray(g, dtype=float)
     n, q = g.shape
     lags = int(lags)
     if lags == 0 or n < 2:
         return g.T @ g
-    mean = g.mean(axis=0)
+    gt = g.T.copy()  # time along contiguous rows
+    mean = gt.mean(axis=1)
+    gt -= mean[:, None]
     c = np.zeros((q, n + 2 * lags + 1))
-    np.cumsum((g - mean).T, axis=1, out=c[:, lags + 1:n + lags + 1])
+    np.cumsum(gt, axis=1, out=c[:, lags + 1:n + lags + 1])
     c[:, n + lags + 1:] = c[:, n + lags:n + lags + 1]
-    h = c[:, lags + 1:] - c[:, :-(lags + 1)]
+    h = c[:, lags + 1:] - c[:, :-(lags + 1)]  # moving sums of g − mean
     t = np.arange(n + lags)
-    count = np.minimum(t, n - 1) - np.maximum(t - lags, 0) + 1  # samples in each window
-    h += mean[:, None] * count[None, :]
-    return (h @ h.T) / (lags + 1.0)
+    count = (np.minimum(t, n - 1) - np.maximum(t - lags, 0) + 1).astype(float)  # window sizes
+    # the moving sums of g are h + count·meanᵀ: add the mean's share as rank-one terms
+    v = h @ count
+    out = h @ h.T + np.outer(v, mean) + np.outer(mean, v) + (count @ count) * np.outer(mean, mean)
+    return out / (lags + 1.0)
 
 
 # --------------------------------------------------------------------------- scores
@@ -580,8 +585,9 @@ def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
     phi = phi / phi_scale
     eps = _residual(resid, segs, zero_mean)
     g = np.zeros((t_len, n_ins))
+    one = eps.shape[1] == 1  # every instrument in equation 0: broadcast, no column copies
     for s in segs:
-        g[s] = z[s] * eps[s][:, z_equation]
+        g[s] = z[s] * (eps[s] if one else eps[s][:, z_equation])
     return _Scores(z=z, phi=phi, z_scale=z_scale, phi_scale=phi_scale, eps=eps, g=g,
                    segs=segs, equation=equation, z_equation=z_equation)
 
@@ -780,6 +786,10 @@ class KernelCovariance(CovarianceEstimator):
 
 
 def _compact(x: np.ndarray, segs: list[slice]) -> np.ndarray:
+    """The rows of ``segs`` concatenated (``x`` itself when they are all of its rows)."""
+    if segs[0].start == 0 and segs[-1].stop == x.shape[0] and all(
+            a.stop == b.start for a, b in itertools.pairwise(segs)):
+        return x
     return np.concatenate([x[s] for s in segs])
 
 
