@@ -29,7 +29,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from vesselid.errors import IdentificationError
-from vesselid.identify import gmm, kernels
+from vesselid.identify import gmm
+from vesselid.identify.backend import kernels
 from vesselid.identify.base import EquationDesign, Estimator
 from vesselid.identify.data import RegressionData
 from vesselid.identify.estimators import IterationResult, estimate
