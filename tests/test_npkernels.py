@@ -149,6 +149,28 @@ def test_identify_both_paths_agree_to_rounding(monkeypatch):
                                    err_msg=method)
         np.testing.assert_allclose(a.std_errors.to_numpy(), b.std_errors.to_numpy(),
                                    rtol=1e-8, err_msg=method)
+        la, lb = _leaves(a.to_dict()), _leaves(b.to_dict())  # p-values, CIs, fits, ...
+        assert la.keys() == lb.keys()
+        for key, va in la.items():
+            vb = lb[key]
+            if isinstance(va, float) and isinstance(vb, float):
+                # the fixed-point residual is the last step's relative change (≈ 1e-10): its
+                # own digits are rounding, so only its size is compared
+                tol = 1e-8 if key.endswith("fixed_point_residual") else 1e-12
+                assert va == pytest.approx(vb, rel=1e-7, abs=tol), (method, key)
+            else:
+                assert va == vb, (method, key)
+
+
+def _leaves(obj, prefix=""):
+    """Flat ``{path: value}`` of a nested dict/list (ints and strings exact)."""
+    if isinstance(obj, dict):
+        return {k: v for key, val in obj.items()
+                for k, v in _leaves(val, f"{prefix}/{key}").items()}
+    if isinstance(obj, list | tuple):
+        return {k: v for i, val in enumerate(obj)
+                for k, v in _leaves(val, f"{prefix}/{i}").items()}
+    return {prefix: float(obj) if isinstance(obj, float) else obj}
 
 
 def test_choice_rules(monkeypatch):
@@ -177,3 +199,28 @@ def test_small_log_identify_process_loads_no_numba(tmp_path):
                          check=True, env={**__import__("os").environ,
                                           "VESSELID_KERNELS": "auto"})
     assert "NUMBA False 0" in out.stdout
+
+
+def test_special_functions_match_scipy(monkeypatch):
+    from scipy.special import chdtrc, ndtri
+
+    from vesselid.identify import _special
+
+    for q in _special._NDTRI:  # the table holds scipy's exact values
+        assert _special.norm_ppf(q) == ndtri(q)
+    assert _special.norm_ppf(0.5 + 0.95 / 2) == ndtri(0.975)
+    assert _special.norm_ppf(0.8) == ndtri(0.8)  # not tabulated: scipy
+    x = np.concatenate([[0.0, 1e-8, 0.3, 1.0, 3.47, 20.0, 644.7, 2000.0, np.inf, np.nan],
+                        np.linspace(0.01, 80, 37)])
+    monkeypatch.setenv("VESSELID_KERNELS", "numpy")
+    with backend.choose(10, 1):
+        for df in (1, 2, 3, 4, 5, 8, 13, 20, 41):
+            got = _special.chi2_sf(x, df)
+            want = chdtrc(df, x)
+            np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+            ok = np.isfinite(want) & (want > 1e-300)
+            np.testing.assert_allclose(got[ok], want[ok], rtol=1e-12, atol=0, err_msg=str(df))
+            np.testing.assert_array_less(got[~np.isnan(want) & ~ok], 1e-290)
+        assert _special.chi2_sf(3.47, 4) == pytest.approx(chdtrc(4, 3.47), rel=1e-13)
+        assert _special.chi2_sf(1.0, 2.5) == chdtrc(2.5, 1.0)  # non-integer df: scipy
+    assert _special.chi2_sf(3.47, 4) == chdtrc(4, 3.47)  # compiled path: scipy itself

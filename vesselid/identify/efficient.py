@@ -103,9 +103,9 @@ class LaggedIV(Estimator):
 def _chi2_sf(x: Any, df: Any) -> Any:
     """``scipy.stats.chi2.sf(x, df)`` for ``df > 0`` (identical values, ``x < 0`` -> 1)
     through ``scipy.special``: importing ``scipy.stats`` costs ~1 s of process start."""
-    from scipy.special import chdtrc
+    from vesselid.identify._special import chi2_sf
 
-    return chdtrc(df, np.maximum(x, 0.0))
+    return chi2_sf(np.maximum(x, 0.0), df)
 
 
 def _jdict(j: np.ndarray, df: np.ndarray) -> list[dict[str, float]]:
