@@ -890,15 +890,10 @@ def predict_design(forces: np.ndarray, *, warmup: int = 0, dt: float = 0.1,
 # ---------------------------------------------------------------------------------- CLI
 def add_parser(subparsers: Any) -> None:
     """Register ``vesselid plan-trial`` (the CLI plugin contract of :mod:`vesselid.cli`)."""
-    p = subparsers.add_parser(
-        "plan-trial", help="plan a sea trial: manoeuvres and predicted standard errors",
-        description="Choose standard manoeuvres (turning circles, zig-zags, pull-outs, "
-                    "spirals, stopping, thruster tests) for a sample budget so that the "
-                    "worst relative standard error of the identified parameters is "
-                    "smallest, predicted from the asymptotic IV covariance (no Monte Carlo).")
-    p.add_argument("--vessel", default="cybership2", choices=["cybership2"])
-    from vesselid.cli import finite_float, int_at_least
+    from vesselid.cli import finite_float, int_at_least, plugin_parser
 
+    p = plugin_parser(subparsers, "plan-trial")
+    p.add_argument("--vessel", default="cybership2", choices=["cybership2"])
     p.add_argument("--samples", type=int_at_least(50), default=120_000,
                    help="total sample budget")
     p.add_argument("--experiments", type=int_at_least(1), default=6)

@@ -223,13 +223,23 @@ class InstrumentalGMM(Estimator):
     def estimate_parameters(self, data: RegressionData, spec: ModelSpec, *,
                             combine: str = "pooled", theta_start: np.ndarray | None = None,
                             max_iter: int = 100, tol: float = 1e-9,
-                            keep_history: bool = False) -> IterationResult:
+                            keep_history: bool = False,
+                            base: IterationResult | None = None) -> IterationResult:
+        """Estimate every group (module docstring). ``base``: the converged
+        IV_{E{ζ}=0} result of exactly this call's ``data``, ``spec``, ``theta_start``,
+        ``max_iter`` and ``tol`` (pooled), when the caller already has it (the Monte
+        Carlo shares its ``iv-zero-mean`` row); it is not recomputed then. The result
+        keeps it as ``info["base"]``."""
         self._validate()
-        base = estimate(data, spec, "iv-zero-mean", combine="pooled", theta_start=theta_start,
-                        max_iter=max_iter, tol=tol)
+        if base is None:
+            base = estimate(data, spec, "iv-zero-mean", combine="pooled",
+                            theta_start=theta_start, max_iter=max_iter, tol=tol)
         n = data.n_groups
         keep = keep_history and n == 1
-        phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
+        fused = self.instruments != "simulated" and not keep
+        # the fused combined path needs no regressor rows (only a fallback subset does)
+        phi = None if fused else kernels.regressor_matrix(data.regsig, data.u, data.starts,
+                                                          spec.codes.factors)
         lagged = None
         if self.instruments in ("combined", "auto") and keep:  # explicit rows (fit path)
             lagged = [gmm.lagged_regressors(data, spec, lag) for lag in gmm.LAGS]
@@ -254,8 +264,11 @@ class InstrumentalGMM(Estimator):
                 reject = c_p < float(self.alpha)
                 if reject.any():
                     sub = _subset(data, reject)
+                    phi_s = (kernels.regressor_matrix(sub.regsig, sub.u, sub.starts,
+                                                      spec.codes.factors)
+                             if phi is None else phi[_rows(data, reject)])
                     sol_s, th_s, it_s = self._refine(
-                        sub, spec, phi[_rows(data, reject)], None, theta0[reject], "simulated",
+                        sub, spec, phi_s, None, theta0[reject], "simulated",
                         self.noise_order, keep, tol, steps=self.fallback_refine)
                     theta[reject] = th_s
                     iters[reject] = it_s
@@ -268,7 +281,7 @@ class InstrumentalGMM(Estimator):
             sol.segment_starts = data.starts  # type: ignore[attr-defined]
         reason = np.where(ok, base.reason, np.where(np.isfinite(base.theta).all(axis=1),
                                                     SINGULAR, base.reason)).astype(object)
-        info.update(solution=sol, instrument_set=used)
+        info.update(solution=sol, instrument_set=used, base=base)
         return IterationResult(
             theta=theta, theta_aux=theta.copy(), converged=base.converged & ok,
             iterations=base.iterations + iters, reason=reason, residual=base.residual,
@@ -324,17 +337,24 @@ def _subset(data: RegressionData, groups: np.ndarray) -> RegressionData:
     from dataclasses import replace
 
     seg = groups[data.group]
-    rows = _rows(data, groups)
     lengths = np.diff(data.starts)[seg]
     new_id = np.cumsum(groups) - 1
+    # the selected segments' rows, copied slice by slice (a boolean mask over all rows
+    # costs a pass over the whole batch for the few groups a fallback usually takes)
+    pieces = [data.segment(int(s)) for s in np.flatnonzero(seg)]
+
+    def take(arr: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(np.concatenate([arr[p] for p in pieces])
+                                    if pieces else arr[:0])
+
     return replace(
         data,
-        target=np.ascontiguousarray(data.target[rows]),
-        regsig=np.ascontiguousarray(data.regsig[rows]),
-        u=np.ascontiguousarray(data.u[rows]),
+        target=take(data.target),
+        regsig=take(data.regsig),
+        u=take(data.u),
         starts=np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64),
         group=new_id[data.group[seg]].astype(np.int64),
         n_groups=int(groups.sum()),
         experiment_ids=tuple(e for e, k in zip(data.experiment_ids, seg, strict=False) if k),
-        sensor=None if data.sensor is None else data.sensor[rows],
+        sensor=None if data.sensor is None else take(data.sensor),
     )

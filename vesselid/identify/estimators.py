@@ -28,7 +28,11 @@ import numpy as np
 
 from vesselid.errors import IdentificationError
 from vesselid.identify import kernels, linalg
-from vesselid.identify.data import RegressionData, block_starts, duplicate_blocks
+from vesselid.identify.data import (
+    RegressionData,
+    block_starts,
+    duplicate_blocks,
+)
 from vesselid.model import ModelSpec
 
 __all__ = [
@@ -79,10 +83,7 @@ def _empty_moments(n_seg: int, n_par: int, n: int) -> Moments:
 
 
 def _limits(data: RegressionData, factor: float) -> np.ndarray:
-    scale = np.array(
-        [np.max(np.abs(data.target[data.segment(s)]), initial=0.0) for s in range(data.n_segments)]
-    )
-    return factor * np.maximum(scale, 1.0)
+    return factor * np.maximum(data.target_abs_max, 1.0)
 
 
 def compute_moments(

@@ -39,6 +39,7 @@ import numpy as np
 
 from vesselid.identify import _ivkernels as ivk
 from vesselid.identify import kernels, linalg
+from vesselid.identify._fastkernels import specialised_combined
 from vesselid.identify.data import RegressionData, block_starts
 from vesselid.model import ModelSpec
 
@@ -95,9 +96,7 @@ def simulated_instruments(data: RegressionData, spec: ModelSpec, theta: np.ndarr
                           limit_factor: float = 1e3) -> tuple[np.ndarray, np.ndarray]:
     """Instruments simulated from ``theta`` (G, P) per group; ``(z (T, P), ok (G,))``."""
     codes = spec.codes
-    scale = np.array([np.max(np.abs(data.target[data.segment(s)]), initial=0.0)
-                      for s in range(data.n_segments)])
-    limit = limit_factor * np.maximum(scale, 1.0)
+    limit = limit_factor * np.maximum(data.target_abs_max, 1.0)
     z, seg_ok = ivk.simulated_regressors(
         data.target, data.u, data.starts, data.group,
         np.ascontiguousarray(np.nan_to_num(theta), dtype=float), codes.factors,
@@ -349,9 +348,7 @@ def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, 
     codes = spec.codes
     ztype, zpar, zeq, bounds, n_lag = _combined_layout(spec)
     n_seg, k_tot, n_par, n = data.n_segments, ztype.size, spec.n_params, spec.n_states
-    scale = np.array([np.max(np.abs(data.target[data.segment(s)]), initial=0.0)
-                      for s in range(n_seg)])
-    limit = limit_factor * np.maximum(scale, 1.0)
+    limit = limit_factor * np.maximum(data.target_abs_max, 1.0)
     bw = hac_lags(int(np.median(np.diff(data.starts)))) if lags is None else int(lags)
     th = np.ascontiguousarray(np.nan_to_num(theta), dtype=float)
     active = np.all(np.isfinite(theta), axis=1)
@@ -367,8 +364,17 @@ def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, 
     dummy = np.zeros((1, 1))
     args = (data.regsig, data.target, data.u, data.starts, data.group, th, active,
             codes.factors, codes.equation, ztype, zpar, zeq, limit)
-    ivk.combined_moments(*args, False, th, dummy, dummy, dummy, dummy, bw,
-                         s_a, s_b, s_m, s_z, s_phi, s_y, count, status, s_hac)
+    special = specialised_combined(n, spec.n_inputs, codes.factors, codes.equation, ztype,
+                                   zpar, zeq)
+
+    parallel = n_seg > 1 and data.target.shape[0] >= ivk.PARALLEL_MIN_SAMPLES
+
+    def run(*rest) -> None:  # the generated kernel when it loads, else the generic one
+        if special is None or not special(parallel, *args, *rest):
+            ivk.combined_moments(*args, *rest)
+
+    run(False, th, dummy, dummy, dummy, dummy, bw, s_a, s_b, s_m, s_z, s_phi, s_y, count,
+        status, s_hac)
     aux_ok = active.copy()
     np.logical_and.at(aux_ok, data.group, status == 0)
     cnt = np.maximum(count, 1).astype(float)
@@ -391,9 +397,9 @@ def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, 
     # mean score per segment, ḡ = (1/n) Σ (z − z̄)(y − ȳ − (φ − φ̄)ᵀθ₁)
     t1s = np.nan_to_num(theta1)[data.group]
     g_seg = (b_c - np.einsum("skp,sp->sk", a_c, t1s)) / cnt[:, None]
-    ivk.combined_moments(*args, True, np.ascontiguousarray(np.nan_to_num(theta1)), mz, mphi,
-                         my, np.ascontiguousarray(g_seg), bw, s_a * 0, s_b * 0, s_m * 0,
-                         s_z * 0, s_phi * 0, s_y * 0, count * 0, status * 0, s_hac)
+    run(True, np.ascontiguousarray(np.nan_to_num(theta1)), mz, mphi, my,
+        np.ascontiguousarray(g_seg), bw, s_a * 0, s_b * 0, s_m * 0, s_z * 0, s_phi * 0,
+        s_y * 0, count * 0, status * 0, s_hac)
     s_g = _group_sum(data, s_hac)
     theta2 = np.full_like(theta1, np.nan)
     j_stat = np.zeros((data.n_groups, n))
