@@ -184,8 +184,8 @@ def _stack(parts: list) -> Any:
 STREAM_METHODS = ("ls", "iv", "iv-zero-mean")
 
 #: Method of streamed identification when none is given. The package default (``auto``)
-#: chooses delayed-measurement instruments by a C test and prefilters with an AR noise
-#: model fitted to the whole log; it is not a sum over experiments.
+#: chooses delayed-measurement instruments by a C test and a colour test and
+#: prefilters with an AR noise model fitted to the whole log; it is not a sum over experiments.
 DEFAULT_STREAM_METHOD = "iv-zero-mean"
 
 #: Lag products ``Γ_E(j)`` of the scores kept by the covariance pass when the HAC
