@@ -145,8 +145,8 @@ def asymptotic_covariance(
     θ and disturbances) into ``log`` and call this: the estimator runs on it and the
     sandwich ``(AᵀWA)⁻¹AᵀW Ŝ W A(AᵀWA)⁻¹`` (``A = Σ ζ φᵀ`` with the estimator's own
     instruments — simulated from the auxiliary model, plus delayed measurements when
-    the C test keeps them — and ``Ŝ`` the ``cov_type`` long-run variance of ``ζ ε``)
-    is returned, indexed like ``identify(...).params``. Warnings of the fit are
+    ``auto``'s C and colour tests keep them — and ``Ŝ`` the ``cov_type`` long-run
+    variance of ``ζ ε``) is returned, indexed like ``identify(...).params``. Warnings of the fit are
     silenced (a planning call, not an identification).
     """
     import warnings

@@ -17,9 +17,17 @@ constants (zero-mean instruments), and are batched over parameter groups.
   - over-identified with the lagged instruments (``combined``), two-step GMM with
     a HAC weight, with Hansen's J and the difference-in-J (C) test of the lagged
     subset;
-  - ``instruments="auto"``: the combined set unless the C test rejects the lagged
-    subset at level ``alpha`` in some equation, then the simulated set alone.
-    The result reports which set was used and why.
+  - ``instruments="auto"``: the combined set unless, in some equation, the C test
+    rejects the lagged subset at level ``alpha`` or the colour test
+    (:func:`vesselid.identify.gmm.colour_test`: does the equation error correlate with
+    the past estimated sensor noise?) rejects at ``colour_alpha``; then the simulated
+    set alone with the AR noise-model prefilter. The C test alone missed coloured
+    sensor noise in most runs (Gauss–Markov, time constant 20 samples, random pulses:
+    41 % rejected at 1 %; the colour test 97.5 % at 5 %): its delayed measurements
+    carry the signal, which drowns the small noise correlation that biases the GMM
+    estimate by several standard errors. A Hausman test of GMM against the
+    simulated-instrument estimate did no better than C (34 %): the simulated estimate
+    is too noisy there. The result reports which set was used and why.
 """
 
 from __future__ import annotations
@@ -114,6 +122,11 @@ def _jdict(j: np.ndarray, df: np.ndarray) -> list[dict[str, float]]:
             for i in range(len(df))]
 
 
+def _named(key: str) -> property:
+    """A read-only property returning the instance's configured ``key`` name."""
+    return property(lambda self: self._names[key])
+
+
 class InstrumentalGMM(Estimator):
     """Refined IV with simulated instruments, optional AR noise-model prefilter (SRIV)
     and optional lagged over-identifying instruments (GMM), or the automatic choice.
@@ -126,7 +139,12 @@ class InstrumentalGMM(Estimator):
         Order of the AR noise model of the equation error used to prefilter target,
         regressors and instruments (0: no prefilter).
     alpha : float
-        Level of the C test of the lagged instruments (``auto``).
+        Level of the difference-in-J (C) test of the delayed instruments (``auto``).
+    colour_alpha : float
+        Level of the colour test (``auto``, :func:`vesselid.identify.gmm.colour_test`):
+        does the equation error remember the past estimated sensor noise? The delayed
+        instruments are used only when neither test rejects (Bonferroni: at most
+        ``alpha + colour_alpha`` false rejections on white disturbances).
     refine : int
         Refinement steps after the converged IV_{E{ζ}=0} iteration (each re-simulates
         the instruments from the latest estimate and re-estimates the noise model).
@@ -141,35 +159,25 @@ class InstrumentalGMM(Estimator):
     multi_experiment: ClassVar[tuple[str, ...]] = ("pooled",)
 
     def __init__(self, instruments: str = "simulated", noise_order: int = 0,
-                 alpha: float = 0.01, refine: int = 3, fallback_refine: int = 3,
-                 name: str | None = None, label: str | None = None,
+                 alpha: float = 0.01, colour_alpha: float = 0.05, refine: int = 3,
+                 fallback_refine: int = 3, name: str | None = None, label: str | None = None,
                  short: str | None = None) -> None:
         super().__init__(instruments=instruments, noise_order=noise_order, alpha=alpha,
-                         refine=refine, fallback_refine=fallback_refine)
+                         colour_alpha=colour_alpha, refine=refine,
+                         fallback_refine=fallback_refine)
         self.instruments = instruments
         self.noise_order = noise_order
         self.alpha = alpha
+        self.colour_alpha = colour_alpha
         self.refine = refine
         self.fallback_refine = fallback_refine
-        self._name = name or f"gmm-{instruments}" + (f"-ar{noise_order}" if noise_order else "")
-        self._label = label or self._name
-        self._short = short or self._name
+        name = name or f"gmm-{instruments}" + (f"-ar{noise_order}" if noise_order else "")
+        self._names = {"name": name, "label": label or name, "short": short or name}
 
-    @property
-    def name(self) -> str:  # type: ignore[override]
-        return self._name
-
-    @property
-    def label(self) -> str:  # type: ignore[override]
-        return self._label
-
-    @property
-    def short(self) -> str:  # type: ignore[override]
-        return self._short
-
-    @property
-    def plot_label(self) -> str:  # type: ignore[override]
-        return self._short
+    name = _named("name")  # type: ignore[assignment]
+    label = _named("label")  # type: ignore[assignment]
+    short = _named("short")  # type: ignore[assignment]
+    plot_label = _named("short")  # type: ignore[assignment]
 
     def _validate(self) -> None:
         if self.instruments not in ("simulated", "combined", "auto"):
@@ -179,8 +187,11 @@ class InstrumentalGMM(Estimator):
         if not (isinstance(self.noise_order, int | np.integer) and 0 <= self.noise_order <= 50):
             raise IdentificationError(
                 f"noise_order must be an integer in 0..50, got {self.noise_order!r}")
-        if not 0 < float(self.alpha) < 1:
-            raise IdentificationError(f"alpha must be in (0, 1), got {self.alpha!r}")
+        for key in ("alpha", "colour_alpha"):
+            val = getattr(self, key)
+            if not (isinstance(val, float | int | np.floating | np.integer)
+                    and 0 < float(val) < 1):
+                raise IdentificationError(f"{key} must be in (0, 1), got {val!r}")
         for key in ("refine", "fallback_refine"):
             val = getattr(self, key)
             if not (isinstance(val, int | np.integer) and val >= 1):
@@ -237,8 +248,8 @@ class InstrumentalGMM(Estimator):
                             theta_start=theta_start, max_iter=max_iter, tol=tol)
         n = data.n_groups
         keep = keep_history and n == 1
-        fused = self.instruments != "simulated" and not keep
-        # the fused combined path needs no regressor rows (only a fallback subset does)
+        fused = self.instruments == "combined" and not keep
+        # the fused combined path needs no regressor rows (auto's colour test does)
         phi = None if fused else kernels.regressor_matrix(data.regsig, data.u, data.starts,
                                                           spec.codes.factors)
         lagged = None
@@ -262,14 +273,18 @@ class InstrumentalGMM(Estimator):
                         j_stat=sol.j.copy(), j_df=sol.df.copy())
             used[:] = "combined"
             if self.instruments == "auto":
-                reject = c_p < float(self.alpha)
+                z_sim, _ = gmm.simulated_instruments(data, spec, theta0)
+                w_stat, w_df = gmm.colour_test(data, spec, phi, z_sim)
+                w_p = np.ones((n, spec.n_states))
+                for i in range(spec.n_states):
+                    if w_df[i]:
+                        w_p[:, i] = _chi2_sf(w_stat[:, i], w_df[i])
+                info.update(colour_stat=w_stat, colour_df=w_df, colour_pvalue=w_p.min(axis=1))
+                reject = (c_p < float(self.alpha)) | (w_p.min(axis=1) < float(self.colour_alpha))
                 if reject.any():
                     sub = _subset(data, reject)
-                    phi_s = (kernels.regressor_matrix(sub.regsig, sub.u, sub.starts,
-                                                      spec.codes.factors)
-                             if phi is None else phi[_rows(data, reject)])
                     sol_s, th_s, it_s = self._refine(
-                        sub, spec, phi_s, None, theta0[reject], "simulated",
+                        sub, spec, phi[_rows(data, reject)], None, theta0[reject], "simulated",
                         self.noise_order, keep, tol, steps=self.fallback_refine)
                     theta[reject] = th_s
                     iters[reject] = it_s
@@ -304,15 +319,26 @@ class InstrumentalGMM(Estimator):
         if "c_pvalue" in info:
             out["hansen_j_combined"] = _jdict(info["j_stat"][0], info["j_df"])
             out["c_test_lagged"] = _jdict(info["c_stat"][0], info["c_df"])
-            p = float(info["c_pvalue"][0])
-            if self.instruments == "auto":
-                out["instrument_choice"] = (
-                    f"simulated only: the delayed measurements are rejected as instruments "
-                    f"(C test p = {p:.3g} < {self.alpha:g}; coloured disturbances?)"
-                    if info["instrument_set"][0] == "simulated" else
-                    f"simulated + delayed measurements: not rejected (C test p = {p:.3g} "
-                    f">= {self.alpha:g})")
+            if "colour_pvalue" in info:
+                out["colour_test"] = _jdict(info["colour_stat"][0], info["colour_df"])
+                out["instrument_choice"] = self._choice_text(info)
         return out
+
+    def _choice_text(self, info: dict[str, Any]) -> str:
+        """The ``auto`` decision in plain words, with both tests' p-values."""
+        p_c, p_w = float(info["c_pvalue"][0]), float(info["colour_pvalue"][0])
+        c_txt = f"C test of the delayed instruments p = {p_c:.3g} (level {self.alpha:g})"
+        w_txt = (f"colour test (does the equation error remember the past sensor noise?) "
+                 f"p = {p_w:.3g} (level {self.colour_alpha:g})")
+        if info["instrument_set"][0] == "simulated":
+            why = [t for t, p, a in ((c_txt, p_c, self.alpha), (w_txt, p_w, self.colour_alpha))
+                   if p < a]
+            return ("simulated only (SRIV): the delayed measurements are not valid "
+                    "instruments on this log — the disturbances look coloured, and using "
+                    "them would bias the estimate; rejected by the " + " and the ".join(why))
+        return ("simulated + delayed measurements: the disturbances look white, so the "
+                "delayed measurements are valid and make the estimate more precise; neither "
+                f"test rejects ({c_txt}; {w_txt})")
 
 
 def _predict(phi: np.ndarray, theta: np.ndarray, spec: ModelSpec, data: RegressionData
