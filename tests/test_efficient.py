@@ -67,7 +67,8 @@ def test_auto_keeps_delayed_instruments_on_white_noise_and_says_why():
         warnings.simplefilter("ignore")
         res = identify(log, method="auto")
     assert res.diagnostics["instruments"] in ("combined", "simulated")
-    assert "C test p =" in res.diagnostics["instrument_choice"]
+    assert "C test of the delayed instruments p =" in res.diagnostics["instrument_choice"]
+    assert "colour test" in res.diagnostics["instrument_choice"]
     assert "instrument choice" in res.summary()
 
 
@@ -100,6 +101,8 @@ def test_option_validation(method):
         identify(log, method=InstrumentalGMM("nope"))
     with pytest.raises(IdentificationError, match="alpha"):
         identify(log, method=InstrumentalGMM("auto", alpha=2.0))
+    with pytest.raises(IdentificationError, match="colour_alpha"):
+        identify(log, method=InstrumentalGMM("auto", colour_alpha=0.0))
 
 
 def test_asymptotic_covariance_for_trial_planning():
@@ -133,3 +136,62 @@ def test_default_estimator_consistent_white_noise():
     assert np.all(rms[10_000] / rms[100_000] > 2.0), rms
     se = errs[100_000].std(axis=0, ddof=1) / np.sqrt(16)
     assert np.all(np.abs(errs[100_000].mean(axis=0)) < 4 * se)
+
+
+def test_auto_rejects_delayed_instruments_under_coloured_sensor_noise():
+    """Gauss–Markov sensor noise (time constant 20 samples): the delayed measurements
+    bias GMM by several SEs; the colour test sees it (the C test alone missed most runs)."""
+    import dataclasses
+
+    from vesselid.disturbances import GaussMarkov
+
+    system = dataclasses.replace(heave(pulse_design="random"),
+                                 sensor_noise={"w": GaussMarkov(0.0, 0.1, 20.0)})
+    spec = system.identification_spec(aggregate=False)
+    sim = system.simulate(40_000, n_runs=4, seed=3)
+    it = get_estimator("auto").estimate_parameters(from_arrays(spec, sim.y, sim.u), spec)
+    assert (it.info["instrument_set"] == "simulated").all()
+    assert np.all(it.info["colour_pvalue"] < 1e-3), it.info["colour_pvalue"]
+
+
+def test_colour_test_has_its_level_on_white_noise():
+    """Table-1 white disturbances: the colour statistic is χ²(2), so it rejects at 5 % in
+    a binomially compatible fraction of runs (exact binomial test at 1e-3)."""
+    from scipy.stats import chi2
+
+    from tests._stats import binomial_ok
+    from vesselid.identify import gmm, kernels
+    from vesselid.identify.estimators import estimate
+
+    system = heave(pulse_design="alternating")
+    spec = system.identification_spec(aggregate=False)
+    sim = system.simulate(5000, n_runs=120, seed=11)
+    data = from_arrays(spec, sim.y, sim.u)
+    theta = estimate(data, spec, "iv-zero-mean").theta
+    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
+    z, _ = gmm.simulated_instruments(data, spec, theta)
+    stat, df = gmm.colour_test(data, spec, phi, z)
+    assert df.tolist() == [2]
+    rejected = int(np.sum(chi2.sf(stat[:, 0], 2) < 0.05))
+    assert binomial_ok(rejected, 120, 0.05), rejected
+
+
+def test_noise_instruments_window_and_boundaries():
+    from vesselid.identify import gmm, kernels
+
+    system = heave()
+    spec = system.identification_spec(aggregate=False)
+    sim = system.simulate(300, n_runs=2, seed=1)
+    data = from_arrays(spec, sim.y, sim.u)
+    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
+    z, _ = gmm.simulated_instruments(data, spec, np.array([[0.99, -0.1, 1.0]] * 2))
+    eta = gmm.noise_instruments(data, spec, phi, z, window=(2, 5))
+    endo = gmm.state_terms(spec)
+    raw = phi[:, endo] - z[:, endo]
+    for s in range(2):
+        a = int(data.starts[s])
+        assert np.isnan(eta[a:a + 6]).all() and np.isfinite(eta[a + 6:a + 300]).all()
+        k = a + 50
+        np.testing.assert_allclose(eta[k], raw[k - 5:k - 1].mean(axis=0), rtol=1e-12)
+    with pytest.raises(ValueError, match="window"):
+        gmm.noise_instruments(data, spec, phi, z, window=(0, 3))

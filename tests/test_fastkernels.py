@@ -182,3 +182,35 @@ def test_generated_file_name_is_salted(monkeypatch, tmp_path):
     assert fk.specialised_moments(*args) is not None
     second = {p.name for p in Path(tmp_path).glob("*.py")}
     assert len(first) == 1 and len(second) == 2 and first < second
+
+
+@pytest.mark.parametrize("name", CATALOGUE)
+def test_generated_combined_pass_bit_identical_to_generic(monkeypatch, name):
+    """The generated combined-instrument GMM pass (``auto``'s Monte Carlo fast path)
+    equals the generic ``combined_moments`` bit for bit, both passes, diverging
+    auxiliary models included; larger instrument sets keep the generic kernel."""
+    from vesselid.identify import gmm
+    from vesselid.identify.data import from_arrays
+
+    system = get_system(name)
+    spec = system.identification_spec()
+    sim = system.simulate(400, n_runs=3, seed=1)
+    data = from_arrays(spec, sim.y, sim.u, y2=sim.y2 if spec.aggregate else None)
+    codes = spec.codes
+    ztype, zpar, zeq, _, _ = gmm._combined_layout(spec)
+    kern = fk.specialised_combined(spec.n_states, spec.n_inputs, codes.factors,
+                                   codes.equation, ztype, zpar, zeq)
+    assert (kern is None) == (ztype.size > fk.MAX_COMBINED_COLUMNS), name
+    theta = np.tile(spec.theta0_vector(), (data.n_groups, 1))
+    unstable = theta.copy()
+    unstable[1] = np.abs(theta[1]) + 1.5  # one group's auxiliary model diverges
+    for th in (theta, unstable):
+        fast, ok_fast = gmm.combined_solution(data, spec, th)
+        with monkeypatch.context() as m:
+            m.setenv("VESSELID_GENERIC_KERNELS", "1")
+            slow, ok_slow = gmm.combined_solution(data, spec, th)
+        np.testing.assert_array_equal(ok_fast, ok_slow, err_msg=name)
+        for field in ("theta", "ok", "j", "c"):
+            np.testing.assert_array_equal(getattr(fast, field), getattr(slow, field),
+                                          err_msg=f"{name} {field}")
+    assert not ok_slow[1] and ok_slow[0]  # the divergence branch was taken

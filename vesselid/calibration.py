@@ -19,14 +19,16 @@ is in ``scripts/calibration.py``.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 import numpy as np
 import pandas as pd
 from scipy import stats
 
+from vesselid.errors import VesselidError
 from vesselid.identify import kernels
 from vesselid.identify.covariance import DEFAULT_COV_TYPE, get_covariance_estimator
 from vesselid.identify.data import RegressionData, from_arrays
@@ -202,16 +204,22 @@ def coverage_study(
     method: str | None = None,
     covariances: Mapping[str, tuple[str, Mapping[str, Any]]] | None = None,
     estimate_fn: Callable[..., Any] | None = None,
-    batch: int = 200,
+    batch: int | None = None,
+    fit: str = "batched",
+    experiments: int = 6,
 ) -> pd.DataFrame:
-    """Coverage of a heave scenario for one or several covariance estimators.
+    """Coverage of a scenario for one or several covariance estimators.
 
     Parameters
     ----------
     scenario : str
-        Key of :data:`SCENARIOS`.
+        Key of :data:`SCENARIOS`, or ``"seatrial"``: the CyberShip II sea trial
+        (:mod:`vesselid.seatrial`), ``experiments × samples`` per run with the study's
+        current, wind, gusts and unmodelled forces, identified with the relative
+        predictor (speed log); :func:`seatrial_coverage`.
     runs, samples, seed : int
-        Monte Carlo runs, samples per run, root seed (run ``r`` uses child ``r``).
+        Monte Carlo runs, samples per run (experiment), root seed (run ``r`` uses
+        child ``r``).
     method : str, optional
         Estimator (default: the package default, :func:`default_method`); with the
         estimator registry its batched ``estimate_parameters`` and, per run, the
@@ -221,75 +229,86 @@ def coverage_study(
     estimate_fn : callable, optional
         ``estimate_fn(data, spec) -> IterationResult``; default
         ``estimate(data, spec, method)``.
+    batch : int, optional
+        Runs simulated (and, batched, estimated) at a time; default 200 heave runs or
+        5 sea trials.
+    fit : {"batched", "identify"}
+        ``"batched"``: the batched fast path above; ``"identify"``: one trial log per
+        run through the public :func:`vesselid.identify.identify` (the user's path;
+        default method unless ``method``; no ``method`` column, no ``estimate_fn``).
+    experiments : int
+        Experiments per sea trial.
 
     Returns
     -------
     DataFrame
         :func:`coverage_table` rows with ``scenario`` and ``covariance`` columns.
     """
-    from vesselid.identify.estimators import estimate
-
-    method = method or default_method()
-    registry = _has_registry() and estimate_fn is None
-    if registry:
-        from vesselid.identify.registry import get_estimator
-    system, aggregate, target = heave_scenario(scenario)
-    spec = system.identification_spec(aggregate=aggregate)
+    if fit not in ("batched", "identify"):
+        raise VesselidError(f"fit must be 'batched' or 'identify', got {fit!r}")
+    if fit == "identify" and estimate_fn is not None:
+        raise VesselidError("estimate_fn goes with fit='batched', not 'identify'")
+    sea = scenario == "seatrial"
+    batch = int(batch or (5 if sea else 200))
     covariances = covariances or {DEFAULT_COV_TYPE: (DEFAULT_COV_TYPE, {})}
-    root = np.random.SeedSequence(seed)
-    seeds = root.spawn(int(runs))
-    thetas = []
-    ses: dict[str, list[np.ndarray]] = {k: [] for k in covariances}
-    for c in range(0, int(runs), batch):
-        sim = system.simulate(int(samples), run_seeds=seeds[c:c + batch])
-        data = from_arrays(spec, sim.y, sim.u, y2=sim.y2 if aggregate else None)
-        if target == "aggregated":
-            data = dataclasses.replace(data, target=data.regsig)
-        if registry:
-            it = get_estimator(method).estimate_parameters(data, spec)
-            thetas.append(it.theta)
-            for label, se in registry_covariances(data, spec, it, method, covariances).items():
-                ses[label].append(se)
-            continue
-        it = (estimate_fn(data, spec) if estimate_fn is not None
-              else estimate(data, spec, method))
-        thetas.append(it.theta)
-        for label, (cov_type, cfg) in covariances.items():
-            cov, _ = group_covariances(data, spec, it.theta, it.theta_aux, method=method,
-                                       cov_type=cov_type, **dict(cfg))
-            ses[label].append(np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None)))
-    theta = np.vstack(thetas)
-    names = [f"{eq}: {term}" for eq, term in spec.param_index]
-    frames = []
-    for label in covariances:
-        tab = coverage_table(theta, np.vstack(ses[label]), spec.theta0_vector(), names)
-        tab.insert(0, "covariance", label)
-        tab.insert(0, "scenario", scenario)
-        tab.insert(2, "method", method)
-        frames.append(tab)
-    return pd.concat(frames, ignore_index=True)
-
-
-def seatrial_coverage(
-    runs: int,
-    *,
-    samples: int = 20_000,
-    experiments: int = 6,
-    seed: int = 0,
-    method: str | None = None,
-    covariances: Mapping[str, tuple[str, Mapping[str, Any]]] | None = None,
-    estimate_fn: Callable[..., Any] | None = None,
-    chunk: int = 5,
-) -> pd.DataFrame:
-    """Coverage on the CyberShip II sea trial (:mod:`vesselid.seatrial`): ``runs``
-    independent trials of ``experiments × samples`` with the study's current, wind,
-    gusts and unmodelled forces, identified with the relative predictor (speed log)."""
-    from vesselid.identify.estimators import estimate
-
+    if fit == "identify":
+        return _coverage_identify(scenario, runs, samples, experiments, seed, method,
+                                  covariances, batch)
     method = method or default_method()
-    registry = _has_registry() and estimate_fn is None
-    if registry:
-        from vesselid.identify.registry import get_estimator
+    batches: Iterator[RegressionData]
+    if sea:
+        spec, n_e, trials = _seatrial_trials(runs, samples, experiments, seed)
+        batches = (_trials_data(spec, n_e, list(itertools.islice(trials, batch)))
+                   for _ in range(0, int(runs), batch))
+    else:
+        system, aggregate, target = heave_scenario(scenario)
+        spec = system.identification_spec(aggregate=aggregate)
+        batches = (_heave_data(spec, sim, aggregate, target)
+                   for sim in _heave_batches(system, runs, samples, seed, batch))
+    thetas: list[np.ndarray] = []
+    ses: dict[str, list[np.ndarray]] = {k: [] for k in covariances}
+    for data in batches:
+        _estimate_batch(data, spec, method, covariances, estimate_fn, thetas, ses)
+    return _coverage_frames(np.vstack(thetas), ses, spec, scenario, method)
+
+
+def seatrial_coverage(runs: int, **options: Any) -> pd.DataFrame:
+    """Coverage on the CyberShip II sea trial: :func:`coverage_study` of ``"seatrial"``
+    (``samples`` 20 000 unless given)."""
+    options.setdefault("samples", 20_000)
+    return coverage_study("seatrial", runs, **options)
+
+
+def _heave_data(spec: ModelSpec, sim: Any, aggregate: bool, target: str) -> RegressionData:
+    """The regression data of a batch of heave runs (one group a run)."""
+    data = from_arrays(spec, sim.y, sim.u, y2=sim.y2 if aggregate else None)
+    if target == "aggregated":
+        data = dataclasses.replace(data, target=data.regsig)
+    return data
+
+
+def _trials_data(spec: ModelSpec, n_e: int,
+                 trials: list[tuple[np.ndarray, np.ndarray]]) -> RegressionData:
+    """The regression data of a batch of sea trials (one group a trial)."""
+    y = np.concatenate([yt for yt, _ in trials])
+    tau = np.concatenate([tt for _, tt in trials])
+    return from_arrays(spec, y, tau, experiments_per_group=n_e)
+
+
+def _heave_batches(system: Any, runs: int, samples: int, seed: int, batch: int) -> Iterator[Any]:
+    """``runs`` simulations of ``system`` (run ``r`` on child ``r`` of ``seed``), ``batch``
+    runs at a time."""
+    seeds = np.random.SeedSequence(seed).spawn(int(runs))
+    for c in range(0, int(runs), batch):
+        yield system.simulate(int(samples), run_seeds=seeds[c:c + batch])
+
+
+def _seatrial_trials(
+    runs: int, samples: int, experiments: int, seed: int,
+) -> tuple[ModelSpec, int, Iterator[tuple[np.ndarray, np.ndarray]]]:
+    """The calibration sea trial: its spec, experiments per trial and the speed-log
+    readings ``u_log, v_log, r`` and forces, each (experiments, samples, 3), of ``runs``
+    independent trials with the study's current, wind, gusts and unmodelled forces."""
     from vesselid.seatrial import _disturbances, design_sea_trial, seatrial_spec
     from vesselid.vessels import SENSOR_CHANNELS, simulate_cybership2
 
@@ -299,43 +318,68 @@ def seatrial_coverage(
                          (0.02, 0.02, 0.01))
     idx = [SENSOR_CHANNELS.index(c) for c in ("u_log", "v_log", "r")]
     inputs = design.warmup_inputs()
-    covariances = covariances or {DEFAULT_COV_TYPE: (DEFAULT_COV_TYPE, {})}
-    seeds = np.random.SeedSequence(seed + 2000).spawn(int(runs))
-    thetas = []
-    ses: dict[str, list[np.ndarray]] = {k: [] for k in covariances}
     n_e = design.n_experiments
-    for c in range(0, int(runs), chunk):
-        group_seeds = seeds[c:c + chunk]
-        y = np.empty((len(group_seeds) * n_e, design.n_samples, 3))
-        tau = np.empty_like(y)
-        for g, ss in enumerate(group_seeds):
+
+    def trials() -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        for ss in np.random.SeedSequence(seed + 2000).spawn(int(runs)):
             sim = simulate_cybership2(inputs, run_seeds=ss.spawn(n_e), dt=design.dt,
                                       disturbances=dist)
-            y[g * n_e:(g + 1) * n_e] = sim.sensors[:, design.warmup:, idx]
-            tau[g * n_e:(g + 1) * n_e] = sim.tau[:, design.warmup:]
-            del sim
-        data = from_arrays(spec, y, tau, experiments_per_group=n_e)
-        if registry:
-            it = get_estimator(method).estimate_parameters(data, spec)
-            thetas.append(it.theta)
-            for label, se in registry_covariances(data, spec, it, method, covariances).items():
-                ses[label].append(se)
-            continue
-        it = (estimate_fn(data, spec) if estimate_fn is not None
-              else estimate(data, spec, method))
+            yield sim.sensors[:, design.warmup:, idx], sim.tau[:, design.warmup:]
+
+    return spec, n_e, trials()
+
+
+def _estimate_batch(
+    data: RegressionData,
+    spec: ModelSpec,
+    method: str,
+    covariances: Mapping[str, tuple[str, Mapping[str, Any]]],
+    estimate_fn: Callable[..., Any] | None,
+    thetas: list[np.ndarray],
+    ses: dict[str, list[np.ndarray]],
+) -> None:
+    """Estimate a batch of runs on the batched fast path and append the estimates to
+    ``thetas`` and each covariance estimator's standard errors to ``ses``: through the
+    estimator registry (:func:`registry_covariances`) unless ``estimate_fn`` is given
+    (or the registry is missing), else ``estimate_fn(data, spec)`` (default
+    ``estimate(data, spec, method)``) with :func:`group_covariances`."""
+    if _has_registry() and estimate_fn is None:
+        from vesselid.identify.registry import get_estimator
+
+        it = get_estimator(method).estimate_parameters(data, spec)
         thetas.append(it.theta)
-        for label, (cov_type, cfg) in covariances.items():
-            cov, _ = group_covariances(data, spec, it.theta, it.theta_aux, method=method,
-                                       cov_type=cov_type, **dict(cfg))
-            ses[label].append(np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None)))
-    theta = np.vstack(thetas)
+        for label, se in registry_covariances(data, spec, it, method, covariances).items():
+            ses[label].append(se)
+        return
+    from vesselid.identify.estimators import estimate
+
+    it = (estimate_fn(data, spec) if estimate_fn is not None
+          else estimate(data, spec, method))
+    thetas.append(it.theta)
+    for label, (cov_type, cfg) in covariances.items():
+        cov, _ = group_covariances(data, spec, it.theta, it.theta_aux, method=method,
+                                   cov_type=cov_type, **dict(cfg))
+        ses[label].append(np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None)))
+
+
+def _coverage_frames(
+    theta: np.ndarray,
+    ses: Mapping[str, Any],
+    spec: ModelSpec,
+    scenario: str,
+    method: str | None = None,
+) -> pd.DataFrame:
+    """:func:`coverage_table` of every covariance estimator (the keys of ``ses``, each a
+    list of (runs, P) blocks), with ``scenario``, ``covariance`` and (given) ``method``
+    columns."""
     names = [f"{eq}: {term}" for eq, term in spec.param_index]
     frames = []
-    for label in covariances:
-        tab = coverage_table(theta, np.vstack(ses[label]), spec.theta0_vector(), names)
+    for label, blocks in ses.items():
+        tab = coverage_table(theta, np.vstack(blocks), spec.theta0_vector(), names)
         tab.insert(0, "covariance", label)
-        tab.insert(0, "scenario", "seatrial")
-        tab.insert(2, "method", method)
+        tab.insert(0, "scenario", scenario)
+        if method is not None:
+            tab.insert(2, "method", method)
         frames.append(tab)
     return pd.concat(frames, ignore_index=True)
 
@@ -350,25 +394,19 @@ def _identify_runs(
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Fit every run's log with the public ``identify`` (the user's path), once per
     covariance estimator. Failed fits give NaN rows."""
-    import inspect
     import warnings
 
     from vesselid.identify import identify
 
-    params = inspect.signature(identify).parameters
     n_par = spec.n_params
     theta = np.full((len(frames), n_par), np.nan)
     ses = {k: np.full((len(frames), n_par), np.nan) for k in covariances}
     for r, frame in enumerate(frames):
         for first, (label, (cov_type, cfg)) in enumerate(covariances.items()):
-            kw: dict[str, Any] = {}
+            kw: dict[str, Any] = {"target": target, "cov_type": cov_type,
+                                  "cov_config": dict(cfg)}
             if method is not None:
                 kw["method"] = method
-            if "target" in params:
-                kw["target"] = target
-            if "cov_type" in params:
-                kw["cov_type"] = cov_type
-                kw["cov_config"] = dict(cfg)
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
@@ -381,75 +419,58 @@ def _identify_runs(
     return theta, ses
 
 
-def coverage_identify(
-    scenario: str,
-    runs: int,
-    *,
-    samples: int = 10_000,
-    seed: int = 0,
-    method: str | None = None,
-    covariances: Mapping[str, tuple[str, Mapping[str, Any]]] | None = None,
-    batch: int = 100,
-) -> pd.DataFrame:
-    """:func:`coverage_study` through the public :func:`vesselid.identify.identify`
-    (default method unless ``method``), one trial log per run; ``"seatrial"`` runs
-    the CyberShip II trial (6 × ``samples``)."""
-    covariances = covariances or {DEFAULT_COV_TYPE: (DEFAULT_COV_TYPE, {})}
-    theta_all, ses_all = [], {k: [] for k in covariances}
-    if scenario == "seatrial":
-        from vesselid.seatrial import _disturbances, design_sea_trial, seatrial_spec
-        from vesselid.vessels import SENSOR_CHANNELS, simulate_cybership2
+def coverage_identify(scenario: str, runs: int, **options: Any) -> pd.DataFrame:
+    """:func:`coverage_study` with ``fit="identify"`` (through the public
+    :func:`vesselid.identify.identify`; ``batch`` 100 unless given)."""
+    options.setdefault("batch", 100)
+    return coverage_study(scenario, runs, fit="identify", **options)
 
-        spec = seatrial_spec()
-        design = design_sea_trial(6, samples, seed=seed)
-        dist = _disturbances(0.05, np.radians(30.0), 1.0, np.radians(-60.0), 0.005, 0.1,
-                             (0.02, 0.02, 0.01))
-        idx = [SENSOR_CHANNELS.index(c) for c in ("u_log", "v_log", "r")]
-        inputs = design.warmup_inputs()
-        seeds = np.random.SeedSequence(seed + 2000).spawn(int(runs))
+
+def _coverage_identify(
+    scenario: str, runs: int, samples: int, experiments: int, seed: int, method: str | None,
+    covariances: Mapping[str, tuple[str, Mapping[str, Any]]], batch: int,
+) -> pd.DataFrame:
+    """:func:`coverage_study`'s ``fit="identify"``."""
+    theta_all: list[np.ndarray] = []
+    ses_all: dict[str, list[np.ndarray]] = {k: [] for k in covariances}
+    runs_frames: Iterator[list[pd.DataFrame]]
+    if scenario == "seatrial":
+        spec, _, trials = _seatrial_trials(runs, samples, experiments, seed)
         target = "measured"
-        for ss in seeds:
-            sim = simulate_cybership2(inputs, run_seeds=ss.spawn(6), dt=design.dt,
-                                      disturbances=dist)
-            y = sim.sensors[:, design.warmup:, idx]
-            tau = sim.tau[:, design.warmup:]
-            n_e, n_k = y.shape[0], y.shape[1]
-            cols: dict[str, np.ndarray] = {"experiment": np.repeat(np.arange(n_e), n_k)}
-            for i, s in enumerate(spec.states):
-                cols[s] = y[:, :, i].ravel()
-            for j, s in enumerate(spec.inputs):
-                cols[s] = tau[:, :, j].ravel()
-            th, se = _identify_runs([pd.DataFrame(cols)], spec, covariances, method, target)
-            theta_all.append(th)
-            for k in covariances:
-                ses_all[k].append(se[k])
+        runs_frames = ([_trial_frame(spec, y, tau)] for y, tau in trials)
     else:
         system, aggregate, target = heave_scenario(scenario)
         spec = system.identification_spec(aggregate=aggregate)
-        seeds = np.random.SeedSequence(seed).spawn(int(runs))
-        for c in range(0, int(runs), batch):
-            sim = system.simulate(int(samples), run_seeds=seeds[c:c + batch])
-            frames = []
-            for r in range(sim.n_runs):
-                cols = {s: sim.y[r, :, i] for i, s in enumerate(spec.states)}
-                cols |= {s: sim.u[r, :, j] for j, s in enumerate(spec.inputs)}
-                for j, s in enumerate(system.sensor_states):
-                    if aggregate:
-                        cols[system.sensor_name(s)] = sim.y2[r, :, j]
-                frames.append(pd.DataFrame(cols))
-            th, se = _identify_runs(frames, spec, covariances, method, target)
-            theta_all.append(th)
-            for k in covariances:
-                ses_all[k].append(se[k])
-    theta = np.vstack(theta_all)
-    names = [f"{eq}: {term}" for eq, term in spec.param_index]
-    out = []
-    for label in covariances:
-        tab = coverage_table(theta, np.vstack(ses_all[label]), spec.theta0_vector(), names)
-        tab.insert(0, "covariance", label)
-        tab.insert(0, "scenario", scenario)
-        out.append(tab)
-    return pd.concat(out, ignore_index=True)
+        runs_frames = ([_run_frame(spec, system, sim, r, aggregate) for r in range(sim.n_runs)]
+                       for sim in _heave_batches(system, runs, samples, seed, batch))
+    for frames in runs_frames:
+        th, se = _identify_runs(frames, spec, covariances, method, target)
+        theta_all.append(th)
+        for k in covariances:
+            ses_all[k].append(se[k])
+    return _coverage_frames(np.vstack(theta_all), ses_all, spec, scenario)
+
+
+def _trial_frame(spec: ModelSpec, y: np.ndarray, tau: np.ndarray) -> pd.DataFrame:
+    """A trial log of experiments ``y``, ``tau`` (E, N, ·) in ``spec``'s column names."""
+    n_e, n_k = y.shape[0], y.shape[1]
+    cols: dict[str, np.ndarray] = {"experiment": np.repeat(np.arange(n_e), n_k)}
+    for i, s in enumerate(spec.states):
+        cols[s] = y[:, :, i].ravel()
+    for j, s in enumerate(spec.inputs):
+        cols[s] = tau[:, :, j].ravel()
+    return pd.DataFrame(cols)
+
+
+def _run_frame(spec: ModelSpec, system: Any, sim: Any, r: int, aggregate: bool) -> pd.DataFrame:
+    """The trial log of run ``r`` of a heave simulation (with the current sensor's column
+    when ``aggregate``)."""
+    cols = {s: sim.y[r, :, i] for i, s in enumerate(spec.states)}
+    cols |= {s: sim.u[r, :, j] for j, s in enumerate(spec.inputs)}
+    for j, s in enumerate(system.sensor_states):
+        if aggregate:
+            cols[system.sensor_name(s)] = sim.y2[r, :, j]
+    return pd.DataFrame(cols)
 
 
 # ------------------------------------------------------------------ registry estimators

@@ -49,7 +49,9 @@ from vesselid._io import atomic_write_with
 from vesselid.diagnostics import normalized_error
 from vesselid.errors import VesselidError
 from vesselid.identify.data import RegressionData, from_arrays
-from vesselid.identify.estimators import COMBINE_MODES
+from vesselid.identify.efficient import InstrumentalGMM
+from vesselid.identify.estimators import COMBINE_MODES, IterationResult
+from vesselid.identify.methods import RefinedIV
 from vesselid.identify.registry import ESTIMATORS, PAPER_METHODS, get_estimator
 from vesselid.model import ModelSpec
 from vesselid.systems import System, get_system
@@ -214,12 +216,38 @@ def run_chunk(study: Study, start: int, stop: int) -> pd.DataFrame:
     data = regression_data(study, system, spec, sim)
     theta0 = spec.theta0_vector()
     frames = []
+    base = None  # the converged IV_{E{ζ}=0} result on this chunk's data, once computed
     for method in study.methods:
-        res = get_estimator(method).estimate_parameters(
-            data, spec, combine=study.combine, max_iter=int(study.max_iter),
-            tol=float(study.tol))
+        est = get_estimator(method)
+        options: dict[str, Any] = {"combine": study.combine, "max_iter": int(study.max_iter),
+                                   "tol": float(study.tol)}
+        if base is not None and _is_zero_mean_iv(est, study):
+            res = base
+        else:
+            if base is not None and _takes_base(est, study):
+                options["base"] = base
+            res = est.estimate_parameters(data, spec, **options)
+        if _is_zero_mean_iv(est, study):
+            base = res
+        elif (base is None and _takes_base(est, study)
+              and isinstance(res.info.get("base"), IterationResult)):
+            base = res.info["base"]
         frames.append(_tidy(res, method, spec, theta0, start))
     return pd.concat(frames, ignore_index=True)
+
+
+def _is_zero_mean_iv(est: Any, study: Study) -> bool:
+    """Whether ``est`` is the package's IV_{E{ζ}=0} (pooled), whose result is shared."""
+    return type(est) is RefinedIV and est.zero_mean and study.combine == "pooled"
+
+
+def _takes_base(est: Any, study: Study) -> bool:
+    """Whether ``est`` starts from the converged IV_{E{ζ}=0} iteration and can be
+    handed it (computed with the same data and settings), instead of iterating again.
+
+    Sharing is bit-identical by construction: the same function on the same arrays.
+    """
+    return isinstance(est, InstrumentalGMM) and study.combine == "pooled"
 
 
 def _tidy(res, method: str, spec: ModelSpec, theta0: np.ndarray, start: int) -> pd.DataFrame:

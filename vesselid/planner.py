@@ -483,8 +483,9 @@ def candidate_library(limits: Sequence[float] = FORCE_LIMITS) -> list[Manoeuvre]
     Turning circles (35°, both sides), zig-zags (10/10, 20/20, 35/20, 35/35) at a low
     and a high engine setting, a pull-out, a spiral, acceleration/stopping with three
     rudder angles, thruster (crabbing) tests with three moment ratios, and thruster
-    tests with independent sway force and yaw moment (:class:`ThrusterSquare`) at three
-    engine settings.
+    tests with independent sway force and yaw moment (:class:`ThrusterSquare`) at full
+    engine, steady or alternating full ahead / full astern (``low = −1``, every 15 or
+    30 s; the surge speed sweeps both signs).
     """
     lo, hi = min(0.8, limits[0]), limits[0]
     out: list[Manoeuvre] = [TurningCircle(thrust=hi, rudder=35.0, side=1, turn=360.0),
@@ -498,8 +499,14 @@ def candidate_library(limits: Sequence[float] = FORCE_LIMITS) -> list[Manoeuvre]
             for r in (0.0, 15.0, 35.0)]
     out += [Crabbing(thrust=x, sway=limits[1], moment=m) for x in (0.0, 0.75 * hi)
             for m in (-0.5, 0.0, 0.5)]
-    out += [ThrusterSquare(thrust=x, sway=limits[1], moment=limits[2], hold_y=hy, hold_n=hn)
-            for x in (lo, 0.7 * hi, hi) for hy, hn in ((10.0, 7.0), (20.0, 13.0))]
+    out += [ThrusterSquare(thrust=hi, sway=limits[1], moment=limits[2], hold_y=hy, hold_n=hn)
+            for hy, hn in ((10.0, 7.0), (5.0, 3.5))]
+    # ahead/astern: u sweeps from +1 to −0.8 m/s, which separates the constant sway/yaw
+    # couplings (r: v, v: v·|r|, r: r·|v|, ...) from the u-proportional ones; predicted
+    # worst relative SE 7.1 % -> 4.1 % at 6 × 2·10⁴ samples
+    out += [ThrusterSquare(thrust=hi, sway=limits[1], moment=limits[2], hold_y=hy, hold_n=hn,
+                           low=-1.0, hold_x=hx)
+            for hy, hn in ((10.0, 7.0), (7.0, 10.0), (5.0, 3.5)) for hx in (15.0, 30.0)]
     return out
 
 
@@ -883,15 +890,10 @@ def predict_design(forces: np.ndarray, *, warmup: int = 0, dt: float = 0.1,
 # ---------------------------------------------------------------------------------- CLI
 def add_parser(subparsers: Any) -> None:
     """Register ``vesselid plan-trial`` (the CLI plugin contract of :mod:`vesselid.cli`)."""
-    p = subparsers.add_parser(
-        "plan-trial", help="plan a sea trial: manoeuvres and predicted standard errors",
-        description="Choose standard manoeuvres (turning circles, zig-zags, pull-outs, "
-                    "spirals, stopping, thruster tests) for a sample budget so that the "
-                    "worst relative standard error of the identified parameters is "
-                    "smallest, predicted from the asymptotic IV covariance (no Monte Carlo).")
-    p.add_argument("--vessel", default="cybership2", choices=["cybership2"])
-    from vesselid.cli import finite_float, int_at_least
+    from vesselid.cli import finite_float, int_at_least, plugin_parser
 
+    p = plugin_parser(subparsers, "plan-trial")
+    p.add_argument("--vessel", default="cybership2", choices=["cybership2"])
     p.add_argument("--samples", type=int_at_least(50), default=120_000,
                    help="total sample budget")
     p.add_argument("--experiments", type=int_at_least(1), default=6)

@@ -490,13 +490,9 @@ def _write(res: ReproductionResult, out: Path, fmt: str, figures: bool) -> None:
 # -------------------------------------------------------------------------- CLI
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Register ``vesselid reproduce`` (CLI plugin contract of :mod:`vesselid.cli`)."""
-    from vesselid.cli import int_at_least
+    from vesselid.cli import int_at_least, plugin_parser
 
-    p = subparsers.add_parser(
-        "reproduce", help="reproduce the paper's Tables 1-2 and Figure 1",
-        description="Monte Carlo reproduction of Ljungberg & Enqvist §6: LS, IV and IV with "
-                    "zero-mean instruments on the heave system; prints the published and "
-                    "reproduced tables row by row and checks the paper's claims.")
+    p = plugin_parser(subparsers, "reproduce")
     p.add_argument("--table", default="all", choices=["1", "2", "all"])
     p.add_argument("--runs", type=int_at_least(2), default=1000,
                    help="Monte Carlo runs (paper: 1000)")

@@ -144,13 +144,13 @@ def seatrial_spec(dt: float = 0.1, aggregate: str | None = "relative",
     from vesselid.catalogue import vessel_module
 
     key = _aggregate_key(aggregate)
-    if structure not in ("merged", "full"):
-        raise SeaTrialError(f"unknown structure {structure!r}; choose 'merged' or 'full'")
     module = vessel_module(vessel)
+    merges = {"merged": getattr(module, "TRIAL_MERGES", ()), "full": ()}
+    if structure not in merges:
+        raise SeaTrialError(f"unknown structure {structure!r}; choose 'merged' or 'full'")
     spec = module.HULL.spec(dt)
-    if structure == "merged":
-        for keep, drop, factor in getattr(module, "TRIAL_MERGES", ()):
-            spec = spec.merge_terms(keep, drop, factor)
+    for keep, drop, factor in merges[structure]:
+        spec = spec.merge_terms(keep, drop, factor)
     rel = AGGREGATES[key]
     return spec.with_aggregate(rel) if rel else spec
 
@@ -945,13 +945,9 @@ def run_pipeline(
 # ---------------------------------------------------------------------------------- CLI
 def add_parser(subparsers: Any) -> None:
     """Register ``vesselid sea-trial`` (the CLI plugin contract of :mod:`vesselid.cli`)."""
-    from vesselid.cli import finite_float, int_at_least
+    from vesselid.cli import finite_float, int_at_least, plugin_parser
 
-    p = subparsers.add_parser(
-        "sea-trial", help="design and simulate a multi-experiment sea trial",
-        description="Design a multi-experiment sea trial (steady turns to both sides at "
-                    "several levels plus pulses), simulate it with current and wind, and "
-                    "write the trial log and the model spec for `vesselid identify`.")
+    p = plugin_parser(subparsers, "sea-trial")
     from vesselid.catalogue import vessel_names
 
     p.add_argument("--vessel", default="cybership2", choices=vessel_names())

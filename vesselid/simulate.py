@@ -5,15 +5,15 @@ ocean current) enters *inside* the nonlinearity, ``w`` is additive. Measurements
 ``y = x + e`` are added by the caller (see :mod:`vesselid.systems`).
 
 The recursion is sequential in time, so it runs in a compiled kernel that loops
-over samples and is parallel over runs (``numba.prange``); no Python code runs per
-sample.
+over samples; runs are split across threads (:func:`vesselid._threads.run_ranges`, one
+serial ``nogil`` kernel for small and large batches); no Python code runs per sample.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import prange
 
+from vesselid._threads import run_ranges
 from vesselid.errors import SimulationDivergedError, SimulationError
 from vesselid.model import ModelSpec
 from vesselid.regressors import advance, kernel
@@ -67,15 +67,9 @@ def _simulate_run(r, x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at)
             break
 
 
-@kernel(parallel=True)
-def _simulate_parallel(x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at):
-    for r in prange(x_out.shape[0]):
-        _simulate_run(r, x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at)
-
-
-@kernel()
-def _simulate_serial(x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at):
-    for r in range(x_out.shape[0]):
+@kernel(nogil=True)
+def _simulate_runs(lo, hi, x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at):
+    for r in range(lo, hi):
         _simulate_run(r, x0, u, v, w, fac, eq, theta, limit, x_out, status, fail_at)
 
 
@@ -116,7 +110,14 @@ def _as_batch(name: str, arr, n_runs: int, n_samples: int, width: int) -> np.nda
         )
     if a.shape[0] != n_runs:
         a = np.broadcast_to(a, (n_runs, n_samples, width))
-    return np.ascontiguousarray(a)
+    return _writable(a)
+
+
+def _writable(a: np.ndarray) -> np.ndarray:
+    """C-contiguous and writable: read-only arrays would compile a second specialisation
+    of the kernel (numba types them apart), so they are copied."""
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    return a if a.flags.writeable else a.copy()
 
 
 def simulate_states(
@@ -170,7 +171,7 @@ def simulate_states(
     if not np.all(np.isfinite(th)):
         raise SimulationError("theta holds non-finite values")
     x0_arr = np.zeros((n_runs, n)) if x0 is None else np.asarray(x0, dtype=np.float64)
-    x0_arr = np.ascontiguousarray(np.broadcast_to(np.atleast_2d(x0_arr), (n_runs, n)))
+    x0_arr = np.array(np.broadcast_to(np.atleast_2d(x0_arr), (n_runs, n)), order="C")
     zeros = np.zeros((1, n_samples, n))
     u_b = _as_batch("u", u_arr, n_runs, n_samples, spec.n_inputs)
     v_b = _as_batch("v", zeros if v is None else v, n_runs, n_samples, n)
@@ -180,9 +181,9 @@ def simulate_states(
     fail_at = np.empty(n_runs, dtype=np.int64)
     codes = spec.codes
     parallel = n_runs > 1 and n_runs * n_samples >= PARALLEL_MIN_SAMPLES
-    run = _simulate_parallel if parallel else _simulate_serial
-    run(x0_arr, u_b, v_b, w_b, codes.factors, codes.equation, np.ascontiguousarray(th),
-           float(limit), x, status, fail_at)
+    run_ranges(_simulate_runs, n_runs,
+               (x0_arr, u_b, v_b, w_b, codes.factors, codes.equation, _writable(th),
+                float(limit), x, status, fail_at), parallel=parallel)
     if raise_on_divergence and np.any(status != STATUS_OK):
         bad = np.flatnonzero(status != STATUS_OK)
         r = int(bad[0])

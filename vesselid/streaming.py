@@ -160,8 +160,14 @@ class _Stacked:
         return np.zeros(self.n_segments, dtype=np.int64)
 
     @property
-    def target(self) -> np.ndarray:  # _limits reads max |target| per segment
+    def target(self) -> np.ndarray:
         return self.target_max
+
+    @property
+    def target_abs_max(self) -> np.ndarray:  # _limits reads max |target| per segment
+        from vesselid.identify.data import segment_abs_max
+
+        return segment_abs_max(self.target_max, np.arange(self.n_segments + 1))
 
     def segment(self, s: int) -> slice:
         return slice(s, s + 1)
@@ -178,8 +184,8 @@ def _stack(parts: list) -> Any:
 STREAM_METHODS = ("ls", "iv", "iv-zero-mean")
 
 #: Method of streamed identification when none is given. The package default (``auto``)
-#: chooses delayed-measurement instruments by a C test and prefilters with an AR noise
-#: model fitted to the whole log; it is not a sum over experiments.
+#: chooses delayed-measurement instruments by a C test and a colour test and
+#: prefilters with an AR noise model fitted to the whole log; it is not a sum over experiments.
 DEFAULT_STREAM_METHOD = "iv-zero-mean"
 
 #: Lag products ``Γ_E(j)`` of the scores kept by the covariance pass when the HAC

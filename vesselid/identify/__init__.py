@@ -16,8 +16,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from vesselid.identify.base import TARGETS, EquationDesign, Estimator
 from vesselid.identify.data import RegressionData, from_arrays, from_log
 from vesselid.identify.estimators import COMBINE_MODES, estimate
@@ -68,19 +66,7 @@ def identify(
     log: Any,
     spec: ModelSpec | None = None,
     method: str | Estimator = DEFAULT_METHOD,
-    *,
-    combine: str = DEFAULT_COMBINE,
-    target: str = "measured",
-    cov_type: str | None = None,
-    cov_config: Mapping[str, Any] | None = None,
-    instruments: np.ndarray | None = None,
-    theta_start: Any | None = None,
-    max_iter: int = 100,
-    tol: float = 1e-9,
-    eta: Mapping[str, float] | None = None,
-    design_threshold: float = 0.01,
-    weak_instrument_cond: float = 1e6,
-    min_samples: int | None = None,
+    **options: Any,
 ) -> IdentificationResult:
     """Identify the parameters of a second-order modulus model from a trial log.
 
@@ -94,6 +80,9 @@ def identify(
     method : str or Estimator
         A name in :data:`ESTIMATORS` (default :data:`DEFAULT_METHOD`) or an
         estimator object.
+    **options
+        Keyword-only options of :meth:`Estimator.fit`, passed on (an unknown name is a
+        ``TypeError``):
     combine : {"pooled", "stacked"}
         Multi-experiment form: ``"stacked"`` solves the ``p N_E`` equations (6)/(10)
         in the least-squares sense as the paper writes them; ``"pooled"`` sums the
@@ -138,12 +127,7 @@ def identify(
         Too few samples, unknown method or option, an auxiliary model that diverges
         from the start, singular instrument equations.
     """
-    return get_estimator(method).fit(
-        log, spec, combine=combine, target=target, cov_type=cov_type, cov_config=cov_config,
-        instruments=instruments, theta_start=theta_start, max_iter=max_iter, tol=tol, eta=eta,
-        design_threshold=design_threshold, weak_instrument_cond=weak_instrument_cond,
-        min_samples=min_samples,
-    )
+    return get_estimator(method).fit(log, spec, **options)
 
 
 def asymptotic_covariance(
@@ -161,8 +145,8 @@ def asymptotic_covariance(
     θ and disturbances) into ``log`` and call this: the estimator runs on it and the
     sandwich ``(AᵀWA)⁻¹AᵀW Ŝ W A(AᵀWA)⁻¹`` (``A = Σ ζ φᵀ`` with the estimator's own
     instruments — simulated from the auxiliary model, plus delayed measurements when
-    the C test keeps them — and ``Ŝ`` the ``cov_type`` long-run variance of ``ζ ε``)
-    is returned, indexed like ``identify(...).params``. Warnings of the fit are
+    ``auto``'s C and colour tests keep them — and ``Ŝ`` the ``cov_type`` long-run
+    variance of ``ζ ε``) is returned, indexed like ``identify(...).params``. Warnings of the fit are
     silenced (a planning call, not an identification).
     """
     import warnings

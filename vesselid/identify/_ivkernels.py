@@ -15,9 +15,13 @@ All work on concatenated rows with experiment boundaries ``starts`` and a row ma
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
+from vesselid._threads import run_ranges
 from vesselid.regressors import fill_factors_xu, kernel, one_step, regressors
+
+#: Below this many samples the segments run in the calling thread only.
+PARALLEL_MIN_SAMPLES = 200_000
 
 __all__ = ["ar_filter", "autocov", "center", "combined_moments", "cross_sums",
            "simulated_regressors"]
@@ -192,7 +196,6 @@ def _combined_row(k, regsig, u, xh, fac, ztype, zpar, f_dat, f_sim, f_l2, f_l3, 
             z[c] = f_l3[fac[p, 0]] * f_l3[fac[p, 1]]
 
 
-@kernel(parallel=True)
 def combined_moments(regsig, target, u, starts, group, theta, active, fac, eq, ztype, zpar,
                      zeq, limit, second, theta1, means_z, means_phi, means_y, means_g, lags,
                      s_a, s_b, s_m, s_z, s_phi, s_y, count, status, s_hac):
@@ -206,12 +209,24 @@ def combined_moments(regsig, target, u, starts, group, theta, active, fac, eq, z
     ``zeq[c]`` evaluated on the simulated state (``ztype 0``) or the measured state
     delayed 2 / 3 samples (``ztype 2 / 3``), inputs at ``k − 1``.
     """
+    run_ranges(_combined_range, starts.shape[0] - 1,
+               (regsig, target, u, starts, group, theta, active, fac, eq, ztype, zpar, zeq,
+                limit, second, theta1, means_z, means_phi, means_y, means_g, lags, s_a, s_b,
+                s_m, s_z, s_phi, s_y, count, status, s_hac),
+               parallel=starts.shape[0] > 2 and target.shape[0] >= PARALLEL_MIN_SAMPLES)
+
+
+@kernel(nogil=True)
+def _combined_range(lo, hi, regsig, target, u, starts, group, theta, active, fac, eq, ztype,
+                    zpar, zeq, limit, second, theta1, means_z, means_phi, means_y, means_g, lags,
+                    s_a, s_b, s_m, s_z, s_phi, s_y, count, status, s_hac):
+    """Segments ``lo … hi−1`` of :func:`combined_moments` (one serial kernel)."""
     n = regsig.shape[1]
     m = u.shape[1]
     n_par = fac.shape[0]
     k_tot = ztype.shape[0]
     n_f = 2 * (n + m) + 1
-    for s in prange(starts.shape[0] - 1):
+    for s in range(lo, hi):
         g = group[s]
         if not active[g]:
             continue

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -44,6 +45,14 @@ class RegressionData:
     @property
     def lengths(self) -> np.ndarray:
         return np.diff(self.starts)
+
+    @cached_property
+    def target_abs_max(self) -> np.ndarray:
+        """``max |target|`` per segment (:func:`segment_abs_max`), computed once: every
+        refined-IV call scales its divergence limits by it."""
+        out = segment_abs_max(self.target, self.starts)
+        out.flags.writeable = False
+        return out
 
     def segment(self, s: int) -> slice:
         return slice(int(self.starts[s]), int(self.starts[s + 1]))
@@ -174,3 +183,17 @@ def duplicate_blocks(spec: ModelSpec) -> np.ndarray:
     """For each state equation, the first equation with the same term list (or itself)."""
     keys = [tuple(str(t) for t in spec.equations[s]) for s in spec.states]
     return np.array([keys.index(k) for k in keys], dtype=np.int64)
+
+
+def segment_abs_max(values: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """``max |values[a:b]|`` of every segment ``[a, b)`` of ``starts`` (0 when empty; NaN
+    when the segment holds a NaN): the per-segment loop in one vectorised reduction
+    (a maximum is exact, so the values are those of the loop)."""
+    starts = np.asarray(starts, dtype=np.int64)
+    out = np.zeros(starts.size - 1)
+    full = np.diff(starts) > 0
+    if full.any():
+        a = np.abs(np.asarray(values, dtype=float)[:int(starts[-1])])
+        red = np.maximum.reduceat(a, starts[:-1][full], axis=0)
+        out[full] = red.max(axis=1) if red.ndim == 2 else red
+    return out

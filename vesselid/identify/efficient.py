@@ -17,9 +17,17 @@ constants (zero-mean instruments), and are batched over parameter groups.
   - over-identified with the lagged instruments (``combined``), two-step GMM with
     a HAC weight, with Hansen's J and the difference-in-J (C) test of the lagged
     subset;
-  - ``instruments="auto"``: the combined set unless the C test rejects the lagged
-    subset at level ``alpha`` in some equation, then the simulated set alone.
-    The result reports which set was used and why.
+  - ``instruments="auto"``: the combined set unless, in some equation, the C test
+    rejects the lagged subset at level ``alpha`` or the colour test
+    (:func:`vesselid.identify.gmm.colour_test`: does the equation error correlate with
+    the past estimated sensor noise?) rejects at ``colour_alpha``; then the simulated
+    set alone with the AR noise-model prefilter. The C test alone missed coloured
+    sensor noise in most runs (Gauss–Markov, time constant 20 samples, random pulses:
+    41 % rejected at 1 %; the colour test 97.5 % at 5 %): its delayed measurements
+    carry the signal, which drowns the small noise correlation that biases the GMM
+    estimate by several standard errors. A Hausman test of GMM against the
+    simulated-instrument estimate did no better than C (34 %): the simulated estimate
+    is too noisy there. The result reports which set was used and why.
 """
 
 from __future__ import annotations
@@ -29,7 +37,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from vesselid.errors import IdentificationError
-from vesselid.identify import gmm, kernels
+from vesselid.identify import gmm
+from vesselid.identify.backend import kernels
 from vesselid.identify.base import EquationDesign, Estimator
 from vesselid.identify.data import RegressionData
 from vesselid.identify.estimators import IterationResult, estimate
@@ -102,15 +111,20 @@ class LaggedIV(Estimator):
 def _chi2_sf(x: Any, df: Any) -> Any:
     """``scipy.stats.chi2.sf(x, df)`` for ``df > 0`` (identical values, ``x < 0`` -> 1)
     through ``scipy.special``: importing ``scipy.stats`` costs ~1 s of process start."""
-    from scipy.special import chdtrc
+    from vesselid.identify._special import chi2_sf
 
-    return chdtrc(df, np.maximum(x, 0.0))
+    return chi2_sf(np.maximum(x, 0.0), df)
 
 
 def _jdict(j: np.ndarray, df: np.ndarray) -> list[dict[str, float]]:
     return [{"stat": float(j[i]), "df": int(df[i]),
              "pvalue": float(_chi2_sf(j[i], df[i])) if df[i] else float("nan")}
             for i in range(len(df))]
+
+
+def _named(key: str) -> property:
+    """A read-only property returning the instance's configured ``key`` name."""
+    return property(lambda self: self._names[key])
 
 
 class InstrumentalGMM(Estimator):
@@ -125,7 +139,12 @@ class InstrumentalGMM(Estimator):
         Order of the AR noise model of the equation error used to prefilter target,
         regressors and instruments (0: no prefilter).
     alpha : float
-        Level of the C test of the lagged instruments (``auto``).
+        Level of the difference-in-J (C) test of the delayed instruments (``auto``).
+    colour_alpha : float
+        Level of the colour test (``auto``, :func:`vesselid.identify.gmm.colour_test`):
+        does the equation error remember the past estimated sensor noise? The delayed
+        instruments are used only when neither test rejects (Bonferroni: at most
+        ``alpha + colour_alpha`` false rejections on white disturbances).
     refine : int
         Refinement steps after the converged IV_{E{ζ}=0} iteration (each re-simulates
         the instruments from the latest estimate and re-estimates the noise model).
@@ -140,35 +159,25 @@ class InstrumentalGMM(Estimator):
     multi_experiment: ClassVar[tuple[str, ...]] = ("pooled",)
 
     def __init__(self, instruments: str = "simulated", noise_order: int = 0,
-                 alpha: float = 0.01, refine: int = 3, fallback_refine: int = 3,
-                 name: str | None = None, label: str | None = None,
+                 alpha: float = 0.01, colour_alpha: float = 0.05, refine: int = 3,
+                 fallback_refine: int = 3, name: str | None = None, label: str | None = None,
                  short: str | None = None) -> None:
         super().__init__(instruments=instruments, noise_order=noise_order, alpha=alpha,
-                         refine=refine, fallback_refine=fallback_refine)
+                         colour_alpha=colour_alpha, refine=refine,
+                         fallback_refine=fallback_refine)
         self.instruments = instruments
         self.noise_order = noise_order
         self.alpha = alpha
+        self.colour_alpha = colour_alpha
         self.refine = refine
         self.fallback_refine = fallback_refine
-        self._name = name or f"gmm-{instruments}" + (f"-ar{noise_order}" if noise_order else "")
-        self._label = label or self._name
-        self._short = short or self._name
+        name = name or f"gmm-{instruments}" + (f"-ar{noise_order}" if noise_order else "")
+        self._names = {"name": name, "label": label or name, "short": short or name}
 
-    @property
-    def name(self) -> str:  # type: ignore[override]
-        return self._name
-
-    @property
-    def label(self) -> str:  # type: ignore[override]
-        return self._label
-
-    @property
-    def short(self) -> str:  # type: ignore[override]
-        return self._short
-
-    @property
-    def plot_label(self) -> str:  # type: ignore[override]
-        return self._short
+    name = _named("name")  # type: ignore[assignment]
+    label = _named("label")  # type: ignore[assignment]
+    short = _named("short")  # type: ignore[assignment]
+    plot_label = _named("short")  # type: ignore[assignment]
 
     def _validate(self) -> None:
         if self.instruments not in ("simulated", "combined", "auto"):
@@ -178,8 +187,11 @@ class InstrumentalGMM(Estimator):
         if not (isinstance(self.noise_order, int | np.integer) and 0 <= self.noise_order <= 50):
             raise IdentificationError(
                 f"noise_order must be an integer in 0..50, got {self.noise_order!r}")
-        if not 0 < float(self.alpha) < 1:
-            raise IdentificationError(f"alpha must be in (0, 1), got {self.alpha!r}")
+        for key in ("alpha", "colour_alpha"):
+            val = getattr(self, key)
+            if not (isinstance(val, float | int | np.floating | np.integer)
+                    and 0 < float(val) < 1):
+                raise IdentificationError(f"{key} must be in (0, 1), got {val!r}")
         for key in ("refine", "fallback_refine"):
             val = getattr(self, key)
             if not (isinstance(val, int | np.integer) and val >= 1):
@@ -223,13 +235,23 @@ class InstrumentalGMM(Estimator):
     def estimate_parameters(self, data: RegressionData, spec: ModelSpec, *,
                             combine: str = "pooled", theta_start: np.ndarray | None = None,
                             max_iter: int = 100, tol: float = 1e-9,
-                            keep_history: bool = False) -> IterationResult:
+                            keep_history: bool = False,
+                            base: IterationResult | None = None) -> IterationResult:
+        """Estimate every group (module docstring). ``base``: the converged
+        IV_{E{ζ}=0} result of exactly this call's ``data``, ``spec``, ``theta_start``,
+        ``max_iter`` and ``tol`` (pooled), when the caller already has it (the Monte
+        Carlo shares its ``iv-zero-mean`` row); it is not recomputed then. The result
+        keeps it as ``info["base"]``."""
         self._validate()
-        base = estimate(data, spec, "iv-zero-mean", combine="pooled", theta_start=theta_start,
-                        max_iter=max_iter, tol=tol)
+        if base is None:
+            base = estimate(data, spec, "iv-zero-mean", combine="pooled",
+                            theta_start=theta_start, max_iter=max_iter, tol=tol)
         n = data.n_groups
         keep = keep_history and n == 1
-        phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
+        fused = self.instruments == "combined" and not keep
+        # the fused combined path needs no regressor rows (auto's colour test does)
+        phi = None if fused else kernels.regressor_matrix(data.regsig, data.u, data.starts,
+                                                          spec.codes.factors)
         lagged = None
         if self.instruments in ("combined", "auto") and keep:  # explicit rows (fit path)
             lagged = [gmm.lagged_regressors(data, spec, lag) for lag in gmm.LAGS]
@@ -251,7 +273,14 @@ class InstrumentalGMM(Estimator):
                         j_stat=sol.j.copy(), j_df=sol.df.copy())
             used[:] = "combined"
             if self.instruments == "auto":
-                reject = c_p < float(self.alpha)
+                z_sim, _ = gmm.simulated_instruments(data, spec, theta0)
+                w_stat, w_df = gmm.colour_test(data, spec, phi, z_sim)
+                w_p = np.ones((n, spec.n_states))
+                for i in range(spec.n_states):
+                    if w_df[i]:
+                        w_p[:, i] = _chi2_sf(w_stat[:, i], w_df[i])
+                info.update(colour_stat=w_stat, colour_df=w_df, colour_pvalue=w_p.min(axis=1))
+                reject = (c_p < float(self.alpha)) | (w_p.min(axis=1) < float(self.colour_alpha))
                 if reject.any():
                     sub = _subset(data, reject)
                     sol_s, th_s, it_s = self._refine(
@@ -268,7 +297,7 @@ class InstrumentalGMM(Estimator):
             sol.segment_starts = data.starts  # type: ignore[attr-defined]
         reason = np.where(ok, base.reason, np.where(np.isfinite(base.theta).all(axis=1),
                                                     SINGULAR, base.reason)).astype(object)
-        info.update(solution=sol, instrument_set=used)
+        info.update(solution=sol, instrument_set=used, base=base)
         return IterationResult(
             theta=theta, theta_aux=theta.copy(), converged=base.converged & ok,
             iterations=base.iterations + iters, reason=reason, residual=base.residual,
@@ -290,15 +319,26 @@ class InstrumentalGMM(Estimator):
         if "c_pvalue" in info:
             out["hansen_j_combined"] = _jdict(info["j_stat"][0], info["j_df"])
             out["c_test_lagged"] = _jdict(info["c_stat"][0], info["c_df"])
-            p = float(info["c_pvalue"][0])
-            if self.instruments == "auto":
-                out["instrument_choice"] = (
-                    f"simulated only: the delayed measurements are rejected as instruments "
-                    f"(C test p = {p:.3g} < {self.alpha:g}; coloured disturbances?)"
-                    if info["instrument_set"][0] == "simulated" else
-                    f"simulated + delayed measurements: not rejected (C test p = {p:.3g} "
-                    f">= {self.alpha:g})")
+            if "colour_pvalue" in info:
+                out["colour_test"] = _jdict(info["colour_stat"][0], info["colour_df"])
+                out["instrument_choice"] = self._choice_text(info)
         return out
+
+    def _choice_text(self, info: dict[str, Any]) -> str:
+        """The ``auto`` decision in plain words, with both tests' p-values."""
+        p_c, p_w = float(info["c_pvalue"][0]), float(info["colour_pvalue"][0])
+        c_txt = f"C test of the delayed instruments p = {p_c:.3g} (level {self.alpha:g})"
+        w_txt = (f"colour test (does the equation error remember the past sensor noise?) "
+                 f"p = {p_w:.3g} (level {self.colour_alpha:g})")
+        if info["instrument_set"][0] == "simulated":
+            why = [t for t, p, a in ((c_txt, p_c, self.alpha), (w_txt, p_w, self.colour_alpha))
+                   if p < a]
+            return ("simulated only (SRIV): the delayed measurements are not valid "
+                    "instruments on this log — the disturbances look coloured, and using "
+                    "them would bias the estimate; rejected by the " + " and the ".join(why))
+        return ("simulated + delayed measurements: the disturbances look white, so the "
+                "delayed measurements are valid and make the estimate more precise; neither "
+                f"test rejects ({c_txt}; {w_txt})")
 
 
 def _predict(phi: np.ndarray, theta: np.ndarray, spec: ModelSpec, data: RegressionData
@@ -324,17 +364,24 @@ def _subset(data: RegressionData, groups: np.ndarray) -> RegressionData:
     from dataclasses import replace
 
     seg = groups[data.group]
-    rows = _rows(data, groups)
     lengths = np.diff(data.starts)[seg]
     new_id = np.cumsum(groups) - 1
+    # the selected segments' rows, copied slice by slice (a boolean mask over all rows
+    # costs a pass over the whole batch for the few groups a fallback usually takes)
+    pieces = [data.segment(int(s)) for s in np.flatnonzero(seg)]
+
+    def take(arr: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(np.concatenate([arr[p] for p in pieces])
+                                    if pieces else arr[:0])
+
     return replace(
         data,
-        target=np.ascontiguousarray(data.target[rows]),
-        regsig=np.ascontiguousarray(data.regsig[rows]),
-        u=np.ascontiguousarray(data.u[rows]),
+        target=take(data.target),
+        regsig=take(data.regsig),
+        u=take(data.u),
         starts=np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64),
         group=new_id[data.group[seg]].astype(np.int64),
         n_groups=int(groups.sum()),
         experiment_ids=tuple(e for e, k in zip(data.experiment_ids, seg, strict=False) if k),
-        sensor=None if data.sensor is None else data.sensor[rows],
+        sensor=None if data.sensor is None else take(data.sensor),
     )

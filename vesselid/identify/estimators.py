@@ -27,8 +27,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vesselid.errors import IdentificationError
-from vesselid.identify import kernels, linalg
-from vesselid.identify.data import RegressionData, block_starts, duplicate_blocks
+from vesselid.identify import linalg
+from vesselid.identify.backend import kernels
+from vesselid.identify.data import (
+    RegressionData,
+    block_starts,
+    duplicate_blocks,
+)
 from vesselid.model import ModelSpec
 
 __all__ = [
@@ -79,10 +84,7 @@ def _empty_moments(n_seg: int, n_par: int, n: int) -> Moments:
 
 
 def _limits(data: RegressionData, factor: float) -> np.ndarray:
-    scale = np.array(
-        [np.max(np.abs(data.target[data.segment(s)]), initial=0.0) for s in range(data.n_segments)]
-    )
-    return factor * np.maximum(scale, 1.0)
+    return factor * np.maximum(data.target_abs_max, 1.0)
 
 
 def compute_moments(
@@ -235,9 +237,19 @@ def _batched_solve(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 
 def least_squares(data: RegressionData, spec: ModelSpec, *, combine: str = "pooled"):
-    """LS estimate (16) per group. Returns ``(theta (G, P), ok (G,))``."""
-    mom = compute_moments(data, spec)
-    return solve_moments(mom, data, spec, combine=combine)
+    """LS estimate (16) per group. Returns ``(theta (G, P), ok (G,))``.
+
+    Remembered on ``data`` (per ``spec`` and ``combine``; fresh copies are returned): the
+    LS row, the LS start of both refined-IV rows and of ``auto`` in a Monte Carlo chunk
+    are one computation on the same arrays (RegressionData is immutable).
+    """
+    memo = getattr(data, "__dict__", {}).setdefault("_least_squares", {})
+    key = (id(spec), combine)
+    hit = memo.get(key)
+    if hit is None or hit[0] is not spec:
+        mom = compute_moments(data, spec)
+        hit = memo[key] = (spec, *solve_moments(mom, data, spec, combine=combine))
+    return hit[1].copy(), hit[2].copy()
 
 
 @dataclass

@@ -37,20 +37,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vesselid.identify import _ivkernels as ivk
-from vesselid.identify import kernels, linalg
+from vesselid.identify import linalg
+from vesselid.identify._fastkernels import specialised_combined
+from vesselid.identify.backend import ivk, kernels
 from vesselid.identify.data import RegressionData, block_starts
 from vesselid.model import ModelSpec
 
 __all__ = [
+    "COLOUR_WINDOW",
     "INSTRUMENT_SETS",
     "GMMSolution",
     "ar_coefficients",
+    "colour_test",
     "combined_solution",
     "hac_lags",
     "hac_sums",
     "instrument_blocks",
     "lagged_regressors",
+    "noise_instruments",
     "simulated_instruments",
     "solve_equations",
     "state_terms",
@@ -91,13 +95,79 @@ def lagged_regressors(data: RegressionData, spec: ModelSpec, lag: int) -> np.nda
                                     spec.codes.factors)
 
 
+#: Delays (first, last) of the estimated regressor noise averaged into the colour-test
+#: instrument: samples 1..32 before the regressors (``scripts/estimator_study.py``:
+#: the most powerful of the windows 1..8, 1..16, 1..32, 1..64 and of three windows
+#: 1–2, 3–8, 9–32 against Gauss–Markov sensor noise, size kept on white noise).
+COLOUR_WINDOW = (1, 32)
+
+
+def noise_instruments(data: RegressionData, spec: ModelSpec, phi: np.ndarray,
+                      z_sim: np.ndarray, window: tuple[int, int] = COLOUR_WINDOW
+                      ) -> np.ndarray:
+    """Past estimated regressor noise ``η(k) = φ(k) − ζ(k)`` (measured minus simulated
+    regressors, state terms only), averaged over the rows ``k − window[1] … k − window[0]``
+    of the same experiment; NaN where the window reaches the experiment's first row.
+
+    ``η`` is the sensor noise (and the current's response) seen through each regressor,
+    without the signal that the measured regressors carry, so its past is a sensitive
+    probe of whether the equation error ``ε(k)`` remembers the noise: with white
+    disturbances ``E{η(k − j) ε(k)} = 0`` for ``j ≥ 1`` (the same argument that makes the
+    delayed measurements valid instruments); with coloured ones it is not. Returns
+    ``(T, n_endogenous)``.
+    """
+    lo, hi = int(window[0]), int(window[1])
+    if not 1 <= lo <= hi:
+        raise ValueError(f"window must satisfy 1 <= first <= last, got {window!r}")
+    endo = state_terms(spec)
+    eta = np.nan_to_num(phi[:, endo] - z_sim[:, endo])
+    csum = np.zeros((eta.shape[0] + 1, eta.shape[1]))
+    np.cumsum(eta, axis=0, out=csum[1:])
+    rows = np.arange(eta.shape[0])
+    seg_start = np.repeat(data.starts[:-1], np.diff(data.starts))
+    ok = rows - hi >= seg_start + 1  # the segment's first row has no instrument
+    out = np.full_like(eta, np.nan)
+    r = rows[ok]
+    out[ok] = (csum[r - lo + 1] - csum[r - hi]) / (hi - lo + 1)
+    bad = ~np.all(np.isfinite(z_sim[:, endo]), axis=1)
+    if bad.any():  # a diverged simulation invalidates its whole window
+        cb = np.concatenate([[0], np.cumsum(bad)])
+        hit = np.zeros(eta.shape[0], dtype=bool)
+        hit[r] = (cb[r - lo + 1] - cb[r - hi]) > 0
+        out[hit] = np.nan
+    return out
+
+
+def colour_test(data: RegressionData, spec: ModelSpec, phi: np.ndarray, z_sim: np.ndarray,
+                window: tuple[int, int] = COLOUR_WINDOW) -> tuple[np.ndarray, np.ndarray]:
+    """Test of white disturbances aimed at the delayed instruments' validity.
+
+    Per equation: two-step HAC GMM with the simulated instruments ``ζ`` (valid whatever
+    the colour, Lemma 3.1; just identified) plus the past estimated noise of the
+    equation's state terms (:func:`noise_instruments`); Hansen's J (= the difference-in-J
+    statistic of the added columns) is χ²(number of state terms) when those moments
+    hold — the condition under which the delayed measurements are valid instruments.
+
+    Returns ``(stat (G, n), df (n,))``.
+    """
+    blocks = block_starts(spec)
+    endo = state_terms(spec)
+    eta = noise_instruments(data, spec, phi, z_sim, window)
+    col_of = np.cumsum(endo) - 1
+    z_blocks = []
+    for i in range(spec.n_states):
+        cols = np.arange(int(blocks[i]), int(blocks[i + 1]))
+        e_cols = col_of[cols[endo[cols]]]
+        z_blocks.append((np.column_stack([z_sim[:, cols], eta[:, e_cols]]), e_cols.size))
+    sol = solve_equations(data, spec, phi, z_blocks, weight="hac")
+    return sol.c, sol.c_df
+
+
 def simulated_instruments(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
                           limit_factor: float = 1e3) -> tuple[np.ndarray, np.ndarray]:
     """Instruments simulated from ``theta`` (G, P) per group; ``(z (T, P), ok (G,))``."""
     codes = spec.codes
-    scale = np.array([np.max(np.abs(data.target[data.segment(s)]), initial=0.0)
-                      for s in range(data.n_segments)])
-    limit = limit_factor * np.maximum(scale, 1.0)
+    limit = limit_factor * np.maximum(data.target_abs_max, 1.0)
     z, seg_ok = ivk.simulated_regressors(
         data.target, data.u, data.starts, data.group,
         np.ascontiguousarray(np.nan_to_num(theta), dtype=float), codes.factors,
@@ -349,9 +419,7 @@ def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, 
     codes = spec.codes
     ztype, zpar, zeq, bounds, n_lag = _combined_layout(spec)
     n_seg, k_tot, n_par, n = data.n_segments, ztype.size, spec.n_params, spec.n_states
-    scale = np.array([np.max(np.abs(data.target[data.segment(s)]), initial=0.0)
-                      for s in range(n_seg)])
-    limit = limit_factor * np.maximum(scale, 1.0)
+    limit = limit_factor * np.maximum(data.target_abs_max, 1.0)
     bw = hac_lags(int(np.median(np.diff(data.starts)))) if lags is None else int(lags)
     th = np.ascontiguousarray(np.nan_to_num(theta), dtype=float)
     active = np.all(np.isfinite(theta), axis=1)
@@ -367,8 +435,17 @@ def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, 
     dummy = np.zeros((1, 1))
     args = (data.regsig, data.target, data.u, data.starts, data.group, th, active,
             codes.factors, codes.equation, ztype, zpar, zeq, limit)
-    ivk.combined_moments(*args, False, th, dummy, dummy, dummy, dummy, bw,
-                         s_a, s_b, s_m, s_z, s_phi, s_y, count, status, s_hac)
+    special = specialised_combined(n, spec.n_inputs, codes.factors, codes.equation, ztype,
+                                   zpar, zeq)
+
+    parallel = n_seg > 1 and data.target.shape[0] >= ivk.PARALLEL_MIN_SAMPLES
+
+    def run(*rest) -> None:  # the generated kernel when it loads, else the generic one
+        if special is None or not special(parallel, *args, *rest):
+            ivk.combined_moments(*args, *rest)
+
+    run(False, th, dummy, dummy, dummy, dummy, bw, s_a, s_b, s_m, s_z, s_phi, s_y, count,
+        status, s_hac)
     aux_ok = active.copy()
     np.logical_and.at(aux_ok, data.group, status == 0)
     cnt = np.maximum(count, 1).astype(float)
@@ -391,9 +468,9 @@ def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, 
     # mean score per segment, ḡ = (1/n) Σ (z − z̄)(y − ȳ − (φ − φ̄)ᵀθ₁)
     t1s = np.nan_to_num(theta1)[data.group]
     g_seg = (b_c - np.einsum("skp,sp->sk", a_c, t1s)) / cnt[:, None]
-    ivk.combined_moments(*args, True, np.ascontiguousarray(np.nan_to_num(theta1)), mz, mphi,
-                         my, np.ascontiguousarray(g_seg), bw, s_a * 0, s_b * 0, s_m * 0,
-                         s_z * 0, s_phi * 0, s_y * 0, count * 0, status * 0, s_hac)
+    run(True, np.ascontiguousarray(np.nan_to_num(theta1)), mz, mphi, my,
+        np.ascontiguousarray(g_seg), bw, s_a * 0, s_b * 0, s_m * 0, s_z * 0, s_phi * 0,
+        s_y * 0, count * 0, status * 0, s_hac)
     s_g = _group_sum(data, s_hac)
     theta2 = np.full_like(theta1, np.nan)
     j_stat = np.zeros((data.n_groups, n))

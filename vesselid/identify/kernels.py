@@ -24,8 +24,8 @@ whole Monte Carlo study is one pass over the data.
 from __future__ import annotations
 
 import numpy as np
-from numba import prange
 
+from vesselid._threads import run_ranges
 from vesselid.identify._fastkernels import specialised_moments
 from vesselid.regressors import fill_factors_xu, kernel, one_step, regressors
 
@@ -44,23 +44,12 @@ MODE_LAGGED = 2
 PARALLEL_MIN_SAMPLES = 200_000
 
 
-@kernel(parallel=True)
-def _moments_parallel(
-    regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start, block_src,
-    limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status,
+@kernel(nogil=True)
+def _moments_range(
+    lo, hi, regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start,
+    block_src, limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status,
 ):
-    for s in prange(starts.shape[0] - 1):
-        _moments_segment(s, regsig, target, u, starts, group, theta, active, mode, fac, eq,
-                         block_start, block_src, limit, s_zphi, s_zy, s_z, s_phi, s_y, count,
-                         status)
-
-
-@kernel()
-def _moments_serial(
-    regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start, block_src,
-    limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status,
-):
-    for s in range(starts.shape[0] - 1):
+    for s in range(lo, hi):
         _moments_segment(s, regsig, target, u, starts, group, theta, active, mode, fac, eq,
                          block_start, block_src, limit, s_zphi, s_zy, s_z, s_phi, s_y, count,
                          status)
@@ -90,7 +79,8 @@ def moments(
     s_zphi (S,P,P), s_zy (S,P), s_z (S,P), s_phi (S,P), s_y (S,n), count (S,), status (S,)
         Outputs, overwritten for active segments.
 
-    Segments run in parallel threads when there are several and enough samples.
+    Segments run in parallel threads when there are several and enough samples
+    (:func:`vesselid._threads.run_ranges`; one serial kernel either way).
     """
     parallel = starts.shape[0] > 2 and target.shape[0] >= PARALLEL_MIN_SAMPLES
     if mode in (MODE_LS, MODE_SIMULATED):
@@ -100,9 +90,10 @@ def moments(
                 parallel, regsig, target, u, starts, group, theta, active,
                 mode == MODE_SIMULATED, limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status):
             return
-    kernel = _moments_parallel if parallel else _moments_serial
-    kernel(regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start,
-           block_src, limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status)
+    run_ranges(_moments_range, starts.shape[0] - 1,
+               (regsig, target, u, starts, group, theta, active, mode, fac, eq, block_start,
+                block_src, limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status),
+               parallel=parallel)
 
 
 @kernel(inline="always")

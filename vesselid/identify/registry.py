@@ -44,8 +44,8 @@ for _est in (
                     label="two-step GMM, simulated + delayed-measurement instruments",
                     short="GMM"),
     InstrumentalGMM("auto", noise_order=4, refine=1, name="auto",
-                    label="GMM, simulated + delayed instruments unless the C test rejects "
-                          "the delayed ones (then SRIV)",
+                    label="GMM, simulated + delayed instruments unless the C test or the "
+                          "colour test rejects the delayed ones (then SRIV)",
                     short="auto"),
 ):
     register(_est)

@@ -22,12 +22,9 @@ __all__ = ["IngestError", "add_parser", "ingest"]
 
 def add_parser(subparsers: Any) -> None:
     """Register ``vesselid ingest`` (the CLI plugin contract of :mod:`vesselid.cli`)."""
-    p = subparsers.add_parser(
-        "ingest", help="turn raw sensor streams (NMEA 0183, ROS 2 bags, CSV) into a trial log",
-        description="Read NMEA 0183 logs, ROS 2 bags and mapped multi-rate CSV files, align the "
-                    "clocks, resample onto a uniform grid, convert to local NED and body-frame "
-                    "velocities, split experiments at gaps, and write a trial log with a "
-                    "quality report in its metadata.")
+    from vesselid.cli import plugin_parser
+
+    p = plugin_parser(subparsers, "ingest")
     p.add_argument("inputs", nargs="+", metavar="RAW_DIR_OR_FILES")
     p.add_argument("--dt", type=float, required=True, help="sample time of the log (s)")
     p.add_argument("--out", required=True, help="trial.csv or trial.parquet")

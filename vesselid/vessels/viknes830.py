@@ -82,16 +82,11 @@ def system(
 
 
 #: Sea-trial operating points ``(X [N], Y [N], N [N m], side)`` (:mod:`vesselid.seatrial`):
-#: steady turns to both sides; ``v·r < 0`` in every turn, ``|v| ≳ 0.5`` m/s, ``r ≳ 0.1``
+#: steady turns, each to both sides; ``v·r < 0`` in every turn, ``|v| ≳ 0.5`` m/s, ``r ≳ 0.1``
 #: rad/s with the pulses below, inside :attr:`Hull.force_max`.
-TRIAL_LEVELS = (
-    (4000.0, 0.0, 1200.0, +1),
-    (4000.0, 0.0, 1200.0, -1),
-    (4000.0, 300.0, 1400.0, +1),
-    (4000.0, 300.0, 1400.0, -1),
-    (4000.0, -300.0, 1000.0, +1),
-    (4000.0, -300.0, 1000.0, -1),
-)
+TRIAL_LEVELS = tuple((4000.0, y, n, side)
+                     for y, n in ((0.0, 1200.0), (300.0, 1400.0), (-300.0, 1000.0))
+                     for side in (+1, -1))
 #: Pulse amplitudes ``(X, Y, N)`` of the sea trial.
 TRIAL_PERTURBATION = (2000.0, 300.0, 500.0)
 #: Margins of the sea-trial design check (A10/A15).
