@@ -325,7 +325,9 @@ def _prepare(z: Any, phi: Any, y: Any, starts: np.ndarray | None, zero_mean: boo
     phi = np.asarray(phi, dtype=float)
     segs = _segs(starts, phi.shape[0], skip_first)
     arrays = [z, phi] if y is None else [z, phi, np.asarray(y, dtype=float).reshape(-1)]
-    arrays = [_rows(a, segs) for a in arrays]
+    # one experiment: its rows are a view (centring below copies; nothing writes into them)
+    arrays = [np.ascontiguousarray(a[segs[0]]) if len(segs) == 1 else _rows(a, segs)
+              for a in arrays]
     cs = _compact_starts(segs)
     inner = [slice(int(cs[i]), int(cs[i + 1])) for i in range(len(segs))]
     if zero_mean:
