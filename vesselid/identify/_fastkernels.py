@@ -44,7 +44,6 @@ import warnings
 from collections.abc import Callable
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from vesselid.regressors import SALT, factor_source
@@ -470,6 +469,8 @@ def _combined_source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, ztype: np.
 
 def _load(source: str) -> Callable | None:
     """Write (if needed), check and import the generated module; None if not possible."""
+    import numba
+
     digest = hashlib.sha256(
         (source + numba.__version__ + sys.version + SALT).encode()).hexdigest()[:16]
     name = f"{_PREFIX}{digest}"

@@ -27,7 +27,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vesselid.errors import IdentificationError
-from vesselid.identify import kernels, linalg
+from vesselid.identify import linalg
+from vesselid.identify.backend import kernels
 from vesselid.identify.data import (
     RegressionData,
     block_starts,

@@ -37,9 +37,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vesselid.identify import _ivkernels as ivk
-from vesselid.identify import kernels, linalg
+from vesselid.identify import linalg
 from vesselid.identify._fastkernels import specialised_combined
+from vesselid.identify.backend import ivk, kernels
 from vesselid.identify.data import RegressionData, block_starts
 from vesselid.model import ModelSpec
 

@@ -88,16 +88,16 @@ class TestResult:
 
 def _chi2_sf(x: float, df: float) -> float:
     """χ² survival function (= ``scipy.stats.chi2.sf``; scipy.special keeps imports light)."""
-    from scipy.special import chdtrc
+    from vesselid.identify._special import chi2_sf
 
-    return float(chdtrc(df, x)) if df > 0 else float("nan")  # scipy.stats: nan for df = 0
+    return float(chi2_sf(x, df)) if df > 0 else float("nan")  # scipy.stats: nan for df = 0
 
 
 def _norm_ppf(q: float) -> float:
     """Standard normal quantile (= ``scipy.stats.norm.ppf``)."""
-    from scipy.special import ndtri
+    from vesselid.identify._special import norm_ppf
 
-    return ndtri(q)
+    return norm_ppf(q)
 
 
 def _finite(x: float) -> float | None:
