@@ -5,7 +5,8 @@ Targets (2-core machine):
 * simulation of the heave system, 1000 runs × 10⁴ samples ≤ 0.2 s;
 * refined IV (zero-mean instruments) on one heave log of 10⁴ samples ≤ 20 ms;
 * a 3-state, 10⁵-sample, 4-experiment log ≤ 1 s;
-* Table 1 at paper size ≤ 4 s, both tables ≤ 10 s (``bench_reproduce``);
+* Table 1 at paper size ≤ 4 s, both tables ≤ 10 s (``bench_reproduce``); where its
+  Monte Carlo time goes, per estimator, wall and CPU, with iterations (``estimators``);
 * Heave-v0 ≥ 100k raw steps/s, Manoeuvring3DOF-v0 ≥ 30k, vector 1024 envs ≥ 1M;
 * the sea-trial pipeline at 6 × 2·10⁴ samples ≤ 10 s;
 * whole processes, alternated against ``python -c "import numpy, pandas"`` (``startup``,
@@ -165,6 +166,7 @@ BENCHES: dict[str, Callable[[], Callable | None]] = {
     "heave_env": lambda: _load("bench_envs_heave", "bench_heave"),
     "manoeuvring_env": lambda: _load("bench_envs", "bench_manoeuvring"),
     "reproduce": lambda: _load("bench_reproduce", "bench_reproduce"),
+    "estimators": lambda: _load("bench_reproduce", "bench_estimators"),
     "seatrial": lambda: _load("bench_seatrial", "bench_seatrial"),
     "seatrial_cli": lambda: _load("bench_seatrial", "bench_seatrial_cli"),
     "startup": lambda: _load("bench_startup", "bench_startup"),

@@ -80,6 +80,71 @@ def bench_reproduce(repeats: int = 3, baseline_runs: int = 1000) -> dict:
     }
 
 
+def bench_estimators(runs: int = 1000, repeats: int = 3) -> dict:
+    """Where Table 1's Monte Carlo time goes (in-process, after warm-up): per chunk as
+    :func:`vesselid.montecarlo.run_chunk` does it — one simulation, then every estimator
+    in the table's order, ``auto`` handed the chunk's converged IV_{E{ζ}=0} result — wall
+    and CPU seconds (all threads) per part, summed over the chunks; medians over
+    ``repeats``; median and mean iterations per estimator. ``python scripts/bench.py
+    --only estimators``."""
+    import numpy as np
+
+    from vesselid import montecarlo as mc
+    from vesselid.reproduce import table_study, warm_up
+
+    warm_up(tables=(1,), runs=runs)
+    study = table_study(1, runs=runs)
+    system = study.build_system()
+    spec = study.identification_spec(system)
+    parts = ("simulate", *study.methods)
+    walls: dict[str, list[float]] = {k: [] for k in parts}
+    cpus: dict[str, list[float]] = {k: [] for k in parts}
+    iters: dict[str, list[np.ndarray]] = {m: [] for m in study.methods}
+    for rep in range(repeats):
+        wall = dict.fromkeys(parts, 0.0)
+        cpu = dict.fromkeys(parts, 0.0)
+        for a, b in mc._chunks(runs, mc.DEFAULT_BATCH_SIZE):
+            t, c = time.perf_counter(), time.process_time()
+            sim = system.simulate(int(study.samples), run_seeds=study.run_seeds(a, b))
+            data = mc.regression_data(study, system, spec, sim)
+            wall["simulate"] += time.perf_counter() - t
+            cpu["simulate"] += time.process_time() - c
+            base = None
+            for m in study.methods:
+                est = mc.get_estimator(m)
+                t, c = time.perf_counter(), time.process_time()
+                if base is not None and mc._is_zero_mean_iv(est, study):
+                    res = base
+                else:
+                    opt = {"base": base} if base is not None and mc._takes_base(est, study) else {}
+                    res = est.estimate_parameters(data, spec, combine=study.combine,
+                                                  max_iter=int(study.max_iter),
+                                                  tol=float(study.tol), **opt)
+                wall[m] += time.perf_counter() - t
+                cpu[m] += time.process_time() - c
+                if mc._is_zero_mean_iv(est, study):
+                    base = res
+                elif base is None and mc._takes_base(est, study):
+                    base = res.info.get("base")
+                if rep == 0:
+                    iters[m].append(np.asarray(res.iterations))
+        for k in parts:
+            walls[k].append(wall[k])
+            cpus[k].append(cpu[k])
+    out: dict = {"runs": runs, "samples": int(study.samples)}
+    for k in parts:
+        out[f"{k}_wall_s"] = statistics.median(walls[k])
+        out[f"{k}_cpu_s"] = statistics.median(cpus[k])
+    for m in study.methods:
+        it = np.concatenate(iters[m])
+        out[f"{m}_iterations_median"] = float(np.median(it))
+        out[f"{m}_iterations_mean"] = float(np.mean(it))
+    out["total_wall_s"] = sum(out[f"{k}_wall_s"] for k in parts)
+    out["total_cpu_s"] = sum(out[f"{k}_cpu_s"] for k in parts)
+    out["load_average"] = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
+    return out
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description="benchmark vesselid reproduce")
     p.add_argument("--repeats", type=int, default=3)

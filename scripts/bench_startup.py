@@ -151,9 +151,13 @@ def _fresh_venv(tmp: Path) -> Path:
     wheels = tmp / "wheels"
     env = user_env()
     env.pop("PYTHONPATH", None)  # else pip may take a checkout on the path for an install
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps",
-                    "--no-build-isolation", "-w", str(wheels), str(ROOT)], check=True,
-                   capture_output=True, env=env)
+    build = [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(wheels),
+             str(ROOT)]
+    try:  # the installed setuptools, if recent enough (fast, offline)
+        subprocess.run([*build, "--no-build-isolation"], check=True, capture_output=True,
+                       env=env)
+    except subprocess.CalledProcessError:  # else an isolated build (fetches setuptools)
+        subprocess.run(build, check=True, capture_output=True, env=env)
     venv = tmp / "venv"
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
     py = venv / "bin" / "python"

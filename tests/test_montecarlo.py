@@ -165,3 +165,31 @@ def test_specialised_kernel_bit_identical_to_generic(monkeypatch, use_sim):
     for name in ("zphi", "zy", "z", "phi", "y", "count", "status"):
         np.testing.assert_array_equal(getattr(fast, name), getattr(slow, name), err_msg=name)
     assert fast.status[2] == (1 if use_sim else 0)
+
+
+def test_auto_shares_the_chunks_iv_zero_mean_result_bit_for_bit(monkeypatch):
+    """``auto`` starts from the converged IV_{E{ζ}=0} iteration: a chunk computes it once
+    and hands it over (or takes auto's when auto comes first); the frame is identical
+    to estimating every method on its own."""
+    import vesselid.montecarlo as mc
+    from vesselid.montecarlo import Study, run_study
+
+    calls = []
+    real = mc.get_estimator("auto").estimate_parameters
+
+    def spy(*args, **kwargs):
+        calls.append("base" in kwargs)
+        return real(*args, **kwargs)
+
+    for methods in (("ls", "iv-zero-mean", "auto"), ("auto", "iv-zero-mean")):
+        study = Study(system="heave", options={"pulse_design": "alternating"},
+                      methods=methods, runs=6, samples=1500, seed=3)
+        with monkeypatch.context() as m:
+            m.setattr(mc.get_estimator("auto"), "estimate_parameters", spy)
+            shared = run_study(study, progress=False, batch_size=3)
+        with monkeypatch.context() as m:
+            m.setattr(mc, "_takes_base", lambda *a: False)
+            m.setattr(mc, "_is_zero_mean_iv", lambda *a: False)
+            alone = run_study(study, progress=False, batch_size=3)
+        pd.testing.assert_frame_equal(shared, alone, check_exact=True)
+    assert calls == [True, True, False, False]  # handed over when iv-zero-mean came first

@@ -55,8 +55,8 @@ def test_design_violation_is_reported():
 
 def test_data_margins_in_identification_diagnostics():
     """The static-offset design keeps every modulus state away from zero (A10/A15); the
-    planned default's acceleration/stopping runs reverse the surge speed, and the
-    diagnostics flag exactly those (the check can fail)."""
+    planned default's ahead/astern thruster tests (and acceleration/stopping runs) reverse
+    the surge speed, and the diagnostics flag those (the check can fail)."""
     log = simulate_sea_trial(6, 3000, seed=1, design="static-offset")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -68,10 +68,10 @@ def test_data_margins_in_identification_diagnostics():
         warnings.simplefilter("ignore")
         res = identify(planned, method="ls")
     d = res.diagnostics["design"]
-    stopping = [i for i, p in enumerate(planned.metadata["design"]["programme"])
-                if p.startswith("acceleration/stopping")]
-    assert stopping
-    assert not d[(d["state"] == "u") & d["experiment"].isin(stopping)]["ok"].any()
+    reversing = [i for i, p in enumerate(planned.metadata["design"]["programme"])
+                 if "acceleration/stopping" in p or "/-" in p]  # X=2/-2: ahead/astern
+    assert reversing
+    assert not d[(d["state"] == "u") & d["experiment"].isin(reversing)]["ok"].any()
 
 
 def test_noise_free_recovers_theta0():

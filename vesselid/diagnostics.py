@@ -260,7 +260,12 @@ def free_run_ratio(data: RegressionData, spec: ModelSpec,
     all_ok : bool
         False if some experiment diverged.
     """
-    from vesselid.simulate import simulate_states
+    from vesselid.identify.backend import numpy_active
+
+    if numpy_active():  # a small log estimated without compiled kernels
+        from vesselid.identify._npkernels import simulate_states
+    else:
+        from vesselid.simulate import simulate_states
 
     num = np.zeros(spec.n_states)
     den = np.zeros(spec.n_states)

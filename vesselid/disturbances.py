@@ -23,6 +23,7 @@ __all__ = [
     "GaussMarkov",
     "Gaussian",
     "Process",
+    "Sampled",
     "Sum",
     "TruncatedGaussian",
     "Uniform",
@@ -31,17 +32,29 @@ __all__ = [
 ]
 
 
-class Process:
-    """A stationary scalar random process sampled on a uniform grid."""
+class Sampled:
+    """Drawn on a uniform grid from the caller's generator and recorded in log metadata:
+    a disturbance :class:`Process` or an input design (:class:`vesselid.signals.InputSignal`)."""
 
     def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:  # pragma: no cover
         """Draw ``n`` consecutive samples."""
         raise NotImplementedError
 
-    @property
-    def mean(self) -> float:  # pragma: no cover
-        """Stationary mean."""
+    def to_dict(self) -> dict[str, Any]:  # pragma: no cover
+        """``kind`` and parameters (``process_from_dict`` / ``input_from_dict`` rebuild it)."""
         raise NotImplementedError
+
+
+class Process(Sampled):
+    """A stationary scalar random process sampled on a uniform grid."""
+
+    #: The stationary mean of most processes (their field; others override :attr:`mean`).
+    mean_: float
+
+    @property
+    def mean(self) -> float:
+        """Stationary mean."""
+        return self.mean_
 
     @property
     def std(self) -> float:  # pragma: no cover
@@ -55,10 +68,8 @@ class Process:
 
     @property
     def is_zero(self) -> bool:
-        return False
-
-    def to_dict(self) -> dict[str, Any]:  # pragma: no cover
-        raise NotImplementedError
+        """Identically zero: zero mean and no spread."""
+        return self.mean == 0 and self.std == 0
 
     def __add__(self, other: Process) -> Process:
         if not isinstance(other, Process):
@@ -94,10 +105,6 @@ class Zero(Process):
     def bound(self) -> float:
         return 0.0
 
-    @property
-    def is_zero(self) -> bool:
-        return True
-
     def to_dict(self) -> dict[str, Any]:
         return {"kind": "zero"}
 
@@ -126,10 +133,6 @@ class Constant(Process):
     def bound(self) -> float:
         return 0.0
 
-    @property
-    def is_zero(self) -> bool:
-        return self.value == 0.0
-
     def to_dict(self) -> dict[str, Any]:
         return {"kind": "constant", "value": self.value}
 
@@ -157,20 +160,12 @@ class Gaussian(Process):
         return rng.normal(self.mean_, self.std_, n) if self.std_ > 0 else np.full(n, self.mean_)
 
     @property
-    def mean(self) -> float:
-        return self.mean_
-
-    @property
     def std(self) -> float:
         return self.std_
 
     @property
     def bound(self) -> float:
         return 0.0 if self.std_ == 0 else math.inf
-
-    @property
-    def is_zero(self) -> bool:
-        return self.mean_ == 0 and self.std_ == 0
 
     def to_dict(self) -> dict[str, Any]:
         return {"kind": "gaussian", "mean": self.mean_, "std": self.std_}
@@ -191,20 +186,12 @@ class Uniform(Process):
         return rng.uniform(self.mean_ - self.half_width, self.mean_ + self.half_width, n)
 
     @property
-    def mean(self) -> float:
-        return self.mean_
-
-    @property
     def std(self) -> float:
         return self.half_width / math.sqrt(3.0)
 
     @property
     def bound(self) -> float:
         return self.half_width
-
-    @property
-    def is_zero(self) -> bool:
-        return self.mean_ == 0 and self.half_width == 0
 
     def to_dict(self) -> dict[str, Any]:
         return {"kind": "uniform", "mean": self.mean_, "half_width": self.half_width}
@@ -237,16 +224,16 @@ class TruncatedGaussian(Process):
         return self._dist.rvs(size=n, random_state=rng)
 
     @property
-    def mean(self) -> float:
-        return self.mean_
-
-    @property
     def std(self) -> float:
         return float(self._dist.std())
 
     @property
     def bound(self) -> float:
         return self.bound_
+
+    @property
+    def is_zero(self) -> bool:
+        return False  # std > 0 (and its std needs scipy.stats)
 
     def to_dict(self) -> dict[str, Any]:
         return {"kind": "truncated_gaussian", "mean": self.mean_, "std": self.sigma,
@@ -311,10 +298,6 @@ class GaussMarkov(Process):
         return g + self.mean_
 
     @property
-    def mean(self) -> float:
-        return self.mean_
-
-    @property
     def std(self) -> float:
         if not math.isfinite(self.bound_) or self.std_ == 0:
             return self.std_
@@ -326,10 +309,6 @@ class GaussMarkov(Process):
     @property
     def bound(self) -> float:
         return self.bound_
-
-    @property
-    def is_zero(self) -> bool:
-        return self.mean_ == 0 and self.std_ == 0
 
     def to_dict(self) -> dict[str, Any]:
         d = {"kind": "gauss_markov", "mean": self.mean_, "std": self.std_,

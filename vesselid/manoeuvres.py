@@ -397,7 +397,10 @@ class ThrusterSquare(Manoeuvre):
     with both thrusters; a multistep input in the sense of system-identification flight
     tests): ``Y = ±sway`` reversed every ``hold_y`` seconds and ``N = ±moment`` every
     ``hold_n`` seconds; with ``low < 1`` the engine setting alternates between
-    ``thrust`` and ``low · thrust`` every ``hold_x`` seconds (surge excited too).
+    ``thrust`` and ``low · thrust`` every ``hold_x`` seconds (surge excited too; with
+    ``low < 0`` ahead and astern, so ``u`` sweeps through zero and both signs — the
+    range that separates the constant sway/yaw couplings from the ``u``-proportional
+    ones, e.g. ``r: v`` from ``r: u·v``).
     Incommensurate periods visit all four sign combinations of ``(Y, N)``, so ``v``
     and ``r`` take both equal and opposite signs in the transients (rudder manoeuvres
     give ``v·r < 0`` in every steady turn), which separates ``v·|r|``, ``r·|v|`` and ``r·|r|``."""
@@ -425,8 +428,11 @@ class ThrusterSquare(Manoeuvre):
             k += step
 
     def label(self) -> str:
+        x = f"X={self.thrust:g}"
+        if self.low != 1.0:
+            x += f"/{self.low * self.thrust:g} every {self.hold_x:g} s"
         return (f"thruster square Y=±{self.sway:g}/{self.hold_y:g} s, "
-                f"N=±{self.moment:g}/{self.hold_n:g} s, X={self.thrust:g}")
+                f"N=±{self.moment:g}/{self.hold_n:g} s, {x}")
 
 
 #: Manoeuvre classes by name (``kind``).

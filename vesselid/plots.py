@@ -44,6 +44,16 @@ def _params(df: pd.DataFrame) -> list[tuple[str, str]]:
     return [(str(e), str(t)) for e, t in pairs.itertuples(index=False, name=None)]
 
 
+def _panels(df: pd.DataFrame,
+            methods: Sequence[str] | None) -> tuple[list[str], list[tuple[str, str]], bool]:
+    """The estimators and (equation, term) parameters of Monte Carlo results, and whether
+    there are several equations (then panel titles name the equation)."""
+    if df.empty:
+        raise VesselidError("no results to plot")
+    params = _params(df)
+    return _methods(df, methods), params, len({eq for eq, _ in params}) > 1
+
+
 def _methods(df: pd.DataFrame, methods: Sequence[str] | None) -> list[str]:
     present = [str(m) for m in pd.unique(df["method"].to_numpy(object))]
     if methods is None:
@@ -98,11 +108,7 @@ def error_histograms(
         (the true value), a solid line each estimator's mean; each panel states
         mean ± sd and the number of runs (and of non-finite or out-of-range runs).
     """
-    if df.empty:
-        raise VesselidError("no results to plot")
-    meths = _methods(df, methods)
-    params = _params(df)
-    multi = len({eq for eq, _ in params}) > 1
+    meths, params, multi = _panels(df, methods)
     n_r, n_c = len(meths), len(params)
     width, height = figsize or (3.0 * n_c + 0.8, 1.3 * n_r + 0.8)
     # One axes per parameter with the estimators stacked as rows inside it, fixed
@@ -200,11 +206,7 @@ def estimate_vs_truth(
     ``max_points`` of them, with the mean ± sd as an error bar; the horizontal
     line is θ0.
     """
-    if df.empty:
-        raise VesselidError("no results to plot")
-    meths = _methods(df, methods)
-    params = _params(df)
-    multi = len({eq for eq, _ in params}) > 1
+    meths, params, multi = _panels(df, methods)
     fig = _figure(3.0 * len(params) + 0.5, 3.2)
     axes = np.atleast_1d(fig.subplots(1, len(params), squeeze=False)[0])
     rng = np.random.default_rng(seed)

@@ -27,7 +27,8 @@ Layout (plain numpy, no compilation):
     ``F = [s, |s|, 1]`` for arrays of signal vectors; ``W`` with ``Φ W = Φᵀθ`` for a
     precomputed Φ matrix (one BLAS product; equal to ``predict`` up to rounding).
 
-Compiled helpers (numba, ``inline="always"``; call them from compiled code):
+Compiled helpers (numba, ``inline="always"``; call them from compiled code; numba is
+imported on first access to one of them or to :func:`kernel`, not with this module):
 
 ``fill_factors(s, f)`` / ``fill_factors_xu(x, u, f)``
     Fill the factor vector ``f = [s, |s|, 1]`` from a signal vector, or from the
@@ -55,13 +56,13 @@ every path (numpy, compiled, generated) gives bit-identical results.
 from __future__ import annotations
 
 import hashlib
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numba import njit
 
 from vesselid.errors import ModelSpecError
 
@@ -71,17 +72,17 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "SALT",
     "RegressorLayout",
-    "advance",
+    "advance",  # noqa: F822 - bound on first access (module __getattr__)
     "encode_terms",
     "evaluate",
     "factor_source",
     "factor_vector",
-    "fill_factors",
-    "fill_factors_xu",
+    "fill_factors",  # noqa: F822 - bound on first access (module __getattr__)
+    "fill_factors_xu",  # noqa: F822 - bound on first access (module __getattr__)
     "kernel",
-    "one_step",
+    "one_step",  # noqa: F822 - bound on first access (module __getattr__)
     "predict",
-    "regressors",
+    "regressors",  # noqa: F822 - bound on first access (module __getattr__)
     "weights_matrix",
 ]
 
@@ -230,30 +231,38 @@ def _salt() -> str:
 #: Digest of this module's source; part of every :func:`kernel` cache key.
 SALT = _salt()
 
-try:
-    from numba.core.caching import FunctionCache as _FunctionCache
+def _salted_cache_class() -> type | None:
+    """numba's function cache with :data:`SALT` in the index key (None if numba moved it)."""
+    try:
+        from numba.core.caching import FunctionCache
+    except ImportError:  # pragma: no cover - numba reorganised its internals
+        return None
 
-    class _SaltedCache(_FunctionCache):
+    class _SaltedCache(FunctionCache):
         """numba's function cache with :data:`SALT` in the index key."""
 
         def _index_key(self, sig, codegen):
             return (*super()._index_key(sig, codegen), SALT)
 
-except ImportError:  # pragma: no cover - numba reorganised its internals
-    _SaltedCache = None  # type: ignore[assignment,misc]
+    return _SaltedCache
 
 
 def kernel(**options: Any) -> Callable[[Callable], Any]:
     """``numba.njit(cache=True, **options)`` with the cache key salted by :data:`SALT`.
 
     Use it for every cached kernel that (inlines or) calls the helpers of this module.
+    numba is imported when a function is decorated, not when this module is imported.
     """
 
     def decorate(fn: Callable) -> Any:
+        from numba import njit
+
+        _compiled_helpers()  # the helpers a kernel inlines, as module globals
         dispatcher = njit(**options)(fn)
-        if _SaltedCache is not None:
+        salted = _salted_cache_class()
+        if salted is not None:
             try:
-                dispatcher._cache = _SaltedCache(dispatcher.py_func)
+                dispatcher._cache = salted(dispatcher.py_func)
                 return dispatcher
             except Exception:  # pragma: no cover - fall back to numba's plain cache
                 pass
@@ -264,8 +273,35 @@ def kernel(**options: Any) -> Callable[[Callable], Any]:
 
 
 # --------------------------------------------------------------- compiled helpers
-@njit(inline="always")
-def fill_factors(s, f):
+# Plain-Python bodies; :func:`_compiled_helpers` binds ``numba.njit(inline="always")``
+# versions to the public names (module globals, where numba resolves them) on first use,
+# so that importing this module (the layout, the numpy evaluation) does not import numba.
+_HELPERS = ("fill_factors", "fill_factors_xu", "regressors", "one_step", "advance")
+_HELPERS_LOCK = threading.Lock()
+
+
+def _compiled_helpers() -> None:
+    g = globals()
+    if "advance" in g:
+        return
+    with _HELPERS_LOCK:
+        if "advance" in g:
+            return
+        from numba import njit
+
+        for name in _HELPERS:
+            fn = g[f"_py_{name}"]
+            g[name] = njit(inline="always")(fn)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _HELPERS:
+        _compiled_helpers()
+        return globals()[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _py_fill_factors(s, f):
     """Fill ``f = [s, |s|, 1]`` (``len(f) == 2 len(s) + 1``)."""
     n_s = s.shape[0]
     for i in range(n_s):
@@ -274,8 +310,7 @@ def fill_factors(s, f):
     f[2 * n_s] = 1.0
 
 
-@njit(inline="always")
-def fill_factors_xu(x, u, f):
+def _py_fill_factors_xu(x, u, f):
     """Fill ``f = [x, u, |x|, |u|, 1]``, the factor vector of ``s = [x; u]``."""
     n = x.shape[0]
     m = u.shape[0]
@@ -289,24 +324,20 @@ def fill_factors_xu(x, u, f):
     f[2 * n_s] = 1.0
 
 
-@njit(inline="always")
-def regressors(factors, f, phi):
+def _py_regressors(factors, f, phi):
     """``phi[p] = f[factors[p, 0]] * f[factors[p, 1]]``: Φ from a filled factor vector."""
     for p in range(factors.shape[0]):
         phi[p] = f[factors[p, 0]] * f[factors[p, 1]]
 
 
-@njit(inline="always")
-def one_step(equation, theta, phi, out):
+def _py_one_step(equation, theta, phi, out):
     """The one-step update ``out[equation[p]] += θ_p φ_p`` (term order)."""
     for p in range(equation.shape[0]):
         out[equation[p]] += theta[p] * phi[p]
 
 
-@njit(inline="always")
-def advance(factors, equation, theta, s, f, phi, out):
+def _py_advance(factors, equation, theta, s, f, phi, out):
     """``out += Φᵀ(s) θ`` per equation, with the caller's work buffers ``f``, ``phi``."""
-    fill_factors(s, f)
-    regressors(factors, f, phi)
-    one_step(equation, theta, phi, out)
-
+    fill_factors(s, f)  # noqa: F821 - the compiled helper (a module global once bound)
+    regressors(factors, f, phi)  # noqa: F821
+    one_step(equation, theta, phi, out)  # noqa: F821

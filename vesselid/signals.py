@@ -13,7 +13,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from vesselid.disturbances import Process, process_from_dict
+from vesselid.disturbances import Process, Sampled, process_from_dict
 from vesselid.errors import VesselidError
 
 __all__ = [
@@ -27,14 +27,8 @@ __all__ = [
 ]
 
 
-class InputSignal:
+class InputSignal(Sampled):
     """A known input design ``u(k)``."""
-
-    def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:  # pragma: no cover
-        raise NotImplementedError
-
-    def to_dict(self) -> dict[str, Any]:  # pragma: no cover
-        raise NotImplementedError
 
 
 def _check_range(name: str, lo: float, hi: float) -> tuple[float, float]:

@@ -160,8 +160,14 @@ class _Stacked:
         return np.zeros(self.n_segments, dtype=np.int64)
 
     @property
-    def target(self) -> np.ndarray:  # _limits reads max |target| per segment
+    def target(self) -> np.ndarray:
         return self.target_max
+
+    @property
+    def target_abs_max(self) -> np.ndarray:  # _limits reads max |target| per segment
+        from vesselid.identify.data import segment_abs_max
+
+        return segment_abs_max(self.target_max, np.arange(self.n_segments + 1))
 
     def segment(self, s: int) -> slice:
         return slice(s, s + 1)

@@ -267,7 +267,8 @@ class System:
         v = stack["q"] * signs
         x0 = np.array([float(self.x0.get(s, 0.0)) for s in self.spec.states])
         x = simulate_states(self.spec, stack["u"], x0=x0, v=v, w=stack["w"], limit=limit)
-        y = x + stack["e"]
+        y = stack["e"]  # y = e + x in the sensor-noise buffer (not kept): no new array
+        y += x
         idx = [self.spec.states.index(s) for s in self.sensor_states]
         y2 = stack["q"][:, :, idx] + stack["e2"]
         return Simulation(

@@ -41,7 +41,8 @@ from vesselid.errors import (
     RankDeficientError,
     WeakInstrumentWarning,
 )
-from vesselid.identify import kernels, linalg
+from vesselid.identify import backend, linalg
+from vesselid.identify.backend import kernels
 from vesselid.identify.data import RegressionData, block_starts, from_log
 from vesselid.identify.estimators import (
     COMBINE_MODES,
@@ -158,6 +159,7 @@ class Estimator:
                 f"method {self.name!r} supports combine={list(self.multi_experiment)}, "
                 f"not {combine!r}")
 
+    @backend.chooses_kernels
     def fit(
         self,
         log: Any,

@@ -37,7 +37,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from vesselid.errors import IdentificationError
-from vesselid.identify import gmm, kernels
+from vesselid.identify import gmm
+from vesselid.identify.backend import kernels
 from vesselid.identify.base import EquationDesign, Estimator
 from vesselid.identify.data import RegressionData
 from vesselid.identify.estimators import IterationResult, estimate
@@ -110,9 +111,9 @@ class LaggedIV(Estimator):
 def _chi2_sf(x: Any, df: Any) -> Any:
     """``scipy.stats.chi2.sf(x, df)`` for ``df > 0`` (identical values, ``x < 0`` -> 1)
     through ``scipy.special``: importing ``scipy.stats`` costs ~1 s of process start."""
-    from scipy.special import chdtrc
+    from vesselid.identify._special import chi2_sf
 
-    return chdtrc(df, np.maximum(x, 0.0))
+    return chi2_sf(np.maximum(x, 0.0), df)
 
 
 def _jdict(j: np.ndarray, df: np.ndarray) -> list[dict[str, float]]:

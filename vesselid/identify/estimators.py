@@ -27,7 +27,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vesselid.errors import IdentificationError
-from vesselid.identify import kernels, linalg
+from vesselid.identify import linalg
+from vesselid.identify.backend import kernels
 from vesselid.identify.data import (
     RegressionData,
     block_starts,
@@ -236,9 +237,19 @@ def _batched_solve(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 
 def least_squares(data: RegressionData, spec: ModelSpec, *, combine: str = "pooled"):
-    """LS estimate (16) per group. Returns ``(theta (G, P), ok (G,))``."""
-    mom = compute_moments(data, spec)
-    return solve_moments(mom, data, spec, combine=combine)
+    """LS estimate (16) per group. Returns ``(theta (G, P), ok (G,))``.
+
+    Remembered on ``data`` (per ``spec`` and ``combine``; fresh copies are returned): the
+    LS row, the LS start of both refined-IV rows and of ``auto`` in a Monte Carlo chunk
+    are one computation on the same arrays (RegressionData is immutable).
+    """
+    memo = getattr(data, "__dict__", {}).setdefault("_least_squares", {})
+    key = (id(spec), combine)
+    hit = memo.get(key)
+    if hit is None or hit[0] is not spec:
+        mom = compute_moments(data, spec)
+        hit = memo[key] = (spec, *solve_moments(mom, data, spec, combine=combine))
+    return hit[1].copy(), hit[2].copy()
 
 
 @dataclass

@@ -10,7 +10,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from vesselid.identify import kernels
+from vesselid.identify.backend import kernels
 from vesselid.identify.base import Estimator, _UserInstrumentMixin, square_designs
 from vesselid.identify.data import RegressionData
 from vesselid.identify.estimators import IterationResult, estimate

@@ -69,9 +69,9 @@ class IdentificationResult:
         """Normal-approximation confidence intervals."""
         if not 0 < level < 1:
             raise IdentificationError("level must be in (0, 1)")
-        from scipy.special import ndtri  # = stats.norm.ppf, without importing scipy.stats
+        from vesselid.identify._special import norm_ppf  # = stats.norm.ppf, light imports
 
-        q = ndtri(0.5 + level / 2)
+        q = norm_ppf(0.5 + level / 2)
         return pd.DataFrame({"lower": self.params - q * self.std_errors,
                              "upper": self.params + q * self.std_errors})
 

@@ -1,0 +1,226 @@
+"""The no-JIT estimation path (``vesselid.identify._npkernels``) against the compiled one.
+
+Recursions and regressor rows must be bit-identical (same operations in the same order);
+sums are numpy reductions, equal to the compiled sequential sums to rounding (tolerances
+a few hundred ulps of the summed magnitudes, far below any statistical error). A whole
+``identify`` agrees to rounding for every registered method, and a small log in a fresh
+process is estimated without importing numba.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pytest
+
+from vesselid.identify import _ivkernels as ivk
+from vesselid.identify import _npkernels as npk
+from vesselid.identify import backend
+from vesselid.identify import kernels as jk
+from vesselid.identify.data import block_starts, from_log
+from vesselid.systems import get_system
+
+EPS = np.finfo(float).eps
+
+
+def _data(system: str, samples: int, runs: int, seed: int):
+    sim = get_system(system).simulate(samples, n_runs=runs, seed=seed)
+    log = sim.to_log()
+    data, spec = from_log(log, None)
+    return data, spec
+
+
+def _close(a, b, scale):
+    """Equal to rounding: within 500 ulps of the magnitude of the summed terms."""
+    np.testing.assert_allclose(a, b, rtol=0, atol=500 * EPS * scale)
+
+
+@pytest.mark.parametrize("system", ["heave", "cybership2"])
+def test_rows_and_recursions_bit_identical(system):
+    data, spec = _data(system, 600, 3, 1)
+    c = spec.codes
+    np.testing.assert_array_equal(
+        npk.regressor_matrix(data.regsig, data.u, data.starts, c.factors),
+        jk.regressor_matrix(data.regsig, data.u, data.starts, c.factors))
+    theta = np.tile(spec.theta0_vector(), (data.n_groups, 1))
+    limit = np.full(data.n_segments, 1e6)
+    z1, ok1 = npk.simulated_regressors(data.target, data.u, data.starts, data.group, theta,
+                                       c.factors, c.equation, limit)
+    z2, ok2 = ivk.simulated_regressors(data.target, data.u, data.starts, data.group, theta,
+                                       c.factors, c.equation, limit)
+    np.testing.assert_array_equal(z1, z2)
+    np.testing.assert_array_equal(ok1, ok2)
+    a = npk.instrument_matrix(data.target, data.u, data.starts, theta[0], c.factors,
+                              c.equation, spec.n_states)
+    b = jk.instrument_matrix(data.target, data.u, data.starts, theta[0], c.factors,
+                             c.equation, spec.n_states)
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_divergence_matches():
+    """A diverging auxiliary model: same flags, same NaN segments, same free run."""
+    data, spec = _data("heave", 400, 2, 2)
+    c = spec.codes
+    th = spec.theta0_vector()
+    th[:2] = [1.2, 0.5]  # w(k+1) = 1.2 w + 0.5 w|w| + τ: explodes
+    theta = np.tile(th, (data.n_groups, 1))
+    limit = np.full(data.n_segments, 50.0)
+    z1, ok1 = npk.simulated_regressors(data.target, data.u, data.starts, data.group, theta,
+                                       c.factors, c.equation, limit)
+    z2, ok2 = ivk.simulated_regressors(data.target, data.u, data.starts, data.group, theta,
+                                       c.factors, c.equation, limit)
+    assert not ok2.any()
+    np.testing.assert_array_equal(ok1, ok2)
+    np.testing.assert_array_equal(z1, z2)
+    from vesselid.simulate import simulate_states
+
+    sl = data.segment(0)
+    x1 = npk.simulate_states(spec, data.u[sl], theta=theta[0], x0=data.target[sl][0],
+                             limit=1e3)
+    x2 = simulate_states(spec, data.u[sl], theta=theta[0], x0=data.target[sl][0], limit=1e3,
+                         raise_on_divergence=False)
+    assert np.isnan(x2[-1]).all()
+    np.testing.assert_array_equal(x1, x2)
+
+
+@pytest.mark.parametrize("system", ["heave", "cybership2"])
+@pytest.mark.parametrize("mode", [jk.MODE_LS, jk.MODE_SIMULATED, jk.MODE_LAGGED])
+def test_moments_equal_to_rounding(system, mode):
+    data, spec = _data(system, 500, 3, 3)
+    c = spec.codes
+    n_seg, p, n = data.n_segments, spec.n_params, spec.n_states
+    theta = np.tile(spec.theta0_vector(), (data.n_groups, 1))
+    blocks = block_starts(spec)
+    src = np.arange(n, dtype=np.int64)
+    outs = []
+    for mod in (npk, jk):
+        o = [np.zeros((n_seg, p, p)), np.zeros((n_seg, p)), np.zeros((n_seg, p)),
+             np.zeros((n_seg, p)), np.zeros((n_seg, n)), np.zeros(n_seg, dtype=np.int64),
+             np.zeros(n_seg, dtype=np.int64)]
+        mod.moments(data.regsig, data.target, data.u, data.starts, data.group, theta,
+                    np.ones(data.n_groups, dtype=bool), mode, c.factors, c.equation, blocks,
+                    src, np.full(n_seg, 1e6), *o)
+        outs.append(o)
+    scale = data.regsig.shape[0] * (1.0 + np.max(np.abs(data.target))) ** 4
+    for a, b in zip(*outs, strict=True):
+        _close(a, b, scale)
+    np.testing.assert_array_equal(outs[0][-1], outs[1][-1])  # status
+    np.testing.assert_array_equal(outs[0][-2], outs[1][-2])  # count
+
+
+def test_matrix_helpers_equal_to_rounding():
+    rng = np.random.default_rng(4)
+    x = rng.normal(size=(300, 4))
+    starts = np.array([0, 120, 300], dtype=np.int64)
+    valid = rng.random(300) > 0.1
+    _close(npk.center(x, starts, valid), ivk.center(x, starts, valid), 300 * 5)
+    coef = rng.normal(size=(2, 3))
+    (a1, v1), (a2, v2) = (npk.ar_filter(x, starts, valid, coef),
+                          ivk.ar_filter(x, starts, valid, coef))
+    np.testing.assert_array_equal(v1, v2)
+    np.testing.assert_array_equal(a1, a2)  # same products in the same order
+    for r1, r2 in zip(npk.autocov(x[:, 0], starts, valid, 3),
+                      ivk.autocov(x[:, 0], starts, valid, 3), strict=True):
+        _close(r1, r2, 300 * 25)
+    y = x[:, 3].copy()
+    for r1, r2 in zip(npk.cross_sums(x[:, :2].copy(), x[:, 2:3].copy(), y, starts, valid),
+                      ivk.cross_sums(x[:, :2].copy(), x[:, 2:3].copy(), y, starts, valid),
+                      strict=True):
+        _close(r1, r2, 300 * 25)
+
+
+def test_identify_both_paths_agree_to_rounding(monkeypatch):
+    """Every method: the numpy path (forced) and the compiled path agree to rounding."""
+    from vesselid.identify import ESTIMATORS, identify
+
+    log = get_system("heave").simulate(3000, n_runs=2, seed=9).to_log()
+    for method in ESTIMATORS:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            monkeypatch.setenv("VESSELID_KERNELS", "numpy")
+            a = identify(log, method=method)
+            monkeypatch.setenv("VESSELID_KERNELS", "compiled")
+            b = identify(log, method=method)
+        np.testing.assert_allclose(a.params.to_numpy(), b.params.to_numpy(), rtol=1e-9,
+                                   err_msg=method)
+        np.testing.assert_allclose(a.std_errors.to_numpy(), b.std_errors.to_numpy(),
+                                   rtol=1e-8, err_msg=method)
+        la, lb = _leaves(a.to_dict()), _leaves(b.to_dict())  # p-values, CIs, fits, ...
+        assert la.keys() == lb.keys()
+        for key, va in la.items():
+            vb = lb[key]
+            if isinstance(va, float) and isinstance(vb, float):
+                # the fixed-point residual is the last step's relative change (≈ 1e-10): its
+                # own digits are rounding, so only its size is compared
+                tol = 1e-8 if key.endswith("fixed_point_residual") else 1e-12
+                assert va == pytest.approx(vb, rel=1e-7, abs=tol), (method, key)
+            else:
+                assert va == vb, (method, key)
+
+
+def _leaves(obj, prefix=""):
+    """Flat ``{path: value}`` of a nested dict/list (ints and strings exact)."""
+    if isinstance(obj, dict):
+        return {k: v for key, val in obj.items()
+                for k, v in _leaves(val, f"{prefix}/{key}").items()}
+    if isinstance(obj, list | tuple):
+        return {k: v for i, val in enumerate(obj)
+                for k, v in _leaves(val, f"{prefix}/{i}").items()}
+    return {prefix: float(obj) if isinstance(obj, float) else obj}
+
+
+def test_choice_rules(monkeypatch):
+    monkeypatch.delenv("VESSELID_KERNELS", raising=False)
+    # numba is loaded in this test process: the compiled kernels are faster at every size
+    assert not backend.use_numpy(100, 3)
+    monkeypatch.setenv("VESSELID_KERNELS", "numpy")
+    assert backend.use_numpy(10**9, 3)
+    with backend.choose(10, 3) as numpy_path:
+        assert numpy_path and backend.numpy_active()
+        assert backend.kernels.moments is npk.moments
+        assert backend.ivk.combined_moments is ivk.combined_moments  # no numpy version
+    assert not backend.numpy_active()
+    monkeypatch.setenv("VESSELID_KERNELS", "compiled")
+    assert not backend.use_numpy(10, 3)
+
+
+def test_small_log_identify_process_loads_no_numba(tmp_path):
+    """``vesselid identify`` on a 10⁴-sample heave log: no numba in the process."""
+    log = tmp_path / "heave.csv"
+    get_system("heave").simulate(10_000, seed=0).to_log().save(log)
+    code = ("import sys\nfrom vesselid.cli import main\n"
+            f"rc = main(['identify', {str(log)!r}])\n"
+            "print('NUMBA', 'numba' in sys.modules, rc)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, env={**__import__("os").environ,
+                                          "VESSELID_KERNELS": "auto"})
+    assert "NUMBA False 0" in out.stdout
+
+
+def test_special_functions_match_scipy(monkeypatch):
+    from scipy.special import chdtrc, ndtri
+
+    from vesselid.identify import _special
+
+    for q in _special._NDTRI:  # the table holds scipy's exact values
+        assert _special.norm_ppf(q) == ndtri(q)
+    assert _special.norm_ppf(0.5 + 0.95 / 2) == ndtri(0.975)
+    assert _special.norm_ppf(0.8) == ndtri(0.8)  # not tabulated: scipy
+    x = np.concatenate([[0.0, 1e-8, 0.3, 1.0, 3.47, 20.0, 644.7, 2000.0, np.inf, np.nan],
+                        np.linspace(0.01, 80, 37)])
+    monkeypatch.setenv("VESSELID_KERNELS", "numpy")
+    with backend.choose(10, 1):
+        for df in (1, 2, 3, 4, 5, 8, 13, 20, 41):
+            got = _special.chi2_sf(x, df)
+            want = chdtrc(df, x)
+            np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+            ok = np.isfinite(want) & (want > 1e-300)
+            np.testing.assert_allclose(got[ok], want[ok], rtol=1e-12, atol=0, err_msg=str(df))
+            np.testing.assert_array_less(got[~np.isnan(want) & ~ok], 1e-290)
+        assert _special.chi2_sf(3.47, 4) == pytest.approx(chdtrc(4, 3.47), rel=1e-13)
+        assert _special.chi2_sf(1.0, 2.5) == chdtrc(2.5, 1.0)  # non-integer df: scipy
+    assert _special.chi2_sf(3.47, 4) == chdtrc(4, 3.47)  # compiled path: scipy itself
