@@ -149,7 +149,7 @@ def figure(tables: dict[str, pd.DataFrame], path: Path) -> None:
         ax.errorbar(x, sub["mean"], yerr=sub["sd"], fmt="o", capsize=3)
         ax.axhline(0.0, color="0.5", lw=0.8)
         ax.set_xticks(x, sub.index, rotation=45, ha="right", fontsize=7)
-        ax.set_title(name, fontsize=7)
+        ax.set_title(name.replace(", ", ",\n", 1), fontsize=7)
         ax.tick_params(labelsize=7)
     axes[0].set_ylabel("(n̂ − n0)/n0: mean ± sd", fontsize=8)
     fig.savefig(path, dpi=80)
