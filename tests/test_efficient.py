@@ -195,3 +195,47 @@ def test_noise_instruments_window_and_boundaries():
         np.testing.assert_allclose(eta[k], raw[k - 5:k - 1].mean(axis=0), rtol=1e-12)
     with pytest.raises(ValueError, match="window"):
         gmm.noise_instruments(data, spec, phi, z, window=(0, 3))
+
+
+def _noise_instruments_numpy(data, spec, phi, z_sim, window):
+    """The numpy formulation the compiled colour-test instrument must equal bit for bit."""
+    from vesselid.identify.gmm import state_terms
+
+    lo, hi = window
+    endo = state_terms(spec)
+    eta = np.nan_to_num(phi[:, endo] - z_sim[:, endo])
+    csum = np.zeros((eta.shape[0] + 1, eta.shape[1]))
+    np.cumsum(eta, axis=0, out=csum[1:])
+    rows = np.arange(eta.shape[0])
+    seg_start = np.repeat(data.starts[:-1], np.diff(data.starts))
+    ok = rows - hi >= seg_start + 1
+    out = np.full_like(eta, np.nan)
+    r = rows[ok]
+    out[ok] = (csum[r - lo + 1] - csum[r - hi]) / (hi - lo + 1)
+    bad = ~np.all(np.isfinite(z_sim[:, endo]), axis=1)
+    if bad.any():
+        cb = np.concatenate([[0], np.cumsum(bad)])
+        hit = np.zeros(eta.shape[0], dtype=bool)
+        hit[r] = (cb[r - lo + 1] - cb[r - hi]) > 0
+        out[hit] = np.nan
+    return out
+
+
+def test_noise_instruments_compiled_equal_numpy_formulation():
+    from vesselid.identify import gmm, kernels
+
+    system = heave(pulse_design="alternating")
+    spec = system.identification_spec(aggregate=False)
+    sim = system.simulate(300, n_runs=3, seed=5)
+    data = from_arrays(spec, sim.y, sim.u)
+    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
+    theta = np.tile(spec.theta0_vector(), (3, 1))
+    z_sim, _ = gmm.simulated_instruments(data, spec, theta)
+    z_sim[400, 0] = np.nan  # a diverged simulation inside run 1's windows
+    z_sim[50, 1] = np.inf   # η clipped to the largest float
+    phi[700, 1] = -np.inf
+    for window in (gmm.COLOUR_WINDOW, (1, 1), (3, 8)):
+        got = gmm.noise_instruments(data, spec, phi, z_sim, window)
+        ref = _noise_instruments_numpy(data, spec, phi, z_sim, window)
+        np.testing.assert_array_equal(got, ref)
+        assert np.isfinite(got).any() and np.isnan(got).any()

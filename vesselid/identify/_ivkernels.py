@@ -10,6 +10,10 @@ All work on concatenated rows with experiment boundaries ``starts`` and a row ma
   all ``p + 1`` inputs are valid).
 * :func:`autocov` — residual autocovariances per segment (Yule–Walker).
 * :func:`cross_sums` — ``Σ z φᵀ``, ``Σ z y``, ``Σ z zᵀ`` per segment.
+* :func:`noise_window` — windowed means of the estimated regressor noise (colour test).
+* :func:`design_scan`, :func:`design_centre` — the explicit-matrix design of one equation
+  (instruments, regressors, target) masked, scaled and centred without the stacked
+  temporaries.
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ from vesselid.regressors import fill_factors_xu, kernel, one_step, regressors
 PARALLEL_MIN_SAMPLES = 200_000
 
 __all__ = ["ar_filter", "autocov", "center", "combined_moments", "cross_sums",
-           "simulated_regressors"]
+           "design_centre", "design_scan", "noise_window", "simulated_regressors"]
 
 
 @kernel()
@@ -334,3 +338,136 @@ def _combined_range(lo, hi, regsig, target, u, starts, group, theta, active, fac
                 s_phi[s, p] = l_phi[p]
             for i in range(n):
                 s_y[s, i] = l_y[i]
+
+
+_FLOAT_MAX = float(np.finfo(np.float64).max)
+
+
+@njit(cache=True)
+def _finite_or_clip(x):
+    """``np.nan_to_num`` of one value: NaN → 0, ±inf → ± the largest finite float."""
+    if np.isnan(x):
+        return 0.0
+    if np.isinf(x):
+        return _FLOAT_MAX if x > 0 else -_FLOAT_MAX
+    return x
+
+
+@njit(cache=True)
+def noise_window(phi, z, cols, starts, lo, hi):
+    """:func:`vesselid.identify.gmm.noise_instruments` in one compiled pass, the same
+    operations in the same order (bit-identical): ``η = nan_to_num(φ − ζ)`` on the
+    columns ``cols``, its running sum over all rows (``np.cumsum``'s sequential order),
+    the window means ``(S[k − lo + 1] − S[k − hi]) / (hi − lo + 1)`` where the window lies
+    inside the row's experiment after its first row, NaN elsewhere and wherever a
+    non-finite simulated column falls in the window."""
+    t_len = phi.shape[0]
+    n_c = cols.shape[0]
+    csum = np.zeros((t_len + 1, n_c))
+    bad = np.zeros(t_len + 1, dtype=np.int64)
+    for k in range(t_len):
+        fin = True
+        for j in range(n_c):
+            c = cols[j]
+            zk = z[k, c]
+            if not np.isfinite(zk):
+                fin = False
+            eta = _finite_or_clip(phi[k, c] - zk)
+            csum[k + 1, j] = eta if k == 0 else csum[k, j] + eta
+        bad[k + 1] = bad[k] + (0 if fin else 1)
+    out = np.full((t_len, n_c), np.nan)
+    width = hi - lo + 1.0
+    for s in range(starts.shape[0] - 1):
+        a = starts[s]
+        for r in range(a + 1 + hi, starts[s + 1]):
+            if bad[r - lo + 1] - bad[r - hi] > 0:
+                continue
+            for j in range(n_c):
+                out[r, j] = (csum[r - lo + 1, j] - csum[r - hi, j]) / width
+    return out
+
+
+@njit(cache=True)
+def design_scan(z, phi, p_lo, p_hi, target, i_eq):
+    """Rows where every column of ``[z, phi[:, p_lo:p_hi], target[:, i_eq]]`` is finite,
+    and each column's ``max |·|`` over those rows (0 if none): what
+    :func:`vesselid.identify.gmm.solve_equations` computes on the stacked matrix."""
+    t_len, k_z = z.shape
+    n_col = k_z + (p_hi - p_lo) + 1
+    valid = np.zeros(t_len, dtype=np.bool_)
+    cmax = np.zeros(n_col)
+    for k in range(t_len):
+        ok = np.isfinite(target[k, i_eq])
+        for j in range(k_z):
+            if not np.isfinite(z[k, j]):
+                ok = False
+        for p in range(p_lo, p_hi):
+            if not np.isfinite(phi[k, p]):
+                ok = False
+        if not ok:
+            continue
+        valid[k] = True
+        for j in range(k_z):
+            v = abs(z[k, j])
+            if v > cmax[j]:
+                cmax[j] = v
+        for p in range(p_lo, p_hi):
+            v = abs(phi[k, p])
+            if v > cmax[k_z + p - p_lo]:
+                cmax[k_z + p - p_lo] = v
+        v = abs(target[k, i_eq])
+        if v > cmax[n_col - 1]:
+            cmax[n_col - 1] = v
+    return valid, cmax
+
+
+@njit(cache=True)
+def design_centre(z, phi, p_lo, p_hi, target, i_eq, valid, col, starts):
+    """The masked (invalid rows 0), column-scaled (``col``) and per-segment centred
+    ``z``, ``phi[:, p_lo:p_hi]`` and ``target[:, i_eq]`` as three contiguous arrays: the
+    same operations in the same order as stacking, ``np.where``, scaling and
+    :func:`center` (bit-identical)."""
+    t_len, k_z = z.shape
+    n_p = p_hi - p_lo
+    last = k_z + n_p
+    zz = np.empty((t_len, k_z))
+    pp = np.empty((t_len, n_p))
+    yy = np.empty(t_len)
+    for k in range(t_len):
+        if valid[k]:
+            for j in range(k_z):
+                zz[k, j] = z[k, j] * col[j]
+            for p in range(n_p):
+                pp[k, p] = phi[k, p_lo + p] * col[k_z + p]
+            yy[k] = target[k, i_eq] * col[last]
+        else:
+            for j in range(k_z):
+                zz[k, j] = 0.0 * col[j]
+            for p in range(n_p):
+                pp[k, p] = 0.0 * col[k_z + p]
+            yy[k] = 0.0 * col[last]
+    mean = np.empty(last + 1)
+    for s in range(starts.shape[0] - 1):
+        a = starts[s]
+        b = starts[s + 1]
+        cnt = 0
+        mean[:] = 0.0
+        for k in range(a, b):
+            if valid[k]:
+                cnt += 1
+                for j in range(k_z):
+                    mean[j] += zz[k, j]
+                for p in range(n_p):
+                    mean[k_z + p] += pp[k, p]
+                mean[last] += yy[k]
+        if cnt == 0:
+            continue
+        for j in range(last + 1):
+            mean[j] /= cnt
+        for k in range(a, b):
+            for j in range(k_z):
+                zz[k, j] = zz[k, j] - mean[j]
+            for p in range(n_p):
+                pp[k, p] = pp[k, p] - mean[k_z + p]
+            yy[k] = yy[k] - mean[last]
+    return zz, pp, yy

@@ -119,23 +119,13 @@ def noise_instruments(data: RegressionData, spec: ModelSpec, phi: np.ndarray,
     lo, hi = int(window[0]), int(window[1])
     if not 1 <= lo <= hi:
         raise ValueError(f"window must satisfy 1 <= first <= last, got {window!r}")
-    endo = state_terms(spec)
-    eta = np.nan_to_num(phi[:, endo] - z_sim[:, endo])
-    csum = np.zeros((eta.shape[0] + 1, eta.shape[1]))
-    np.cumsum(eta, axis=0, out=csum[1:])
-    rows = np.arange(eta.shape[0])
-    seg_start = np.repeat(data.starts[:-1], np.diff(data.starts))
-    ok = rows - hi >= seg_start + 1  # the segment's first row has no instrument
-    out = np.full_like(eta, np.nan)
-    r = rows[ok]
-    out[ok] = (csum[r - lo + 1] - csum[r - hi]) / (hi - lo + 1)
-    bad = ~np.all(np.isfinite(z_sim[:, endo]), axis=1)
-    if bad.any():  # a diverged simulation invalidates its whole window
-        cb = np.concatenate([[0], np.cumsum(bad)])
-        hit = np.zeros(eta.shape[0], dtype=bool)
-        hit[r] = (cb[r - lo + 1] - cb[r - hi]) > 0
-        out[hit] = np.nan
-    return out
+    cols = np.flatnonzero(state_terms(spec)).astype(np.int64)
+    # one compiled pass (bit-identical to the numpy formulation: running sum of
+    # η = nan_to_num(φ − ζ) over all rows, window differences; rows whose window leaves
+    # the experiment or meets a diverged simulation are NaN)
+    return ivk.noise_window(np.ascontiguousarray(phi, dtype=float),
+                            np.ascontiguousarray(z_sim, dtype=float), cols,
+                            np.asarray(data.starts, dtype=np.int64), lo, hi)
 
 
 def colour_test(data: RegressionData, spec: ModelSpec, phi: np.ndarray, z_sim: np.ndarray,
@@ -330,21 +320,25 @@ def solve_equations(
         z, n_lag = z_blocks[i]
         p_i = sl.stop - sl.start
         k_i = z.shape[1]
-        stack = np.column_stack([z, phi[:, sl], data.target[:, i]])
-        valid = np.all(np.isfinite(stack), axis=1)
-        stack = np.where(valid[:, None], stack, 0.0)
-        # equilibrate every column exactly (powers of two, undone below): the weights and
-        # Hansen's J are fourth-order sums (Σ (zε)²) that over/underflow for signals of
-        # 1e±50 in raw units; filtering and centring commute with the scaling
-        col = linalg.pow2_scale(np.max(np.abs(stack), axis=0, initial=0.0))
-        stack = stack * col
-        if ar is not None:
+        # rows with every column finite; equilibrate every column exactly (powers of two,
+        # undone below): the weights and Hansen's J are fourth-order sums (Σ (zε)²) that
+        # over/underflow for signals of 1e±50 in raw units; filtering and centring
+        # commute with the scaling
+        zc = np.ascontiguousarray(z, dtype=float)
+        valid, cmax = ivk.design_scan(zc, phi, sl.start, sl.stop, data.target, i)
+        col = linalg.pow2_scale(cmax)
+        if ar is None:  # masked, scaled and centred in two compiled passes (bit-identical)
+            zz, pp, yy = ivk.design_centre(zc, phi, sl.start, sl.stop, data.target, i,
+                                           valid, col, data.starts)
+        else:
+            stack = np.column_stack([z, phi[:, sl], data.target[:, i]])
+            stack = np.where(valid[:, None], stack, 0.0) * col
             stack, valid = ivk.ar_filter(stack, data.starts, valid,
                                          np.ascontiguousarray(ar[data.group, i]))
-        stack = ivk.center(stack, data.starts, valid)
-        zz = np.ascontiguousarray(stack[:, :k_i])
-        pp = np.ascontiguousarray(stack[:, k_i:k_i + p_i])
-        yy = np.ascontiguousarray(stack[:, -1])
+            stack = ivk.center(stack, data.starts, valid)
+            zz = np.ascontiguousarray(stack[:, :k_i])
+            pp = np.ascontiguousarray(stack[:, k_i:k_i + p_i])
+            yy = np.ascontiguousarray(stack[:, -1])
         a_s, b_s, m_s, _ = ivk.cross_sums(zz, pp, yy, data.starts, valid)
         a, b, m = _group_sum(data, a_s), _group_sum(data, b_s), _group_sum(data, m_s)
         w = None
