@@ -23,7 +23,8 @@ import warnings
 import numpy as np
 
 
-def run(seeds: int, methods: list[str], sea_state: str | None, out: str | None) -> dict:
+def run(seeds: int, methods: list[str], sea_state: str | None, out: str | None,
+        first: int = 0, wave_filter: float = 0.9) -> dict:
     from vesselid.identify import identify
     from vesselid.seatrial import planned_sea_trial_design, simulate_sea_trial
     from vesselid.waves import SEA_STATES, WaveConditions
@@ -36,17 +37,24 @@ def run(seeds: int, methods: list[str], sea_state: str | None, out: str | None) 
     pred = design.plan.table()
     rec: dict = {"index": [f"{e}: {t}" for e, t in pred.index],
                  "theta0": pred["theta0"].tolist(), "predicted_se": pred["predicted_se"].tolist(),
-                 "sea_state": sea_state, "seeds": [], **{m: {"params": [], "se": []}
-                                                          for m in methods}}
-    for s in range(seeds):
+                 "sea_state": sea_state, "wave_filter": wave_filter if waves else 0.0,
+                 "seeds": [], **{m: {"params": [], "se": [], "instruments": []}
+                                 for m in methods}}
+    for s in range(first, first + seeds):
         t = time.perf_counter()
         log = simulate_sea_trial(6, 20000, seed=s, design=design, waves=waves)
+        if waves is not None and wave_filter:
+            # what `vesselid sea-trial` does with waves (default --wave-filter 0.9)
+            from vesselid.wavefilter import WaveFilter, wave_filter_log
+
+            log = wave_filter_log(log, WaveFilter.for_waves(waves, 0.1, fraction=wave_filter))
         for m in methods:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 r = identify(log, log.spec, method=m)
             rec[m]["params"].append(r.params.to_numpy().tolist())
             rec[m]["se"].append(r.std_errors.to_numpy().tolist())
+            rec[m]["instruments"].append(str(r.diagnostics.get("instruments", "")))
         rec["seeds"].append(s)
         print(f"seed {s}: {time.perf_counter() - t:.1f} s", flush=True)
         if out:
@@ -106,14 +114,28 @@ def main() -> None:
     ap.add_argument("--methods", default="auto,iv-zero-mean")
     ap.add_argument("--sea-state", default=None)
     ap.add_argument("--out", default=None, help="JSON of per-seed estimates (rewritten per seed)")
-    ap.add_argument("--summarize", default=None, help="only summarise this JSON")
+    ap.add_argument("--first-seed", type=int, default=0, help="seeds first..first+seeds-1")
+    ap.add_argument("--wave-filter", type=float, default=0.9,
+                    help="low-pass fraction with --sea-state (as sea-trial; 0 = off)")
+    ap.add_argument("--summarize", default=None,
+                    help="only summarise these JSONs (comma-separated; seeds concatenated)")
     ap.add_argument("--figure", default=None)
     a = ap.parse_args()
     if a.summarize:
-        with open(a.summarize) as f:
-            rec = json.load(f)
+        rec = None
+        for path in a.summarize.split(","):
+            with open(path) as f:
+                part = json.load(f)
+            if rec is None:
+                rec = part
+                continue
+            rec["seeds"] += part["seeds"]
+            for m in [k for k in part if isinstance(part[k], dict) and "params" in part[k]]:
+                for key, val in part[m].items():
+                    rec[m].setdefault(key, []).extend(val)
     else:
-        rec = run(a.seeds, a.methods.split(","), a.sea_state, a.out)
+        rec = run(a.seeds, a.methods.split(","), a.sea_state, a.out, a.first_seed,
+                  a.wave_filter)
     summarize(rec, a.figure)
 
 

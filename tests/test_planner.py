@@ -21,8 +21,10 @@ from vesselid.planner import (
     Information,
     PlannerError,
     _ar1_meat,
+    _fir,
     _stationary_meat,
     plan_trial,
+    sriv_prefilter,
 )
 
 
@@ -42,6 +44,22 @@ def test_ar1_and_stationary_meat_match_the_double_sum():
     acov = np.array([2.0, -0.7, 0.3, 0.1])
     want = _brute(y, lambda t: acov[t] if t < acov.size else 0.0)
     np.testing.assert_allclose(_stationary_meat(y, acov), want, rtol=1e-9, atol=1e-9)
+
+
+def test_sriv_prefilter_moments():
+    """The SRIV meat identity Σ_k ζ_f(k) ε_f(k) = Σ_j ε(j) y(j) with y the adjoint
+    (reversed) filter of ζ_f, and Yule–Walker of an AR(1) autocovariance gives
+    C(q) = 1 − a q⁻¹ exactly (what gmm.ar_coefficients estimates)."""
+    rng = np.random.default_rng(2)
+    z = rng.standard_normal((50, 3))
+    eps = rng.standard_normal((50, 1))
+    c = np.array([1.0, 0.6, -0.2, 0.1])
+    zf, ef = _fir(z, c), _fir(eps, c)
+    assert np.all(zf[:3] == 0)  # rows before the filter order are dropped
+    np.testing.assert_allclose(zf.T @ ef, _fir(zf, c, reverse=True).T @ eps, rtol=1e-12)
+    a = 0.9
+    got = sriv_prefilter(np.array([a ** np.arange(5)]))[0]
+    np.testing.assert_allclose(got, [1.0, -a, 0.0, 0.0, 0.0], atol=1e-12)
 
 
 def test_centring_of_summed_blocks_is_exact():

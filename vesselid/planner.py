@@ -23,6 +23,17 @@ of ``ε`` implied by the disturbance levels (linearised):
 * waves (:mod:`vesselid.waves`): coloured sensor noise ``ξ``, ``ε ≈ ξ(k) − ξ(k−1)``,
   stationary autocovariance from the wave spectrum and response (FFT).
 
+``identify``'s default estimator ``auto`` rejects the delayed measured instruments on a
+sea trial (the Gauss–Markov forces colour the equation error; its C and colour tests)
+and falls back to SRIV: the same simulated, per-experiment centred instruments with
+target, regressors and instruments prefiltered by the Yule–Walker AR(4) model ``C(q)``
+of the equation error (Young 1976; Söderström & Stoica 1989, ch. 8). Its prediction
+(``estimator="auto"``, the default) pools the equation-error autocovariance above over
+the experiments (lags 0–4), fits ``C`` as :func:`vesselid.identify.gmm.ar_coefficients`
+does, and evaluates ``A_f = Σ ζ_f φ_fᵀ`` and the meat with the instruments
+``y(j) = Σ_m c_m ζ_f(j+m)`` (``Σ ζ_f ε_f = Σ ε y``), so every disturbance term above
+applies unchanged.
+
 With the load of the mean wind as a known input (``wind_input="anemometer"``, the
 sea-trial default) only the gusts and direction changes remain. Without it
 (``"none"``) the mean wind load is a deterministic, heading-dependent force that the
@@ -197,23 +208,29 @@ class Information:
     Per equation, over the instruments augmented with a constant (uncentred):
     ``A = Σ ζ_a φ_aᵀ``, ``S = ΣΣ ζ_a ζ_aᵀ E[εε]`` (the meat) and the wind moment
     ``b = Σ ζ_a ε_wind``; ``n`` samples. :meth:`centred` applies the per-experiment
-    centring of the zero-mean instruments (A7) exactly.
+    centring of the zero-mean instruments (A7) exactly. ``acov`` ``(n_states, L + 1)``:
+    ``Σ_k E[ε_i(k) ε_i(k+τ)]``, τ = 0..L, of the equation errors (summed over samples;
+    pooled over experiments it gives the AR noise model of SRIV, :func:`sriv_prefilter`).
     """
 
     a: list[np.ndarray]
     s: list[np.ndarray]
     b: list[np.ndarray]
     n: int
+    acov: np.ndarray | None = None
 
     def __add__(self, other: Information) -> Information:
+        acov = (None if self.acov is None or other.acov is None
+                else self.acov + other.acov)
         return Information([x + y for x, y in zip(self.a, other.a, strict=True)],
                            [x + y for x, y in zip(self.s, other.s, strict=True)],
                            [x + y for x, y in zip(self.b, other.b, strict=True)],
-                           self.n + other.n)
+                           self.n + other.n, acov)
 
     def scaled(self, f: float) -> Information:
         return Information([f * x for x in self.a], [f * x for x in self.s],
-                           [f * x for x in self.b], round(f * self.n))
+                           [f * x for x in self.b], round(f * self.n),
+                           None if self.acov is None else f * self.acov)
 
     def centred(self) -> Centred:
         """Moments of the instruments centred over this experiment."""
@@ -307,6 +324,36 @@ def _jacobian(factors: np.ndarray, eq: np.ndarray, theta: np.ndarray, sig: np.nd
     return jac
 
 
+def _fir(x: np.ndarray, c: np.ndarray, reverse: bool = False) -> np.ndarray:
+    """``Σ_m c_m x(k−m)`` (rows before ``p`` zero, as the estimator drops them) or, with
+    ``reverse``, the adjoint ``Σ_m c_m x(k+m)``."""
+    c = np.asarray(c, float)
+    out = np.zeros_like(x)
+    n = x.shape[0]
+    for m, cm in enumerate(c):
+        if reverse:
+            out[: n - m] += cm * x[m:]
+        else:
+            out[c.size - 1:] += cm * x[c.size - 1 - m: n - m]
+    return out
+
+
+def sriv_prefilter(acov: np.ndarray) -> list[np.ndarray]:
+    """Yule–Walker AR(L) noise models ``C_i(q) = 1 + c₁q⁻¹ + …`` from the pooled
+    equation-error autocovariances ``acov`` ``(n_states, L + 1)`` — what
+    :func:`vesselid.identify.gmm.ar_coefficients` estimates from the residuals."""
+    out = []
+    for r in np.asarray(acov, float):
+        p = r.size - 1
+        idx = np.abs(np.subtract.outer(np.arange(p), np.arange(p)))
+        try:
+            coef = np.linalg.solve(r[idx], r[1:])
+        except np.linalg.LinAlgError:
+            coef = np.zeros(p)
+        out.append(np.concatenate([[1.0], -coef]))
+    return out
+
+
 def design_information(
     forces: np.ndarray,
     vessel: _Vessel,
@@ -314,6 +361,9 @@ def design_information(
     *,
     warmup: int = 0,
     x0: Sequence[float] | None = None,
+    prefilter: Sequence[np.ndarray] | None = None,
+    acov_lags: int = 4,
+    acov_only: bool = False,
 ) -> Information:
     """Information of one experiment with the given forces (first ``warmup`` discarded).
 
@@ -329,6 +379,17 @@ def design_information(
         Leading samples simulated and discarded (the experiment starts after them).
     x0 : sequence of float, optional
         Initial state of the simulation (default zeros).
+    prefilter : sequence of ndarray, optional
+        Per equation the FIR noise-model prefilter ``C(q) = 1 + c₁q⁻¹ + … + c_pq⁻ᵖ`` of
+        SRIV (Young's refined IV, the ``auto`` estimator's choice under coloured
+        disturbances): target, regressors and instruments are filtered by ``C(q)``, so
+        ``θ̂ − θ ≈ A_f⁻¹ Σ ζ_f(k) ε_f(k)`` with ``A_f = Σ ζ_f φ_fᵀ`` and
+        ``Σ_k ζ_f(k) ε_f(k) = Σ_j ε(j) y(j)``, ``y(j) = Σ_m c_m ζ_f(j+m)``: the meat is
+        that of the unfiltered error with the instruments ``y``.
+    acov_lags : int
+        Lags of the equation-error autocovariance recorded in ``Information.acov``.
+    acov_only : bool
+        Only the autocovariance (no moments): the first pass of SRIV.
 
     Returns
     -------
@@ -392,6 +453,25 @@ def design_information(
         east = dt * np.concatenate([[0.0], np.cumsum(sn * xs[:, 0] + c * xs[:, 1])[:-1]])
         g = velocity_lines(levels.waves, dt, psi, north, east)
         wave_lines = g[:, 1:, :] - g[:, :-1, :]  # ε(row k) ≈ ξ(k+1) − ξ(k)
+    # autocovariance of ε_i summed over samples (lags 0..L), for the SRIV noise model
+    acov = np.zeros((spec.n_states, int(acov_lags) + 1))
+    lags = np.arange(acov.shape[1])
+    m_k = n_k - 1
+    for i in range(spec.n_states):
+        acov[i, 0] += float(np.sum(sig[i] + (jac[:, i, :] ** 2) @ sig))
+        if lags.size > 1:
+            acov[i, 1] -= float(np.sum(jac[1:, i, i])) * sig[i]
+        acov[i] += w_var[i] * m_k * a_fn**lags
+        if wind_on:
+            acov[i] += levels.gust_std**2 * float(np.sum(g_speed[:, i] ** 2)) * a_g**lags
+            acov[i] += (levels.wind_direction_std**2 * float(np.sum(g_dir[:, i] ** 2))
+                        * a_d**lags)
+        if wave_lines is not None:
+            wl = wave_lines[i]
+            for lag in lags:
+                acov[i, lag] += 0.5 * float(np.sum((wl[:m_k - lag] * wl[lag:].conj()).real))
+    if acov_only:
+        return Information([], [], [], n_k, acov)
     a_list, s_list, b_list = [], [], []
     start = 0
     ar_cache: dict[Any, np.ndarray] = {}
@@ -401,7 +481,12 @@ def design_information(
         # (:meth:`Information.centred`), so blocks of one experiment can be added first
         z = np.hstack([zeta[:, cols], np.ones((n_k - 1, 1))])
         ph = np.hstack([phi[:, cols], np.ones((n_k - 1, 1))])
-        a_list.append(z.T @ ph)
+        if prefilter is not None:
+            z, ph = _fir(z, prefilter[i]), _fir(ph, prefilter[i])
+            a_list.append(z.T @ ph)
+            z = _fir(z, prefilter[i], reverse=True)  # y(j) = Σ_m c_m ζ_f(j+m)
+        else:
+            a_list.append(z.T @ ph)
         # white sensor noise: lag 0 and lag ±1 (time-varying Jacobian)
         v0 = sig[i] + (jac[:, i, :] ** 2) @ sig
         c1 = -jac[1:, i, i] * sig[i]  # cov(ε(k), ε(k+1)) for rows k, k+1
@@ -409,7 +494,10 @@ def design_information(
         cross = (z[:-1] * c1[:, None]).T @ z[1:]
         meat += cross + cross.T
         if w_var[i] > 0:
-            key = tuple(map(tuple, codes.factors[cols].tolist()))
+            # equations with the same terms share the meat (not when prefiltered: each
+            # equation has its own noise model)
+            key = (tuple(map(tuple, codes.factors[cols].tolist())),
+                   None if prefilter is None else i)
             if key not in ar_cache:
                 ar_cache[key] = _ar1_meat(z, a_fn)
             meat += w_var[i] * ar_cache[key]
@@ -426,7 +514,7 @@ def design_information(
         s_list.append(meat)
         b_list.append(b)
         start += len(cols)
-    return Information(a_list, s_list, b_list, n_k)
+    return Information(a_list, s_list, b_list, n_k, acov)
 
 
 @dataclass
@@ -543,6 +631,7 @@ class TrialPlan:
     levels: DisturbanceLevels = field(default_factory=DisturbanceLevels)
     structure: str = "full"
     spec: ModelSpec | None = None
+    estimator: str = "iv-zero-mean"
 
     def table(self) -> pd.DataFrame:
         """Per parameter: θ0, predicted SE, relative SE and predicted wind bias."""
@@ -580,7 +669,7 @@ class TrialPlan:
             "programmes": [p.to_dict() for p in self.programmes],
             "labels": [p.label() for p in self.programmes],
             "worst_relative_se": fin(self.worst_relative_se()),
-            "structure": self.structure,
+            "structure": self.structure, "estimator": self.estimator,
             "target_relative_se": self.target, "relevance": self.relevance,
             "parameters": params, "identifiability": _finite(self.identifiability),
             "levels": self.levels.to_dict(),
@@ -593,7 +682,11 @@ class TrialPlan:
             lines.append(f"  experiment {e}: {p.label()}")
         t = self.table().copy()
         t.index = [f"{eq}: {term}" for eq, term in t.index]
-        lines += ["", "Predicted standard errors (asymptotic IV, zero-mean instruments):", "",
+        model = {"iv-zero-mean": "asymptotic IV, zero-mean instruments",
+                 "sriv": "asymptotic SRIV: zero-mean simulated instruments, AR(4) prefilter",
+                 "auto": "estimator auto = SRIV here: zero-mean simulated instruments, "
+                         "AR(4) prefilter"}[self.estimator]
+        lines += ["", f"Predicted standard errors ({model}):", "",
                   _markdown(t), "",
                   f"worst relative SE over |θ0| ≥ {self.relevance:g}: "
                   f"{100 * self.worst_relative_se():.2f} % (target {100 * self.target:.1f} %)"]
@@ -717,6 +810,7 @@ def plan_trial(
     max_exchange: int = 2,
     evaluate_block: int = 2000,
     structure: str = "full",
+    estimator: str = "auto",
 ) -> TrialPlan:
     """Plan a trial: choose the manoeuvres (and how long each runs) for a sample budget.
 
@@ -749,11 +843,18 @@ def plan_trial(
         Samples simulated per candidate (its information is scaled to ``block``).
     structure : {"full", "merged"}
         Identification structure (:data:`STRUCTURES`).
+    estimator : {"auto", "sriv", "iv-zero-mean"}
+        Estimator whose covariance the assembled design's prediction models
+        (:data:`PREDICTED_ESTIMATORS`); the manoeuvres are always chosen on the
+        additive zero-mean IV moments.
 
     Returns
     -------
     TrialPlan
     """
+    if estimator not in PREDICTED_ESTIMATORS:
+        raise PlannerError(f"unknown estimator {estimator!r}; choose from "
+                           f"{list(PREDICTED_ESTIMATORS)}")
     n_e = int(experiments)
     if n_e < 1:
         raise PlannerError(f"need at least one experiment, got {experiments}")
@@ -852,12 +953,8 @@ def plan_trial(
         durs[-1] += n_d - sum(durs)
         programmes.append(Programme([cands[i] for i in uniq], durs))
     # exact evaluation of the assembled design
-    info = None
-    for p in programmes:
-        f = p.schedule(vessel.nominal, n_d, warmup=warmup)
-        e_info = design_information(f, vessel, lv, warmup=warmup).centred()
-        info = e_info if info is None else info + e_info
-    pred = predict_covariance(info, spec)
+    forces = [p.schedule(vessel.nominal, n_d, warmup=warmup) for p in programmes]
+    pred = _assembled_prediction(forces, vessel, lv, warmup, estimator)
     worst = np.sqrt(np.diag(pred.cov.to_numpy()))[relevant]
     if candidates is None and not np.all(np.isfinite(worst)):
         # small budgets: the greedy choice among thruster squares at one engine setting
@@ -866,23 +963,53 @@ def plan_trial(
         return plan_trial(samples, experiments, levels=levels, candidates=lib, block=block,
                           warmup=warmup, dt=dt, relevance=relevance, target=target,
                           limits=limits, max_exchange=max_exchange,
-                          evaluate_block=evaluate_block, structure=structure)
+                          evaluate_block=evaluate_block, structure=structure,
+                          estimator=estimator)
     return TrialPlan(programmes=programmes, experiments=n_e, samples=n_d, warmup=int(warmup),
                      dt=float(dt), prediction=pred, candidates=cand_table,
                      identifiability=_identifiability(pred, target, relevance),
                      target=float(target), relevance=float(relevance), levels=lv,
-                     structure=structure, spec=spec)
+                     structure=structure, spec=spec, estimator=estimator)
 
 
 def predict_design(forces: np.ndarray, *, warmup: int = 0, dt: float = 0.1,
                    levels: DisturbanceLevels | None = None,
-                   structure: str = "full") -> Prediction:
+                   structure: str = "full", estimator: str = "iv-zero-mean") -> Prediction:
     """Predicted covariance of explicit input schedules ``(N_E, warmup + N, 3)``."""
+    if estimator not in PREDICTED_ESTIMATORS:
+        raise PlannerError(f"unknown estimator {estimator!r}; choose from "
+                           f"{list(PREDICTED_ESTIMATORS)}")
     vessel = _Vessel.cybership2(dt, structure)
     lv = levels or DisturbanceLevels()
+    return _assembled_prediction(list(np.asarray(forces, float)), vessel, lv, warmup,
+                                 estimator)
+
+
+#: Estimators the planner predicts: ``iv-zero-mean`` (the paper's IV_{E{ζ}=0}),
+#: ``sriv`` (simulated instruments prefiltered with the AR(4) noise model of the
+#: equation error) and ``auto`` (the package default: on a sea trial its colour and C
+#: tests reject the delayed instruments — the Gauss–Markov forces colour the equation
+#: error — and it falls back to SRIV, so it is predicted as SRIV).
+PREDICTED_ESTIMATORS = ("auto", "sriv", "iv-zero-mean")
+#: AR order of the SRIV noise model (``auto``'s ``noise_order``).
+SRIV_ORDER = 4
+
+
+def _assembled_prediction(forces: list[np.ndarray], vessel: _Vessel, lv: DisturbanceLevels,
+                          warmup: int, estimator: str) -> Prediction:
+    """Covariance of the assembled experiments (each simulated continuously, instruments
+    centred per experiment) for ``estimator``; SRIV evaluates the design twice: the
+    pooled equation-error autocovariance gives the AR noise model, then the prefiltered
+    moments."""
+    c = None
+    if estimator != "iv-zero-mean":
+        acov = sum(design_information(f, vessel, lv, warmup=warmup, acov_lags=SRIV_ORDER,
+                                      acov_only=True).acov for f in forces)
+        c = sriv_prefilter(acov)
+    raw = [design_information(f, vessel, lv, warmup=warmup, prefilter=c) for f in forces]
     info = None
-    for f in np.asarray(forces, float):
-        e = design_information(f, vessel, lv, warmup=warmup).centred()
+    for r in raw:
+        e = r.centred()
         info = e if info is None else info + e
     return predict_covariance(info, vessel.ident)
 
@@ -898,6 +1025,9 @@ def add_parser(subparsers: Any) -> None:
                    help="total sample budget")
     p.add_argument("--experiments", type=int_at_least(1), default=6)
     p.add_argument("--wind-speed", type=finite_float, default=1.0, help="m/s (model scale)")
+    p.add_argument("--estimator", default="auto", choices=list(PREDICTED_ESTIMATORS),
+                   help="estimator whose covariance is predicted (default auto, the "
+                        "identify default: SRIV on a sea trial)")
     p.add_argument("--json", action="store_true", help="print the plan as JSON")
     p.set_defaults(func=cmd_plan_trial)
 
@@ -917,7 +1047,8 @@ def cmd_plan_trial(args: argparse.Namespace) -> int:
                  memory=limits.table_memory(args.samples, 40),
                  seconds=limits.simulation_seconds(40.0 * args.samples, 3))
     plan = plan_trial(args.samples, args.experiments,
-                      levels=DisturbanceLevels(wind_speed=args.wind_speed))
+                      levels=DisturbanceLevels(wind_speed=args.wind_speed),
+                      estimator=getattr(args, "estimator", "auto"))
     if not math.isfinite(plan.worst_relative_se()):
         # e.g. an absurd wind speed: every candidate's simulation diverges
         raise PlannerError(

@@ -16,6 +16,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 
@@ -109,8 +110,9 @@ def from_log(log, spec: ModelSpec | None = None, *, min_samples: int | None = No
     starts = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
     cat = [f for _, f in frames]
     try:
-        states = np.concatenate([f[list(spec.states)].to_numpy(float) for f in cat])
-        inputs = (np.concatenate([f[list(spec.inputs)].to_numpy(float) for f in cat])
+        # column by column: selecting a list of columns builds a new frame (~50x slower)
+        states = np.concatenate([_columns(f, spec.states) for f in cat])
+        inputs = (np.concatenate([_columns(f, spec.inputs) for f in cat])
                   if spec.inputs else np.zeros((starts[-1], 0)))
         sensors = {c: np.concatenate([f[c].to_numpy(float) for f in cat]) for c in spec.sensors}
     except (KeyError, ValueError) as exc:  # pragma: no cover - validate() catches these first
@@ -128,6 +130,12 @@ def from_log(log, spec: ModelSpec | None = None, *, min_samples: int | None = No
     )
     data.check_lengths(spec, min_samples)
     return data, spec
+
+
+def _columns(frame: Any, names: Sequence[str]) -> np.ndarray:
+    """``frame[list(names)].to_numpy(float)`` (the same numbers, C order) without the
+    intermediate DataFrame."""
+    return np.column_stack([frame[c].to_numpy(float) for c in names])
 
 
 def from_arrays(
