@@ -177,3 +177,25 @@ def test_equation_error_autocovariance_matches_a_simulated_trial():
     se = np.sqrt((1 + 2 * np.sum(rho_plan**2, axis=1, keepdims=True)) / n)
     assert np.all(np.abs(rho_emp - rho_plan) < 4 * se), (rho_emp, rho_plan, se)
     assert np.all(rho_plan[:, 0] < -0.3)  # the differenced sensor noise dominates lag 1
+
+
+def test_modulus_bias_matches_sampled_expectation():
+    """E[φ(x+e)] − φ(x) of the modulus regressors near zero (errors in variables at the
+    zero crossings) against a sample mean, within 5 sample SE."""
+    from vesselid.planner import _modulus_bias
+    from vesselid.regressors import evaluate
+
+    rng = np.random.default_rng(4)
+    # signals [x, y, u]; factor codes s = 0..2, |s| = 3..5, 1 = 6:
+    # x*|x|, |x|, x*|y|, x*x, y*u
+    layout = np.array([[0, 3], [3, 6], [0, 4], [0, 0], [1, 2]])
+    sig = np.array([[0.004, -0.01, 0.3], [-0.002, 0.02, -1.0]])
+    std = np.array([0.005, 0.005])
+    got = _modulus_bias(layout, sig, std)
+    draws = np.stack([evaluate(layout, sig + np.hstack([rng.standard_normal((2, 2)) * std,
+                                                         np.zeros((2, 1))]))
+                      for _ in range(40000)])
+    want = draws.mean(axis=0) - evaluate(layout, sig)
+    se = draws.std(axis=0) / np.sqrt(draws.shape[0])
+    assert np.all(np.abs(got - want) <= 5 * se + 1e-12)
+    assert got[0, 1] > 0.2 * std[0]  # E|x+e| − |x| is of the order of σ near zero
