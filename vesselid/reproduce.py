@@ -429,9 +429,10 @@ def reproduce(
     summaries, comps, results, claims = {}, {}, {}, []
     t_all = time.perf_counter()
     for t, st in studies.items():
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         df = run_study(st, client=client, batch_size=batch_size, progress=progress)
         timings[f"table{t}_s"] = time.perf_counter() - t0
+        timings[f"table{t}_cpu_s"] = time.process_time() - c0  # all threads of this process
         results[t] = df
         summaries[t] = summary_table(df)
         comps[t] = comparison_table(summaries[t], t)

@@ -160,6 +160,7 @@ class Estimator:
                 f"not {combine!r}")
 
     @backend.chooses_kernels
+    @linalg.one_blas_thread
     def fit(
         self,
         log: Any,

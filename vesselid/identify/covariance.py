@@ -57,9 +57,11 @@ white designs and understates them under coloured currents; the calibration stud
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any, ClassVar
 
 import numpy as np
@@ -78,6 +80,7 @@ __all__ = [
     "KernelCovariance",
     "UnadjustedCovariance",
     "automatic_bandwidth",
+    "bartlett_long_run",
     "get_covariance_estimator",
     "iv_covariance",
     "kernel_weights",
@@ -205,7 +208,7 @@ def _newey_west_bandwidth(g: np.ndarray, segs: list[slice], kernel: str, t_total
     q, c, n_exp = {"bartlett": (1, 1.1447, 2 / 9), "parzen": (2, 2.6614, 4 / 25),
                    "qs": (2, 1.3221, 2 / 25)}[kernel]
     n = math.ceil(4 * (t_total / 100) ** n_exp)
-    scale = np.sqrt(np.mean(np.concatenate([g[s] for s in segs]) ** 2, axis=0))
+    scale = np.sqrt(np.mean(_compact(g, segs) ** 2, axis=0))
     scale[scale == 0] = 1.0
     x = [np.sum(g[s] / scale, axis=1) for s in segs] if g.shape[1] > 1 else [g[s, 0] for s in segs]
     sig = np.zeros(n + 1)
@@ -249,6 +252,37 @@ def long_run_covariance(
     kg = fftconvolve(g, sym, mode="same", axes=0)
     out = g.T @ kg
     return 0.5 * (out + out.T)
+
+
+def bartlett_long_run(g: np.ndarray, lags: int) -> np.ndarray:
+    """Bartlett long-run covariance ``Σ_{|l|≤L} (1 − |l|/(L+1)) Γ(l)`` of one experiment's
+    scores ``g`` (T, q), summed: :func:`long_run_covariance` with
+    ``kernel_weights("bartlett", L, …)`` in one ``q × q`` product instead of ``L + 1``.
+
+    With the moving sums ``h(t) = Σ_{i=0}^{L} g(t − i)`` of the zero-padded series,
+    ``Σ_t h hᵀ = Σ_l (L + 1 − |l|) Γ(l)`` (as :func:`vesselid.identify.gmm.hac_sums`).
+    The moving sums are differences of a running sum of ``g`` minus its mean (the mean's
+    share is added back as rank-one terms), so their rounding error does not grow with
+    ``T``; the result equals the lag-by-lag sum to ~1e-15 relative.
+    """
+    g = np.asarray(g, dtype=float)
+    n, q = g.shape
+    lags = int(lags)
+    if lags == 0 or n < 2:
+        return g.T @ g
+    gt = g.T.copy()  # time along contiguous rows
+    mean = gt.mean(axis=1)
+    gt -= mean[:, None]
+    c = np.zeros((q, n + 2 * lags + 1))
+    np.cumsum(gt, axis=1, out=c[:, lags + 1:n + lags + 1])
+    c[:, n + lags + 1:] = c[:, n + lags:n + lags + 1]
+    h = c[:, lags + 1:] - c[:, :-(lags + 1)]  # moving sums of g − mean
+    t = np.arange(n + lags)
+    count = (np.minimum(t, n - 1) - np.maximum(t - lags, 0) + 1).astype(float)  # window sizes
+    # the moving sums of g are h + count·meanᵀ: add the mean's share as rank-one terms
+    v = h @ count
+    out = h @ h.T + np.outer(v, mean) + np.outer(mean, v) + (count @ count) * np.outer(mean, mean)
+    return out / (lags + 1.0)
 
 
 # --------------------------------------------------------------------------- scores
@@ -296,41 +330,78 @@ class CovarianceResult:
         Estimator settings as used (kernel, bandwidth, rule, prewhiten …).
     label : str
         One line for ``summary()``.
-    condition : ndarray (n_eq,)
-        Condition number of each equation's column-equilibrated ``Σ_E A_E``.
     long_run : ndarray (K, K)
         ``Σ_E S_E``, the summed long-run covariance of the scores ``z ε`` (for J tests
         and optimal GMM weights).
+    condition : ndarray (n_eq,)
+        Condition number of each equation's column-equilibrated ``Σ_E A_E`` (computed
+        when first read: the fit path never needs it).
     """
 
     cov: np.ndarray
     cov_type: str
     config: dict[str, Any] = field(default_factory=dict)
     label: str = ""
-    condition: np.ndarray | None = None
     long_run: np.ndarray | None = None
+    moment_matrix: tuple[np.ndarray, np.ndarray, np.ndarray] | None = field(
+        default=None, repr=False, compare=False)
 
     @property
     def std_errors(self) -> np.ndarray:
         return np.sqrt(np.clip(np.diag(self.cov), 0, None))
+
+    @cached_property
+    def condition(self) -> np.ndarray | None:
+        if self.moment_matrix is None:
+            return None
+        a_sum, z_equation, equation = self.moment_matrix
+        n_eq = int(equation.max()) + 1 if equation.size else 0
+        return np.array([_condition(a_sum[np.ix_(z_equation == i, equation == i)])
+                         for i in range(n_eq)])
+
+
+@dataclass
+class _Scores:
+    """Column-equilibrated instruments and regressors of one call, with the scores.
+
+    ``z``/``phi`` are divided by ``z_scale``/``phi_scale`` (unit-norm columns over the
+    rows used), ``eps`` the residual (centred per experiment with ``zero_mean``) and
+    ``g = z ε`` the scores, one column per instrument, zero outside the rows used.
+    """
+
+    z: np.ndarray
+    phi: np.ndarray
+    z_scale: np.ndarray
+    phi_scale: np.ndarray
+    eps: np.ndarray
+    g: np.ndarray
+    segs: list[slice]
+    equation: np.ndarray
+    z_equation: np.ndarray
 
 
 # --------------------------------------------------------------------------- estimators
 class CovarianceEstimator:
     """Base class: the IV sandwich of (4)/(6)/(10); subclasses supply ``S_E``.
 
-    Subclasses set :attr:`name` and implement :meth:`meat` (the sum over experiments
+    Subclasses set :attr:`name` (and :attr:`description`, the ``summary()`` line of an
+    estimator without options) and implement :meth:`meat` (the sum over experiments
     of ``G_E S_E G_Eᵀ`` is formed here). ``__init__`` takes the ``cov_config``
-    keywords and validates them.
+    keywords and validates them; the base class takes none.
     """
 
     name: ClassVar[str] = ""
+    description: ClassVar[str] = ""
+
+    def __init__(self, **config: Any) -> None:
+        if config:
+            raise CovarianceError(f"cov_type {self.name!r} takes no options, got {sorted(config)}")
 
     def config(self) -> dict[str, Any]:
         return {}
 
     def label(self, config: Mapping[str, Any]) -> str:
-        return self.name
+        return self.description or self.name
 
     def meat(
         self, g: np.ndarray, z: np.ndarray, eps: np.ndarray, segs: list[slice],
@@ -398,55 +469,13 @@ class CovarianceEstimator:
             Inconsistent shapes, NaN/inf in the rows used, experiments with fewer
             than two rows.
         """
-        z = np.asarray(z, dtype=float)
-        phi = np.asarray(phi, dtype=float)
-        resid = np.asarray(resid, dtype=float)
-        if resid.ndim == 1:
-            resid = resid[:, None]
-        if z.ndim != 2 or phi.ndim != 2:
-            raise CovarianceError("z and phi must be 2-d arrays (rows × columns)")
-        t_len, n_par = phi.shape
-        n_ins = z.shape[1]
-        if z.shape[0] != t_len or resid.shape[0] != t_len or n_ins < n_par:
-            raise CovarianceError(f"z {z.shape}, phi {phi.shape} and resid {resid.shape} "
-                                  "must have the same rows and z at least phi's columns")
-        starts = np.array([0, t_len]) if starts is None else np.asarray(starts, dtype=np.int64)
-        if starts[0] != 0 or starts[-1] != t_len or np.any(np.diff(starts) < 0):
-            raise CovarianceError("starts must rise from 0 to the number of rows")
-        equation = (np.zeros(n_par, dtype=np.int64) if equation is None
-                    else np.asarray(equation, dtype=np.int64))
-        if z_equation is None:
-            z_equation = equation if n_ins == n_par else np.zeros(n_ins, dtype=np.int64)
-        z_equation = np.asarray(z_equation, dtype=np.int64)
-        if (equation.shape != (n_par,) or z_equation.shape != (n_ins,)
-                or max(equation.max(initial=0), z_equation.max(initial=0)) >= resid.shape[1]):
-            raise CovarianceError("equation / z_equation must give a residual column for every "
-                                  "regressor / instrument column")
         if combine not in ("pooled", "stacked"):
             raise CovarianceError(f"combine must be 'pooled' or 'stacked', got {combine!r}")
-        segs = _segments(starts, skip_first)
-        if any(s.stop - s.start < 2 for s in segs):
-            raise CovarianceError("every experiment needs at least two usable rows")
-        rows = np.zeros(t_len, dtype=bool)
-        for s in segs:
-            rows[s] = True
-        for name, arr in (("z", z), ("phi", phi), ("resid", resid)):
-            if not np.all(np.isfinite(arr[rows])):
-                raise CovarianceError(f"{name} holds NaN or inf in the rows used")
-        # Equilibrate: unit-norm instrument and regressor columns (over the rows used), so
-        # that badly scaled signals (forces in N next to velocities in m/s, or every signal
-        # times 1e±6) lose no precision in the sandwich below. The estimator is equivariant:
-        # θ_s = D_φ θ, ḡ_s = D_z⁻¹ ḡ, W_s = D_z W D_z, so Cov θ̂ = D_φ⁻¹ Cov θ̂_s D_φ⁻¹.
-        z_scale = _column_scale(z, rows)
-        phi_scale = _column_scale(phi, rows)
-        z = z / z_scale
-        phi = phi / phi_scale
+        sc = _scores(z, phi, resid, starts, equation, z_equation, zero_mean, skip_first)
+        z, phi, segs, equation, z_equation = sc.z, sc.phi, sc.segs, sc.equation, sc.z_equation
+        n_par, n_ins = phi.shape[1], z.shape[1]
         same = z_equation[:, None] == equation[None, :]
         same_z = z_equation[:, None] == z_equation[None, :]
-        eps = _residual(resid, segs, zero_mean)
-        g = np.zeros((t_len, n_ins))
-        for s in segs:
-            g[s] = z[s] * eps[s][:, z_equation]
         a_list = [(z[s].T @ phi[s]) * same for s in segs]
         a_sum = sum(a_list)
         if weight is None:
@@ -454,18 +483,15 @@ class CovarianceEstimator:
                 # identity in the original units is diag(z_scale²) in the scaled ones; it
                 # cancels from the pooled sandwich, so only the stacked form needs it
                 stacked = combine == "stacked" and len(segs) > 1
-                w_mat = np.diag(z_scale**2) if stacked else np.eye(n_ins)
+                w_mat = np.diag(sc.z_scale**2) if stacked else np.eye(n_ins)
             else:
                 w_mat = _block_inverse(sum(z[s].T @ z[s] for s in segs) * same_z, z_equation)
         else:
             w_mat = np.asarray(weight, dtype=float)
             if w_mat.shape != (n_ins, n_ins) or not np.all(np.isfinite(w_mat)):
                 raise CovarianceError(f"weight must be a finite ({n_ins}, {n_ins}) matrix")
-            w_mat = w_mat * np.outer(z_scale, z_scale)
-        s_list, used = self.meat(g, z, eps, segs, z_equation)
-        n_eq = int(equation.max()) + 1 if n_par else 0
-        cond = np.array([_condition(a_sum[np.ix_(z_equation == i, equation == i)])
-                         for i in range(n_eq)])
+            w_mat = w_mat * np.outer(sc.z_scale, sc.z_scale)
+        s_list, used = self.meat(sc.g, z, sc.eps, segs, z_equation)
         n_list = [s.stop - s.start for s in segs]
         if n_ins == n_par and weight is None and (combine == "pooled" or len(segs) == 1):
             cov = sandwich_from_sums(a_list, s_list, n_list)
@@ -474,16 +500,96 @@ class CovarianceEstimator:
         else:
             cov = _general_sandwich(a_list, a_sum, s_list, w_mat, n_list, combine)
         if np.all(np.isfinite(cov)):
-            cov = cov / np.outer(phi_scale, phi_scale)
+            cov = cov / np.outer(sc.phi_scale, sc.phi_scale)
         config = {**self.config(), **used}
         return CovarianceResult(cov=cov, cov_type=self.name, config=config,
-                                label=self.label(config), condition=cond,
-                                long_run=sum(s_list) * np.outer(z_scale, z_scale))
+                                label=self.label(config),
+                                long_run=sum(s_list) * np.outer(sc.z_scale, sc.z_scale),
+                                moment_matrix=(a_sum, z_equation, equation))
+
+    def long_run(
+        self,
+        z: np.ndarray,
+        resid: np.ndarray,
+        starts: np.ndarray | None = None,
+        *,
+        z_equation: np.ndarray | None = None,
+        zero_mean: bool = False,
+        skip_first: bool = True,
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """``Σ_E S_E`` of the scores ``z ε`` in the units of ``z``, and the settings used.
+
+        The ``long_run`` of :meth:`estimate` (the same numbers) without the sandwich:
+        what a J test or an optimal GMM weight needs. Arguments as :meth:`estimate`
+        (``z_equation`` default: all instruments in equation 0).
+        """
+        sc = _scores(z, None, resid, starts, None, z_equation, zero_mean, skip_first)
+        s_list, used = self.meat(sc.g, sc.z, sc.eps, sc.segs, sc.z_equation)
+        return sum(s_list) * np.outer(sc.z_scale, sc.z_scale), {**self.config(), **used}
 
     def cov(self, z: np.ndarray, phi: np.ndarray, resid: np.ndarray,
             starts: np.ndarray | None = None, **options: Any) -> np.ndarray:
         """Shortcut: ``estimate(...).cov``."""
         return self.estimate(z, phi, resid, starts, **options).cov
+
+
+def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
+            starts: np.ndarray | None, equation: np.ndarray | None,
+            z_equation: np.ndarray | None, zero_mean: bool, skip_first: bool) -> _Scores:
+    """Validate the arrays of :meth:`CovarianceEstimator.estimate` and form the scores
+    (``phi=None``: instruments only, as :meth:`CovarianceEstimator.long_run`)."""
+    z = np.asarray(z, dtype=float)
+    resid = np.asarray(resid, dtype=float)
+    if resid.ndim == 1:
+        resid = resid[:, None]
+    if z.ndim != 2:
+        raise CovarianceError("z and phi must be 2-d arrays (rows × columns)")
+    t_len = z.shape[0]
+    phi = np.zeros((t_len, 0)) if phi is None else np.asarray(phi, dtype=float)
+    if phi.ndim != 2:
+        raise CovarianceError("z and phi must be 2-d arrays (rows × columns)")
+    n_par = phi.shape[1]
+    n_ins = z.shape[1]
+    if phi.shape[0] != t_len or resid.shape[0] != t_len or n_ins < n_par:
+        raise CovarianceError(f"z {z.shape}, phi {phi.shape} and resid {resid.shape} "
+                              "must have the same rows and z at least phi's columns")
+    starts = np.array([0, t_len]) if starts is None else np.asarray(starts, dtype=np.int64)
+    if starts[0] != 0 or starts[-1] != t_len or np.any(np.diff(starts) < 0):
+        raise CovarianceError("starts must rise from 0 to the number of rows")
+    equation = (np.zeros(n_par, dtype=np.int64) if equation is None
+                else np.asarray(equation, dtype=np.int64))
+    if z_equation is None:
+        z_equation = equation if n_ins == n_par else np.zeros(n_ins, dtype=np.int64)
+    z_equation = np.asarray(z_equation, dtype=np.int64)
+    if (equation.shape != (n_par,) or z_equation.shape != (n_ins,)
+            or max(equation.max(initial=0), z_equation.max(initial=0)) >= resid.shape[1]):
+        raise CovarianceError("equation / z_equation must give a residual column for every "
+                              "regressor / instrument column")
+    segs = _segments(starts, skip_first)
+    if any(s.stop - s.start < 2 for s in segs):
+        raise CovarianceError("every experiment needs at least two usable rows")
+    rows = np.zeros(t_len, dtype=bool)
+    for s in segs:
+        rows[s] = True
+    every_row = bool(rows.all())  # the fit path drops the first rows itself: no copies
+    for name, arr in (("z", z), ("phi", phi), ("resid", resid)):
+        if not np.all(np.isfinite(arr if every_row else arr[rows])):
+            raise CovarianceError(f"{name} holds NaN or inf in the rows used")
+    # Equilibrate: unit-norm instrument and regressor columns (over the rows used), so
+    # that badly scaled signals (forces in N next to velocities in m/s, or every signal
+    # times 1e±6) lose no precision in the sandwich below. The estimator is equivariant:
+    # θ_s = D_φ θ, ḡ_s = D_z⁻¹ ḡ, W_s = D_z W D_z, so Cov θ̂ = D_φ⁻¹ Cov θ̂_s D_φ⁻¹.
+    z_scale = _column_scale(z, None if every_row else rows)
+    phi_scale = _column_scale(phi, None if every_row else rows)
+    z = z / z_scale
+    phi = phi / phi_scale
+    eps = _residual(resid, segs, zero_mean)
+    g = np.zeros((t_len, n_ins))
+    one = eps.shape[1] == 1  # every instrument in equation 0: broadcast, no column copies
+    for s in segs:
+        g[s] = z[s] * (eps[s] if one else eps[s][:, z_equation])
+    return _Scores(z=z, phi=phi, z_scale=z_scale, phi_scale=phi_scale, eps=eps, g=g,
+                   segs=segs, equation=equation, z_equation=z_equation)
 
 
 def sandwich_from_sums(a_list: list[np.ndarray], s_list: list[np.ndarray], n_list: list[int],
@@ -557,9 +663,10 @@ def _stacked_qr_sandwich(a_list: list[np.ndarray], s_list: list[np.ndarray],
     return np.linalg.solve(r, x.T)
 
 
-def _column_scale(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """Euclidean norm of every column over ``rows`` (1 for an all-zero column)."""
-    scale = np.sqrt(np.einsum("tk,tk->k", x[rows], x[rows]))
+def _column_scale(x: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
+    """Euclidean norm of every column over ``rows`` (None: all; 1 for an all-zero column)."""
+    xr = x if rows is None else x[rows]
+    scale = np.sqrt(np.einsum("tk,tk->k", xr, xr))
     return np.where((scale > 0) & np.isfinite(scale), scale, 1.0)
 
 
@@ -586,13 +693,7 @@ class UnadjustedCovariance(CovarianceEstimator):
     """
 
     name = "unadjusted"
-
-    def __init__(self, **config: Any) -> None:
-        if config:
-            raise CovarianceError(f"cov_type 'unadjusted' takes no options, got {sorted(config)}")
-
-    def label(self, config: Mapping[str, Any]) -> str:
-        return "unadjusted (white, homoskedastic equation error)"
+    description = "unadjusted (white, homoskedastic equation error)"
 
     def meat(self, g, z, eps, segs, equation):
         n_rows = sum(s.stop - s.start for s in segs)
@@ -676,12 +777,19 @@ class KernelCovariance(CovarianceEstimator):
         w = kernel_weights(self.kernel, bw, n_lags)
         out = []
         for s in segs:
-            s_u = long_run_covariance(series[s], w)
-            out.append(recolour @ s_u @ recolour.T)
+            if self.kernel == "bartlett" and n_lags > 1:
+                s_u = bartlett_long_run(series[s], math.floor(bw))
+            else:
+                s_u = long_run_covariance(series[s], w)
+            out.append(s_u if not self.prewhiten else recolour @ s_u @ recolour.T)
         return out, used
 
 
 def _compact(x: np.ndarray, segs: list[slice]) -> np.ndarray:
+    """The rows of ``segs`` concatenated (``x`` itself when they are all of its rows)."""
+    if segs[0].start == 0 and segs[-1].stop == x.shape[0] and all(
+            a.stop == b.start for a, b in itertools.pairwise(segs)):
+        return x
     return np.concatenate([x[s] for s in segs])
 
 
@@ -722,13 +830,7 @@ class ClusterCovariance(CovarianceEstimator):
     """
 
     name = "cluster"
-
-    def __init__(self, **config: Any) -> None:
-        if config:
-            raise CovarianceError(f"cov_type 'cluster' takes no options, got {sorted(config)}")
-
-    def label(self, config: Mapping[str, Any]) -> str:
-        return "clustered by experiment"
+    description = "clustered by experiment"
 
     def meat(self, g, z, eps, segs, equation):
         if len(segs) < 2:
@@ -766,21 +868,12 @@ def get_covariance_estimator(cov_type: str = DEFAULT_COV_TYPE, **cov_config: Any
         raise CovarianceError(f"invalid options for cov_type {cov_type!r}: {exc}") from None
 
 
-def iv_covariance(
-    z: np.ndarray,
-    phi: np.ndarray,
-    resid: np.ndarray,
-    starts: np.ndarray | None = None,
-    equation: np.ndarray | None = None,
-    *,
-    cov_type: str = DEFAULT_COV_TYPE,
-    z_equation: np.ndarray | None = None,
-    weight: np.ndarray | None = None,
-    zero_mean: bool = False,
-    combine: str = "pooled",
-    skip_first: bool = True,
-    **cov_config: Any,
-) -> CovarianceResult:
+def iv_covariance(z: np.ndarray, phi: np.ndarray, resid: np.ndarray,
+                  starts: np.ndarray | None = None, equation: np.ndarray | None = None, *,
+                  cov_type: str = DEFAULT_COV_TYPE, z_equation: np.ndarray | None = None,
+                  weight: np.ndarray | None = None, zero_mean: bool = False,
+                  combine: str = "pooled", skip_first: bool = True,
+                  **cov_config: Any) -> CovarianceResult:
     """One call: :func:`get_covariance_estimator` then
     :meth:`CovarianceEstimator.estimate` (see there for the arguments)."""
     est = get_covariance_estimator(cov_type, **cov_config)

@@ -24,6 +24,7 @@ Autocorrelation-robust versions use the covariance estimators of
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -169,22 +170,22 @@ def first_stage(
         ``partial_f`` {name: F}, ``partial_r2`` {name: R²}, ``cragg_donald`` (float),
         ``endogenous`` (names), ``df`` (numerator, denominator).
     """
-    z = np.asarray(z, dtype=float)
-    phi = np.asarray(phi, dtype=float)
-    segs = _segs(starts, phi.shape[0], skip_first)
-    names = names or [f"x{j}" for j in range(phi.shape[1])]
-    zz, pp = _rows(z, segs), _rows(phi, segs)
-    if zero_mean:
-        cs = _compact_starts(segs)
-        inner = [slice(int(cs[i]), int(cs[i + 1])) for i in range(len(segs))]
-        zz, pp = _demean(zz, inner), _demean(pp, inner)
-    exo = exogenous_columns(zz, pp)
+    prep = _prepare(z, phi, None, starts, zero_mean, skip_first)
+    return _first_stage(prep, names)
+
+
+def _first_stage(prep: _Prepared, names: list[str] | None,
+                 exo: np.ndarray | None = None) -> dict[str, Any]:
+    """:func:`first_stage` on prepared rows (``exo``: :func:`exogenous_columns` of them)."""
+    zz, pp = prep.z, prep.phi
+    names = names or [f"x{j}" for j in range(pp.shape[1])]
+    exo = exogenous_columns(zz, pp) if exo is None else exo
     excl = ~exogenous_columns(pp, zz)  # instrument columns that are not regressors
     w = pp[:, exo]
     endo = np.flatnonzero(~exo)
     n = zz.shape[0]
     k_ex = int(excl.sum())
-    k_total = k_ex + int(exo.sum()) + (len(segs) if zero_mean else 0)
+    k_total = k_ex + int(exo.sum()) + (len(prep.segs) if prep.zero_mean else 0)
 
     def resid_on(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         if b.shape[1] == 0:
@@ -220,26 +221,23 @@ def first_stage(
 
 
 # ----------------------------------------------------------------- over-identification
-def _gmm(z, phi, y, segs, weight):
-    a = sum(z[s].T @ phi[s] for s in segs)
-    b = sum(z[s].T @ y[s] for s in segs)
+def _gmm_sums(z, phi, y, segs):
+    """``A = Σ z φᵀ`` and ``b = Σ z y`` over the experiments (formed once per J test)."""
+    return sum(z[s].T @ phi[s] for s in segs), sum(z[s].T @ y[s] for s in segs)
+
+
+def _gmm(sums, weight):
+    """``θ = (AᵀWA)⁻¹ AᵀW b`` from :func:`_gmm_sums`."""
+    a, b = sums
     m = a.T @ weight @ a
     theta = np.linalg.solve(m, a.T @ weight @ b)
     return theta
 
 
-def hansen_j(
-    z: np.ndarray,
-    phi: np.ndarray,
-    y: np.ndarray,
-    starts: np.ndarray | None = None,
-    *,
-    zero_mean: bool = True,
-    skip_first: bool = True,
-    cov_type: str = DEFAULT_COV_TYPE,
-    long_run: np.ndarray | None = None,
-    **cov_config: Any,
-) -> TestResult:
+def hansen_j(z: np.ndarray, phi: np.ndarray, y: np.ndarray, starts: np.ndarray | None = None,
+             *, zero_mean: bool = True, skip_first: bool = True,
+             cov_type: str = DEFAULT_COV_TYPE, long_run: np.ndarray | None = None,
+             **cov_config: Any) -> TestResult:
     """Hansen's J test of the over-identifying restrictions of one equation.
 
     Two-step efficient GMM: 2SLS first, the long-run covariance ``S`` of its scores
@@ -253,19 +251,26 @@ def hansen_j(
     CovarianceError
         Fewer instruments than regressors.
     """
-    z, phi, y, segs = _prepare(z, phi, y, starts, zero_mean, skip_first)
+    prep = _prepare(z, phi, y, starts, zero_mean, skip_first)
+    return _hansen_j(prep, cov_type, cov_config, long_run)
+
+
+def _hansen_j(prep: _Prepared, cov_type: str, cov_config: Mapping[str, Any],
+              long_run: np.ndarray | None = None) -> TestResult:
+    """:func:`hansen_j` on prepared rows."""
+    z, phi, y, segs = prep.z, prep.phi, prep.y, prep.segs
     k, p = z.shape[1], phi.shape[1]
     if k < p:
         raise CovarianceError(
             f"J test needs at least as many instruments ({k}) as regressors ({p})")
+    sums = _gmm_sums(z, phi, y, segs)
     if long_run is None:
         w0 = np.linalg.pinv(sum(z[s].T @ z[s] for s in segs))
-        th0 = _gmm(z, phi, y, segs, w0)
+        th0 = _gmm(sums, w0)
         est = get_covariance_estimator(cov_type, **cov_config)
-        long_run = est.estimate(z, phi, y - phi @ th0, _starts_of(segs), weight=w0,
-                                skip_first=False).long_run
+        long_run, _ = est.long_run(z, y - phi @ th0, _starts_of(segs), skip_first=False)
     s_inv = np.linalg.pinv(long_run)
-    theta = _gmm(z, phi, y, segs, s_inv)
+    theta = _gmm(sums, s_inv)
     gbar = sum(z[s].T @ (y[s] - phi[s] @ theta) for s in segs)
     j = float(gbar @ s_inv @ gbar)
     df = k - p
@@ -278,18 +283,10 @@ def hansen_j(
                       {"theta": theta, "long_run": long_run})
 
 
-def difference_in_j(
-    z: np.ndarray,
-    phi: np.ndarray,
-    y: np.ndarray,
-    tested: np.ndarray,
-    starts: np.ndarray | None = None,
-    *,
-    zero_mean: bool = True,
-    skip_first: bool = True,
-    cov_type: str = DEFAULT_COV_TYPE,
-    **cov_config: Any,
-) -> TestResult:
+def difference_in_j(z: np.ndarray, phi: np.ndarray, y: np.ndarray, tested: np.ndarray,
+                    starts: np.ndarray | None = None, *, zero_mean: bool = True,
+                    skip_first: bool = True, cov_type: str = DEFAULT_COV_TYPE,
+                    **cov_config: Any) -> TestResult:
     """Difference-in-J (C) test of the instrument columns ``tested`` (bool mask or indices).
 
     ``C = J(all) − J(all but tested)``, both with the long-run covariance of the full
@@ -316,17 +313,33 @@ def difference_in_j(
                       {"j_full": full.stat, "j_subset": sub.stat})
 
 
-def _prepare(z, phi, y, starts, zero_mean, skip_first):
+@dataclass
+class _Prepared:
+    """The rows one equation's tests use: experiments' usable rows concatenated (``segs``
+    index them), centred per experiment with ``zero_mean``; ``y`` None for first stages."""
+
+    z: np.ndarray
+    phi: np.ndarray
+    y: np.ndarray | None
+    segs: list[slice]
+    zero_mean: bool
+
+
+def _prepare(z: Any, phi: Any, y: Any, starts: np.ndarray | None, zero_mean: bool,
+             skip_first: bool) -> _Prepared:
     z = np.asarray(z, dtype=float)
     phi = np.asarray(phi, dtype=float)
-    y = np.asarray(y, dtype=float).reshape(-1)
     segs = _segs(starts, phi.shape[0], skip_first)
-    z, phi, y = (_rows(a, segs) for a in (z, phi, y))
+    arrays = [z, phi] if y is None else [z, phi, np.asarray(y, dtype=float).reshape(-1)]
+    # one experiment: its rows are a view (centring below copies; nothing writes into them)
+    arrays = [np.ascontiguousarray(a[segs[0]]) if len(segs) == 1 else _rows(a, segs)
+              for a in arrays]
     cs = _compact_starts(segs)
     inner = [slice(int(cs[i]), int(cs[i + 1])) for i in range(len(segs))]
     if zero_mean:
-        z, phi, y = (_demean(a, inner) for a in (z, phi, y))
-    return z, phi, y, inner
+        arrays = [_demean(a, inner) for a in arrays]
+    return _Prepared(arrays[0], arrays[1], arrays[2] if y is not None else None, inner,
+                     zero_mean)
 
 
 def _starts_of(segs: list[slice]) -> np.ndarray:
@@ -334,18 +347,10 @@ def _starts_of(segs: list[slice]) -> np.ndarray:
 
 
 # ----------------------------------------------------------------- endogeneity
-def endogeneity_test(
-    z: np.ndarray,
-    phi: np.ndarray,
-    y: np.ndarray,
-    starts: np.ndarray | None = None,
-    *,
-    zero_mean: bool = True,
-    skip_first: bool = True,
-    cov_type: str = DEFAULT_COV_TYPE,
-    level: float = 0.05,
-    **cov_config: Any,
-) -> TestResult:
+def endogeneity_test(z: np.ndarray, phi: np.ndarray, y: np.ndarray,
+                     starts: np.ndarray | None = None, *, zero_mean: bool = True,
+                     skip_first: bool = True, cov_type: str = DEFAULT_COV_TYPE,
+                     level: float = 0.05, **cov_config: Any) -> TestResult:
     """Durbin–Wu–Hausman test of LS against IV for one equation (regression form).
 
     The endogenous regressors (those that are not instruments) are regressed on the
@@ -356,8 +361,15 @@ def endogeneity_test(
     LS is biased on this log. With ``cov_type="unadjusted"`` the statistic is
     linearmodels' ``wu_hausman`` times its numerator degrees of freedom.
     """
-    z, phi, y, segs = _prepare(z, phi, y, starts, zero_mean, skip_first)
-    exo = exogenous_columns(z, phi)
+    prep = _prepare(z, phi, y, starts, zero_mean, skip_first)
+    return _endogeneity(prep, cov_type, cov_config, level)
+
+
+def _endogeneity(prep: _Prepared, cov_type: str, cov_config: Mapping[str, Any],
+                 level: float = 0.05, exo: np.ndarray | None = None) -> TestResult:
+    """:func:`endogeneity_test` on prepared rows (``exo``: :func:`exogenous_columns`)."""
+    z, phi, y, segs = prep.z, prep.phi, prep.y, prep.segs
+    exo = exogenous_columns(z, phi) if exo is None else exo
     endo = np.flatnonzero(~exo)
     if endo.size == 0:
         return TestResult("Durbin-Wu-Hausman", 0.0, 0, 1.0, "chi2", "LS is consistent",
@@ -570,22 +582,46 @@ def equation_diagnostics(
     ``hansen_j`` (:meth:`TestResult.to_dict`). A test that cannot be computed
     (singular matrices) is reported with ``None`` values and a reason, never raised.
     """
+    errors = (np.linalg.LinAlgError, ValueError)
+    try:  # the three tests share the prepared rows and the exogenous columns
+        prep = _prepare(z, phi, y, starts, zero_mean, skip_first)
+        exo = exogenous_columns(prep.z, prep.phi)
+    except errors:  # let each test report its own reason
+        return _equation_diagnostics_apart(z, phi, y, starts, zero_mean, skip_first, names,
+                                           cov_type, cov_config)
+    tests = {"first_stage": lambda: _first_stage(prep, names, exo),
+             "endogeneity": lambda: _endogeneity(prep, cov_type, cov_config, exo=exo),
+             "hansen_j": lambda: _hansen_j(prep, cov_type, cov_config)}
+    return _run_tests(tests, np.shape(z)[1] > np.shape(phi)[1])
+
+
+def _equation_diagnostics_apart(z, phi, y, starts, zero_mean, skip_first, names, cov_type,
+                                cov_config) -> dict[str, Any]:
+    opts = {"zero_mean": zero_mean, "skip_first": skip_first}
+    tests = {"first_stage": lambda: first_stage(z, phi, starts, names=names, **opts),
+             "endogeneity": lambda: endogeneity_test(z, phi, y, starts, cov_type=cov_type,
+                                                     **opts, **cov_config),
+             "hansen_j": lambda: hansen_j(z, phi, y, starts, cov_type=cov_type, **opts,
+                                          **cov_config)}
+    return _run_tests(tests, np.shape(z)[1] > np.shape(phi)[1])
+
+
+def _run_tests(tests: dict[str, Any], over_identified: bool) -> dict[str, Any]:
+    """Run the tests of :func:`equation_diagnostics`; a failure is a reason, not a raise."""
     out: dict[str, Any] = {}
-    try:
-        fs = first_stage(z, phi, starts, zero_mean=zero_mean, skip_first=skip_first, names=names)
-        out["first_stage"] = {k: (v if not isinstance(v, float) else _finite(v))
-                              for k, v in fs.items()}
-    except (np.linalg.LinAlgError, ValueError) as exc:
-        out["first_stage"] = {"error": str(exc).splitlines()[0]}
-    for key, fn in (("endogeneity", endogeneity_test), ("hansen_j", hansen_j)):
-        if key == "hansen_j" and np.shape(z)[1] <= np.shape(phi)[1]:
+    for key, fn in tests.items():
+        if key == "hansen_j" and not over_identified:
             continue
         try:
-            out[key] = fn(z, phi, y, starts, zero_mean=zero_mean, skip_first=skip_first,
-                          cov_type=cov_type, **cov_config).to_dict()
+            res = fn()
         except (np.linalg.LinAlgError, ValueError) as exc:
-            out[key] = {"stat": None, "pvalue": None, "sentence": f"{key} not available: "
-                        f"{str(exc).splitlines()[0]}"}
+            reason = str(exc).splitlines()[0]
+            out[key] = ({"error": reason} if key == "first_stage" else
+                        {"stat": None, "pvalue": None,
+                         "sentence": f"{key} not available: {reason}"})
+            continue
+        out[key] = ({k: (v if not isinstance(v, float) else _finite(v)) for k, v in res.items()}
+                    if key == "first_stage" else res.to_dict())
     return out
 
 
