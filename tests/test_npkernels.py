@@ -126,6 +126,21 @@ def test_matrix_helpers_equal_to_rounding():
     for r1, r2 in zip(npk.autocov(x[:, 0], starts, valid, 3),
                       ivk.autocov(x[:, 0], starts, valid, 3), strict=True):
         _close(r1, r2, 300 * 25)
+    z = rng.normal(size=(300, 3))
+    z[[5, 130], 1] = np.nan  # a diverged simulated column
+    cols = np.array([0, 1], dtype=np.int64)
+    np.testing.assert_array_equal(npk.noise_window(x, z, cols, starts, 1, 8),
+                                  ivk.noise_window(x, z, cols, starts, 1, 8))
+    tgt = x[:, 2:].copy()
+    tgt[7, 0] = np.inf
+    v1, c1 = npk.design_scan(z, x, 1, 3, tgt, 0)
+    v2, c2 = ivk.design_scan(z, x, 1, 3, tgt, 0)
+    np.testing.assert_array_equal(v1, v2)
+    np.testing.assert_array_equal(c1, c2)
+    col = np.array([0.5, 2.0, 1.0, 4.0, 0.25, 1.0])
+    for r1, r2 in zip(npk.design_centre(z, x, 1, 3, tgt, 0, v2, col, starts),
+                      ivk.design_centre(z, x, 1, 3, tgt, 0, v2, col, starts), strict=True):
+        _close(r1, r2, 300 * 20)
     y = x[:, 3].copy()
     for r1, r2 in zip(npk.cross_sums(x[:, :2].copy(), x[:, 2:3].copy(), y, starts, valid),
                       ivk.cross_sums(x[:, :2].copy(), x[:, 2:3].copy(), y, starts, valid),

@@ -39,8 +39,11 @@ __all__ = [
     "autocov",
     "center",
     "cross_sums",
+    "design_centre",
+    "design_scan",
     "instrument_matrix",
     "moments",
+    "noise_window",
     "recursion",
     "regressor_matrix",
     "simulated_regressors",
@@ -312,6 +315,53 @@ def cross_sums(z, phi, y, starts, valid):
         m = zs.T @ zs
         m_out[s] = np.triu(m) + np.triu(m, 1).T  # symmetric from the upper triangle
     return a_out, b_out, m_out, cnt
+
+
+def noise_window(phi, z, cols, starts, lo, hi):
+    """Window means of the estimated regressor noise ``η = nan_to_num(φ − ζ)`` on the
+    columns ``cols`` (:func:`vesselid.identify._ivkernels.noise_window`, the numpy
+    formulation it was written from: bit-identical)."""
+    t_len = phi.shape[0]
+    eta = np.nan_to_num(phi[:, cols] - z[:, cols])
+    csum = np.zeros((t_len + 1, eta.shape[1]))
+    np.cumsum(eta, axis=0, out=csum[1:])
+    rows = np.arange(t_len)
+    seg_start = np.repeat(starts[:-1], np.diff(starts))
+    ok = rows - hi >= seg_start + 1  # the segment's first row has no instrument
+    out = np.full_like(eta, np.nan)
+    r = rows[ok]
+    out[ok] = (csum[r - lo + 1] - csum[r - hi]) / (hi - lo + 1)
+    bad = ~np.all(np.isfinite(z[:, cols]), axis=1)
+    if bad.any():  # a diverged simulation invalidates its whole window
+        cb = np.concatenate([[0], np.cumsum(bad)])
+        hit = np.zeros(t_len, dtype=bool)
+        hit[r] = (cb[r - lo + 1] - cb[r - hi]) > 0
+        out[hit] = np.nan
+    return out
+
+
+def _design_stack(z, phi, p_lo, p_hi, target, i_eq):
+    return np.column_stack([z, phi[:, p_lo:p_hi], target[:, i_eq]])
+
+
+def design_scan(z, phi, p_lo, p_hi, target, i_eq):
+    """Rows where every column of ``[z, φ[:, p_lo:p_hi], y_i]`` is finite, and each
+    column's ``max |·|`` over them (0 if none)."""
+    stack = _design_stack(z, phi, p_lo, p_hi, target, i_eq)
+    valid = np.all(np.isfinite(stack), axis=1)
+    return valid, np.max(np.abs(stack[valid]), axis=0, initial=0.0)
+
+
+def design_centre(z, phi, p_lo, p_hi, target, i_eq, valid, col, starts):
+    """Masked (invalid rows 0), column-scaled and per-segment centred ``z``, ``φ`` block
+    and ``y_i`` (contiguous arrays)."""
+    k_z = z.shape[1]
+    stack = np.where(valid[:, None], _design_stack(z, phi, p_lo, p_hi, target, i_eq),
+                     0.0) * col
+    stack = center(stack, starts, valid)
+    return (np.ascontiguousarray(stack[:, :k_z]),
+            np.ascontiguousarray(stack[:, k_z:k_z + p_hi - p_lo]),
+            np.ascontiguousarray(stack[:, -1]))
 
 
 def simulate_states(spec, u, *, theta, x0, v=None, limit: float = 1e8,
