@@ -373,3 +373,26 @@ def test_segment_abs_max_equals_the_per_segment_loop():
         ref = np.array([np.max(np.abs(x[starts[s]:starts[s + 1]]), initial=0.0)
                         for s in range(starts.size - 1)])
         np.testing.assert_array_equal(segment_abs_max(x, starts), ref)
+
+
+def test_fit_restores_blas_threads():
+    """``fit`` runs numpy's OpenBLAS on one thread and restores the caller's setting."""
+    from vesselid.identify import identify, linalg
+    from vesselid.systems import heave
+
+    blas = linalg._openblas_threads()
+    if blas is None:
+        pytest.skip("numpy's BLAS is not the bundled OpenBLAS")
+    get, put = blas
+    old = get()
+    try:
+        put(2)
+        seen = []
+        linalg.one_blas_thread(lambda: seen.append(get()))()
+        assert seen == [1] and get() == 2
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            identify(heave().simulate(500, seed=1).to_log())
+        assert get() == 2
+    finally:
+        put(old)

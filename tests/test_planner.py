@@ -145,3 +145,57 @@ def test_plan_trial_small_budget_and_cli(capsys):
     assert code == 2 and len(err.strip().splitlines()) == 1
     with pytest.raises(PlannerError):
         plan_trial(100, 0)
+
+
+def test_equation_error_autocovariance_matches_a_simulated_trial():
+    """The planner's pooled equation-error autocorrelations (the input of auto's SRIV
+    noise model) agree with those of θ0's residuals on a simulated trial of the plan,
+    within 4 Bartlett standard errors of the sample autocorrelations."""
+    from vesselid.planner import DisturbanceLevels, _Vessel, design_information
+    from vesselid.regressors import predict
+    from vesselid.seatrial import planned_sea_trial_design, simulate_sea_trial
+
+    plan = plan_trial(16000, 2, block=4000, evaluate_block=2000)
+    assert plan.estimator == "auto"
+    vessel = _Vessel.cybership2()
+    acov = sum(design_information(f, vessel, DisturbanceLevels(), warmup=plan.warmup,
+                                  acov_only=True).acov for f in plan.forces())
+    rho_plan = acov[:, 1:] / acov[:, :1]
+    log = simulate_sea_trial(2, 8000, seed=3, design=planned_sea_trial_design(plan=plan))
+    fr, spec = log.to_frame(), log.spec
+    emp = np.zeros_like(acov)
+    n = 0
+    for _, g in fr.groupby("experiment"):
+        x = g[["u", "v", "r"]].to_numpy()
+        sig = np.hstack([x, g[["X", "Y", "N"]].to_numpy()])
+        eps = x[1:] - predict(spec.codes, spec.theta0_vector(), sig[:-1])
+        eps -= eps.mean(axis=0)
+        n += eps.shape[0]
+        for lag in range(acov.shape[1]):
+            emp[:, lag] += (eps[: eps.shape[0] - lag] * eps[lag:]).sum(axis=0)
+    rho_emp = emp[:, 1:] / emp[:, :1]
+    se = np.sqrt((1 + 2 * np.sum(rho_plan**2, axis=1, keepdims=True)) / n)
+    assert np.all(np.abs(rho_emp - rho_plan) < 4 * se), (rho_emp, rho_plan, se)
+    assert np.all(rho_plan[:, 0] < -0.3)  # the differenced sensor noise dominates lag 1
+
+
+def test_modulus_bias_matches_sampled_expectation():
+    """E[φ(x+e)] − φ(x) of the modulus regressors near zero (errors in variables at the
+    zero crossings) against a sample mean, within 5 sample SE."""
+    from vesselid.planner import _modulus_bias
+    from vesselid.regressors import evaluate
+
+    rng = np.random.default_rng(4)
+    # signals [x, y, u]; factor codes s = 0..2, |s| = 3..5, 1 = 6:
+    # x*|x|, |x|, x*|y|, x*x, y*u
+    layout = np.array([[0, 3], [3, 6], [0, 4], [0, 0], [1, 2]])
+    sig = np.array([[0.004, -0.01, 0.3], [-0.002, 0.02, -1.0]])
+    std = np.array([0.005, 0.005])
+    got = _modulus_bias(layout, sig, std)
+    draws = np.stack([evaluate(layout, sig + np.hstack([rng.standard_normal((2, 2)) * std,
+                                                         np.zeros((2, 1))]))
+                      for _ in range(40000)])
+    want = draws.mean(axis=0) - evaluate(layout, sig)
+    se = draws.std(axis=0) / np.sqrt(draws.shape[0])
+    assert np.all(np.abs(got - want) <= 5 * se + 1e-12)
+    assert got[0, 1] > 0.2 * std[0]  # E|x+e| − |x| is of the order of σ near zero

@@ -339,13 +339,12 @@ class TrialLog:
 
         if min_samples < 1:
             raise LogValidationError(f"min_samples must be at least 1, got {min_samples}")
-        parts = self.experiments()
-        if not parts:  # an empty frame with an 'experiment' column
-            parts = [(0, data)]
-        for eid, frame in parts:
-            if len(frame) < min_samples:
+        offsets = _positions_by_experiment(data)  # the split of experiments(), no copies
+        sizes = [(eid, pos.size) for eid, pos in offsets] or [(0, len(data))]  # empty frame
+        for eid, size in sizes:
+            if size < min_samples:
                 raise LogValidationError(
-                    f"experiment {eid!r} has {len(frame)} sample{'s' if len(frame) != 1 else ''}; "
+                    f"experiment {eid!r} has {size} sample{'s' if size != 1 else ''}; "
                     f"at least {min_samples} are required"
                 )
 
@@ -366,7 +365,6 @@ class TrialLog:
                 )
 
         if "time" in data.columns:
-            offsets = _positions_by_experiment(data)
             times = data["time"].to_numpy(dtype=float)
             for eid, pos in offsets:
                 if pos.size < 2:

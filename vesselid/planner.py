@@ -354,6 +354,46 @@ def sriv_prefilter(acov: np.ndarray) -> list[np.ndarray]:
     return out
 
 
+def _modulus_bias(factors: np.ndarray, sig: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """``E[φ(x + e)] − φ(x)`` of every regressor for Gaussian sensor noise ``e`` of std
+    ``std`` on the states (the first ``std.size`` signals; inputs noise free):
+    ``E|x+e| = x erf(x/σ√2) + σ√(2/π) e^{−x²/2σ²}``,
+    ``E[(x+e)|x+e|] = (x²+σ²) erf(x/σ√2) + xσ√(2/π) e^{−x²/2σ²}``, ``E(x+e)² = x²+σ²``;
+    different signals have independent noise."""
+    from scipy.special import erf
+
+    n_s = sig.shape[1]
+    n_x = std.size
+    ones = np.ones(sig.shape[0])
+
+    def expect(c: int) -> tuple[np.ndarray, np.ndarray, int]:
+        if c >= 2 * n_s:
+            return ones, ones, -1
+        j = c % n_s
+        x = sig[:, j]
+        if c < n_s or j >= n_x or std[j] <= 0:
+            return (x, x, j) if c < n_s else (np.abs(x), np.abs(x), j)
+        s = std[j]
+        return np.abs(x), x * erf(x / (s * math.sqrt(2))) + s * math.sqrt(2 / math.pi) * np.exp(
+            -0.5 * (x / s) ** 2), j
+
+    out = np.zeros((sig.shape[0], factors.shape[0]))
+    for p, (a, b) in enumerate(np.asarray(factors, int)):
+        fa, ea, ja = expect(int(a))
+        fb, eb, jb = expect(int(b))
+        if ja >= 0 and ja == jb and ja < n_x and std[ja] > 0:
+            x, s = sig[:, ja], std[ja]
+            if (a >= n_s) != (b >= n_s):  # x·|x|
+                e = ((x * x + s * s) * erf(x / (s * math.sqrt(2)))
+                     + x * s * math.sqrt(2 / math.pi) * np.exp(-0.5 * (x / s) ** 2))
+            else:  # x·x or |x|·|x|
+                e = x * x + s * s
+            out[:, p] = e - fa * fb
+        else:
+            out[:, p] = ea * eb - fa * fb
+    return out
+
+
 def design_information(
     forces: np.ndarray,
     vessel: _Vessel,
@@ -420,6 +460,16 @@ def design_information(
     full = nom.spec
     pred_full = predict_regressors(full.codes, full.theta0_vector(), sig_t[:-1])
     eps_det = pred_full - predict_regressors(codes, spec.theta0_vector(), sig_t[:-1])
+    # errors in variables at the zero crossings: E|x + e| ≠ |x| for |x| of a few σ, so the
+    # measured modulus regressors are biased there (what A10/A15 exclude) and the
+    # noise-free instruments do not remove it
+    sig_std = (np.asarray(levels.sensor_std, float)
+               * math.sqrt(_clipped_variance(levels.sensor_clip)))
+    d_phi = _modulus_bias(codes.factors, sig_t[:-1], sig_std)
+    theta_id = spec.theta0_vector()
+    for i in range(spec.n_states):
+        cols = np.flatnonzero(codes.equation == i)
+        eps_det[:, i] -= d_phi[:, cols] @ theta_id[cols]
     # wind: mean load (deterministic bias) and gains of gust / direction changes
     wind_on = levels.wind_speed > 0 or levels.gust_std > 0
     if levels.wind_input not in ("anemometer", "none"):

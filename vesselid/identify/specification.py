@@ -221,9 +221,14 @@ def _first_stage(prep: _Prepared, names: list[str] | None,
 
 
 # ----------------------------------------------------------------- over-identification
-def _gmm(z, phi, y, segs, weight):
-    a = sum(z[s].T @ phi[s] for s in segs)
-    b = sum(z[s].T @ y[s] for s in segs)
+def _gmm_sums(z, phi, y, segs):
+    """``A = Σ z φᵀ`` and ``b = Σ z y`` over the experiments (formed once per J test)."""
+    return sum(z[s].T @ phi[s] for s in segs), sum(z[s].T @ y[s] for s in segs)
+
+
+def _gmm(sums, weight):
+    """``θ = (AᵀWA)⁻¹ AᵀW b`` from :func:`_gmm_sums`."""
+    a, b = sums
     m = a.T @ weight @ a
     theta = np.linalg.solve(m, a.T @ weight @ b)
     return theta
@@ -258,13 +263,14 @@ def _hansen_j(prep: _Prepared, cov_type: str, cov_config: Mapping[str, Any],
     if k < p:
         raise CovarianceError(
             f"J test needs at least as many instruments ({k}) as regressors ({p})")
+    sums = _gmm_sums(z, phi, y, segs)
     if long_run is None:
         w0 = np.linalg.pinv(sum(z[s].T @ z[s] for s in segs))
-        th0 = _gmm(z, phi, y, segs, w0)
+        th0 = _gmm(sums, w0)
         est = get_covariance_estimator(cov_type, **cov_config)
         long_run, _ = est.long_run(z, y - phi @ th0, _starts_of(segs), skip_first=False)
     s_inv = np.linalg.pinv(long_run)
-    theta = _gmm(z, phi, y, segs, s_inv)
+    theta = _gmm(sums, s_inv)
     gbar = sum(z[s].T @ (y[s] - phi[s] @ theta) for s in segs)
     j = float(gbar @ s_inv @ gbar)
     df = k - p
