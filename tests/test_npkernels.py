@@ -239,3 +239,41 @@ def test_special_functions_match_scipy(monkeypatch):
         assert _special.chi2_sf(3.47, 4) == pytest.approx(chdtrc(4, 3.47), rel=1e-13)
         assert _special.chi2_sf(1.0, 2.5) == chdtrc(2.5, 1.0)  # non-integer df: scipy
     assert _special.chi2_sf(3.47, 4) == chdtrc(4, 3.47)  # compiled path: scipy itself
+
+
+def test_thread_ranges_cover_every_item_once_and_survive_fork():
+    """run_ranges: every item exactly once in parallel; errors propagate; a forked child
+    gets a fresh pool (the parent's threads do not exist there)."""
+    import os
+
+    from vesselid import _threads
+
+    hits = np.zeros(1000, dtype=np.int64)
+
+    def kern(lo, hi, out):
+        out[lo:hi] += 1
+
+    _threads.run_ranges(kern, 1000, (hits,), parallel=True)
+    np.testing.assert_array_equal(hits, 1)
+
+    def bad(lo, hi):
+        if lo > 0:
+            raise ValueError("boom")
+
+    with pytest.raises(ValueError, match="boom"):
+        _threads.run_ranges(bad, 50, (), parallel=True)
+    if not hasattr(os, "fork") or _threads.n_threads() < 2:
+        return
+    pid = os.fork()
+    if pid == 0:  # child: must not hang on the parent's pool
+        import signal
+
+        signal.alarm(60)  # a hang ends the child (killed by SIGALRM: exit code != 0)
+        try:
+            out = np.zeros(100, dtype=np.int64)
+            _threads.run_ranges(kern, 100, (out,), parallel=True)
+            os._exit(0 if (out == 1).all() else 1)
+        except BaseException:
+            os._exit(2)
+    _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 0

@@ -20,9 +20,10 @@ runner keeps working.
 
 from __future__ import annotations
 
+import os
 import threading
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 from typing import Any
 
 __all__ = ["CHUNKS_PER_THREAD", "n_threads", "run_ranges"]
@@ -61,6 +62,17 @@ def _mark_worker() -> None:
     _LOCAL.worker = True
 
 
+def _forget_pool() -> None:
+    """In a forked child: the parent's pool threads do not exist there, so start afresh
+    (a pool whose threads are gone would never run the submitted chunks)."""
+    global _POOL, _POOL_SIZE, _LOCK
+    _POOL, _POOL_SIZE, _LOCK = None, 0, threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):  # POSIX
+    os.register_at_fork(after_in_child=_forget_pool)
+
+
 def run_ranges(kernel: Callable[..., Any], n_items: int, args: tuple, *,
                parallel: bool) -> None:
     """``kernel(lo, hi, *args)`` over ``[0, n_items)``: one call, or chunks in threads.
@@ -93,6 +105,9 @@ def run_ranges(kernel: Callable[..., Any], n_items: int, args: tuple, *,
     kernel(0, 0, *args)  # compile (or load) in the calling thread first, over no item
     pool = _pool(threads - 1)
     futures = [pool.submit(work) for _ in range(threads - 1)]
-    work()  # the calling thread takes chunks too
+    try:
+        work()  # the calling thread takes chunks too
+    finally:  # never return (or raise) while pool threads still write the outputs
+        wait(futures)
     for fut in futures:
         fut.result()

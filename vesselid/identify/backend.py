@@ -77,6 +77,8 @@ def choose(n_samples: int, n_params: int) -> Iterator[bool]:
 
 def _log_size(log: Any, spec: Any) -> tuple[int, int]:
     """(rows, parameters) of a trial log and spec, cheaply (0 where unknown)."""
+    if isinstance(log, str | bytes | os.PathLike):
+        return 0, 0  # not a log object (fit refuses it): unknown size
     try:
         rows = len(log)
     except TypeError:

@@ -277,7 +277,8 @@ class Estimator:
             eta_source = "given"
         design = design_margins(data.regsig, data.starts, spec, eta_used, data.experiment_ids,
                                 threshold=design_threshold)
-        for _, r in design[~design["ok"]].iterrows():
+        bad_design = ~design["ok"].to_numpy(bool)  # filter the frame only when needed
+        for _, r in (design[bad_design].iterrows() if bad_design.any() else ()):
             _warn(f"state {r['state']!r} in experiment {r['experiment']} is within "
                   f"η={r['eta']:.3g} of zero in {100 * r['share_within_eta']:.1f} % of samples "
                   f"({r['sign_changes']} sign changes): the modulus cannot be treated as "
