@@ -211,9 +211,28 @@ def bench_cold_start(table: str = "all") -> dict:
         env.pop("PYTHONPATH", None)
         cmd = [str(venv / "bin" / "vesselid"), "reproduce", "--table", table]
         # run outside the checkout, so that the installed copy is the one imported
-        first, _ = run_timed([*cmd, "--out", str(tmp / "first")], env=env, cwd=tmp)
+        first, p1 = run_timed([*cmd, "--out", str(tmp / "first")], env=env, cwd=tmp)
         timings = json.loads((tmp / "first" / "summary.json").read_text())["timings"]
-        second, _ = run_timed([*cmd, "--out", str(tmp / "second")], env=env, cwd=tmp)
+        second, p2 = run_timed([*cmd, "--out", str(tmp / "second")], env=env, cwd=tmp)
+        # the compile time of kernels on the first run, measured in-process
+        probe = ("import json, time, numba.core.event as ev\n"
+                 "stack, tot = [], [0, 0.0]\n"
+                 "class L(ev.Listener):\n"
+                 "    def on_start(self, e): stack.append(time.process_time())\n"
+                 "    def on_end(self, e):\n"
+                 "        t0 = stack.pop()\n"
+                 "        if not stack:\n"
+                 "            tot[0] += 1\n"
+                 "            tot[1] += time.process_time() - t0\n"
+                 "ev.register('numba:compile', L())\n"
+                 "from vesselid.reproduce import warm_up\n"
+                 "warm_up()\n"
+                 "print(json.dumps(tot))")
+        cold_env = dict(env, NUMBA_CACHE_DIR=str(tmp / "numba2"),
+                        VESSELID_KERNEL_DIR=str(tmp / "kernels2"))
+        compiles = json.loads(subprocess.run(
+            [str(venv / "bin" / "python"), "-c", probe], env=cold_env, capture_output=True,
+            text=True, check=True, cwd=tmp).stdout.strip().splitlines()[-1])
         where = subprocess.run([str(venv / "bin" / "python"), "-c",
                                 "import vesselid; print(vesselid.__file__)"], env=env,
                                capture_output=True, text=True, check=True,
@@ -223,6 +242,11 @@ def bench_cold_start(table: str = "all") -> dict:
         f"cold_first_reproduce_{table}_s": first,
         f"cold_first_reproduce_{table}_timings": timings,
         f"second_reproduce_{table}_s": second,
+        f"cold_first_reproduce_{table}_cpu_s": getattr(p1, "cpu_s", None),
+        f"second_reproduce_{table}_cpu_s": getattr(p2, "cpu_s", None),
+        # a fresh-cache warm-up in the new venv: kernels compiled, CPU seconds compiling
+        "cold_warm_up_compile_events": compiles[0],
+        "cold_warm_up_compile_cpu_s": compiles[1],
         "installed_from": where,
         "target_first_run_s": 15.0,
     }

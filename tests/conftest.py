@@ -40,6 +40,13 @@ def _pin_blas_kernels() -> None:
 
 _pin_blas_kernels()
 
+# identify() takes numpy kernels for small logs while numba is not imported yet
+# (vesselid.identify.backend): equal to the compiled ones to rounding, not bit for bit. So
+# that no result of the suite depends on which test happened to load numba first, the
+# suite uses the compiled kernels; tests/test_npkernels.py sets the variable per test to
+# check the numpy path, the automatic choice and their agreement.
+os.environ.setdefault("VESSELID_KERNELS", "compiled")
+
 KNOWN_FAILURES: dict[str, str] = {
     "tests/test_reproduce.py::test_paper_size_matches_published_tables":
         "sd band now derived from Monte Carlo SEs (issue 9): the f sd of Table 2 IV and "
