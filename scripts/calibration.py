@@ -36,6 +36,7 @@ DOCS = Path(__file__).resolve().parents[1] / "docs"
 CANDIDATES = {
     "hac (default: Bartlett, Newey-West bandwidth)": (DEFAULT_COV_TYPE, {}),
     "unadjusted": ("unadjusted", {}),
+    "hac default without the Windmeijer correction": (DEFAULT_COV_TYPE, {"windmeijer": False}),
     "hac Bartlett, Andrews AR(1) bandwidth": ("hac", {"kernel": "bartlett",
                                                        "bandwidth": "andrews"}),
     "hac QS, Newey-West bandwidth": ("hac", {"kernel": "qs"}),

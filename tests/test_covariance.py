@@ -293,3 +293,59 @@ def test_gmm_weight_sandwich_matches_ivgmm():
     res = iv_covariance(z_extra, phi, y - phi @ theta, weight=w, skip_first=False,
                         cov_type="hac", kernel="bartlett", bandwidth=5)
     assert _rel(res.cov, fit.cov.to_numpy()) < TOL
+
+
+def test_windmeijer_sandwich_is_windmeijers_formula():
+    """With the weight's own long-run covariance in the middle (S = W⁻¹), the corrected
+    sandwich L S Lᵀ, L = C + D C₁, is Windmeijer's (2005) V + DV + VDᵀ + D V₁ Dᵀ with
+    V = (AᵀWA)⁻¹ and V₁ the robust first-step (2SLS) variance; D = 0 gives V."""
+    from vesselid.identify.covariance import _windmeijer_sandwich
+
+    rng = np.random.default_rng(3)
+    k, p = 6, 3
+    a = rng.normal(size=(k, p))
+    r = rng.normal(size=(k, k))
+    s = r @ r.T + k * np.eye(k)
+    w = np.linalg.inv(s)
+    r1 = rng.normal(size=(k, k))
+    w1 = np.linalg.inv(r1 @ r1.T + k * np.eye(k))
+    d = 0.1 * rng.normal(size=(p, p))
+    v = np.linalg.inv(a.T @ w @ a)
+    c1 = np.linalg.solve(a.T @ w1 @ a, a.T @ w1)
+    v1 = c1 @ s @ c1.T
+    expected = v + d @ v + v @ d.T + d @ v1 @ d.T
+    got = _windmeijer_sandwich(a, [0.4 * s, 0.6 * s], w, w1, d)
+    np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(_windmeijer_sandwich(a, [s], w, w1, np.zeros((p, p))), v,
+                               rtol=1e-12)
+
+
+def test_windmeijer_option_and_weight_jacobian_validation():
+    rng = np.random.default_rng(4)
+    z, phi, y = _problem(rng, n=200)
+    z = np.column_stack([z, z[:, :2] ** 2])
+    resid = y - phi @ np.linalg.lstsq(phi, y, rcond=None)[0]
+    w = np.linalg.inv(z.T @ z)
+    est = get_covariance_estimator("hac")
+    assert est.windmeijer
+    d = 0.05 * np.eye(3)
+    res = est.estimate(z, phi, resid, weight=w, weight_jacobian=d)
+    plain = est.estimate(z, phi, resid, weight=w)
+    assert res.config["windmeijer"] and "Windmeijer (2005)" in res.label
+    assert "windmeijer" not in plain.config and "Windmeijer" not in plain.label
+    assert not np.allclose(res.cov, plain.cov)
+    off = get_covariance_estimator("hac", windmeijer=False).estimate(
+        z, phi, resid, weight=w, weight_jacobian=d)
+    np.testing.assert_array_equal(off.cov, plain.cov)
+    assert off.config["windmeijer"] is False and "Windmeijer" not in off.label
+    # the unit-free correction: rescaling a regressor column rescales D consistently
+    scale = np.array([1.0, 1e3, 1e-2])
+    res_s = est.estimate(z, phi * scale, resid, weight=w,
+                         weight_jacobian=d / scale[:, None] * scale[None, :])
+    np.testing.assert_allclose(res_s.cov * np.outer(scale, scale), res.cov, rtol=1e-9)
+    for bad in ({"weight_jacobian": d}, {"weight": w, "weight_jacobian": np.eye(2)},
+                {"weight": w, "weight_jacobian": np.full((3, 3), np.nan)}):
+        with pytest.raises(CovarianceError):
+            est.estimate(z, phi, resid, **bad)
+    with pytest.raises(CovarianceError, match="windmeijer"):
+        get_covariance_estimator("unadjusted", windmeijer="yes")

@@ -555,7 +555,8 @@ def registry_covariances(
                 p_sl = slice(int(blocks[i]), int(blocks[i + 1]))
                 try:
                     res = ce.estimate(d.z, d.phi, d.resid, d.starts, weight=d.weight,
-                                      zero_mean=d.zero_mean, combine=combine, skip_first=False)
+                                      zero_mean=d.zero_mean, combine=combine, skip_first=False,
+                                      weight_jacobian=d.weight_jacobian)
                 except ValueError:
                     continue
                 out[label][g, p_sl] = res.std_errors

@@ -66,7 +66,10 @@ class EquationDesign:
     ``starts`` (S+1,) experiment boundaries into these rows, ``weight`` the GMM
     weight (K, K) when ``K > P`` or the row weight of the stacked equations (None: just
     identified, pooled), ``zero_mean`` whether the
-    rows carry per-experiment constants (centred instruments).
+    rows carry per-experiment constants (centred instruments), ``weight_jacobian``
+    (P, P) the derivative ``∂θ₂/∂θ₁`` of a two-step GMM estimate with respect to its
+    2SLS first step through the estimated weight (None: the weight is not estimated),
+    from which the covariance adds Windmeijer's (2005) finite-sample correction.
     """
 
     z: np.ndarray
@@ -75,6 +78,7 @@ class EquationDesign:
     starts: np.ndarray
     weight: np.ndarray | None = None
     zero_mean: bool = False
+    weight_jacobian: np.ndarray | None = None
 
 
 def equation_rows(data: RegressionData) -> np.ndarray:

@@ -392,6 +392,9 @@ class CovarianceEstimator:
 
     name: ClassVar[str] = ""
     description: ClassVar[str] = ""
+    #: Add Windmeijer's (2005) finite-sample correction to two-step GMM estimates whose
+    #: design carries ``weight_jacobian`` (``cov_config`` ``windmeijer=False`` turns it off).
+    windmeijer: bool = True
 
     def __init__(self, **config: Any) -> None:
         if config:
@@ -423,6 +426,7 @@ class CovarianceEstimator:
         zero_mean: bool = False,
         combine: str = "pooled",
         skip_first: bool = True,
+        weight_jacobian: np.ndarray | None = None,
     ) -> CovarianceResult:
         """Covariance of the estimates from instruments, regressors and residuals.
 
@@ -457,6 +461,15 @@ class CovarianceEstimator:
             Ignore the first row of every experiment (the package's convention: the
             one-step predictor has no regressors there). ``False`` when the caller
             already dropped those rows.
+        weight_jacobian : ndarray (P, P), optional
+            Two-step GMM with the weight ``W = Ŝ(θ₁)⁻¹`` estimated from the 2SLS first
+            step ``θ₁``: ``D = ∂θ₂/∂θ₁`` through that weight
+            (:func:`vesselid.identify.gmm.weight_jacobian`). With :attr:`windmeijer`
+            the covariance is Windmeijer's (2005) finite-sample corrected
+            ``L S Lᵀ``, ``L = C + D C₁``, where ``C = (AᵀWA)⁻¹AᵀW`` and
+            ``C₁ = (AᵀW₁A)⁻¹AᵀW₁`` (``W₁ = (Σ zzᵀ)⁻¹``) map the moments to the two-step
+            and first-step estimates (``θ₂ − θ0 ≈ C ḡ + D (θ₁ − θ0)``); with
+            ``S = W⁻¹`` it is Windmeijer's ``V + DV + VDᵀ + D V₁ Dᵀ``. Pooled only.
 
         Returns
         -------
@@ -493,7 +506,23 @@ class CovarianceEstimator:
             w_mat = w_mat * np.outer(sc.z_scale, sc.z_scale)
         s_list, used = self.meat(sc.g, z, sc.eps, segs, z_equation)
         n_list = [s.stop - s.start for s in segs]
-        if n_ins == n_par and weight is None and (combine == "pooled" or len(segs) == 1):
+        if weight_jacobian is not None:
+            used["windmeijer"] = bool(self.windmeijer)
+        if weight_jacobian is not None and self.windmeijer:
+            d_mat = np.asarray(weight_jacobian, dtype=float)
+            if weight is None or n_ins == n_par:
+                raise CovarianceError("weight_jacobian needs the weight of an over-identified "
+                                      "two-step GMM estimate")
+            if combine == "stacked" and len(segs) > 1:
+                raise CovarianceError("weight_jacobian (Windmeijer) is for pooled estimates")
+            if d_mat.shape != (n_par, n_par) or not np.all(np.isfinite(d_mat)):
+                raise CovarianceError(f"weight_jacobian must be a finite ({n_par}, {n_par}) "
+                                      "matrix")
+            w_first = _block_inverse(sum(z[s].T @ z[s] for s in segs) * same_z, z_equation)
+            # θ_s = D_φ θ: the Jacobian in the equilibrated units
+            d_mat = d_mat * np.outer(sc.phi_scale, 1.0 / sc.phi_scale)
+            cov = _windmeijer_sandwich(a_sum, s_list, w_mat, w_first, d_mat)
+        elif n_ins == n_par and weight is None and (combine == "pooled" or len(segs) == 1):
             cov = sandwich_from_sums(a_list, s_list, n_list)
         elif combine == "stacked" and _is_positive_diagonal(w_mat):
             cov = sandwich_from_sums(a_list, s_list, n_list, row_weight=np.diag(w_mat))
@@ -502,8 +531,11 @@ class CovarianceEstimator:
         if np.all(np.isfinite(cov)):
             cov = cov / np.outer(sc.phi_scale, sc.phi_scale)
         config = {**self.config(), **used}
+        label = self.label(config)
+        if config.get("windmeijer"):
+            label += "; Windmeijer (2005) correction for the estimated two-step GMM weight"
         return CovarianceResult(cov=cov, cov_type=self.name, config=config,
-                                label=self.label(config),
+                                label=label,
                                 long_run=sum(s_list) * np.outer(sc.z_scale, sc.z_scale),
                                 moment_matrix=(a_sum, z_equation, equation))
 
@@ -635,6 +667,24 @@ def _general_sandwich(a_list: list[np.ndarray], a_sum: np.ndarray, s_list: list[
     except np.linalg.LinAlgError:
         return np.full((k, k), np.inf)
     cov = h_inv @ middle @ h_inv.T
+    cov = 0.5 * (cov + cov.T)
+    return cov if np.all(np.isfinite(cov)) else np.full((k, k), np.inf)
+
+
+def _windmeijer_sandwich(a_sum: np.ndarray, s_list: list[np.ndarray], w_mat: np.ndarray,
+                         w_first: np.ndarray, d_mat: np.ndarray) -> np.ndarray:
+    """Windmeijer (2005) corrected covariance of a pooled two-step GMM estimate:
+    ``L (Σ_E S_E) Lᵀ`` with ``L = C + D C₁``, ``C = (AᵀWA)⁻¹AᵀW``,
+    ``C₁ = (AᵀW₁A)⁻¹AᵀW₁`` (see :meth:`CovarianceEstimator.estimate`); all-``inf`` when
+    singular."""
+    k = a_sum.shape[1]
+    try:
+        aw = a_sum.T @ w_mat
+        aw1 = a_sum.T @ w_first
+        infl = np.linalg.solve(aw @ a_sum, aw) + d_mat @ np.linalg.solve(aw1 @ a_sum, aw1)
+    except np.linalg.LinAlgError:
+        return np.full((k, k), np.inf)
+    cov = infl @ sum(s_list) @ infl.T
     cov = 0.5 * (cov + cov.T)
     return cov if np.all(np.isfinite(cov)) else np.full((k, k), np.inf)
 
@@ -862,10 +912,16 @@ def get_covariance_estimator(cov_type: str = DEFAULT_COV_TYPE, **cov_config: Any
     if cov_type not in COVARIANCE_ESTIMATORS:
         raise CovarianceError(f"unknown cov_type {cov_type!r}; choose from "
                               f"{list(COVARIANCE_ESTIMATORS)}")
+    cov_config = dict(cov_config)
+    windmeijer = cov_config.pop("windmeijer", True)
+    if not isinstance(windmeijer, bool | np.bool_):
+        raise CovarianceError(f"windmeijer must be True or False, got {windmeijer!r}")
     try:
-        return COVARIANCE_ESTIMATORS[cov_type](**cov_config)
+        est = COVARIANCE_ESTIMATORS[cov_type](**cov_config)
     except TypeError as exc:
         raise CovarianceError(f"invalid options for cov_type {cov_type!r}: {exc}") from None
+    est.windmeijer = bool(windmeijer)
+    return est
 
 
 def iv_covariance(z: np.ndarray, phi: np.ndarray, resid: np.ndarray,
@@ -873,9 +929,11 @@ def iv_covariance(z: np.ndarray, phi: np.ndarray, resid: np.ndarray,
                   cov_type: str = DEFAULT_COV_TYPE, z_equation: np.ndarray | None = None,
                   weight: np.ndarray | None = None, zero_mean: bool = False,
                   combine: str = "pooled", skip_first: bool = True,
+                  weight_jacobian: np.ndarray | None = None,
                   **cov_config: Any) -> CovarianceResult:
     """One call: :func:`get_covariance_estimator` then
     :meth:`CovarianceEstimator.estimate` (see there for the arguments)."""
     est = get_covariance_estimator(cov_type, **cov_config)
     return est.estimate(z, phi, resid, starts, equation, z_equation=z_equation, weight=weight,
-                        zero_mean=zero_mean, combine=combine, skip_first=skip_first)
+                        zero_mean=zero_mean, combine=combine, skip_first=skip_first,
+                        weight_jacobian=weight_jacobian)

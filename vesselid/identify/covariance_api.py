@@ -101,7 +101,8 @@ def resolve(cov_type: str | None, cov_config: Mapping[str, Any] | None = None
     def fn(design: Any, *, combine: str = "pooled") -> tuple[np.ndarray, str]:
         res = est.estimate(design.z, design.phi, design.resid, design.starts,
                            weight=design.weight, zero_mean=design.zero_mean, combine=combine,
-                           skip_first=False)
+                           skip_first=False,
+                           weight_jacobian=getattr(design, "weight_jacobian", None))
         return np.asarray(res.cov, dtype=float), str(res.label)
 
     return name, fn

@@ -56,10 +56,12 @@ def _designs_from(sol: gmm.GMMSolution, theta: np.ndarray, spec: ModelSpec
 
     blocks = block_starts(spec)
     out = []
+    jacobians = sol.jacobians or [None] * len(sol.designs or [])
     for i, (z, phi, y, valid, w) in enumerate(sol.designs or []):
         sl = slice(int(blocks[i]), int(blocks[i + 1]))
         out.append(EquationDesign(z=z, phi=phi, resid=y - phi @ theta[sl],
-                                  starts=_starts_of(valid, sol), weight=w, zero_mean=True))
+                                  starts=_starts_of(valid, sol), weight=w, zero_mean=True,
+                                  weight_jacobian=jacobians[i]))
     return out
 
 
@@ -211,7 +213,8 @@ class InstrumentalGMM(Estimator):
         active = np.all(np.isfinite(theta), axis=1)
         sol = None
         fused = kind == "combined" and not order and not keep
-        for _ in range(int(self.refine if steps is None else steps)):
+        n_steps = int(self.refine if steps is None else steps)
+        for step in range(n_steps):
             if fused:  # Monte Carlo fast path: two compiled passes, no row matrices
                 sol, ok_sim = gmm.combined_solution(data, spec, theta)
             else:
@@ -225,7 +228,8 @@ class InstrumentalGMM(Estimator):
                         ar[:, i] = gmm.ar_coefficients(data, resid[:, i], valid, order)
                 blocks = gmm.instrument_blocks(spec, kind, phi, z_sim, lagged)
                 sol = gmm.solve_equations(data, spec, phi, blocks, weight="hac", ar=ar,
-                                          keep_designs=keep)
+                                          keep_designs=keep,
+                                          keep_jacobians=keep and step == n_steps - 1)
             new = np.where((sol.ok & ok_sim & active)[:, None], sol.theta, np.nan)
             iters += active
             active &= np.all(np.isfinite(new), axis=1)

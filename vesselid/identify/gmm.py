@@ -29,6 +29,13 @@ Estimation per group and equation: ``A = Σ z φᵀ``, ``b = Σ z y``; 2SLS
 experiments (never across a boundary). Hansen's ``J = ḡᵀŜ⁻¹ḡ`` with
 ``ḡ = Σ z ε(θ₂)`` is χ²(K − P) under valid instruments; the difference-in-J (C)
 statistic of a subset is ``J(all) − J(without the subset)``.
+
+The weight ``Ŝ(θ₁)⁻¹`` is itself estimated, which makes the textbook two-step
+covariance optimistic in finite samples; on request (the checked ``fit`` path) the
+derivative ``D = ∂θ₂/∂θ₁`` through the weight (:func:`weight_jacobian`,
+:func:`hac_sums_derivative`: same kernel, bandwidth, per-experiment lags and
+centring) is kept for Windmeijer's (2005) corrected covariance
+(:meth:`vesselid.identify.covariance.CovarianceEstimator.estimate`).
 """
 
 from __future__ import annotations
@@ -52,12 +59,14 @@ __all__ = [
     "combined_solution",
     "hac_lags",
     "hac_sums",
+    "hac_sums_derivative",
     "instrument_blocks",
     "lagged_regressors",
     "noise_instruments",
     "simulated_instruments",
     "solve_equations",
     "state_terms",
+    "weight_jacobian",
 ]
 
 INSTRUMENT_SETS = ("simulated", "lagged", "combined")
@@ -223,7 +232,11 @@ class GMMSolution:
     ``theta`` (G, P), ``ok`` (G,), per equation ``j`` (G, n) Hansen's J, ``df`` (n,)
     its degrees of freedom, ``c`` (G, n) the difference-in-J statistic of the
     lagged subset and ``c_df`` (n,). ``designs`` (one group only, on request):
-    per equation ``(z, phi, y, valid, weight)`` after prefiltering and centring.
+    per equation ``(z, phi, y, valid, weight)`` after prefiltering and centring;
+    ``jacobians`` (with ``designs``): per equation the derivative ``∂θ₂/∂θ₁`` (P_i, P_i)
+    of the two-step estimate with respect to the first-step estimate through the
+    estimated HAC weight (:func:`weight_jacobian`; Windmeijer 2005), None where the
+    equation has no estimated weight (just identified, or 2SLS).
     """
 
     theta: np.ndarray
@@ -233,6 +246,7 @@ class GMMSolution:
     c: np.ndarray
     c_df: np.ndarray
     designs: list | None = None
+    jacobians: list | None = None
 
 
 def hac_sums(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: np.ndarray,
@@ -267,6 +281,68 @@ def hac_sums(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: np.ndarray
     return out
 
 
+def _moving_sums(x: np.ndarray, lag: int) -> np.ndarray:
+    """``h(t) = Σ_{i=0}^{lag} x(t − i)`` of the zero-padded series ``x`` (q, n), for
+    ``t = 0 … n + lag − 1`` (as :func:`hac_sums`)."""
+    q, n = x.shape
+    c = np.zeros((q, n + 2 * lag + 1))
+    np.cumsum(x, axis=1, out=c[:, lag + 1:n + lag + 1])
+    c[:, n + lag + 1:] = c[:, n + lag:n + lag + 1]
+    return c[:, lag + 1:] - c[:, :-(lag + 1)]
+
+
+def hac_sums_derivative(z: np.ndarray, phi: np.ndarray, e: np.ndarray, starts: np.ndarray,
+                        valid: np.ndarray, lags: int) -> np.ndarray:
+    """Derivative of :func:`hac_sums` (summed over the experiments) with respect to θ,
+    where ``e = y − φθ``: ``∂S/∂θ_j`` for every ``j``, shape ``(P, K, K)``.
+
+    The same Bartlett weights, bandwidth, per-experiment demeaning and zeroed invalid
+    rows as :func:`hac_sums`. With ``g(k) = z(k) e(k)`` demeaned per experiment,
+    ``S = Σ_k g(k) f(k)ᵀ/(L+1)`` where ``f(k) = Σ_{|l|≤L} (L + 1 − |l|) g(k − l)`` (the
+    moving sums applied twice), and ``∂g(k)/∂θ_j = q_j(k) = −(z(k) φ_j(k) − mean_E z φ_j)``,
+    so ``∂S/∂θ_j = (X_j + X_jᵀ)/(L+1)`` with ``X_j = Σ_k q_j(k) f(k)ᵀ``: one ``K × K``
+    product per parameter.
+    """
+    k_cols, p_cols = z.shape[1], phi.shape[1]
+    out = np.zeros((p_cols, k_cols, k_cols))
+    g_all = z * np.where(valid, e, 0.0)[:, None]
+    for s in range(starts.size - 1):
+        a, b = int(starts[s]), int(starts[s + 1])
+        v = valid[a:b]
+        cnt = int(v.sum())
+        if cnt == 0:
+            continue
+        n = b - a
+        g = np.ascontiguousarray(g_all[a:b].T)
+        g -= (g.sum(axis=1) / cnt)[:, None]
+        g[:, ~v] = 0.0
+        lag = int(min(lags, n - 1))
+        f = _moving_sums(_moving_sums(g, lag), lag)[:, lag:lag + n]
+        f[:, ~v] = 0.0
+        zv = np.where(v, z[a:b].T, 0.0)
+        # rows (j, k): z_k φ_j on the valid rows, one product for every parameter
+        zp = (phi[a:b].T[:, None, :] * zv[None]).reshape(p_cols * k_cols, n)
+        mean = (zv @ phi[a:b]).T.reshape(-1) / cnt
+        x = (np.outer(mean, f.sum(axis=1)) - zp @ f.T).reshape(p_cols, k_cols, k_cols)
+        out += (x + np.swapaxes(x, 1, 2)) / (lag + 1.0)
+    return out
+
+
+def weight_jacobian(a: np.ndarray, w: np.ndarray, gbar: np.ndarray, ds: np.ndarray
+                    ) -> np.ndarray:
+    """``D = ∂θ₂/∂θ₁`` of the two-step GMM estimate through its weight (Windmeijer 2005).
+
+    ``θ₂ = (AᵀW A)⁻¹ AᵀW b`` with ``W = S(θ₁)⁻¹``; since ``AᵀW ḡ₂ = 0`` at
+    ``ḡ₂ = b − Aθ₂``, ``∂θ₂/∂θ₁_j = −(AᵀWA)⁻¹ AᵀW (∂S/∂θ_j) W ḡ₂`` (exact, not only to
+    first order). ``a`` (K, P), ``w`` (K, K), ``gbar`` (K,), ``ds`` (P, K, K) from
+    :func:`hac_sums_derivative` at ``θ₁``. Returns ``(P, P)``, column ``j`` the
+    derivative with respect to ``θ₁_j``.
+    """
+    aw = a.T @ w
+    wg = w @ gbar
+    return -np.linalg.solve(aw @ a, aw @ np.einsum("jkl,l->kj", ds, wg))
+
+
 def _group_sum(data: RegressionData, x: np.ndarray) -> np.ndarray:
     out = np.zeros((data.n_groups, *x.shape[1:]))
     np.add.at(out, data.group, x)
@@ -287,6 +363,7 @@ def solve_equations(
     ar: np.ndarray | None = None,
     lags: int | None = None,
     keep_designs: bool = False,
+    keep_jacobians: bool | None = None,
 ) -> GMMSolution:
     """IV / 2SLS / two-step GMM of every equation and group (see module docstring).
 
@@ -303,6 +380,11 @@ def solve_equations(
         target, regressors and instruments per experiment before centring.
     lags : int, optional
         HAC bandwidth (default :func:`hac_lags` of the median experiment length).
+    keep_designs : bool
+        Keep group 0's final rows (``designs``; one group only).
+    keep_jacobians : bool, optional
+        With ``designs``, also Windmeijer's ``∂θ₂/∂θ₁`` of each two-step HAC equation
+        (``jacobians``); default ``keep_designs``.
     """
     blocks = block_starts(spec)
     n_groups = data.n_groups
@@ -315,6 +397,8 @@ def solve_equations(
     rg = _row_groups(data)
     bw = hac_lags(int(np.median(np.diff(data.starts)))) if lags is None else int(lags)
     designs = [] if keep_designs else None
+    keep_jacobians = keep_designs if keep_jacobians is None else keep_jacobians
+    jacobians = [] if keep_designs else None
     for i in range(spec.n_states):
         sl = slice(int(blocks[i]), int(blocks[i + 1]))
         z, n_lag = z_blocks[i]
@@ -348,6 +432,7 @@ def solve_equations(
             w = np.nan_to_num(w)
         th, ok_i = linalg.gmm_solve(a, b, w)
         s_mat = None
+        jac = None
         if k_i > p_i:
             e = yy - np.einsum("tp,tp->t", pp, np.nan_to_num(th)[rg])
             s_mat = _group_sum(data, hac_sums(zz, e, data.starts, valid, bw))
@@ -357,6 +442,13 @@ def solve_equations(
                 th, ok_i = th2, ok_i & ok_2 & ok_s
                 w = s_inv
             gbar = b - np.einsum("gkp,gp->gk", a, np.nan_to_num(th))
+            if weight == "hac" and keep_jacobians and designs is not None and n_groups == 1 \
+                    and ok_i[0]:
+                # Windmeijer (2005): how θ₂ moves with θ₁ through W = S(θ₁)⁻¹, in the
+                # units of the data (θ = θ_scaled · c_p / c_y)
+                ds = hac_sums_derivative(zz, pp, e, data.starts, valid, bw)
+                c_p = col[k_i:k_i + p_i]
+                jac = weight_jacobian(a[0], s_inv[0], gbar[0], ds) * c_p[:, None] / c_p[None, :]
             j_stat[:, i] = np.einsum("gk,gkl,gl->g", gbar, np.nan_to_num(s_inv), gbar)
             df[i] = k_i - p_i
             if n_lag:
@@ -376,9 +468,11 @@ def solve_equations(
         if designs is not None:
             designs.append((zz[valid] / c_z, pp[valid] / c_p, yy[valid] / c_y, valid,
                             None if w is None else np.asarray(w)[0] * np.outer(c_z, c_z)))
+            jacobians.append(jac)
     theta[~ok] = np.nan
     return GMMSolution(theta=theta, ok=ok, j=j_stat, df=df, c=c_stat, c_df=c_df,
-                       designs=designs)
+                       designs=designs, jacobians=jacobians)
+
 
 
 def _combined_layout(spec: ModelSpec):
