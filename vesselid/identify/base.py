@@ -237,12 +237,6 @@ class Estimator:
                 )
             designs = self.equation_designs(data, spec, it, phi, combine)
         theta = it.theta[0]
-        if self.uses_instruments and not bool(it.converged[0]):
-            _warn(f"refined IV did not converge ({it.reason[0]}, {int(it.iterations[0])} "
-                  f"iterations, fixed-point residual {it.residual[0]:.3g}); returning the IV "
-                  "estimate of the best iterate", ConvergenceWarning)
-        if it.oscillation[0]:
-            _warn("the refined iteration oscillated; the step was damped", ConvergenceWarning)
 
         weights = np.zeros((spec.n_params, spec.n_states))
         weights[np.arange(spec.n_params), codes.equation] = theta
@@ -259,6 +253,19 @@ class Estimator:
             if self.uses_instruments and cond[s] > weak_instrument_cond:
                 _warn(f"weak instruments in equation {s!r}: cond(ZᵀΦ) = {cond[s]:.3g}",
                       WeakInstrumentWarning)
+        # the last step T(θ) − θ of the refined iteration (for GMM/SRIV: of the IV_E{ζ}=0
+        # iteration that supplied their instruments)
+        src = it.info.get("base", it)
+        step_se = _fixed_point_step_in_se((src.theta - src.theta_aux)[0], cov)
+        if self.uses_instruments and not bool(it.converged[0]):
+            size = ("" if not np.isfinite(step_se) else
+                    f"; its last fixed-point step is at most {step_se:.2g} standard errors "
+                    "of any parameter")
+            _warn(f"refined IV did not converge ({it.reason[0]}, {int(it.iterations[0])} "
+                  f"iterations, fixed-point residual {it.residual[0]:.3g}); returning the IV "
+                  f"estimate of the best iterate{size}", ConvergenceWarning)
+        if it.oscillation[0]:
+            _warn("the refined iteration oscillated; the step was damped", ConvergenceWarning)
         specification = _specification_tests(spec, designs, theta, blocks, cov_name)
         residual_checks = _residual_checks(spec, data, resid)
         if not np.all(np.isfinite(cov)):
@@ -302,6 +309,7 @@ class Estimator:
             "fit_one_step": fit_one,
             "fit_free_run": fit_free,
             "fixed_point_residual": float(it.residual[0]),
+            "fixed_point_step_se": step_se,
             "oscillation": bool(it.oscillation[0]),
             "start": None if it.start is None else str(it.start[0]),
             **self.describe(it),
@@ -481,3 +489,15 @@ def _free_run_fit(data: RegressionData, spec: ModelSpec, theta: np.ndarray):
     ratio, all_ok = free_run_ratio(data, spec, theta)
     fit = 100.0 * (1.0 - ratio)
     return {st: float(fit[i]) for i, st in enumerate(spec.states)}, all_ok
+
+
+def _fixed_point_step_in_se(step: np.ndarray, cov: np.ndarray) -> float:
+    """The largest last fixed-point step ``|T(θ) − θ|`` of any parameter, in that
+    parameter's standard errors (``0`` for a closed form; ``inf`` where a standard error
+    is zero or undefined while the step is not)."""
+    step = np.abs(np.nan_to_num(np.asarray(step, dtype=float), nan=np.inf))
+    se = np.sqrt(np.abs(np.diag(cov)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(step == 0, 0.0, step / se)
+    ratio = np.where(np.isfinite(ratio), ratio, np.inf)
+    return float(ratio.max()) if ratio.size else 0.0

@@ -56,6 +56,13 @@ STOP_DIVERGED = "auxiliary model diverged"
 STOP_START_DIVERGED = "auxiliary model of the initial estimate diverges"
 STOP_SINGULAR = "instrument matrix singular"
 STOP_FIXED = "user-supplied instruments (no iteration)"
+STOP_STALLED = ("stalled: the fixed-point residual stopped decreasing (the auxiliary "
+                "simulation is numerically sensitive to θ)")
+
+#: Stall rule of the refined iteration: stop when the best fixed-point residual has not
+#: improved for ``STALL_PATIENCE`` evaluations of ``T`` while it is below ``STALL_TOL``.
+STALL_PATIENCE = 20
+STALL_TOL = 1e-4
 
 
 @dataclass
@@ -303,7 +310,13 @@ def refined_iv(
       iteration-map eigenvalue is near −1) or the auxiliary model of the
       candidate diverges (the candidate is then rejected);
     * the iteration stops when ``α`` falls below ``min_step`` with a diverging
-      auxiliary model, or after ``max_iter`` evaluations of ``T``;
+      auxiliary model, after ``max_iter`` evaluations of ``T``, or when it has
+      *stalled*: the best residual is below ``STALL_TOL`` and has not improved for
+      ``STALL_PATIENCE`` evaluations. A stall is what an auxiliary simulation that is
+      sensitive to θ looks like — e.g. a vessel model that is open-loop unstable while
+      going astern amplifies a 1e-12 change of θ over thousands of samples, so ``T``
+      jumps at the 1e-5 level and the residual wanders there instead of shrinking.
+      The iteration is reported as not converged, with that reason;
     * the returned estimate is ``T(θ_best)``, the IV estimate whose instruments
       come from the iterate with the smallest fixed-point residual — a genuine
       IV estimate even when the iteration did not converge.
@@ -353,6 +366,7 @@ def refined_iv(
     best_res = residual.copy()
     best_aux = theta.copy()
     best_t = t_theta.copy()
+    since_best = np.zeros(n_groups, dtype=np.int64)
     step = np.ones(n_groups)
     oscillation = np.zeros(n_groups, dtype=bool)
     converged = np.zeros(n_groups, dtype=bool)
@@ -364,6 +378,9 @@ def refined_iv(
         converged |= done
         reason[done] = STOP_CONVERGED
         active &= ~done
+        stalled = active & (since_best >= STALL_PATIENCE) & (best_res < STALL_TOL)
+        reason[stalled] = STOP_STALLED
+        active &= ~stalled
         if not active.any():
             break
         cand = theta + step[:, None] * np.where(active[:, None], t_theta - theta, 0.0)
@@ -388,6 +405,8 @@ def refined_iv(
         residual[good] = res_c[good]
         prev_dir[good] = direction[good]
         better = good & (res_c < best_res)
+        since_best += active
+        since_best[better] = 0
         best_res[better] = res_c[better]
         best_aux[better] = cand[better]
         best_t[better] = t_cand[better]
