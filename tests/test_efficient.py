@@ -268,11 +268,12 @@ def test_weight_jacobian_equals_finite_difference_of_two_step_gmm():
                             for j in range(3)])
     d = sol.jacobians[0]
     np.testing.assert_allclose(d, d_fd, atol=1e-5 * np.abs(d).max())
-    ds = hac_sums_derivative(z, phi, y - phi @ th1, starts, every, bw)
+    u = np.random.default_rng(1).normal(size=z.shape[1])
+    ds_u = hac_sums_derivative(z, phi, y - phi @ th1, starts, every, bw, u)
     for j in range(3):
         step = h[j] * np.eye(3)[j]
-        fd = (long_run(th1 + step) - long_run(th1 - step)) / (2 * h[j])
-        np.testing.assert_allclose(ds[j], fd, atol=1e-9 * np.abs(ds[j]).max())
+        fd = (long_run(th1 + step) - long_run(th1 - step)) @ u / (2 * h[j])
+        np.testing.assert_allclose(ds_u[:, j], fd, atol=1e-9 * np.abs(fd).max())
 
 
 def test_gmm_standard_errors_carry_the_windmeijer_correction():
@@ -307,9 +308,10 @@ def test_hac_sums_derivative_with_gaps_and_experiments():
     starts = np.array([0, 150, 400])
     valid = rng.random(n) > 0.1
     theta = np.array([0.4, -0.9])
-    ds = hac_sums_derivative(z, phi, y - phi @ theta, starts, valid, 6)
-    for j in range(p):
-        step = 0.01 * np.eye(p)[j]
-        fd = (hac_sums(z, y - phi @ (theta + step), starts, valid, 6).sum(axis=0)
-              - hac_sums(z, y - phi @ (theta - step), starts, valid, 6).sum(axis=0)) / 0.02
-        np.testing.assert_allclose(ds[j], fd, atol=1e-9 * np.abs(fd).max())
+    for u in np.eye(k):  # every column of ∂S/∂θ_j
+        ds_u = hac_sums_derivative(z, phi, y - phi @ theta, starts, valid, 6, u)
+        for j in range(p):
+            step = 0.01 * np.eye(p)[j]
+            fd = (hac_sums(z, y - phi @ (theta + step), starts, valid, 6).sum(axis=0)
+                  - hac_sums(z, y - phi @ (theta - step), starts, valid, 6).sum(axis=0)) / 0.02
+            np.testing.assert_allclose(ds_u[:, j], fd @ u, atol=1e-9 * np.abs(fd).max())

@@ -292,20 +292,22 @@ def _moving_sums(x: np.ndarray, lag: int) -> np.ndarray:
 
 
 def hac_sums_derivative(z: np.ndarray, phi: np.ndarray, e: np.ndarray, starts: np.ndarray,
-                        valid: np.ndarray, lags: int) -> np.ndarray:
+                        valid: np.ndarray, lags: int, u: np.ndarray) -> np.ndarray:
     """Derivative of :func:`hac_sums` (summed over the experiments) with respect to θ,
-    where ``e = y − φθ``: ``∂S/∂θ_j`` for every ``j``, shape ``(P, K, K)``.
+    where ``e = y − φθ``, applied to a vector: ``(∂S/∂θ_j) u`` for every ``j``, shape
+    ``(K, P)`` (what :func:`weight_jacobian` needs, at a fraction of the full ``P × K × K``).
 
     The same Bartlett weights, bandwidth, per-experiment demeaning and zeroed invalid
     rows as :func:`hac_sums`. With ``g(k) = z(k) e(k)`` demeaned per experiment,
-    ``S = Σ_k g(k) f(k)ᵀ/(L+1)`` where ``f(k) = Σ_{|l|≤L} (L + 1 − |l|) g(k − l)`` (the
-    moving sums applied twice), and ``∂g(k)/∂θ_j = q_j(k) = −(z(k) φ_j(k) − mean_E z φ_j)``,
-    so ``∂S/∂θ_j = (X_j + X_jᵀ)/(L+1)`` with ``X_j = Σ_k q_j(k) f(k)ᵀ``: one ``K × K``
-    product per parameter.
+    ``S = Σ_k g(k) (T g)(k)ᵀ/(L+1)``, ``T`` the triangular filter
+    ``(T x)(k) = Σ_{|l|≤L} (L + 1 − |l|) x(k − l)`` within the experiment (the moving sums
+    applied twice; symmetric). With ``q_j(k) = ∂g(k)/∂θ_j = −(z(k) φ_j(k) − mean_E z φ_j)``,
+    ``(L+1) (∂S/∂θ_j) u = Σ_k q_j(k) (T uᵀg)(k) + Σ_k g(k) (T uᵀq_j)(k)``: the filter runs
+    on ``1 + P`` scalar series only.
     """
     k_cols, p_cols = z.shape[1], phi.shape[1]
-    out = np.zeros((p_cols, k_cols, k_cols))
-    g_all = z * np.where(valid, e, 0.0)[:, None]
+    u = np.asarray(u, dtype=float)
+    out = np.zeros((k_cols, p_cols))
     for s in range(starts.size - 1):
         a, b = int(starts[s]), int(starts[s + 1])
         v = valid[a:b]
@@ -313,34 +315,39 @@ def hac_sums_derivative(z: np.ndarray, phi: np.ndarray, e: np.ndarray, starts: n
         if cnt == 0:
             continue
         n = b - a
-        g = np.ascontiguousarray(g_all[a:b].T)
-        g -= (g.sum(axis=1) / cnt)[:, None]
-        g[:, ~v] = 0.0
+        # g = z e − mean_E(z e) on the valid rows is never formed: only uᵀg and gᵀ(·)
+        zv = np.where(v[:, None], z[a:b], 0.0)
+        ev = np.where(v, e[a:b], 0.0)
+        ph = phi[a:b]
+        zu = zv @ u
+        g_mean = zv.T @ ev / cnt  # (K,)
+        mean = zv.T @ ph / cnt  # (K, P): mean of z φ_j
+        series = np.empty((1 + p_cols, n))
+        series[0] = zu * ev - g_mean @ u  # uᵀ g
+        series[1:] = (u @ mean)[:, None] - zu * ph.T  # uᵀ q_j
+        series[:, ~v] = 0.0
         lag = int(min(lags, n - 1))
-        f = _moving_sums(_moving_sums(g, lag), lag)[:, lag:lag + n]
-        f[:, ~v] = 0.0
-        zv = np.where(v, z[a:b].T, 0.0)
-        # rows (j, k): z_k φ_j on the valid rows, one product for every parameter
-        zp = (phi[a:b].T[:, None, :] * zv[None]).reshape(p_cols * k_cols, n)
-        mean = (zv @ phi[a:b]).T.reshape(-1) / cnt
-        x = (np.outer(mean, f.sum(axis=1)) - zp @ f.T).reshape(p_cols, k_cols, k_cols)
-        out += (x + np.swapaxes(x, 1, 2)) / (lag + 1.0)
+        tf = _moving_sums(_moving_sums(series, lag), lag)[:, lag:lag + n]
+        tf[:, ~v] = 0.0
+        t_gu, t_qu = tf[0], tf[1:]
+        xu = mean * t_gu.sum() - zv.T @ (ph * t_gu[:, None])  # Σ q_j (T uᵀg)
+        xtu = zv.T @ (ev[:, None] * t_qu.T) - np.outer(g_mean, t_qu.sum(axis=1))  # Σ g (T uᵀq_j)
+        out += (xu + xtu) / (lag + 1.0)
     return out
 
 
-def weight_jacobian(a: np.ndarray, w: np.ndarray, gbar: np.ndarray, ds: np.ndarray
+def weight_jacobian(a: np.ndarray, w: np.ndarray, gbar: np.ndarray, ds_u: np.ndarray
                     ) -> np.ndarray:
     """``D = ∂θ₂/∂θ₁`` of the two-step GMM estimate through its weight (Windmeijer 2005).
 
     ``θ₂ = (AᵀW A)⁻¹ AᵀW b`` with ``W = S(θ₁)⁻¹``; since ``AᵀW ḡ₂ = 0`` at
     ``ḡ₂ = b − Aθ₂``, ``∂θ₂/∂θ₁_j = −(AᵀWA)⁻¹ AᵀW (∂S/∂θ_j) W ḡ₂`` (exact, not only to
-    first order). ``a`` (K, P), ``w`` (K, K), ``gbar`` (K,), ``ds`` (P, K, K) from
-    :func:`hac_sums_derivative` at ``θ₁``. Returns ``(P, P)``, column ``j`` the
-    derivative with respect to ``θ₁_j``.
+    first order). ``a`` (K, P), ``w`` (K, K), ``gbar`` (K,); ``ds_u`` (K, P) the columns
+    ``(∂S/∂θ_j) W ḡ₂`` at ``θ₁`` (:func:`hac_sums_derivative` with ``u = W ḡ₂``).
+    Returns ``(P, P)``, column ``j`` the derivative with respect to ``θ₁_j``.
     """
     aw = a.T @ w
-    wg = w @ gbar
-    return -np.linalg.solve(aw @ a, aw @ np.einsum("jkl,l->kj", ds, wg))
+    return -np.linalg.solve(aw @ a, aw @ ds_u)
 
 
 def _group_sum(data: RegressionData, x: np.ndarray) -> np.ndarray:
@@ -446,9 +453,10 @@ def solve_equations(
                     and ok_i[0]:
                 # Windmeijer (2005): how θ₂ moves with θ₁ through W = S(θ₁)⁻¹, in the
                 # units of the data (θ = θ_scaled · c_p / c_y)
-                ds = hac_sums_derivative(zz, pp, e, data.starts, valid, bw)
+                ds_u = hac_sums_derivative(zz, pp, e, data.starts, valid, bw,
+                                           s_inv[0] @ gbar[0])
                 c_p = col[k_i:k_i + p_i]
-                jac = weight_jacobian(a[0], s_inv[0], gbar[0], ds) * c_p[:, None] / c_p[None, :]
+                jac = weight_jacobian(a[0], s_inv[0], gbar[0], ds_u) * c_p[:, None] / c_p[None, :]
             j_stat[:, i] = np.einsum("gk,gkl,gl->g", gbar, np.nan_to_num(s_inv), gbar)
             df[i] = k_i - p_i
             if n_lag:
