@@ -215,6 +215,13 @@ def test_period_two_oscillation_is_damped(monkeypatch):
     np.testing.assert_allclose(res.theta[0], target, atol=1e-8)
 
 
+def test_warnings_point_at_the_caller_of_identify():
+    log = heave().simulate(5000, seed=0).to_log()
+    with pytest.warns(ConvergenceWarning) as record:
+        identify(log, method="iv-zero-mean", max_iter=2)
+    assert record and {r.filename for r in record} == {__file__}
+
+
 def test_noisy_fixed_point_map_stalls_and_says_so(monkeypatch):
     """A fixed-point map that jumps at the 1e-6 level for any change of θ (what an
     auxiliary simulation that amplifies rounding looks like) never meets tol: the
