@@ -215,6 +215,13 @@ def test_period_two_oscillation_is_damped(monkeypatch):
     np.testing.assert_allclose(res.theta[0], target, atol=1e-8)
 
 
+def test_warnings_point_at_the_caller_of_identify():
+    log = heave().simulate(5000, seed=0).to_log()
+    with pytest.warns(ConvergenceWarning) as record:
+        identify(log, method="iv-zero-mean", max_iter=2)
+    assert record and {r.filename for r in record} == {__file__}
+
+
 def test_noisy_fixed_point_map_stalls_and_says_so(monkeypatch):
     """A fixed-point map that jumps at the 1e-6 level for any change of θ (what an
     auxiliary simulation that amplifies rounding looks like) never meets tol: the
@@ -411,23 +418,22 @@ def test_segment_abs_max_equals_the_per_segment_loop():
 
 
 def test_fit_restores_blas_threads():
-    """``fit`` runs numpy's OpenBLAS on one thread and restores the caller's setting."""
+    """``fit`` runs the BLAS on one thread and restores the caller's setting."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
     from vesselid.identify import identify, linalg
     from vesselid.systems import heave
 
-    blas = linalg._openblas_threads()
-    if blas is None:
-        pytest.skip("numpy's BLAS is not the bundled OpenBLAS")
-    get, put = blas
-    old = get()
-    try:
-        put(2)
+    def blas_threads() -> list[int]:
+        return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+    assert linalg._blas_controller() is not None  # numpy's OpenBLAS at the least
+    with threadpool_limits(limits=2, user_api="blas"):
         seen = []
-        linalg.one_blas_thread(lambda: seen.append(get()))()
-        assert seen == [1] and get() == 2
+        linalg.one_blas_thread(lambda: seen.append(blas_threads()))()
+        assert seen and all(n == 1 for n in seen[0])
+        assert all(n == 2 for n in blas_threads())
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             identify(heave().simulate(500, seed=1).to_log())
-        assert get() == 2
-    finally:
-        put(old)
+        assert all(n == 2 for n in blas_threads())

@@ -211,7 +211,9 @@ class Estimator:
 
         def _warn(msg: str, category: type[Warning]) -> None:
             warn_msgs.append(msg)
-            warnings.warn(msg, category, stacklevel=4)
+            # _warn, fit, the two decorators (BLAS threads, kernel choice), identify():
+            # the warning points at the caller of identify()
+            warnings.warn(msg, category, stacklevel=6)
 
         if instruments is not None:
             if not self.uses_instruments:

@@ -270,37 +270,21 @@ def condition_number(a: np.ndarray) -> float | np.ndarray:
 # ------------------------------------------------------------------ BLAS threads
 _F = TypeVar("_F", bound=Callable[..., Any])
 _BLAS_LOCK = threading.Lock()
-_BLAS_STATE = {"depth": 0, "old": 0}
+_BLAS_STATE: dict[str, Any] = {"depth": 0, "limiter": None}
 
 
 @functools.lru_cache(maxsize=1)
-def _openblas_threads() -> tuple[Callable[[], int], Callable[[int], None]] | None:
-    """``(get, set)`` of the thread count of the OpenBLAS numpy's wheels bundle, or None
-    (another BLAS, or not found: then nothing is changed)."""
-    import ctypes
-    import glob
-    import os
+def _blas_controller() -> Any:
+    """threadpoolctl's controller of the BLAS libraries loaded now (numpy's OpenBLAS at
+    the least), or None when threadpoolctl finds none."""
+    from threadpoolctl import ThreadpoolController
 
-    libs = glob.glob(os.path.join(os.path.dirname(np.__file__), os.pardir, "numpy.libs",
-                                  "*openblas*"))
-    for path in libs:
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for prefix, suffix in (("scipy_openblas_", "64_"), ("scipy_openblas_", ""),
-                               ("openblas_", "64_"), ("openblas_", "")):
-            get = getattr(lib, f"{prefix}get_num_threads{suffix}", None)
-            put = getattr(lib, f"{prefix}set_num_threads{suffix}", None)
-            if get is not None and put is not None:
-                get.restype = ctypes.c_int
-                put.argtypes = [ctypes.c_int]
-                return get, put
-    return None
+    ctl = ThreadpoolController().select(user_api="blas")
+    return ctl if ctl.lib_controllers else None
 
 
 def one_blas_thread(fn: _F) -> _F:
-    """Run ``fn`` with numpy's OpenBLAS on one thread (restored afterwards).
+    """Run ``fn`` with the BLAS on one thread (restored afterwards; threadpoolctl).
 
     A fit multiplies tall, narrow matrices (10⁴ rows, a handful of columns): a second
     BLAS thread saves nothing there, and OpenBLAS's waiting threads spin, so on a busy
@@ -312,22 +296,20 @@ def one_blas_thread(fn: _F) -> _F:
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        blas = _openblas_threads()
-        if blas is None:
+        ctl = _blas_controller()
+        if ctl is None:
             return fn(*args, **kwargs)
-        get, put = blas
         with _BLAS_LOCK:
             if _BLAS_STATE["depth"] == 0:
-                _BLAS_STATE["old"] = int(get())
-                if _BLAS_STATE["old"] > 1:
-                    put(1)
+                _BLAS_STATE["limiter"] = ctl.limit(limits=1)
             _BLAS_STATE["depth"] += 1
         try:
             return fn(*args, **kwargs)
         finally:
             with _BLAS_LOCK:
                 _BLAS_STATE["depth"] -= 1
-                if _BLAS_STATE["depth"] == 0 and _BLAS_STATE["old"] > 1:
-                    put(_BLAS_STATE["old"])
+                if _BLAS_STATE["depth"] == 0:
+                    _BLAS_STATE["limiter"].restore_original_limits()
+                    _BLAS_STATE["limiter"] = None
 
     return wrapper  # type: ignore[return-value]
