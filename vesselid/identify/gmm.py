@@ -40,6 +40,7 @@ centring) is kept for Windmeijer's (2005) corrected covariance
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -261,6 +262,18 @@ def hac_sums(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: np.ndarray
     """
     k_cols = z.shape[1]
     out = np.zeros((starts.size - 1, k_cols, k_cols))
+    for s, a, b, _, _, g in _experiment_scores(z, e, starts, valid):
+        lag = int(min(lags, b - a - 1))
+        h = _moving_sums(g, lag)
+        out[s] = (h @ h.T) / (lag + 1.0)
+    return out
+
+
+def _experiment_scores(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: np.ndarray,
+                       ) -> Iterator[tuple[int, int, int, np.ndarray, int, np.ndarray]]:
+    """Per experiment ``s`` with a valid row: ``(s, a, b, valid rows, their count, g)``,
+    ``g`` the scores ``z(k) e(k)`` of rows ``a … b − 1`` demeaned over the valid rows,
+    invalid rows zero, as ``(K, n)`` (time along contiguous rows)."""
     g_all = z * np.where(valid, e, 0.0)[:, None]
     for s in range(starts.size - 1):
         a, b = int(starts[s]), int(starts[s + 1])
@@ -268,17 +281,10 @@ def hac_sums(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: np.ndarray
         cnt = int(v.sum())
         if cnt == 0:
             continue
-        g = np.ascontiguousarray(g_all[a:b].T)  # (K, n): time along contiguous rows
+        g = np.ascontiguousarray(g_all[a:b].T)
         g -= (g.sum(axis=1) / cnt)[:, None]
         g[:, ~v] = 0.0
-        n = b - a
-        lag = int(min(lags, n - 1))
-        c = np.zeros((k_cols, n + 2 * lag + 1))
-        np.cumsum(g, axis=1, out=c[:, lag + 1:n + lag + 1])
-        c[:, n + lag + 1:] = c[:, n + lag:n + lag + 1]
-        h = c[:, lag + 1:] - c[:, :-(lag + 1)]
-        out[s] = (h @ h.T) / (lag + 1.0)
-    return out
+        yield s, a, b, v, cnt, g
 
 
 def _moving_sums(x: np.ndarray, lag: int) -> np.ndarray:
@@ -303,7 +309,8 @@ def hac_sums_derivative(z: np.ndarray, phi: np.ndarray, e: np.ndarray, starts: n
     ``(T x)(k) = Σ_{|l|≤L} (L + 1 − |l|) x(k − l)`` within the experiment (the moving sums
     applied twice; symmetric). With ``q_j(k) = ∂g(k)/∂θ_j = −(z(k) φ_j(k) − mean_E z φ_j)``,
     ``(L+1) (∂S/∂θ_j) u = Σ_k q_j(k) (T uᵀg)(k) + Σ_k g(k) (T uᵀq_j)(k)``: the filter runs
-    on ``1 + P`` scalar series only.
+    on ``1 + P`` scalar series only (so it never forms ``g`` itself, unlike
+    :func:`hac_sums`' :func:`_experiment_scores`).
     """
     k_cols, p_cols = z.shape[1], phi.shape[1]
     u = np.asarray(u, dtype=float)
