@@ -275,16 +275,23 @@ def _experiment_scores(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: 
     ``g`` the scores ``z(k) e(k)`` of rows ``a … b − 1`` demeaned over the valid rows,
     invalid rows zero, as ``(K, n)`` (time along contiguous rows)."""
     g_all = z * np.where(valid, e, 0.0)[:, None]
-    for s in range(starts.size - 1):
-        a, b = int(starts[s]), int(starts[s + 1])
-        v = valid[a:b]
-        cnt = int(v.sum())
-        if cnt == 0:
-            continue
+    for s, a, b, v, cnt in _valid_experiments(starts, valid):
         g = np.ascontiguousarray(g_all[a:b].T)
         g -= (g.sum(axis=1) / cnt)[:, None]
         g[:, ~v] = 0.0
         yield s, a, b, v, cnt, g
+
+
+def _valid_experiments(starts: np.ndarray, valid: np.ndarray,
+                       ) -> Iterator[tuple[int, int, int, np.ndarray, int]]:
+    """``(s, a, b, valid rows, their count)`` of every experiment ``s`` (rows ``a … b − 1``)
+    with a valid row."""
+    for s in range(starts.size - 1):
+        a, b = int(starts[s]), int(starts[s + 1])
+        v = valid[a:b]
+        cnt = int(v.sum())
+        if cnt:
+            yield s, a, b, v, cnt
 
 
 def _moving_sums(x: np.ndarray, lag: int) -> np.ndarray:
@@ -315,12 +322,7 @@ def hac_sums_derivative(z: np.ndarray, phi: np.ndarray, e: np.ndarray, starts: n
     k_cols, p_cols = z.shape[1], phi.shape[1]
     u = np.asarray(u, dtype=float)
     out = np.zeros((k_cols, p_cols))
-    for s in range(starts.size - 1):
-        a, b = int(starts[s]), int(starts[s + 1])
-        v = valid[a:b]
-        cnt = int(v.sum())
-        if cnt == 0:
-            continue
+    for _, a, b, v, cnt in _valid_experiments(starts, valid):
         n = b - a
         # g = z e − mean_E(z e) on the valid rows is never formed: only uᵀg and gᵀ(·)
         zv = np.where(v[:, None], z[a:b], 0.0)
