@@ -148,9 +148,9 @@ def test_default_estimator_consistent_white_noise():
 def test_colour_test_has_its_level_on_white_noise():
     """Table-1 white disturbances: the colour statistic is χ²(2), so it rejects at 5 % in
     a binomially compatible fraction of runs (exact binomial test at 1e-3)."""
+    from _stats import binomial_ok
     from scipy.stats import chi2
 
-    from tests._stats import binomial_ok
     from vesselid.identify import gmm, kernels
     from vesselid.identify.estimators import estimate
 
