@@ -94,6 +94,32 @@ def test_auto_rejects_delayed_instruments_under_coloured_disturbances(
     assert np.all(it.info[p_key] < p_max), it.info[p_key]
 
 
+def test_auto_falls_back_without_prefilter_on_a_low_pass_filtered_log():
+    """A log whose metadata records a low-pass (wave) filter: ``auto``'s fallback uses the
+    simulated instruments without the whitening AR prefilter (IV_E{ζ}=0-like) and says
+    so; the same data without the record fall back to SRIV."""
+    import dataclasses
+    import warnings
+
+    from vesselid.disturbances import GaussMarkov
+    from vesselid.identify import identify
+
+    system = dataclasses.replace(heave(pulse_design="alternating"),
+                                 current={"w": GaussMarkov(0.0, 0.1, 25.0)})
+    log = system.simulate(20_000, seed=3).to_log()
+    spec = system.identification_spec(aggregate=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        plain = identify(log, spec)
+        log.metadata["wave_filter"] = {"kind": "butterworth", "columns": ["w"]}
+        low = identify(log, spec)
+    assert plain.diagnostics["instruments"] == low.diagnostics["instruments"] == "simulated"
+    assert plain.diagnostics["noise_model"].startswith("AR(4) prefilter")
+    assert low.diagnostics["noise_model"] == "none (the log is low-pass filtered)"
+    assert "no noise-model prefilter" in low.diagnostics["instrument_choice"]
+    assert not np.array_equal(plain.params.to_numpy(), low.params.to_numpy())
+
+
 @pytest.mark.parametrize("method", ["gmm", "sriv"])
 def test_option_validation(method):
     from vesselid.errors import IdentificationError

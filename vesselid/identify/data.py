@@ -38,6 +38,10 @@ class RegressionData:
     n_groups: int
     experiment_ids: tuple = ()
     sensor: np.ndarray | None = None
+    #: the log's signals were low-pass filtered (``metadata["wave_filter"]``, e.g.
+    #: ``sea-trial --wave-filter``): a whitening noise-model prefilter would re-weight the
+    #: regression toward the band the filter removed
+    lowpassed: bool = False
 
     @property
     def n_segments(self) -> int:
@@ -135,6 +139,7 @@ def from_log(log, spec: ModelSpec | None = None, *, min_samples: int | None = No
         n_groups=1,
         experiment_ids=tuple(eid for eid, _ in parts),
         sensor=sensor,
+        lowpassed=bool((log.metadata or {}).get("wave_filter")),
     )
     data.check_lengths(spec, min_samples)
     return data, spec
