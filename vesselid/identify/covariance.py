@@ -85,6 +85,7 @@ __all__ = [
     "iv_covariance",
     "kernel_weights",
     "long_run_covariance",
+    "moving_sums",
     "sandwich_from_sums",
     "scores",
 ]
@@ -254,6 +255,18 @@ def long_run_covariance(
     return 0.5 * (out + out.T)
 
 
+def moving_sums(x: np.ndarray, lag: int) -> np.ndarray:
+    """``h(t) = Σ_{i=0}^{lag} x(t − i)`` of the zero-padded series ``x`` (q, n), for
+    ``t = 0 … n + lag − 1``: differences of one running sum (the Bartlett long-run
+    covariance is ``Σ_t h hᵀ / (lag + 1)``; :func:`bartlett_long_run`,
+    :func:`vesselid.identify.gmm.hac_sums`)."""
+    q, n = x.shape
+    c = np.zeros((q, n + 2 * lag + 1))
+    np.cumsum(x, axis=1, out=c[:, lag + 1:n + lag + 1])
+    c[:, n + lag + 1:] = c[:, n + lag:n + lag + 1]
+    return c[:, lag + 1:] - c[:, :-(lag + 1)]
+
+
 def bartlett_long_run(g: np.ndarray, lags: int) -> np.ndarray:
     """Bartlett long-run covariance ``Σ_{|l|≤L} (1 − |l|/(L+1)) Γ(l)`` of one experiment's
     scores ``g`` (T, q), summed: :func:`long_run_covariance` with
@@ -266,17 +279,14 @@ def bartlett_long_run(g: np.ndarray, lags: int) -> np.ndarray:
     ``T``; the result equals the lag-by-lag sum to ~1e-15 relative.
     """
     g = np.asarray(g, dtype=float)
-    n, q = g.shape
+    n = g.shape[0]
     lags = int(lags)
     if lags == 0 or n < 2:
         return g.T @ g
     gt = g.T.copy()  # time along contiguous rows
     mean = gt.mean(axis=1)
     gt -= mean[:, None]
-    c = np.zeros((q, n + 2 * lags + 1))
-    np.cumsum(gt, axis=1, out=c[:, lags + 1:n + lags + 1])
-    c[:, n + lags + 1:] = c[:, n + lags:n + lags + 1]
-    h = c[:, lags + 1:] - c[:, :-(lags + 1)]  # moving sums of g − mean
+    h = moving_sums(gt, lags)  # moving sums of g − mean
     t = np.arange(n + lags)
     count = (np.minimum(t, n - 1) - np.maximum(t - lags, 0) + 1).astype(float)  # window sizes
     # the moving sums of g are h + count·meanᵀ: add the mean's share as rank-one terms

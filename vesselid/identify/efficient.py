@@ -261,7 +261,9 @@ class InstrumentalGMM(Estimator):
             lagged = [gmm.lagged_regressors(data, spec, lag) for lag in gmm.LAGS]
         theta0 = base.theta.copy()
         used = np.full(n, self.instruments, dtype=object)
-        info: dict[str, Any] = {}
+        # the AR order of the simulated-instrument set (sriv; auto's fallback)
+        info: dict[str, Any] = {"noise_order": (self.noise_order if self.instruments
+                                                == "simulated" else self._fallback_order(data))}
         if self.instruments == "simulated":
             sol, theta, iters = self._refine(data, spec, phi, None, theta0, "simulated",
                                              self.noise_order, keep, tol)
@@ -289,7 +291,7 @@ class InstrumentalGMM(Estimator):
                     sub = _subset(data, reject)
                     sol_s, th_s, it_s = self._refine(
                         sub, spec, phi[_rows(data, reject)], None, theta0[reject], "simulated",
-                        self._fallback_order(data), keep, tol, steps=self.fallback_refine)
+                        info["noise_order"], keep, tol, steps=self.fallback_refine)
                     theta[reject] = th_s
                     iters[reject] = it_s
                     used[reject] = "simulated"
@@ -321,15 +323,14 @@ class InstrumentalGMM(Estimator):
 
     def describe(self, it: IterationResult) -> dict[str, Any]:
         info = it.info
-        simulated = info["instrument_set"][0] == "simulated"
-        order = self.noise_order
-        if self.instruments == "auto" and info.get("lowpassed"):
-            order = 0
+        noise_model = "none"
+        if info["instrument_set"][0] == "simulated" and self.noise_order:
+            order = info["noise_order"]
+            noise_model = (f"AR({order}) prefilter (SRIV)" if order
+                           else "none (the log is low-pass filtered)")
         out: dict[str, Any] = {
             "instruments": str(info["instrument_set"][0]),
-            "noise_model": (f"AR({order}) prefilter (SRIV)" if order and simulated
-                            else "none (the log is low-pass filtered)"
-                            if simulated and self.noise_order and not order else "none"),
+            "noise_model": noise_model,
         }
         if "c_pvalue" in info:
             out["hansen_j_combined"] = _jdict(info["j_stat"][0], info["j_df"])

@@ -313,9 +313,10 @@ def refined_iv(
       auxiliary model, after ``max_iter`` evaluations of ``T``, or when it has
       *stalled*: the best residual is below ``STALL_TOL`` and has not improved for
       ``STALL_PATIENCE`` evaluations. A stall is what an auxiliary simulation that is
-      sensitive to θ looks like — e.g. a vessel model that is open-loop unstable while
-      going astern amplifies a 1e-12 change of θ over thousands of samples, so ``T``
-      jumps at the 1e-5 level and the residual wanders there instead of shrinking.
+      sensitive to θ looks like — e.g. a vessel model whose sway–yaw motion is locally
+      unstable during full-ahead thruster manoeuvres amplifies a 1e-12 change of θ over
+      thousands of samples, so ``T`` jumps at the 1e-5 level and the residual wanders
+      there instead of shrinking.
       The iteration is reported as not converged, with that reason;
     * the returned estimate is ``T(θ_best)``, the IV estimate whose instruments
       come from the iterate with the smallest fixed-point residual — a genuine

@@ -48,6 +48,7 @@ import numpy as np
 from vesselid.identify import linalg
 from vesselid.identify._fastkernels import specialised_combined
 from vesselid.identify.backend import ivk, kernels
+from vesselid.identify.covariance import moving_sums
 from vesselid.identify.data import RegressionData, block_starts
 from vesselid.model import ModelSpec
 
@@ -264,7 +265,7 @@ def hac_sums(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: np.ndarray
     out = np.zeros((starts.size - 1, k_cols, k_cols))
     for s, a, b, _, _, g in _experiment_scores(z, e, starts, valid):
         lag = int(min(lags, b - a - 1))
-        h = _moving_sums(g, lag)
+        h = moving_sums(g, lag)
         out[s] = (h @ h.T) / (lag + 1.0)
     return out
 
@@ -292,16 +293,6 @@ def _valid_experiments(starts: np.ndarray, valid: np.ndarray,
         cnt = int(v.sum())
         if cnt:
             yield s, a, b, v, cnt
-
-
-def _moving_sums(x: np.ndarray, lag: int) -> np.ndarray:
-    """``h(t) = Σ_{i=0}^{lag} x(t − i)`` of the zero-padded series ``x`` (q, n), for
-    ``t = 0 … n + lag − 1`` (as :func:`hac_sums`)."""
-    q, n = x.shape
-    c = np.zeros((q, n + 2 * lag + 1))
-    np.cumsum(x, axis=1, out=c[:, lag + 1:n + lag + 1])
-    c[:, n + lag + 1:] = c[:, n + lag:n + lag + 1]
-    return c[:, lag + 1:] - c[:, :-(lag + 1)]
 
 
 def hac_sums_derivative(z: np.ndarray, phi: np.ndarray, e: np.ndarray, starts: np.ndarray,
@@ -336,7 +327,7 @@ def hac_sums_derivative(z: np.ndarray, phi: np.ndarray, e: np.ndarray, starts: n
         series[1:] = (u @ mean)[:, None] - zu * ph.T  # uᵀ q_j
         series[:, ~v] = 0.0
         lag = int(min(lags, n - 1))
-        tf = _moving_sums(_moving_sums(series, lag), lag)[:, lag:lag + n]
+        tf = moving_sums(moving_sums(series, lag), lag)[:, lag:lag + n]
         tf[:, ~v] = 0.0
         t_gu, t_qu = tf[0], tf[1:]
         xu = mean * t_gu.sum() - zv.T @ (ph * t_gu[:, None])  # Σ q_j (T uᵀg)
@@ -489,7 +480,6 @@ def solve_equations(
     theta[~ok] = np.nan
     return GMMSolution(theta=theta, ok=ok, j=j_stat, df=df, c=c_stat, c_df=c_df,
                        designs=designs, jacobians=jacobians)
-
 
 
 def _combined_layout(spec: ModelSpec):
