@@ -341,17 +341,11 @@ def _fir(x: np.ndarray, c: np.ndarray, reverse: bool = False) -> np.ndarray:
 def sriv_prefilter(acov: np.ndarray) -> list[np.ndarray]:
     """Yule–Walker AR(L) noise models ``C_i(q) = 1 + c₁q⁻¹ + …`` from the pooled
     equation-error autocovariances ``acov`` ``(n_states, L + 1)`` — what
-    :func:`vesselid.identify.gmm.ar_coefficients` estimates from the residuals."""
-    out = []
-    for r in np.asarray(acov, float):
-        p = r.size - 1
-        idx = np.abs(np.subtract.outer(np.arange(p), np.arange(p)))
-        try:
-            coef = np.linalg.solve(r[idx], r[1:])
-        except np.linalg.LinAlgError:
-            coef = np.zeros(p)
-        out.append(np.concatenate([[1.0], -coef]))
-    return out
+    :func:`vesselid.identify.gmm.ar_coefficients` estimates from the residuals, by the
+    same :func:`vesselid.identify.gmm.yule_walker`."""
+    from vesselid.identify.gmm import yule_walker
+
+    return list(yule_walker(acov))
 
 
 def _modulus_bias(factors: np.ndarray, sig: np.ndarray, std: np.ndarray) -> np.ndarray:

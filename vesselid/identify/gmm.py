@@ -69,6 +69,7 @@ __all__ = [
     "solve_equations",
     "state_terms",
     "weight_jacobian",
+    "yule_walker",
 ]
 
 INSTRUMENT_SETS = ("simulated", "lagged", "combined")
@@ -217,11 +218,18 @@ def ar_coefficients(data: RegressionData, resid: np.ndarray, valid: np.ndarray,
     g_cnt = np.zeros(data.n_groups)
     np.add.at(g_acv, data.group, acv)
     np.add.at(g_cnt, data.group, cnt)
-    r = g_acv / np.maximum(g_cnt, 1)[:, None]
+    return yule_walker(g_acv / np.maximum(g_cnt, 1)[:, None])
+
+
+def yule_walker(r: np.ndarray) -> np.ndarray:
+    """AR noise models ``C(q) = 1 + c₁q⁻¹ + … + c_pq⁻ᵖ`` from autocovariances ``r``
+    ``(G, p + 1)`` (lags 0..p; any common scale) by the Yule–Walker equations; ``C = 1``
+    where the Toeplitz system is singular. Returns ``(G, p + 1)``."""
+    r = np.asarray(r, dtype=float)
+    order = r.shape[1] - 1
     idx = np.abs(np.subtract.outer(np.arange(order), np.arange(order)))
-    toeplitz = r[:, idx]
-    coef, ok = linalg.solve(toeplitz, r[:, 1:])
-    out = np.zeros((data.n_groups, order + 1))
+    coef, ok = linalg.solve(r[:, idx], r[:, 1:])
+    out = np.zeros_like(r)
     out[:, 0] = 1.0
     out[ok, 1:] = -coef[ok]
     return out
