@@ -1028,7 +1028,8 @@ def plan_trial(
             rows.append({"label": m.label(), "feasible": False, "reason": str(exc)})
     ok = [i for i, x in enumerate(infos) if x is not None]
     if not ok:
-        raise PlannerError("no candidate manoeuvre is feasible within the actuator limits")
+        raise PlannerError("no candidate manoeuvre is feasible within the actuator limits and "
+                           f"disturbance levels (first: {rows[0]['label']}: {rows[0]['reason']})")
     # a weak prior (SE = 10 |θ0|) so greedy steps from an empty design are defined
     cen = [infos[i].centred() for i in ok]
     prior_a, prior_s = [], []
