@@ -260,11 +260,28 @@ def moving_sums(x: np.ndarray, lag: int) -> np.ndarray:
     ``t = 0 … n + lag − 1``: differences of one running sum (the Bartlett long-run
     covariance is ``Σ_t h hᵀ / (lag + 1)``; :func:`bartlett_long_run`,
     :func:`vesselid.identify.gmm.hac_sums`)."""
+    kernel = _loaded_kernel("moving_sums")
+    if kernel is not None and x.shape[1] > 0:  # the same sums in one compiled pass
+        return kernel(np.ascontiguousarray(x, dtype=float), int(lag))
     q, n = x.shape
     c = np.zeros((q, n + 2 * lag + 1))
     np.cumsum(x, axis=1, out=c[:, lag + 1:n + lag + 1])
     c[:, n + lag + 1:] = c[:, n + lag:n + lag + 1]
     return c[:, lag + 1:] - c[:, :-(lag + 1)]
+
+
+def _loaded_kernel(name: str) -> Any:
+    """The compiled kernel ``name`` (:mod:`vesselid.identify._ivkernels`, bit-identical to
+    the numpy lines it replaces) when that module is loaded already and the estimation is
+    not on the numpy path (:mod:`vesselid.identify.backend`); never imports numba."""
+    import sys
+
+    mod = sys.modules.get("vesselid.identify._ivkernels")
+    if mod is None:
+        return None
+    from vesselid.identify.backend import numpy_active
+
+    return None if numpy_active() else getattr(mod, name, None)
 
 
 def bartlett_long_run(g: np.ndarray, lags: int) -> np.ndarray:

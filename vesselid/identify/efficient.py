@@ -204,10 +204,13 @@ class InstrumentalGMM(Estimator):
         self._validate()
 
     # ------------------------------------------------------------------ core
-    def _refine(self, data, spec, phi, lagged, theta, kind, order, keep, tol, steps=None):
+    def _refine(self, data, spec, phi, lagged, theta, kind, order, keep, tol, steps=None,
+                first_z: list | None = None):
         """``refine`` refinement steps of one instrument set from the consistent start
         ``theta`` (instruments re-simulated from, and the noise model re-estimated at,
-        the latest estimate); returns ``(solution, theta, steps)``."""
+        the latest estimate); returns ``(solution, theta, steps)``. ``first_z`` (a list)
+        receives the instruments simulated from the start, ``(z, ok)``, when the rows
+        are formed (``auto``'s colour test needs the same ones)."""
         n = data.n_groups
         iters = np.zeros(n, dtype=np.int64)
         active = np.all(np.isfinite(theta), axis=1)
@@ -219,6 +222,8 @@ class InstrumentalGMM(Estimator):
                 sol, ok_sim = gmm.combined_solution(data, spec, theta)
             else:
                 z_sim, ok_sim = gmm.simulated_instruments(data, spec, theta)
+                if first_z is not None and step == 0:
+                    first_z.append((z_sim, ok_sim))
                 ar = None
                 if order:
                     ar = np.zeros((n, spec.n_states, order + 1))
@@ -268,8 +273,9 @@ class InstrumentalGMM(Estimator):
             sol, theta, iters = self._refine(data, spec, phi, None, theta0, "simulated",
                                              self.noise_order, keep, tol)
         else:
+            first_z: list = []
             sol, theta, iters = self._refine(data, spec, phi, lagged, theta0, "combined", 0,
-                                             keep, tol)
+                                             keep, tol, first_z=first_z)
             pvals = np.ones((n, spec.n_states))
             for i in range(spec.n_states):
                 if sol.c_df[i]:
@@ -279,7 +285,10 @@ class InstrumentalGMM(Estimator):
                         j_stat=sol.j.copy(), j_df=sol.df.copy())
             used[:] = "combined"
             if self.instruments == "auto":
-                z_sim, _ = gmm.simulated_instruments(data, spec, theta0)
+                # the instruments simulated from θ0 (the first refinement step's, when it
+                # formed them: the same call on the same arrays)
+                z_sim = (first_z[0][0] if first_z else
+                         gmm.simulated_instruments(data, spec, theta0)[0])
                 w_stat, w_df = gmm.colour_test(data, spec, phi, z_sim)
                 w_p = np.ones((n, spec.n_states))
                 for i in range(spec.n_states):
