@@ -211,7 +211,7 @@ def _newey_west_bandwidth(g: np.ndarray, segs: list[slice], kernel: str, t_total
     n = math.ceil(4 * (t_total / 100) ** n_exp)
     scale = np.sqrt(np.mean(_compact(g, segs) ** 2, axis=0))
     scale[scale == 0] = 1.0
-    x = [np.sum(g[s] / scale, axis=1) for s in segs] if g.shape[1] > 1 else [g[s, 0] for s in segs]
+    x = [_row_sums(g[s], scale) for s in segs] if g.shape[1] > 1 else [g[s, 0] for s in segs]
     sig = np.zeros(n + 1)
     for xs in x:
         for j in range(min(n, xs.size - 1) + 1):
@@ -223,6 +223,18 @@ def _newey_west_bandwidth(g: np.ndarray, segs: list[slice], kernel: str, t_total
         return 0.0
     gamma = c * ((sq / s0) ** 2) ** (1 / (2 * q + 1))
     return float(math.ceil(gamma * t_total ** (1 / (2 * q + 1))))
+
+
+def _row_sums(g: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """``np.sum(g / scale, axis=1)``, bit-identical: numpy adds fewer than 8 terms of a
+    row in order from 0, so with few columns the row sums are accumulated one column at
+    a time (a few vector passes instead of one short reduction per row)."""
+    if g.shape[1] >= 8:
+        return np.sum(g / scale, axis=1)
+    acc = np.zeros(g.shape[0])
+    for j in range(g.shape[1]):
+        acc += g[:, j] / scale[j]
+    return acc
 
 
 def long_run_covariance(
@@ -597,6 +609,7 @@ def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
             z_equation: np.ndarray | None, zero_mean: bool, skip_first: bool) -> _Scores:
     """Validate the arrays of :meth:`CovarianceEstimator.estimate` and form the scores
     (``phi=None``: instruments only, as :meth:`CovarianceEstimator.long_run`)."""
+    same = phi is z  # LS / the endogeneity regression: instruments = regressors
     z = np.asarray(z, dtype=float)
     resid = np.asarray(resid, dtype=float)
     if resid.ndim == 1:
@@ -604,7 +617,8 @@ def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
     if z.ndim != 2:
         raise CovarianceError("z and phi must be 2-d arrays (rows × columns)")
     t_len = z.shape[0]
-    phi = np.zeros((t_len, 0)) if phi is None else np.asarray(phi, dtype=float)
+    phi = (np.zeros((t_len, 0)) if phi is None else z if same
+           else np.asarray(phi, dtype=float))
     if phi.ndim != 2:
         raise CovarianceError("z and phi must be 2-d arrays (rows × columns)")
     n_par = phi.shape[1]
@@ -632,16 +646,19 @@ def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
         rows[s] = True
     every_row = bool(rows.all())  # the fit path drops the first rows itself: no copies
     for name, arr in (("z", z), ("phi", phi), ("resid", resid)):
-        if not np.all(np.isfinite(arr if every_row else arr[rows])):
+        if (name != "phi" or not same) and not np.all(np.isfinite(arr if every_row
+                                                                  else arr[rows])):
             raise CovarianceError(f"{name} holds NaN or inf in the rows used")
     # Equilibrate: unit-norm instrument and regressor columns (over the rows used), so
     # that badly scaled signals (forces in N next to velocities in m/s, or every signal
     # times 1e±6) lose no precision in the sandwich below. The estimator is equivariant:
     # θ_s = D_φ θ, ḡ_s = D_z⁻¹ ḡ, W_s = D_z W D_z, so Cov θ̂ = D_φ⁻¹ Cov θ̂_s D_φ⁻¹.
     z_scale = _column_scale(z, None if every_row else rows)
-    phi_scale = _column_scale(phi, None if every_row else rows)
+    phi_scale = z_scale if same else _column_scale(phi, None if every_row else rows)
     z = z / z_scale
-    phi = phi / phi_scale
+    # the same numbers either way; a copy all the same (a product of one buffer with
+    # itself would take BLAS's symmetric rank-k path, rounded differently)
+    phi = z.copy() if same else phi / phi_scale
     eps = _residual(resid, segs, zero_mean)
     g = np.zeros((t_len, n_ins))
     one = eps.shape[1] == 1  # every instrument in equation 0: broadcast, no column copies
