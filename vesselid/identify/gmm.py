@@ -47,7 +47,7 @@ import numpy as np
 
 from vesselid.identify import linalg
 from vesselid.identify._fastkernels import specialised_combined
-from vesselid.identify.backend import ivk, kernels
+from vesselid.identify.backend import ivk, kernels, numpy_active
 from vesselid.identify.covariance import moving_sums
 from vesselid.identify.data import RegressionData, block_starts
 from vesselid.model import ModelSpec
@@ -435,6 +435,10 @@ def solve_equations(
         if ar is None:  # masked, scaled and centred in two compiled passes (bit-identical)
             zz, pp, yy = ivk.design_centre(zc, phi, sl.start, sl.stop, data.target, i,
                                            valid, col, data.starts)
+        elif not numpy_active():  # prefiltered and centred in one compiled pass (same bits)
+            zz, pp, yy, valid = ivk.design_ar_centre(
+                zc, phi, sl.start, sl.stop, data.target, i, valid, col, data.starts,
+                np.ascontiguousarray(ar[:, i]), data.group)
         else:
             stack = np.column_stack([z, phi[:, sl], data.target[:, i]])
             stack = np.where(valid[:, None], stack, 0.0) * col
