@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 from collections.abc import Mapping
@@ -550,8 +551,10 @@ def _guard(args: argparse.Namespace) -> None:
     n_tables = len(_tables(args.table))
     batch = min(args.runs, args.batch_size or DEFAULT_BATCH_SIZE)
     # per batch: ~40 float64 arrays of samples per run (signals, states, regressors,
-    # instruments); results: 9 tidy rows of ~150 B per run and table
-    memory = (limits.BASE_MEMORY + 40.0 * 8.0 * batch * args.samples
+    # instruments), one batch per core at a time; results: 9 tidy rows of ~150 B per run
+    # and table
+    concurrent = max(1, min(os.cpu_count() or 1, -(-args.runs // batch)))
+    memory = (limits.BASE_MEMORY + 40.0 * 8.0 * batch * args.samples * concurrent
               + 1500.0 * args.runs * n_tables)
     seconds = 3e-7 * n_tables * args.runs * args.samples
     limits.check("reproduce", f"{n_tables} table(s) × {args.runs} runs × {args.samples} samples",
