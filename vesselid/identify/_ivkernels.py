@@ -14,6 +14,8 @@ All work on concatenated rows with experiment boundaries ``starts`` and a row ma
 * :func:`design_scan`, :func:`design_centre`, :func:`design_ar_centre` — the
   explicit-matrix design of one equation (instruments, regressors, target) masked,
   scaled, (AR-prefiltered and) centred without the stacked temporaries.
+* :func:`moving_sums` — :func:`vesselid.identify.covariance.moving_sums` (the Bartlett
+  long-run covariances' running-sum differences) in one pass, bit-identical.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from vesselid.regressors import fill_factors_xu, kernel, one_step, regressors
 PARALLEL_MIN_SAMPLES = 200_000
 
 __all__ = ["ar_filter", "autocov", "center", "combined_moments", "cross_sums",
-           "design_ar_centre", "design_centre", "design_scan", "noise_window",
+           "design_ar_centre", "design_centre", "design_scan", "moving_sums", "noise_window",
            "simulated_regressors"]
 
 
@@ -538,3 +540,36 @@ def design_ar_centre(z, phi, p_lo, p_hi, target, i_eq, valid, col, starts, coef,
                 pp[k, q] = pp[k, q] - mean[k_z + q]
             yy[k] = yy[k] - mean[last]
     return zz, pp, yy, vf
+
+
+@njit(cache=True)
+def moving_sums(x, lag):
+    """:func:`vesselid.identify.covariance.moving_sums` of a C-contiguous ``x`` (q, n),
+    bit-identical: the same running sums (``np.cumsum``'s sequential order, its first
+    value ``x[:, 0]``) and the same differences ``C[t + lag + 1] − C[t]`` of the
+    zero-padded running sum ``C`` (zero before the series, held at the last sum after
+    it), one row at a time with the last ``lag + 1`` sums in a ring buffer (no padded
+    copy, no second pass)."""
+    q, n = x.shape
+    m = n + lag
+    w = lag + 1
+    out = np.empty((q, m))
+    ring = np.empty(w)
+    for i in range(q):
+        acc = 0.0
+        j = 0
+        for t in range(n):
+            acc = x[i, t] if t == 0 else acc + x[i, t]
+            b = ring[j] if t > lag else 0.0  # C[t] = the sum of rows 0 … t − lag − 1
+            out[i, t] = acc - b
+            ring[j] = acc
+            j += 1
+            if j == w:
+                j = 0
+        for t in range(n, m):  # C[t + lag + 1] is held at the last sum
+            b = ring[j] if t > lag else 0.0
+            out[i, t] = acc - b
+            j += 1
+            if j == w:
+                j = 0
+    return out

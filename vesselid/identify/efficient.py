@@ -205,12 +205,14 @@ class InstrumentalGMM(Estimator):
 
     # ------------------------------------------------------------------ core
     def _refine(self, data, spec, phi, lagged, theta, kind, order, keep, tol, steps=None,
-                colour=False):
+                colour=False, first_z: list | None = None):
         """``refine`` refinement steps of one instrument set from the consistent start
         ``theta`` (instruments re-simulated from, and the noise model re-estimated at,
         the latest estimate); returns ``(solution, theta, steps)``. ``colour``: on the
         fused path, the first step (instruments simulated from ``theta``) also runs the
-        colour test (``solution.colour``, :func:`vesselid.identify.gmm.combined_solution`)."""
+        colour test (``solution.colour``, :func:`vesselid.identify.gmm.combined_solution`).
+        ``first_z`` (a list) receives the instruments simulated from ``theta`` when the
+        rows are formed (the explicit colour test of the fit path needs the same ones)."""
         n = data.n_groups
         iters = np.zeros(n, dtype=np.int64)
         active = np.all(np.isfinite(theta), axis=1)
@@ -225,6 +227,8 @@ class InstrumentalGMM(Estimator):
                     first = sol
             else:
                 z_sim, ok_sim = gmm.simulated_instruments(data, spec, theta)
+                if first_z is not None and step == 0:
+                    first_z.append(z_sim)
                 ar = None
                 if order:
                     ar = np.zeros((n, spec.n_states, order + 1))
@@ -245,11 +249,13 @@ class InstrumentalGMM(Estimator):
                                                         first.colour_ok)
         return sol, theta, iters
 
-    def _colour_test(self, data, spec, phi, theta0, sol):
+    def _colour_test(self, data, spec, phi, theta0, sol, z_first=None):
         """The colour test of the instruments simulated from ``theta0``: the statistic
         fused into the first combined step where it has it (``sol.colour_ok``), else
         :func:`vesselid.identify.gmm.colour_test` on explicit rows (the fit path; no
-        generated kernel; ``theta0`` not finite or non-finite sums). ``(stat, df)``."""
+        generated kernel; ``theta0`` not finite or non-finite sums). ``z_first``: those
+        instruments when the first refinement step simulated them already (the same call
+        on the same arrays). ``(stat, df)``."""
         n = data.n_groups
         if sol.colour is not None:
             stat, df, todo = sol.colour.copy(), sol.colour_df, ~sol.colour_ok
@@ -259,7 +265,8 @@ class InstrumentalGMM(Estimator):
             sub = data if todo.all() else _subset(data, todo)
             phi_s = phi if phi is not None and todo.all() else kernels.regressor_matrix(
                 sub.regsig, sub.u, sub.starts, spec.codes.factors)
-            z_sim, _ = gmm.simulated_instruments(sub, spec, theta0[todo])
+            z_sim = (z_first if z_first is not None and todo.all() else
+                     gmm.simulated_instruments(sub, spec, theta0[todo])[0])
             stat[todo], df = gmm.colour_test(sub, spec, phi_s, z_sim)
         return stat, df
 
@@ -296,8 +303,10 @@ class InstrumentalGMM(Estimator):
             sol, theta, iters = self._refine(data, spec, phi, None, theta0, "simulated",
                                              self.noise_order, keep, tol)
         else:
+            first_z: list = []
             sol, theta, iters = self._refine(data, spec, phi, lagged, theta0, "combined", 0,
-                                             keep, tol, colour=self.instruments == "auto")
+                                             keep, tol, colour=self.instruments == "auto",
+                                             first_z=first_z)
             pvals = np.ones((n, spec.n_states))
             for i in range(spec.n_states):
                 if sol.c_df[i]:
@@ -307,7 +316,8 @@ class InstrumentalGMM(Estimator):
                         j_stat=sol.j.copy(), j_df=sol.df.copy())
             used[:] = "combined"
             if self.instruments == "auto":
-                w_stat, w_df = self._colour_test(data, spec, phi, theta0, sol)
+                w_stat, w_df = self._colour_test(data, spec, phi, theta0, sol,
+                                                 z_first=first_z[0] if first_z else None)
                 w_p = np.ones((n, spec.n_states))
                 for i in range(spec.n_states):
                     if w_df[i]:

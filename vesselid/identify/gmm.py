@@ -289,9 +289,11 @@ def _experiment_scores(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: 
     """Per experiment ``s`` with a valid row: ``(s, a, b, valid rows, their count, g)``,
     ``g`` the scores ``z(k) e(k)`` of rows ``a … b − 1`` demeaned over the valid rows,
     invalid rows zero, as ``(K, n)`` (time along contiguous rows)."""
-    g_all = z * np.where(valid, e, 0.0)[:, None]
+    ev = np.where(valid, e, 0.0)
     for s, a, b, v, cnt in _valid_experiments(starts, valid):
-        g = np.ascontiguousarray(g_all[a:b].T)
+        # the products z e written in the time-contiguous layout directly (one pass)
+        g = np.empty((z.shape[1], b - a))
+        np.multiply(z[a:b].T, ev[a:b], out=g)
         g -= (g.sum(axis=1) / cnt)[:, None]
         g[:, ~v] = 0.0
         yield s, a, b, v, cnt, g
