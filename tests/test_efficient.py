@@ -341,3 +341,104 @@ def test_hac_sums_derivative_with_gaps_and_experiments():
             fd = (hac_sums(z, y - phi @ (theta + step), starts, valid, 6).sum(axis=0)
                   - hac_sums(z, y - phi @ (theta - step), starts, valid, 6).sum(axis=0)) / 0.02
             np.testing.assert_allclose(ds_u[:, j], fd @ u, atol=1e-9 * np.abs(fd).max())
+
+
+def _colour_reference(data, spec, theta):
+    """The explicit colour test (rows, stacked instruments) of instruments simulated
+    from ``theta``."""
+    from vesselid.identify import gmm, kernels
+
+    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
+    z, _ = gmm.simulated_instruments(data, spec, theta)
+    return gmm.colour_test(data, spec, phi, z)
+
+
+@pytest.mark.parametrize("scenario", ["table1-alternating", "gm-sensor-random"])
+def test_fused_colour_test_equals_the_explicit_one(scenario):
+    """The colour test fused into the combined GMM pass (``auto``'s Monte Carlo path)
+    gives the explicit statistic to rounding (1e-9 relative) on white and coloured
+    designs, groups of two experiments, a group whose auxiliary model diverges and a
+    group with a NaN segment; the combined estimates do not change (bit for bit)."""
+    import dataclasses
+
+    from vesselid.calibration import heave_scenario
+    from vesselid.identify import gmm
+    from vesselid.identify.estimators import estimate
+
+    system, aggregate, _ = heave_scenario(scenario)
+    spec = system.identification_spec(aggregate=aggregate)
+    sim = system.simulate(3000, n_runs=10, seed=21)
+    data = from_arrays(spec, sim.y, sim.u, experiments_per_group=2)
+    theta = estimate(data, spec, "iv-zero-mean").theta
+    theta[1] = np.abs(theta[1]) + 1.5  # group 1: the auxiliary model diverges
+    target, regsig = data.target.copy(), data.regsig.copy()
+    seg = data.segment(5)  # group 2, second experiment: NaN from row 100 (not simulated)
+    target[seg.start + 100:seg.stop] = np.nan
+    regsig[seg.start + 100:seg.stop] = np.nan
+    seg = data.segment(6)  # group 3: NaN measurements in rows 500-509 (left out)
+    regsig[seg.start + 500:seg.start + 510] = np.nan
+    data = dataclasses.replace(data, target=target, regsig=regsig)
+    fused, _ = gmm.combined_solution(data, spec, theta, colour=gmm.COLOUR_WINDOW)
+    plain, _ = gmm.combined_solution(data, spec, theta)
+    for field in ("theta", "ok", "j", "c"):
+        np.testing.assert_array_equal(getattr(fused, field), getattr(plain, field))
+    stat, df = _colour_reference(data, spec, theta)
+    np.testing.assert_array_equal(fused.colour_df, df)
+    ok = fused.colour_ok
+    # non-finite sums (NaN rows in a simulated experiment): the caller computes those
+    # groups explicitly
+    np.testing.assert_array_equal(ok, np.arange(5) != 3)
+    assert stat[1, 0] == 0.0 and fused.colour[1, 0] == 0.0  # nothing left to test
+    assert stat[2, 0] > 0 and np.isfinite(stat).all()
+    np.testing.assert_allclose(fused.colour[ok], stat[ok], rtol=1e-9, atol=0)
+
+
+def test_auto_decision_and_estimates_do_not_depend_on_the_fused_colour_test(monkeypatch):
+    """``auto`` batched with the fused colour test and with the explicit one (generic
+    kernels) makes the same choice and the same estimates, bit for bit; the statistics
+    agree to 1e-9 relative (white and coloured sensor noise, both choices taken)."""
+    from vesselid.calibration import heave_scenario
+    from vesselid.identify.estimators import estimate
+
+    est = get_estimator("auto")
+    for scenario in ("table1-alternating", "gm-sensor-alternating"):
+        system, aggregate, _ = heave_scenario(scenario)
+        spec = system.identification_spec(aggregate=aggregate)
+        sim = system.simulate(4000, n_runs=16, seed=8)
+        data = from_arrays(spec, sim.y, sim.u)
+        base = estimate(data, spec, "iv-zero-mean")
+        fast = est.estimate_parameters(data, spec, base=base)
+        with monkeypatch.context() as m:
+            m.setenv("VESSELID_GENERIC_KERNELS", "1")
+            slow = est.estimate_parameters(data, spec, base=base)
+        np.testing.assert_array_equal(fast.theta, slow.theta)
+        np.testing.assert_array_equal(fast.info["instrument_set"], slow.info["instrument_set"])
+        np.testing.assert_allclose(fast.info["colour_stat"], slow.info["colour_stat"],
+                                   rtol=1e-9, atol=0)
+        if scenario.startswith("gm"):
+            assert (fast.info["instrument_set"] == "simulated").any()
+
+
+def test_prefiltered_design_in_one_pass_is_bit_identical(monkeypatch):
+    """SRIV's prefiltered, centred design (``design_ar_centre``) equals stacking,
+    masking, scaling, ``ar_filter`` and ``center`` bit for bit (several groups with their
+    own noise models, a diverged group's NaN instruments)."""
+    from vesselid.identify import gmm, kernels
+
+    system = heave()
+    spec = system.identification_spec(aggregate=False)
+    sim = system.simulate(2000, n_runs=6, seed=2)
+    data = from_arrays(spec, sim.y, sim.u, experiments_per_group=2)
+    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
+    theta = np.tile(spec.theta0_vector(), (3, 1))
+    theta[1] = np.abs(theta[1]) + 1.5
+    z, _ = gmm.simulated_instruments(data, spec, theta)
+    rng = np.random.default_rng(0)
+    ar = np.concatenate([np.ones((3, 1, 1)), 0.3 * rng.standard_normal((3, 1, 4))], axis=2)
+    blocks = gmm.instrument_blocks(spec, "simulated", phi, z, None)
+    fast = gmm.solve_equations(data, spec, phi, blocks, ar=ar, keep_designs=False)
+    monkeypatch.setattr(gmm, "numpy_active", lambda: True)  # the stacked formulation
+    slow = gmm.solve_equations(data, spec, phi, blocks, ar=ar, keep_designs=False)
+    for field in ("theta", "ok", "j", "c"):
+        np.testing.assert_array_equal(getattr(fast, field), getattr(slow, field))
+    assert np.isfinite(fast.theta[0]).all() and not fast.ok[1]

@@ -198,9 +198,10 @@ def test_generated_combined_pass_bit_identical_to_generic(monkeypatch, name):
     data = from_arrays(spec, sim.y, sim.u, y2=sim.y2 if spec.aggregate else None)
     codes = spec.codes
     ztype, zpar, zeq, _, _ = gmm._combined_layout(spec)
+    colour = gmm._colour_layout(spec)[:3]
     kern = fk.specialised_combined(spec.n_states, spec.n_inputs, codes.factors,
-                                   codes.equation, ztype, zpar, zeq)
-    assert (kern is None) == (ztype.size > fk.MAX_COMBINED_COLUMNS), name
+                                   codes.equation, ztype, zpar, zeq, *colour)
+    assert (kern is None) == (max(ztype.size, colour[0].size) > fk.MAX_COMBINED_COLUMNS), name
     theta = np.tile(spec.theta0_vector(), (data.n_groups, 1))
     unstable = theta.copy()
     unstable[1] = np.abs(theta[1]) + 1.5  # one group's auxiliary model diverges
@@ -214,3 +215,30 @@ def test_generated_combined_pass_bit_identical_to_generic(monkeypatch, name):
             np.testing.assert_array_equal(getattr(fast, field), getattr(slow, field),
                                           err_msg=f"{name} {field}")
     assert not ok_slow[1] and ok_slow[0]  # the divergence branch was taken
+
+
+@pytest.mark.parametrize("name", CATALOGUE)
+def test_generated_colour_test_equals_explicit(name):
+    """The colour test fused into the generated combined pass gives
+    :func:`vesselid.identify.gmm.colour_test`'s statistic to 1e-9 relative on every
+    catalogue structure it is generated for (several equations included); none where the
+    generic kernel runs."""
+    from vesselid.identify import gmm, kernels
+    from vesselid.identify.data import from_arrays
+
+    system = get_system(name)
+    spec = system.identification_spec()
+    sim = system.simulate(1500, n_runs=3, seed=4)
+    data = from_arrays(spec, sim.y, sim.u, y2=sim.y2 if spec.aggregate else None)
+    theta = np.tile(spec.theta0_vector(), (data.n_groups, 1))
+    sol, _ = gmm.combined_solution(data, spec, theta, colour=gmm.COLOUR_WINDOW)
+    ztype = gmm._combined_layout(spec)[0]
+    if max(ztype.size, gmm._colour_layout(spec)[0].size) > fk.MAX_COMBINED_COLUMNS:
+        assert sol.colour is None
+        return
+    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
+    z, _ = gmm.simulated_instruments(data, spec, theta)
+    stat, df = gmm.colour_test(data, spec, phi, z)
+    assert sol.colour_ok.all()
+    np.testing.assert_array_equal(sol.colour_df, df)
+    np.testing.assert_allclose(sol.colour, stat, rtol=1e-9, atol=0, err_msg=name)

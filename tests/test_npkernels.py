@@ -279,3 +279,54 @@ def test_thread_ranges_cover_every_item_once_and_survive_fork():
             os._exit(2)
     _, status = os.waitpid(pid, 0)
     assert os.waitstatus_to_exitcode(status) == 0
+
+
+def test_compiled_moving_sums_bit_identical(monkeypatch):
+    """The compiled running-sum differences of the Bartlett long-run covariances are the
+    numpy ones bit for bit (same sequential sums), signed zeros included, for every
+    shape the estimators use and the edge cases (one row, bandwidth beyond the series)."""
+    from vesselid.identify import covariance
+
+    rng = np.random.default_rng(7)
+    monkeypatch.setenv("VESSELID_KERNELS", "compiled")
+    with backend.choose(10, 1):  # the compiled path: the dispatch uses the kernel
+        assert covariance._loaded_kernel("moving_sums") is not None
+    monkeypatch.setenv("VESSELID_KERNELS", "numpy")
+    for q in (0, 1, 3, 7):
+        for n in (1, 2, 5, 200):
+            for lag in (0, 1, 4, 17, 300):
+                x = rng.normal(size=(q, n)) * 10.0 ** rng.integers(-30, 30, size=(q, n))
+                x[:, ::3] = -0.0
+                got = ivk.moving_sums(np.ascontiguousarray(x), lag)
+                with backend.choose(10, 1):  # the numpy path: numpy's cumsum
+                    assert covariance._loaded_kernel("moving_sums") is None
+                    want = covariance.moving_sums(x, lag)
+                assert got.shape == want.shape == (q, n + lag)
+                assert np.array_equal(got, want)
+                assert np.array_equal(np.signbit(got), np.signbit(want))
+
+
+def test_single_system_equilibration_bit_identical():
+    """``linalg._equilibrate_one`` (the checked fit's one system) returns the scales of
+    the vectorised ``equilibrate`` bit for bit: badly scaled, nearly singular, with zero,
+    infinite and all-zero entries, converged or stopped at ``max_iter``."""
+    from vesselid.identify import linalg
+
+    rng = np.random.default_rng(11)
+    for n, m in ((1, 1), (2, 2), (3, 3), (4, 4), (3, 5), (7, 3), (8, 8), (9, 9)):
+        for k in range(60):
+            a = (rng.normal(size=(1, n, m)) * 10.0 ** rng.integers(-8, 8, size=(1, 1, m))
+                 * 10.0 ** rng.integers(-5, 5, size=(1, n, 1)))
+            if k % 5 == 0:
+                a[0, rng.integers(n), rng.integers(m)] = 0.0
+            if k % 7 == 0:
+                a[0, 0] = a[0, -1] * 1e-12
+            if k % 11 == 0:
+                a[0, rng.integers(n), rng.integers(m)] = np.inf
+            if k % 13 == 0:
+                a[0, :, 0] = 0.0
+            for max_iter, tol in ((50, 1e-9), (100, 1e-15), (3, 1e-9), (30, 1e-3), (20, 0.3)):
+                r1, c1 = linalg.equilibrate(a, max_iter=max_iter, tol=tol)
+                r2, c2 = linalg._equilibrate_one(a, max_iter, tol)
+                assert np.array_equal(r1, r2) and np.array_equal(c1, c2)
+                assert r1.shape == r2.shape and c1.shape == c2.shape

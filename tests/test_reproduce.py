@@ -178,6 +178,22 @@ def test_cli_json_stdout_and_bad_input(tmp_path, capsys):
     assert main(["reproduce", "--runs", "5", "--samples", "200", "--xi-mean", "soon"]) == 2
 
 
+def test_cli_extra_rows(capsys):
+    """``--extra none`` runs the paper's rows only; named extras are shown and tagged;
+    an unknown name or ``none`` mixed with names is refused before any work."""
+    base = ["reproduce", "--table", "1", "--runs", "6", "--samples", "400", "--json", "-"]
+    assert main([*base, "--extra", "none"]) == 0
+    methods = {row["method"] for row in json.loads(capsys.readouterr().out)["tables"]["1"]}
+    assert methods == {"ls", "iv", "iv-zero-mean"}
+    assert main([*base[:-2], "--extra", "sriv"]) == 0
+    out = capsys.readouterr().out
+    assert "(extra)" in out and "(default)" not in out
+    for bad in (["bogus"], ["none", "sriv"]):
+        assert main([*base, "--extra", *bad]) == 2
+        err = capsys.readouterr().err
+        assert "--extra" in err and len(err.strip().splitlines()) == 1
+
+
 @pytest.mark.slow
 def test_paper_size_matches_published_tables():
     """1000 runs × 10⁴ samples, every row with published numbers: all claims hold; every

@@ -26,7 +26,7 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, wait
 from typing import Any
 
-__all__ = ["CHUNKS_PER_THREAD", "n_threads", "run_ranges"]
+__all__ = ["CHUNKS_PER_THREAD", "n_threads", "run_ranges", "serial", "serial_here"]
 
 #: Chunks per thread (several, so that uneven items — early divergence, converged groups
 #: skipped — still balance).
@@ -60,6 +60,26 @@ def _pool(size: int) -> ThreadPoolExecutor:
 
 def _mark_worker() -> None:
     _LOCAL.worker = True
+
+
+def serial() -> bool:
+    """Whether the calling thread runs kernels serially (a pool thread, or inside
+    :func:`serial_here`)."""
+    return bool(getattr(_LOCAL, "worker", False))
+
+
+class serial_here:
+    """Context: the calling thread runs every :func:`run_ranges` kernel (and the
+    simulation's draws) in itself, not on the pool — for a thread that is itself one
+    of several working concurrently (the Monte Carlo's chunk threads)."""
+
+    def __enter__(self) -> serial_here:
+        self.old = getattr(_LOCAL, "worker", False)
+        _LOCAL.worker = True
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        _LOCAL.worker = self.old
 
 
 def _forget_pool() -> None:

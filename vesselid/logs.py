@@ -296,6 +296,19 @@ class TrialLog:
             ``time`` not strictly increasing within an experiment, or an experiment with
             fewer than ``min_samples`` rows.
         """
+        self._validate(spec, columns=columns, min_samples=min_samples)
+        return self
+
+    def _validate(
+        self,
+        spec: ModelSpec | None = None,
+        *,
+        columns: Sequence[str] | None = None,
+        min_samples: int = 2,
+    ) -> list[tuple[object, np.ndarray]]:
+        """:meth:`validate`, returning the row positions of every experiment it split the
+        log into (``_positions_by_experiment``), so that a caller reading the experiments
+        (``identify``'s ``from_log``) does not split the log again."""
         if spec is None:
             spec = self.spec
         data = self.data
@@ -379,7 +392,7 @@ class TrialLog:
                         f"column 'time' is not strictly increasing in experiment {eid!r} at "
                         f"{_row_text(data, row)}: {float(t[k])!r} follows {float(t[k - 1])!r}"
                     )
-        return self
+        return offsets
 
     # ------------------------------------------------------------------------ I/O
     def save(self, path: str | Path, *, extra: dict[str | Path, str] | None = None) -> Path:

@@ -22,10 +22,12 @@ Execution
 Runs are processed in chunks of ``batch_size``: one batch simulation
 (:meth:`~vesselid.systems.System.simulate` with the chunk's seeds) and one batched
 ``estimate_parameters`` call per registered estimator, which estimates all
-runs of the chunk at once in the compiled kernels (parallel over runs on all local
-cores). With ``client`` (a :class:`dask.distributed.Client` or a scheduler
-address) every chunk is a task — a pure function of ``(study, first run, last
-run)`` — and the results are gathered and concatenated in run order.
+runs of the chunk at once in the compiled kernels. Locally, several chunks run
+concurrently, one per core, each with serial kernels (the estimators' numpy parts
+overlap too); a single chunk runs its kernels parallel over runs on all local cores.
+With ``client`` (a :class:`dask.distributed.Client` or a scheduler address) every
+chunk is a task — a pure function of ``(study, first run, last run)`` — and the
+results are gathered and concatenated in run order.
 
 Failures are never silent: a run whose auxiliary model could not be formed keeps
 its rows with ``estimate = NaN``, ``converged = False`` and the ``stop_reason``;
@@ -305,9 +307,12 @@ def run_study(
         Run the chunks as Dask tasks on this client (or on a client connected to
         this scheduler address, closed afterwards). Default: locally.
     batch_size : int, optional
-        Runs per chunk (default 250; with Dask: enough chunks for every worker thread).
+        Runs per chunk (default 250, evened out to a multiple of the local threads'
+        chunks; with Dask: enough chunks for every worker thread).
     n_jobs : int, optional
-        Local threads of the compiled kernels (default: all cores); ignored with Dask.
+        Local threads (default: all cores): several chunks run concurrently, one per
+        thread, with serial kernels; a single chunk runs its kernels on all threads.
+        Ignored with Dask.
     progress : bool, optional
         tqdm progress bar over runs; default shown only when stderr is a terminal.
 
@@ -323,16 +328,58 @@ def run_study(
     if client is not None:
         frames = _run_dask(study, client, batch_size, progress)
     else:
-        size = DEFAULT_BATCH_SIZE if batch_size is None else int(batch_size)
-        frames = []
         with _threads(n_jobs), _progress(runs, progress, study.name or "runs") as bar:
-            for a, b in _chunks(runs, size):
-                frames.append(run_chunk(study, a, b))
-                bar.update(b - a)
+            size = _local_batch(runs) if batch_size is None else int(batch_size)
+            frames = _run_local(study, _chunks(runs, size), bar)
     df = pd.concat(frames, ignore_index=True)
     df = _order(df, study)
     df.attrs["study"] = study.describe()
     return df
+
+
+def _local_batch(runs: int) -> int:
+    """Default local chunk size: :data:`DEFAULT_BATCH_SIZE`, evened out so that the
+    number of chunks is a multiple of the threads when there are several chunks (the
+    chunks run concurrently, one per thread: :func:`_run_local`)."""
+    from vesselid._threads import n_threads
+
+    n_chunks = math.ceil(runs / DEFAULT_BATCH_SIZE)
+    threads = n_threads()
+    if n_chunks < 2 or threads < 2:
+        return DEFAULT_BATCH_SIZE
+    n_chunks = math.ceil(n_chunks / threads) * threads
+    return max(1, math.ceil(runs / n_chunks))
+
+
+def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[pd.DataFrame]:
+    """The chunks' frames, in order: with several threads (numba's thread count) and
+    chunks, the chunks run concurrently, one per thread, each with serial kernels
+    (:func:`vesselid._threads.serial_here`) — so the numpy and Python parts of one chunk
+    (the estimators' glue, ``auto``'s fallback) overlap another chunk's compiled ones;
+    else one after the other with the kernels threaded over the chunk's runs. Each
+    chunk is computed by the same code either way (bit-identical results)."""
+    from vesselid._threads import n_threads, serial_here
+
+    workers = min(n_threads(), len(chunks))
+    if workers <= 1:
+        frames = []
+        for a, b in chunks:
+            frames.append(run_chunk(study, a, b))
+            bar.update(b - a)
+        return frames
+    from concurrent.futures import ThreadPoolExecutor
+
+    def work(a: int, b: int) -> pd.DataFrame:
+        with serial_here():
+            return run_chunk(study, a, b)
+
+    with ThreadPoolExecutor(workers, thread_name_prefix="vesselid-chunk") as pool:
+        futures = [pool.submit(work, a, b) for a, b in chunks]
+        frames = []
+        for fut, (a, b) in zip(futures, chunks, strict=True):
+            frames.append(fut.result())
+            bar.update(b - a)
+    return frames
 
 
 def _order(df: pd.DataFrame, study: Study) -> pd.DataFrame:

@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 from collections.abc import Mapping
@@ -304,7 +305,8 @@ class ReproductionResult:
                     out.append(f"{_name(m):12s}{'published':12s}{pub}")
                     out.append(f"{'':12s}{'reproduced':12s}{rep}")
                 else:
-                    out.append(f"{_name(m)[:11]:12s}{'(default)':12s}{rep}")
+                    tag = "(default)" if m == DEFAULT_METHOD else "(extra)"
+                    out.append(f"{_name(m)[:11]:12s}{tag:12s}{rep}")
                 extra = ""
                 nc, fl = int(rows["not_converged"].max()), int(rows["failed"].max())
                 if m != "ls":
@@ -350,7 +352,8 @@ class ReproductionResult:
 
 
 def warm_up(tables: tuple[int, ...] = (1, 2), runs: int | None = None,
-            samples: int = 10_000, batch_size: int | None = None) -> float:
+            samples: int = 10_000, batch_size: int | None = None,
+            extra_methods: tuple[str, ...] | None = None) -> float:
     """Load (or compile, on first use) the compiled kernels; returns the seconds spent.
 
     Compiled code is cached on disk (numba ``cache=True``), so compiling is paid once
@@ -358,14 +361,16 @@ def warm_up(tables: tuple[int, ...] = (1, 2), runs: int | None = None,
     batched kernel is one serial kernel that also serves large chunks (run over threads,
     :mod:`vesselid._threads`), so a tiny study per table loads exactly the kernels of a
     paper-size one; ``runs``, ``samples`` and ``batch_size`` are accepted for
-    compatibility and do not change what is loaded.
+    compatibility and do not change what is loaded; ``extra_methods`` are the rows the
+    study will run besides the paper's (default :data:`EXTRA_METHODS`).
     """
     del runs, samples, batch_size  # one kernel variant serves every chunk size
     t0 = time.perf_counter()
     # "sriv" too: auto's fallback (AR-prefiltered simulated instruments) is taken by a few
     # runs of every paper-size chunk but by none of a tiny study; loading its kernels
     # there cost ≈ 0.5 s of CPU inside the first chunk
-    extras = (*EXTRA_METHODS, "sriv") if "auto" in EXTRA_METHODS else EXTRA_METHODS
+    extras = EXTRA_METHODS if extra_methods is None else tuple(extra_methods)
+    extras = (*extras, "sriv") if "auto" in extras else extras
     for table in tables:
         run_study(table_study(table, runs=2, samples=50, seed=0, extra_methods=extras),
                   progress=False)
@@ -388,6 +393,7 @@ def reproduce(
     figures: bool = True,
     progress: bool | None = None,
     warm: bool = True,
+    extra_methods: tuple[str, ...] | None = None,
 ) -> ReproductionResult:
     """Reproduce Tables 1–2 (and Figure 1) of the paper.
 
@@ -415,6 +421,10 @@ def reproduce(
         Save the figures (needs ``out``).
     warm : bool
         Load/compile the kernels first and report that time separately.
+    extra_methods : tuple of str, optional
+        Estimators run as extra rows after the paper's three (default
+        :data:`EXTRA_METHODS`: the package default ``auto``); ``()`` runs the paper's
+        rows only.
 
     Returns
     -------
@@ -426,11 +436,12 @@ def reproduce(
     if int(runs) < 2:
         raise VesselidError(f"need at least 2 runs for a standard deviation, got {runs}")
     studies = {t: table_study(t, runs=runs, samples=samples, seed=seed, pulses=pulses,
-                              xi_mean=xi_mean, target=target) for t in tables}
+                              xi_mean=xi_mean, target=target, extra_methods=extra_methods)
+               for t in tables}
     timings: dict[str, float] = {}
     if warm and client is None:
         timings["jit_compile_or_load_s"] = warm_up(tuple(tables), int(runs), int(samples),
-                                                   batch_size)
+                                                   batch_size, extra_methods)
     summaries, comps, results, claims = {}, {}, {}, []
     t_all = time.perf_counter()
     for t, st in studies.items():
@@ -513,6 +524,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--batch-size", type=int_at_least(1), default=None, help="runs per chunk")
     p.add_argument("--format", default="csv", choices=["csv", "parquet"],
                    help="format of the tidy results in --out")
+    p.add_argument("--extra", nargs="+", metavar="METHOD", default=None,
+                   help="estimators shown as extra rows after the paper's three (default: "
+                        f"{' '.join(EXTRA_METHODS) or 'none'}); 'none' = the paper's rows only")
     p.add_argument("--strict", action="store_true",
                    help="exit with code 1 when a claim of the paper does not hold")
     p.set_defaults(func=cmd_reproduce)
@@ -537,12 +551,27 @@ def _guard(args: argparse.Namespace) -> None:
     n_tables = len(_tables(args.table))
     batch = min(args.runs, args.batch_size or DEFAULT_BATCH_SIZE)
     # per batch: ~40 float64 arrays of samples per run (signals, states, regressors,
-    # instruments); results: 9 tidy rows of ~150 B per run and table
-    memory = (limits.BASE_MEMORY + 40.0 * 8.0 * batch * args.samples
+    # instruments), one batch per core at a time; results: 9 tidy rows of ~150 B per run
+    # and table
+    concurrent = max(1, min(os.cpu_count() or 1, -(-args.runs // batch)))
+    memory = (limits.BASE_MEMORY + 40.0 * 8.0 * batch * args.samples * concurrent
               + 1500.0 * args.runs * n_tables)
     seconds = 3e-7 * n_tables * args.runs * args.samples
     limits.check("reproduce", f"{n_tables} table(s) × {args.runs} runs × {args.samples} samples",
                  memory=memory, seconds=seconds)
+
+
+def _extra(names: list[str] | None) -> tuple[str, ...] | None:
+    """``--extra``: ``None`` (default rows), ``none`` (paper rows only) or estimator names."""
+    if names is None:
+        return None
+    if names == ["none"]:
+        return ()
+    unknown = [m for m in names if m not in ESTIMATORS]
+    if unknown or "none" in names:
+        raise VesselidError(f"--extra: unknown estimator(s) {unknown or ['none']}: give 'none' "
+                            f"alone or names from {list(ESTIMATORS)}")
+    return tuple(dict.fromkeys(names))
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
@@ -550,11 +579,13 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         raise VesselidError("need --runs >= 2 and --samples >= 10")
     if args.batch_size is not None and args.batch_size < 1:
         raise VesselidError("--batch-size must be positive")
+    extras = _extra(args.extra)
     _guard(args)
     res = reproduce(
         table=args.table, runs=args.runs, samples=args.samples, seed=args.seed, out=args.out,
         xi_mean=args.xi_mean, target=args.target, pulses=args.pulses, client=args.scheduler,
         batch_size=args.batch_size, results_format=args.format,
+        extra_methods=extras,
     )
     payload = res.to_dict()
     if args.json == "-":

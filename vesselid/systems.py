@@ -224,8 +224,10 @@ class System:
                 self._draw_into(np.random.default_rng(ss), n,
                                 int(ss.spawn_key[-1]) if ss.spawn_key else 0, out, r)
 
+        from vesselid._threads import serial
+
         workers = min(os.cpu_count() or 1, n_runs)
-        if workers > 1 and n_runs * n >= 100_000:
+        if workers > 1 and n_runs * n >= 100_000 and not serial():
             bounds = np.linspace(0, n_runs, workers + 1).astype(int)
             with ThreadPoolExecutor(workers) as pool:
                 list(pool.map(work, bounds[:-1], bounds[1:]))

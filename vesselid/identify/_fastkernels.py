@@ -338,12 +338,191 @@ def _source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.ndarray)
 MAX_COMBINED_COLUMNS = 16
 
 
+class _ColourCode:
+    """Generated code of the colour test fused into the combined pass (run when the
+    kernel's ``colour`` argument is true; :func:`vesselid.identify.gmm.combined_solution`).
+
+    Per equation the instruments are the simulated regressors ``ζ`` (the combined
+    set's type-0 columns) and, per state term, the mean of the estimated regressor
+    noise ``η = φ − ζ`` over the rows ``k − hi … k − lo`` of the experiment
+    (:func:`vesselid.identify.gmm.noise_instruments`): a running window sum over a
+    ring of the last ``whi + 1`` values of ``η``, from row ``a + 1``. Rows
+    ``k ≥ a + 1 + hi`` enter. First pass (``second`` false): the sums ``Σ z φᵀ``,
+    ``Σ z y``, ``Σ z zᵀ`` (within each equation's block), ``Σ z``, ``Σ φ``, ``Σ y`` and
+    the count, of the differences from the first entering row's values (``c_ref``;
+    centring raw sums lost up to two digits of Hansen's J to the signals' means);
+    second pass: the Bartlett long-run variance of the centred scores with
+    the first-step estimate ``ctheta1`` (moving sums over a ring of ``L + 1`` scores,
+    ``L = min(lags, b − a − 1)``, drained at the end as
+    :func:`vesselid.identify.gmm.hac_sums`). A segment whose auxiliary model diverges
+    contributes nothing (the explicit test's rows are all invalid there).
+    """
+
+    def __init__(self, fac, eq, ztype, zpar, ckind, cpar, ceq) -> None:
+        n_par = fac.shape[0]
+        sim = {int(zpar[c]): c for c in range(ztype.shape[0]) if int(ztype[c]) == 0}
+        self.n_par = n_par
+        self.eq = [int(e) for e in eq]
+        self.k = int(ckind.shape[0])
+        self.ceq = [int(e) for e in ceq]
+        # per colour column: its value's expression; the noise terms (η index, term)
+        self.terms = [int(cpar[c]) for c in range(self.k) if int(ckind[c]) == 1]
+        self.sim_of = sim
+        self.value = []
+        for c in range(self.k):
+            p = int(cpar[c])
+            self.value.append(f"z{sim[p]}" if int(ckind[c]) == 0
+                              else f"w{self.terms.index(p)}")
+        self.block = [[c2 for c2 in range(self.k) if self.ceq[c2] == self.ceq[c]]
+                      for c in range(self.k)]
+        self.own = [[p for p in range(n_par) if self.eq[p] == self.ceq[c]]
+                    for c in range(self.k)]
+        self.n_eq = max(self.eq) + 1
+
+    def _refs(self) -> list[str]:
+        """Names of the first pass's reference values (the first entering row's): the sums
+        are of the differences from them, so that centring them loses no digits to a
+        large mean."""
+        return ([f"rv{c}" for c in range(self.k)] + [f"rphi{p}" for p in range(self.n_par)]
+                + [f"ry{i}" for i in range(self.n_eq)])
+
+    def _pairs(self) -> list[tuple[int, int]]:
+        return [(c, c2) for c in range(self.k) for c2 in self.block[c] if c2 >= c]
+
+    def start(self, add: Callable[[str], None], ind: str, *, second: bool) -> None:
+        # every name is bound whatever ``colour`` (numba types each once); the inputs of
+        # the second pass are read only when the colour test runs
+        add(f"{ind}ering = np.zeros((whi + 1, {max(len(self.terms), 1)}))")
+        add(f"{ind}width = whi - wlo + 1.0")
+        add(f"{ind}ccnt = 0")
+        for j in range(len(self.terms)):
+            add(f"{ind}ws{j} = 0.0")
+        if not second:
+            for c in range(self.k):
+                add(f"{ind}cb{c} = 0.0")
+                add(f"{ind}cz{c} = 0.0")
+                for p in self.own[c]:
+                    add(f"{ind}ca{c}_{p} = 0.0")
+            for c, c2 in self._pairs():
+                add(f"{ind}cm{c}_{c2} = 0.0")
+            for p in range(self.n_par):
+                add(f"{ind}cphi{p} = 0.0")
+            for i in range(self.n_eq):
+                add(f"{ind}cy{i} = 0.0")
+            for name in self._refs():
+                add(f"{ind}{name} = 0.0")
+            return
+        add(f"{ind}clag = min(lags, b - a - 1)")
+        add(f"{ind}cring = np.zeros((clag + 1, {self.k}))")
+        # (the caller passes zeros of the full shapes when the test does not run)
+        for p in range(self.n_par):
+            add(f"{ind}ct{p} = ctheta1[g, {p}]")
+            add(f"{ind}cmphi{p} = cmeans_phi[s, {p}]")
+        for i in range(self.n_eq):
+            add(f"{ind}cmy{i} = cmeans_y[s, {i}]")
+        for c in range(self.k):
+            add(f"{ind}cmz{c} = cmeans_z[s, {c}]")
+            add(f"{ind}cmg{c} = cmeans_g[s, {c}]")
+            add(f"{ind}ch{c} = 0.0")
+        for c, c2 in self._pairs():
+            add(f"{ind}clh{c}_{c2} = 0.0")
+
+    def row(self, add: Callable[[str], None], ind: str, *, second: bool) -> None:
+        add(f"{ind}if colour:")
+        i2 = ind + "    "
+        # the noise window: ws = Σ_{d=lo}^{hi} η(k − d) over the experiment's rows
+        add(f"{i2}ce = k - a - 1")
+        add(f"{i2}cold = ce % (whi + 1)")
+        add(f"{i2}if ce >= wlo:")
+        add(f"{i2}    cnew = (ce - wlo) % (whi + 1)")
+        for j in range(len(self.terms)):
+            add(f"{i2}    ws{j} += ering[cnew, {j}]")
+        add(f"{i2}if ce > whi:")
+        for j in range(len(self.terms)):
+            add(f"{i2}    ws{j} -= ering[cold, {j}]")
+        for j, p in enumerate(self.terms):
+            add(f"{i2}ering[cold, {j}] = phi{p} - z{self.sim_of[p]}")
+        add(f"{i2}if ce >= whi:")
+        i3 = i2 + "    "
+        for j in range(len(self.terms)):
+            add(f"{i3}w{j} = ws{j} / width")
+        if not second:
+            values = ([self.value[c] for c in range(self.k)]
+                      + [f"phi{p}" for p in range(self.n_par)]
+                      + [f"target[k, {i}]" for i in range(self.n_eq)])
+            add(f"{i3}if ce == whi:")
+            for name, v in zip(self._refs(), values, strict=True):
+                add(f"{i3}    {name} = {v}")
+            for name, v in zip(self._refs(), values, strict=True):
+                add(f"{i3}d{name} = {v} - {name}")
+            add(f"{i3}ccnt += 1")
+            for c in range(self.k):
+                add(f"{i3}cb{c} += drv{c} * dry{self.ceq[c]}")
+                add(f"{i3}cz{c} += drv{c}")
+                for p in self.own[c]:
+                    add(f"{i3}ca{c}_{p} += drv{c} * drphi{p}")
+            for c, c2 in self._pairs():
+                add(f"{i3}cm{c}_{c2} += drv{c} * drv{c2}")
+            for p in range(self.n_par):
+                add(f"{i3}cphi{p} += drphi{p}")
+            for i in range(self.n_eq):
+                add(f"{i3}cy{i} += dry{i}")
+            return
+        for i in range(self.n_eq):
+            add(f"{i3}ec{i} = target[k, {i}] - cmy{i}")
+        for p in range(self.n_par):
+            add(f"{i3}ec{self.eq[p]} -= (phi{p} - cmphi{p}) * ct{p}")
+        self._window(add, i3, True)
+
+    def _window(self, add: Callable[[str], None], ind: str, entering: bool) -> None:
+        add(f"{ind}cslot = ccnt % (clag + 1)")
+        for c in range(self.k):
+            if entering:
+                add(f"{ind}csc{c} = ({self.value[c]} - cmz{c}) * ec{self.ceq[c]} - cmg{c}")
+                add(f"{ind}ch{c} += csc{c} - cring[cslot, {c}]")
+                add(f"{ind}cring[cslot, {c}] = csc{c}")
+            else:
+                add(f"{ind}ch{c} -= cring[cslot, {c}]")
+                add(f"{ind}cring[cslot, {c}] = 0.0")
+        add(f"{ind}ccnt += 1")
+        for c, c2 in self._pairs():
+            add(f"{ind}clh{c}_{c2} += ch{c} * ch{c2}")
+
+    def finish(self, add: Callable[[str], None], ind: str, *, second: bool) -> None:
+        add(f"{ind}if colour and status[s] == 0:")
+        i2 = ind + "    "
+        if not second:
+            add(f"{i2}c_count[s] = ccnt")
+            for c in range(self.k):
+                add(f"{i2}c_b[s, {c}] = cb{c}")
+                add(f"{i2}c_z[s, {c}] = cz{c}")
+                for p in self.own[c]:
+                    add(f"{i2}c_a[s, {c}, {p}] = ca{c}_{p}")
+            for c, c2 in self._pairs():  # upper triangles (the caller mirrors them)
+                add(f"{i2}c_m[s, {c}, {c2}] = cm{c}_{c2}")
+            for p in range(self.n_par):
+                add(f"{i2}c_phi[s, {p}] = cphi{p}")
+            for i in range(self.n_eq):
+                add(f"{i2}c_y[s, {i}] = cy{i}")
+            for j, name in enumerate(self._refs()):
+                add(f"{i2}c_ref[s, {j}] = {name}")
+            return
+        add(f"{i2}for _ in range(clag):")
+        self._window(add, i2 + "    ", False)
+        for c, c2 in self._pairs():
+            add(f"{i2}c_hac[s, {c}, {c2}] = clh{c}_{c2} / (clag + 1.0)")
+
+
 def _combined_source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, ztype: np.ndarray,
-                     zpar: np.ndarray, zeq: np.ndarray) -> str:
+                     zpar: np.ndarray, zeq: np.ndarray, ckind: np.ndarray, cpar: np.ndarray,
+                     ceq: np.ndarray) -> str:
     """Source of the combined-instrument pass of
     :func:`vesselid.identify._ivkernels.combined_moments` for one structure and column
-    layout, unrolled (same operations, same order: bit-identical)."""
+    layout, unrolled (same operations, same order: bit-identical), with the optional
+    fused colour test (:func:`_colour_code`; ``ckind``, ``cpar``, ``ceq``: its column
+    layout, :func:`vesselid.identify.gmm._colour_layout`)."""
     n_par, k_tot = fac.shape[0], ztype.shape[0]
+    colour = _ColourCode(fac, eq, ztype, zpar, ckind, cpar, ceq)
     lag_sig = {0: "x", 2: "l", 3: "o"}
     own = [[p for p in range(n_par) if int(eq[p]) == int(zeq[c])] for c in range(k_tot)]
     # data signals of row k: at k−1 (φ) and, for columns of type 2 / 3 (lagged
@@ -352,14 +531,21 @@ def _combined_source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, ztype: np.
     lines: list[str] = []
     add = lines.append
 
-    def load_row(ind: str) -> None:
+    def load_row(ind: str, early: bool = False) -> None:
         # data signals, regressors φ and instruments z of row k (x̂(k−1) and u(k−1) are
-        # loaded by inputs_and_state)
-        _data_row(add, ind, n, lags)
+        # loaded by inputs_and_state); ``early`` (rows a+1, a+2, colour test only): no
+        # delayed columns
+        _data_row(add, ind, n, (("d", 1),) if early else lags)
         for p in range(n_par):
             add(f"{ind}phi{p} = {_term(p, 'd', n, m, fac)}")
         for c in range(k_tot):
-            add(f"{ind}z{c} = {_term(int(zpar[c]), lag_sig[int(ztype[c])], n, m, fac)}")
+            if not early or int(ztype[c]) == 0:
+                add(f"{ind}z{c} = {_term(int(zpar[c]), lag_sig[int(ztype[c])], n, m, fac)}")
+
+    def rows_before_delays(ind: str) -> None:
+        # the colour test's noise window starts at row a + 1
+        add(f"{ind}elif colour:")
+        load_row(ind + "    ", early=True)
 
     def window_step(ind: str, entering: bool) -> None:
         # slide the HAC window (a ring of lags + 1 scores) one sample: the new scores sc
@@ -386,7 +572,12 @@ def _combined_source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, ztype: np.
     _head(add, " (combined instruments)", (
         "def _segment(s, regsig, target, u, starts, group, theta, active, limit, second,",
         "             theta1, means_z, means_phi, means_y, means_g, lags, s_a, s_b, s_m, s_z,",
-        "             s_phi, s_y, count, status, s_hac):"))
+        "             s_phi, s_y, count, status, s_hac, colour, window, c_in, c_out):"))
+    # (tuples: a call of more than 30 arguments compiles to CALL_FUNCTION_EX, which
+    # numba cannot inline)
+    add("    wlo, whi = window")
+    add("    ctheta1, cmeans_z, cmeans_phi, cmeans_y, cmeans_g = c_in")
+    add("    c_a, c_b, c_m, c_z, c_phi, c_y, c_count, c_hac, c_ref = c_out")
     add("    lim = limit[s]")
     for p in range(n_par):
         add(f"    th{p} = theta[g, {p}]")
@@ -408,6 +599,7 @@ def _combined_source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, ztype: np.
     sums += [(f"ly{i}", f"target[k, {i}]", (f"s_y[s, {i}]",)) for i in range(n)]
     for local, _, _ in sums:
         add(f"{ind}{local} = 0.0")
+    colour.start(add, ind, second=False)
     add(f"{ind}for k in range(a + 1, b):")
     i2 = ind + "    "
     inputs_and_state(i2)
@@ -417,6 +609,8 @@ def _combined_source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, ztype: np.
     add(f"{i3}cnt += 1")
     for local, inc, _ in sums:
         add(f"{i3}{local} += {inc}")
+    rows_before_delays(i2)
+    colour.row(add, i2, second=False)
     _advance(add, i2, n, m, fac, eq, "q")
     add(f"{ind}count[s] = cnt")
     for local, _, outs in sums:
@@ -426,6 +620,7 @@ def _combined_source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, ztype: np.
         for p in range(n_par):
             if p not in own[c]:  # another equation's regressor
                 add(f"{ind}s_a[s, {c}, {p}] = 0.0")
+    colour.finish(add, ind, second=False)
     add("    else:")
     for p in range(n_par):
         add(f"{ind}t{p} = theta1[g, {p}]")
@@ -439,6 +634,7 @@ def _combined_source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, ztype: np.
         for c2 in range(c, k_tot):
             add(f"{ind}lh{c}_{c2} = 0.0")
     add(f"{ind}ring = np.zeros((lags + 1, {k_tot}))")
+    colour.start(add, ind, second=True)
     add(f"{ind}for k in range(a + 1, b):")
     inputs_and_state(i2)
     add(f"{i2}if k >= a + 3:")
@@ -448,6 +644,8 @@ def _combined_source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, ztype: np.
     for p in range(n_par):
         add(f"{i3}e{int(eq[p])} -= (phi{p} - mphi{p}) * t{p}")
     window_step(i3, True)
+    rows_before_delays(i2)
+    colour.row(add, i2, second=True)
     _advance(add, i2, n, m, fac, eq, "q")
     add(f"{ind}for _ in range(lags):")
     window_step(i2, False)
@@ -455,13 +653,37 @@ def _combined_source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, ztype: np.
         for c2 in range(c, k_tot):
             add(f"{ind}s_hac[s, {c}, {c2}] = lh{c}_{c2} / (lags + 1.0)")
             add(f"{ind}s_hac[s, {c2}, {c}] = s_hac[s, {c}, {c2}]")
+    colour.finish(add, ind, second=True)
+    colour_args = "colour, window, c_in, c_out"
     args = ("regsig, target, u, starts, group, theta, active, limit, second, theta1, "
             "means_z, means_phi, means_y, means_g, lags, s_a, s_b, s_m, s_z, s_phi, s_y, "
-            "count, status, s_hac")
+            "count, status, s_hac, " + colour_args)
     full = ("regsig, target, u, starts, group, theta, active, fac, eq, ztype, zpar, zeq, "
             "limit, second, theta1, means_z, means_phi, means_y, means_g, lags, s_a, s_b, "
-            "s_m, s_z, s_phi, s_y, count, status, s_hac")
-    _entry_point(add, full, args)
+            "s_m, s_z, s_phi, s_y, count, status, s_hac, " + colour_args)
+    # the two passes as two functions compiled apart (not inlined into one): LLVM's time
+    # grows faster than the code, and one function of both passes took 2.4x as long to
+    # compile as the two halves
+    i_if = lines.index("    if not second:")
+    i_else = lines.index("    else:", i_if)
+    common = lines[:i_if]
+    d_line = common.index("@njit(cache=True, inline='always')")
+    common[d_line] = "@njit(cache=True, nogil=True)"
+    first = [*common, *lines[i_if:i_else]]
+    second = [*common, "    if second:", *lines[i_else + 1:]]
+    first[d_line + 1] = first[d_line + 1].replace("def _segment(", "def _first(")
+    second[d_line + 1] = second[d_line + 1].replace("def _segment(", "def _second(")
+    second[0:d_line] = ["", ""]
+    lines[:] = [*first, *second]
+    add("")
+    add("")
+    add("@njit(cache=True, nogil=True)")
+    add(f"def segments(lo, hi, {full}):")
+    add("    for s in range(lo, hi):")
+    add("        if second:")
+    add(f"            _second(s, {args})")
+    add("        else:")
+    add(f"            _first(s, {args})")
     return "\n".join(lines) + "\n"
 
 
@@ -560,18 +782,23 @@ def specialised_moments(
 
 def specialised_combined(
     n: int, m: int, fac: np.ndarray, eq: np.ndarray, ztype: np.ndarray, zpar: np.ndarray,
-    zeq: np.ndarray
+    zeq: np.ndarray, ckind: np.ndarray, cpar: np.ndarray, ceq: np.ndarray
 ) -> SpecialisedMoments | None:
-    """The specialised combined-instrument pass for this structure and column layout, or
-    None (use :func:`vesselid.identify._ivkernels.combined_moments`).
+    """The specialised combined-instrument pass for this structure and column layout
+    (with the fused colour test of the colour layout ``ckind``, ``cpar``, ``ceq``), or
+    None (use :func:`vesselid.identify._ivkernels.combined_moments`, and the explicit
+    colour test).
 
-    Call the result as ``kern(parallel, *args)`` with the arguments of
-    ``combined_moments``; it returns False if the generated code could not be compiled.
+    Call the result as ``kern(parallel, *args, *colour_args)`` with the arguments of
+    ``combined_moments`` and the colour test's (``colour`` false: none computed); it
+    returns False if the generated code could not be compiled.
     """
-    if (ztype.shape[0] > MAX_COMBINED_COLUMNS or fac.shape[0] > MAX_SPECIALISED_PARAMS
+    if (max(ztype.shape[0], ckind.shape[0]) > MAX_COMBINED_COLUMNS
+            or fac.shape[0] > MAX_SPECIALISED_PARAMS
             or os.environ.get("VESSELID_GENERIC_KERNELS")):
         return None
-    arrays = [np.ascontiguousarray(a, dtype=np.int64) for a in (fac, eq, ztype, zpar, zeq)]
+    arrays = [np.ascontiguousarray(a, dtype=np.int64)
+              for a in (fac, eq, ztype, zpar, zeq, ckind, cpar, ceq)]
     key = ("combined", int(n), int(m), *(a.tobytes() for a in arrays))
     return _cached_kernel(key, "combined-instrument",
                           lambda: _combined_source(int(n), int(m), *arrays))

@@ -11,9 +11,11 @@ All work on concatenated rows with experiment boundaries ``starts`` and a row ma
 * :func:`autocov` — residual autocovariances per segment (Yule–Walker).
 * :func:`cross_sums` — ``Σ z φᵀ``, ``Σ z y``, ``Σ z zᵀ`` per segment.
 * :func:`noise_window` — windowed means of the estimated regressor noise (colour test).
-* :func:`design_scan`, :func:`design_centre` — the explicit-matrix design of one equation
-  (instruments, regressors, target) masked, scaled and centred without the stacked
-  temporaries.
+* :func:`design_scan`, :func:`design_centre`, :func:`design_ar_centre` — the
+  explicit-matrix design of one equation (instruments, regressors, target) masked,
+  scaled, (AR-prefiltered and) centred without the stacked temporaries.
+* :func:`moving_sums` — :func:`vesselid.identify.covariance.moving_sums` (the Bartlett
+  long-run covariances' running-sum differences) in one pass, bit-identical.
 """
 
 from __future__ import annotations
@@ -28,7 +30,8 @@ from vesselid.regressors import fill_factors_xu, kernel, one_step, regressors
 PARALLEL_MIN_SAMPLES = 200_000
 
 __all__ = ["ar_filter", "autocov", "center", "combined_moments", "cross_sums",
-           "design_centre", "design_scan", "noise_window", "simulated_regressors"]
+           "design_ar_centre", "design_centre", "design_scan", "moving_sums", "noise_window",
+           "simulated_regressors"]
 
 
 @kernel()
@@ -471,3 +474,102 @@ def design_centre(z, phi, p_lo, p_hi, target, i_eq, valid, col, starts):
                 pp[k, p] = pp[k, p] - mean[k_z + p]
             yy[k] = yy[k] - mean[last]
     return zz, pp, yy
+
+
+@njit(cache=True)
+def design_ar_centre(z, phi, p_lo, p_hi, target, i_eq, valid, col, starts, coef, group):
+    """:func:`design_centre` with the noise-model prefilter: the masked, column-scaled
+    ``[z, phi[:, p_lo:p_hi], target[:, i_eq]]`` filtered per segment ``s`` by
+    ``coef[group[s]]`` and centred over the filtered valid rows — the same operations in
+    the same order as stacking, ``np.where``, scaling, :func:`ar_filter` and
+    :func:`center` (bit-identical). Returns ``(zz, pp, yy, valid_f)``."""
+    t_len, k_z = z.shape
+    n_p = p_hi - p_lo
+    last = k_z + n_p
+    p = coef.shape[1] - 1
+    zz = np.zeros((t_len, k_z))
+    pp = np.zeros((t_len, n_p))
+    yy = np.zeros(t_len)
+    vf = np.zeros(t_len, dtype=np.bool_)
+    mean = np.empty(last + 1)
+    for s in range(starts.shape[0] - 1):
+        a = starts[s]
+        b = starts[s + 1]
+        c = coef[group[s]]
+        for k in range(a + p, b):
+            good = True
+            for j in range(p + 1):
+                if not valid[k - j]:
+                    good = False
+                    break
+            if not good:
+                continue
+            vf[k] = True
+            for col_j in range(k_z):
+                acc = 0.0
+                for j in range(p + 1):
+                    acc += c[j] * (z[k - j, col_j] * col[col_j])
+                zz[k, col_j] = acc
+            for q in range(n_p):
+                acc = 0.0
+                for j in range(p + 1):
+                    acc += c[j] * (phi[k - j, p_lo + q] * col[k_z + q])
+                pp[k, q] = acc
+            acc = 0.0
+            for j in range(p + 1):
+                acc += c[j] * (target[k - j, i_eq] * col[last])
+            yy[k] = acc
+        cnt = 0
+        mean[:] = 0.0
+        for k in range(a, b):
+            if vf[k]:
+                cnt += 1
+                for j in range(k_z):
+                    mean[j] += zz[k, j]
+                for q in range(n_p):
+                    mean[k_z + q] += pp[k, q]
+                mean[last] += yy[k]
+        if cnt == 0:
+            continue
+        for j in range(last + 1):
+            mean[j] /= cnt
+        for k in range(a, b):
+            for j in range(k_z):
+                zz[k, j] = zz[k, j] - mean[j]
+            for q in range(n_p):
+                pp[k, q] = pp[k, q] - mean[k_z + q]
+            yy[k] = yy[k] - mean[last]
+    return zz, pp, yy, vf
+
+
+@njit(cache=True)
+def moving_sums(x, lag):
+    """:func:`vesselid.identify.covariance.moving_sums` of a C-contiguous ``x`` (q, n),
+    bit-identical: the same running sums (``np.cumsum``'s sequential order, its first
+    value ``x[:, 0]``) and the same differences ``C[t + lag + 1] − C[t]`` of the
+    zero-padded running sum ``C`` (zero before the series, held at the last sum after
+    it), one row at a time with the last ``lag + 1`` sums in a ring buffer (no padded
+    copy, no second pass)."""
+    q, n = x.shape
+    m = n + lag
+    w = lag + 1
+    out = np.empty((q, m))
+    ring = np.empty(w)
+    for i in range(q):
+        acc = 0.0
+        j = 0
+        for t in range(n):
+            acc = x[i, t] if t == 0 else acc + x[i, t]
+            b = ring[j] if t > lag else 0.0  # C[t] = the sum of rows 0 … t − lag − 1
+            out[i, t] = acc - b
+            ring[j] = acc
+            j += 1
+            if j == w:
+                j = 0
+        for t in range(n, m):  # C[t + lag + 1] is held at the last sum
+            b = ring[j] if t > lag else 0.0
+            out[i, t] = acc - b
+            j += 1
+            if j == w:
+                j = 0
+    return out

@@ -300,8 +300,9 @@ class Estimator:
         index = spec.param_index
         history = None
         if it.history:
-            history = pd.DataFrame(np.vstack([h[0] for h in it.history]),
-                                   columns=index).rename_axis("iteration")
+            steps = np.vstack([h[0] for h in it.history])
+            history = pd.DataFrame(steps, columns=index,
+                                   index=pd.RangeIndex(steps.shape[0], name="iteration"))
         diagnostics: dict[str, Any] = {
             "combine": combine,
             "cov_type": cov_name,

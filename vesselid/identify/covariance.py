@@ -211,7 +211,7 @@ def _newey_west_bandwidth(g: np.ndarray, segs: list[slice], kernel: str, t_total
     n = math.ceil(4 * (t_total / 100) ** n_exp)
     scale = np.sqrt(np.mean(_compact(g, segs) ** 2, axis=0))
     scale[scale == 0] = 1.0
-    x = [np.sum(g[s] / scale, axis=1) for s in segs] if g.shape[1] > 1 else [g[s, 0] for s in segs]
+    x = [_row_sums(g[s], scale) for s in segs] if g.shape[1] > 1 else [g[s, 0] for s in segs]
     sig = np.zeros(n + 1)
     for xs in x:
         for j in range(min(n, xs.size - 1) + 1):
@@ -223,6 +223,18 @@ def _newey_west_bandwidth(g: np.ndarray, segs: list[slice], kernel: str, t_total
         return 0.0
     gamma = c * ((sq / s0) ** 2) ** (1 / (2 * q + 1))
     return float(math.ceil(gamma * t_total ** (1 / (2 * q + 1))))
+
+
+def _row_sums(g: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """``np.sum(g / scale, axis=1)``, bit-identical: numpy adds fewer than 8 terms of a
+    row in order from 0, so with few columns the row sums are accumulated one column at
+    a time (a few vector passes instead of one short reduction per row)."""
+    if g.shape[1] >= 8:
+        return np.sum(g / scale, axis=1)
+    acc = np.zeros(g.shape[0])
+    for j in range(g.shape[1]):
+        acc += g[:, j] / scale[j]
+    return acc
 
 
 def long_run_covariance(
@@ -260,11 +272,28 @@ def moving_sums(x: np.ndarray, lag: int) -> np.ndarray:
     ``t = 0 … n + lag − 1``: differences of one running sum (the Bartlett long-run
     covariance is ``Σ_t h hᵀ / (lag + 1)``; :func:`bartlett_long_run`,
     :func:`vesselid.identify.gmm.hac_sums`)."""
+    kernel = _loaded_kernel("moving_sums")
+    if kernel is not None and x.shape[1] > 0:  # the same sums in one compiled pass
+        return kernel(np.ascontiguousarray(x, dtype=float), int(lag))
     q, n = x.shape
     c = np.zeros((q, n + 2 * lag + 1))
     np.cumsum(x, axis=1, out=c[:, lag + 1:n + lag + 1])
     c[:, n + lag + 1:] = c[:, n + lag:n + lag + 1]
     return c[:, lag + 1:] - c[:, :-(lag + 1)]
+
+
+def _loaded_kernel(name: str) -> Any:
+    """The compiled kernel ``name`` (:mod:`vesselid.identify._ivkernels`, bit-identical to
+    the numpy lines it replaces) when that module is loaded already and the estimation is
+    not on the numpy path (:mod:`vesselid.identify.backend`); never imports numba."""
+    import sys
+
+    mod = sys.modules.get("vesselid.identify._ivkernels")
+    if mod is None:
+        return None
+    from vesselid.identify.backend import numpy_active
+
+    return None if numpy_active() else getattr(mod, name, None)
 
 
 def bartlett_long_run(g: np.ndarray, lags: int) -> np.ndarray:
@@ -580,6 +609,7 @@ def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
             z_equation: np.ndarray | None, zero_mean: bool, skip_first: bool) -> _Scores:
     """Validate the arrays of :meth:`CovarianceEstimator.estimate` and form the scores
     (``phi=None``: instruments only, as :meth:`CovarianceEstimator.long_run`)."""
+    same = phi is z  # LS / the endogeneity regression: instruments = regressors
     z = np.asarray(z, dtype=float)
     resid = np.asarray(resid, dtype=float)
     if resid.ndim == 1:
@@ -587,7 +617,8 @@ def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
     if z.ndim != 2:
         raise CovarianceError("z and phi must be 2-d arrays (rows × columns)")
     t_len = z.shape[0]
-    phi = np.zeros((t_len, 0)) if phi is None else np.asarray(phi, dtype=float)
+    phi = (np.zeros((t_len, 0)) if phi is None else z if same
+           else np.asarray(phi, dtype=float))
     if phi.ndim != 2:
         raise CovarianceError("z and phi must be 2-d arrays (rows × columns)")
     n_par = phi.shape[1]
@@ -615,16 +646,19 @@ def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
         rows[s] = True
     every_row = bool(rows.all())  # the fit path drops the first rows itself: no copies
     for name, arr in (("z", z), ("phi", phi), ("resid", resid)):
-        if not np.all(np.isfinite(arr if every_row else arr[rows])):
+        if (name != "phi" or not same) and not np.all(np.isfinite(arr if every_row
+                                                                  else arr[rows])):
             raise CovarianceError(f"{name} holds NaN or inf in the rows used")
     # Equilibrate: unit-norm instrument and regressor columns (over the rows used), so
     # that badly scaled signals (forces in N next to velocities in m/s, or every signal
     # times 1e±6) lose no precision in the sandwich below. The estimator is equivariant:
     # θ_s = D_φ θ, ḡ_s = D_z⁻¹ ḡ, W_s = D_z W D_z, so Cov θ̂ = D_φ⁻¹ Cov θ̂_s D_φ⁻¹.
     z_scale = _column_scale(z, None if every_row else rows)
-    phi_scale = _column_scale(phi, None if every_row else rows)
+    phi_scale = z_scale if same else _column_scale(phi, None if every_row else rows)
     z = z / z_scale
-    phi = phi / phi_scale
+    # the same numbers either way; a copy all the same (a product of one buffer with
+    # itself would take BLAS's symmetric rank-k path, rounded differently)
+    phi = z.copy() if same else phi / phi_scale
     eps = _residual(resid, segs, zero_mean)
     g = np.zeros((t_len, n_ins))
     one = eps.shape[1] == 1  # every instrument in equation 0: broadcast, no column copies

@@ -101,18 +101,17 @@ def from_log(log, spec: ModelSpec | None = None, *, min_samples: int | None = No
     -------
     (RegressionData, ModelSpec)
     """
-    from vesselid.logs import TrialLog, _positions_by_experiment
+    from vesselid.logs import TrialLog
 
     if not isinstance(log, TrialLog):
         log = TrialLog(log)
     spec = spec or log.spec
     if spec is None:
         raise IdentificationError("no model spec given and the log carries none")
-    log.validate(spec)
-    # the rows of each experiment (TrialLog.experiments() order), taken from the columns
-    # directly: no sub-frame copies, and column by column (selecting a list of columns
-    # builds a new frame, ~50x slower)
-    parts = _positions_by_experiment(log.data)
+    # validated; the rows of each experiment (TrialLog.experiments() order) as the
+    # validation split them, taken from the columns directly: no sub-frame copies, and
+    # column by column (selecting a list of columns builds a new frame, ~50x slower)
+    parts = log._validate(spec)
     lengths = [pos.size for _, pos in parts]
     starts = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
     order = np.concatenate([pos for _, pos in parts])

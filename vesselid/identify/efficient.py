@@ -204,21 +204,31 @@ class InstrumentalGMM(Estimator):
         self._validate()
 
     # ------------------------------------------------------------------ core
-    def _refine(self, data, spec, phi, lagged, theta, kind, order, keep, tol, steps=None):
+    def _refine(self, data, spec, phi, lagged, theta, kind, order, keep, tol, steps=None,
+                colour=False, first_z: list | None = None):
         """``refine`` refinement steps of one instrument set from the consistent start
         ``theta`` (instruments re-simulated from, and the noise model re-estimated at,
-        the latest estimate); returns ``(solution, theta, steps)``."""
+        the latest estimate); returns ``(solution, theta, steps)``. ``colour``: on the
+        fused path, the first step (instruments simulated from ``theta``) also runs the
+        colour test (``solution.colour``, :func:`vesselid.identify.gmm.combined_solution`).
+        ``first_z`` (a list) receives the instruments simulated from ``theta`` when the
+        rows are formed (the explicit colour test of the fit path needs the same ones)."""
         n = data.n_groups
         iters = np.zeros(n, dtype=np.int64)
         active = np.all(np.isfinite(theta), axis=1)
-        sol = None
+        sol = first = None
         fused = kind == "combined" and not order and not keep
         n_steps = int(self.refine if steps is None else steps)
         for step in range(n_steps):
             if fused:  # Monte Carlo fast path: two compiled passes, no row matrices
-                sol, ok_sim = gmm.combined_solution(data, spec, theta)
+                sol, ok_sim = gmm.combined_solution(
+                    data, spec, theta, colour=gmm.COLOUR_WINDOW if colour and not step else None)
+                if first is None:
+                    first = sol
             else:
                 z_sim, ok_sim = gmm.simulated_instruments(data, spec, theta)
+                if first_z is not None and step == 0:
+                    first_z.append(z_sim)
                 ar = None
                 if order:
                     ar = np.zeros((n, spec.n_states, order + 1))
@@ -234,7 +244,31 @@ class InstrumentalGMM(Estimator):
             iters += active
             active &= np.all(np.isfinite(new), axis=1)
             theta = new
+        if first is not None and sol is not first:
+            sol.colour, sol.colour_df, sol.colour_ok = (first.colour, first.colour_df,
+                                                        first.colour_ok)
         return sol, theta, iters
+
+    def _colour_test(self, data, spec, phi, theta0, sol, z_first=None):
+        """The colour test of the instruments simulated from ``theta0``: the statistic
+        fused into the first combined step where it has it (``sol.colour_ok``), else
+        :func:`vesselid.identify.gmm.colour_test` on explicit rows (the fit path; no
+        generated kernel; ``theta0`` not finite or non-finite sums). ``z_first``: those
+        instruments when the first refinement step simulated them already (the same call
+        on the same arrays). ``(stat, df)``."""
+        n = data.n_groups
+        if sol.colour is not None:
+            stat, df, todo = sol.colour.copy(), sol.colour_df, ~sol.colour_ok
+        else:
+            stat, df, todo = np.zeros((n, spec.n_states)), None, np.ones(n, dtype=bool)
+        if todo.any():
+            sub = data if todo.all() else _subset(data, todo)
+            phi_s = phi if phi is not None and todo.all() else kernels.regressor_matrix(
+                sub.regsig, sub.u, sub.starts, spec.codes.factors)
+            z_sim = (z_first if z_first is not None and todo.all() else
+                     gmm.simulated_instruments(sub, spec, theta0[todo])[0])
+            stat[todo], df = gmm.colour_test(sub, spec, phi_s, z_sim)
+        return stat, df
 
     def estimate_parameters(self, data: RegressionData, spec: ModelSpec, *,
                             combine: str = "pooled", theta_start: np.ndarray | None = None,
@@ -252,8 +286,9 @@ class InstrumentalGMM(Estimator):
                             theta_start=theta_start, max_iter=max_iter, tol=tol)
         n = data.n_groups
         keep = keep_history and n == 1
-        fused = self.instruments == "combined" and not keep
-        # the fused combined path needs no regressor rows (auto's colour test does)
+        fused = self.instruments in ("combined", "auto") and not keep
+        # the fused combined path (with auto's colour test) needs no regressor rows; the
+        # explicit colour test and auto's fallback compute them for their groups
         phi = None if fused else kernels.regressor_matrix(data.regsig, data.u, data.starts,
                                                           spec.codes.factors)
         lagged = None
@@ -268,8 +303,10 @@ class InstrumentalGMM(Estimator):
             sol, theta, iters = self._refine(data, spec, phi, None, theta0, "simulated",
                                              self.noise_order, keep, tol)
         else:
+            first_z: list = []
             sol, theta, iters = self._refine(data, spec, phi, lagged, theta0, "combined", 0,
-                                             keep, tol)
+                                             keep, tol, colour=self.instruments == "auto",
+                                             first_z=first_z)
             pvals = np.ones((n, spec.n_states))
             for i in range(spec.n_states):
                 if sol.c_df[i]:
@@ -279,8 +316,8 @@ class InstrumentalGMM(Estimator):
                         j_stat=sol.j.copy(), j_df=sol.df.copy())
             used[:] = "combined"
             if self.instruments == "auto":
-                z_sim, _ = gmm.simulated_instruments(data, spec, theta0)
-                w_stat, w_df = gmm.colour_test(data, spec, phi, z_sim)
+                w_stat, w_df = self._colour_test(data, spec, phi, theta0, sol,
+                                                 z_first=first_z[0] if first_z else None)
                 w_p = np.ones((n, spec.n_states))
                 for i in range(spec.n_states):
                     if w_df[i]:
@@ -289,8 +326,11 @@ class InstrumentalGMM(Estimator):
                 reject = (c_p < float(self.alpha)) | (w_p.min(axis=1) < float(self.colour_alpha))
                 if reject.any():
                     sub = _subset(data, reject)
+                    phi_s = (phi[_rows(data, reject)] if phi is not None else
+                             kernels.regressor_matrix(sub.regsig, sub.u, sub.starts,
+                                                      spec.codes.factors))
                     sol_s, th_s, it_s = self._refine(
-                        sub, spec, phi[_rows(data, reject)], None, theta0[reject], "simulated",
+                        sub, spec, phi_s, None, theta0[reject], "simulated",
                         info["noise_order"], keep, tol, steps=self.fallback_refine)
                     theta[reject] = th_s
                     iters[reject] = it_s

@@ -47,7 +47,7 @@ import numpy as np
 
 from vesselid.identify import linalg
 from vesselid.identify._fastkernels import specialised_combined
-from vesselid.identify.backend import ivk, kernels
+from vesselid.identify.backend import ivk, kernels, numpy_active
 from vesselid.identify.covariance import moving_sums
 from vesselid.identify.data import RegressionData, block_starts
 from vesselid.model import ModelSpec
@@ -246,7 +246,10 @@ class GMMSolution:
     ``jacobians`` (with ``designs``): per equation the derivative ``∂θ₂/∂θ₁`` (P_i, P_i)
     of the two-step estimate with respect to the first-step estimate through the
     estimated HAC weight (:func:`weight_jacobian`; Windmeijer 2005), None where the
-    equation has no estimated weight (just identified, or 2SLS).
+    equation has no estimated weight (just identified, or 2SLS). ``colour`` (G, n),
+    ``colour_df`` (n,), ``colour_ok`` (G,): the colour test fused into
+    :func:`combined_solution` on request (:func:`colour_test`'s statistic where
+    ``colour_ok``; elsewhere not computed), else None.
     """
 
     theta: np.ndarray
@@ -257,6 +260,9 @@ class GMMSolution:
     c_df: np.ndarray
     designs: list | None = None
     jacobians: list | None = None
+    colour: np.ndarray | None = None
+    colour_df: np.ndarray | None = None
+    colour_ok: np.ndarray | None = None
 
 
 def hac_sums(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: np.ndarray,
@@ -283,9 +289,11 @@ def _experiment_scores(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: 
     """Per experiment ``s`` with a valid row: ``(s, a, b, valid rows, their count, g)``,
     ``g`` the scores ``z(k) e(k)`` of rows ``a … b − 1`` demeaned over the valid rows,
     invalid rows zero, as ``(K, n)`` (time along contiguous rows)."""
-    g_all = z * np.where(valid, e, 0.0)[:, None]
+    ev = np.where(valid, e, 0.0)
     for s, a, b, v, cnt in _valid_experiments(starts, valid):
-        g = np.ascontiguousarray(g_all[a:b].T)
+        # the products z e written in the time-contiguous layout directly (one pass)
+        g = np.empty((z.shape[1], b - a))
+        np.multiply(z[a:b].T, ev[a:b], out=g)
         g -= (g.sum(axis=1) / cnt)[:, None]
         g[:, ~v] = 0.0
         yield s, a, b, v, cnt, g
@@ -429,6 +437,10 @@ def solve_equations(
         if ar is None:  # masked, scaled and centred in two compiled passes (bit-identical)
             zz, pp, yy = ivk.design_centre(zc, phi, sl.start, sl.stop, data.target, i,
                                            valid, col, data.starts)
+        elif not numpy_active():  # prefiltered and centred in one compiled pass (same bits)
+            zz, pp, yy, valid = ivk.design_ar_centre(
+                zc, phi, sl.start, sl.stop, data.target, i, valid, col, data.starts,
+                np.ascontiguousarray(ar[:, i]), data.group)
         else:
             stack = np.column_stack([z, phi[:, sl], data.target[:, i]])
             stack = np.where(valid[:, None], stack, 0.0) * col
@@ -509,18 +521,46 @@ def _combined_layout(spec: ModelSpec):
     return (*as_int, n_lag)
 
 
+def _colour_layout(spec: ModelSpec):
+    """Column layout of the colour test (:func:`colour_test`), grouped by equation: per
+    equation its simulated columns (kind 0), then the noise window of its state terms
+    (kind 1). Returns ``(kind, par, eq, bounds)``."""
+    blocks = block_starts(spec)
+    endo = state_terms(spec)
+    kind, par, eq, bounds = [], [], [], [0]
+    for i in range(spec.n_states):
+        cols = list(range(int(blocks[i]), int(blocks[i + 1])))
+        d_cols = [c for c in cols if endo[c]]
+        kind += [0] * len(cols) + [1] * len(d_cols)
+        par += cols + d_cols
+        eq += [i] * (len(cols) + len(d_cols))
+        bounds.append(len(kind))
+    return tuple(np.asarray(x, dtype=np.int64) for x in (kind, par, eq, bounds))
+
+
 def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, *,
-                      lags: int | None = None, limit_factor: float = 1e3
+                      lags: int | None = None, limit_factor: float = 1e3,
+                      colour: tuple[int, int] | None = None
                       ) -> tuple[GMMSolution, np.ndarray]:
     """Two-step HAC GMM with the ``combined`` set for every group in two fused compiled
     passes (no row matrices): the Monte Carlo fast path of :func:`solve_equations`
     with ``instrument_blocks(spec, "combined", …)`` (same estimates to rounding).
+
+    ``colour`` (a window, e.g. :data:`COLOUR_WINDOW`): also the colour test of the
+    instruments simulated from ``theta`` in the same two passes (the generated kernel
+    only; :func:`colour_test`'s statistic to rounding: the sums are accumulated in
+    another order, the design is not column-scaled), into ``solution.colour``,
+    ``colour_df`` and ``colour_ok``; ``colour_ok`` is False for groups it could not
+    compute (``theta`` not finite, non-finite sums), and ``colour`` None when the
+    generated kernel is not available — the caller runs :func:`colour_test` there.
+    The combined estimates do not depend on ``colour`` (bit for bit).
 
     Returns ``(solution, aux_ok)``; ``aux_ok`` is False where the auxiliary model of
     ``theta`` diverged.
     """
     codes = spec.codes
     ztype, zpar, zeq, bounds, n_lag = _combined_layout(spec)
+    ckind, cpar, ceq, cbounds = _colour_layout(spec)
     n_seg, k_tot, n_par, n = data.n_segments, ztype.size, spec.n_params, spec.n_states
     limit = limit_factor * np.maximum(data.target_abs_max, 1.0)
     bw = hac_lags(int(np.median(np.diff(data.starts)))) if lags is None else int(lags)
@@ -539,16 +579,35 @@ def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, 
     args = (data.regsig, data.target, data.u, data.starts, data.group, th, active,
             codes.factors, codes.equation, ztype, zpar, zeq, limit)
     special = specialised_combined(n, spec.n_inputs, codes.factors, codes.equation, ztype,
-                                   zpar, zeq)
+                                   zpar, zeq, ckind, cpar, ceq)
 
     parallel = n_seg > 1 and data.target.shape[0] >= ivk.PARALLEL_MIN_SAMPLES
+    k_c = ckind.size
+    fused = bool(colour is not None and special is not None)
+    lo, hi = (int(colour[0]), int(colour[1])) if fused else (1, 1)
+    if fused and not 1 <= lo <= hi:
+        raise ValueError(f"window must satisfy 1 <= first <= last, got {colour!r}")
+    c_out = [np.zeros((n_seg, k_c, n_par)), np.zeros((n_seg, k_c)),
+             np.zeros((n_seg, k_c, k_c)), np.zeros((n_seg, k_c)), np.zeros((n_seg, n_par)),
+             np.zeros((n_seg, n)), np.zeros(n_seg, dtype=np.int64),
+             np.zeros((n_seg, k_c, k_c)), np.zeros((n_seg, k_c + n_par + n))
+             ] if fused else [dummy[None], dummy, dummy[None], dummy, dummy, dummy,
+                              count[:1] * 0, dummy[None], dummy]
 
-    def run(*rest) -> None:  # the generated kernel when it loads, else the generic one
-        if special is None or not special(parallel, *args, *rest):
-            ivk.combined_moments(*args, *rest)
+    # the second pass reads its colour inputs unconditionally: full-shape zeros
+    c_zero = (np.zeros((data.n_groups, n_par)), np.zeros((n_seg, k_c)),
+              np.zeros((n_seg, n_par)), np.zeros((n_seg, n)), np.zeros((n_seg, k_c)))
 
-    run(False, th, dummy, dummy, dummy, dummy, bw, s_a, s_b, s_m, s_z, s_phi, s_y, count,
-        status, s_hac)
+    def run(*rest, c_in=c_zero) -> bool:
+        # the generated kernel when it loads (True), else the generic one (False)
+        if special is not None and special(parallel, *args, *rest, fused, (lo, hi), c_in,
+                                           tuple(c_out)):
+            return True
+        ivk.combined_moments(*args, *rest)
+        return False
+
+    fused &= run(False, th, dummy, dummy, dummy, dummy, bw, s_a, s_b, s_m, s_z, s_phi, s_y,
+                 count, status, s_hac)
     aux_ok = active.copy()
     np.logical_and.at(aux_ok, data.group, status == 0)
     cnt = np.maximum(count, 1).astype(float)
@@ -571,9 +630,11 @@ def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, 
     # mean score per segment, ḡ = (1/n) Σ (z − z̄)(y − ȳ − (φ − φ̄)ᵀθ₁)
     t1s = np.nan_to_num(theta1)[data.group]
     g_seg = (b_c - np.einsum("skp,sp->sk", a_c, t1s)) / cnt[:, None]
-    run(True, np.ascontiguousarray(np.nan_to_num(theta1)), mz, mphi, my,
-        np.ascontiguousarray(g_seg), bw, s_a * 0, s_b * 0, s_m * 0, s_z * 0, s_phi * 0,
-        s_y * 0, count * 0, status * 0, s_hac)
+    c_in = _colour_first_step(data, spec, c_out, cbounds) if fused else None
+    fused &= run(True, np.ascontiguousarray(np.nan_to_num(theta1)), mz, mphi, my,
+                 np.ascontiguousarray(g_seg), bw, s_a * 0, s_b * 0, s_m * 0, s_z * 0,
+                 s_phi * 0, s_y * 0, count * 0, status * 0, s_hac,
+                 **({} if c_in is None else {"c_in": c_in[0]}))
     s_g = _group_sum(data, s_hac)
     theta2 = np.full_like(theta1, np.nan)
     j_stat = np.zeros((data.n_groups, n))
@@ -594,4 +655,76 @@ def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, 
         c_stat[:, i] = j_stat[:, i]  # the simulated subset alone is just identified
         c_df[i] = n_lag[i]
     theta2[~ok] = np.nan
-    return GMMSolution(theta=theta2, ok=ok, j=j_stat, df=df, c=c_stat, c_df=c_df), aux_ok
+    sol = GMMSolution(theta=theta2, ok=ok, j=j_stat, df=df, c=c_stat, c_df=c_df)
+    if fused and c_in is not None:
+        sol.colour, sol.colour_df, sol.colour_ok = _colour_second_step(
+            data, spec, c_out, cbounds, c_in[1], active)
+    return sol, aux_ok
+
+
+def _mirror(x: np.ndarray) -> np.ndarray:
+    """Fill the lower triangles of a stack of matrices from the upper ones (in place)."""
+    lower = np.tril_indices(x.shape[1], -1)
+    x[:, lower[0], lower[1]] = x[:, lower[1], lower[0]]
+    return x
+
+
+def _colour_first_step(data: RegressionData, spec: ModelSpec, c_out: list,
+                       cbounds: np.ndarray) -> tuple[tuple, tuple]:
+    """First step of the fused colour test from the first pass's raw sums ``c_out``:
+    centred sums per experiment, the 2SLS estimate per group and equation, and the
+    second pass's inputs ``(θ₁, z̄, φ̄, ȳ, ḡ)``; also ``(A, b)`` per group."""
+    c_a, c_b, c_m, c_z, c_phi, c_y, c_count, _, c_ref = c_out
+    _mirror(c_m)
+    codes = spec.codes
+    _, _, ceq, _ = _colour_layout(spec)
+    blocks = block_starts(spec)
+    cnt = np.maximum(c_count, 1).astype(float)
+    # sums of differences from reference values (the centred sums do not depend on them)
+    mz, mphi, my = c_z / cnt[:, None], c_phi / cnt[:, None], c_y / cnt[:, None]
+    same = ceq[:, None] == codes.equation[None, :]
+    a_c = c_a - np.einsum("sk,sp->skp", c_z, mphi) * same
+    b_c = c_b - c_z * my[:, ceq]
+    m_c = c_m - np.einsum("sk,sl->skl", c_z, mz)
+    a_g, b_g, m_g = _group_sum(data, a_c), _group_sum(data, b_c), _group_sum(data, m_c)
+    theta1 = np.full((data.n_groups, spec.n_params), np.nan)
+    for i in range(spec.n_states):
+        zs = slice(int(cbounds[i]), int(cbounds[i + 1]))
+        ps = slice(int(blocks[i]), int(blocks[i + 1]))
+        w, _ = linalg.inv_sym(m_g[:, zs, zs])
+        theta1[:, ps], _ = linalg.gmm_solve(a_g[:, zs, ps], b_g[:, zs], np.nan_to_num(w))
+    t1 = np.ascontiguousarray(np.nan_to_num(theta1))
+    g_seg = (b_c - np.einsum("skp,sp->sk", a_c, t1[data.group])) / cnt[:, None]
+    k_c, n_par = c_z.shape[1], c_phi.shape[1]
+    means = (c_ref[:, :k_c] + mz, c_ref[:, k_c:k_c + n_par] + mphi, c_ref[:, k_c + n_par:] + my)
+    return (t1, *means, np.ascontiguousarray(g_seg)), (a_g, b_g, m_g)
+
+
+def _colour_second_step(data: RegressionData, spec: ModelSpec, c_out: list,
+                        cbounds: np.ndarray, sums: tuple, active: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Two-step GMM and Hansen's J per group and equation of the fused colour test
+    (:func:`solve_equations`' HAC branch on the group sums); ``(stat, df, ok)``."""
+    a_g, b_g, m_g = sums
+    s_g = _group_sum(data, _mirror(c_out[7]))
+    blocks = block_starts(spec)
+    n = spec.n_states
+    stat = np.zeros((data.n_groups, n))
+    df = np.zeros(n, dtype=int)
+    for i in range(n):
+        zs = slice(int(cbounds[i]), int(cbounds[i + 1]))
+        ps = slice(int(blocks[i]), int(blocks[i + 1]))
+        if zs.stop - zs.start == ps.stop - ps.start:
+            continue  # no state term: just identified, nothing to test
+        s_inv, _ = linalg.inv_sym(s_g[:, zs, zs])
+        a_i, b_i = a_g[:, zs, ps], b_g[:, zs]
+        t2, _ = linalg.gmm_solve(a_i, b_i, np.nan_to_num(s_inv))
+        gbar = b_i - np.einsum("gkp,gp->gk", a_i, np.nan_to_num(t2))
+        stat[:, i] = np.einsum("gk,gkl,gl->g", gbar, np.nan_to_num(s_inv), gbar)
+        df[i] = (zs.stop - zs.start) - (ps.stop - ps.start)
+    finite = np.ones(data.n_groups, dtype=bool)
+    for arr in (*c_out[:6], *c_out[7:]):
+        seg_ok = np.all(np.isfinite(arr.reshape(arr.shape[0], -1)), axis=1)
+        np.logical_and.at(finite, data.group, seg_ok)
+    finite &= np.all(np.isfinite(a_g), axis=(1, 2)) & np.all(np.isfinite(m_g), axis=(1, 2))
+    return stat, df, finite & active

@@ -22,6 +22,7 @@ signal by 10^±6 changes the estimates only by rounding.
 from __future__ import annotations
 
 import functools
+import math
 import threading
 from collections.abc import Callable
 from typing import Any, TypeVar
@@ -106,6 +107,74 @@ def equilibrate(a: np.ndarray, *, groups: np.ndarray | None = None, max_iter: in
     return r.copy(), c / np.where(peak > 0, peak, 1.0)
 
 
+def _equilibrate_one(a: np.ndarray, max_iter: int, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`equilibrate` of one matrix ``a`` ``(1, n, m)`` without ``groups``: the same
+    operations on the same values, bit-identical, in fewer calls (a refined-IV iteration
+    solves one 3 × 3 system per step, and the vectorised sweeps cost their calls, not
+    their arithmetic). Python floats where the result is exact or correctly rounded
+    either way (products, ``1/sqrt``, quotients, sequential sums: numpy adds fewer than 8
+    terms and the contraction over the leading axis in order); numpy where its order or
+    its ``log``/``exp`` decide the last bit (the row sums over the contiguous axis, the
+    logarithms and the exponential of the geometric mean). The convergence test
+    ``max |log(new/old)| < tol`` is decided from ``max |new/old − 1|`` where that bounds
+    it on the right side with a wide margin (``|log x| ≤ |x − 1|/min(x, 1)`` and
+    ``|log x| ≥ |x − 1|/max(x, 1)``), and with numpy's logarithms otherwise."""
+    a = np.abs(np.asarray(a, dtype=float))
+    _, n, m = a.shape
+    sq = np.where(np.isfinite(a), a, 0.0)
+    peak = np.max(sq, axis=(1, 2), keepdims=True)
+    sq = sq / np.where(peak > 0, peak, 1.0)
+    sq = sq * sq
+    cols = sq[0].T.tolist()
+    log, exp, einsum, asarray = np.log, np.exp, np.einsum, np.asarray
+    sqrt, inf = math.sqrt, math.inf
+    shortcut = 0 < tol <= 0.1
+    r = [1.0] * n
+    c = [1.0] * m
+    c2_arr = np.empty((1, m))
+    one = np.empty(1)
+    for _ in range(max_iter):
+        r2 = [x * x for x in r]
+        c_new = []
+        for col in cols:  # einsum("gij,gi->gj"): a sequential sum over i
+            acc = 0.0
+            for i in range(n):
+                acc += col[i] * r2[i]
+            c_new.append(1.0 / sqrt(acc) if acc > 0 else 1.0)
+        c2_arr[0] = [x * x for x in c_new]
+        row = einsum("gij,gj->gi", sq, c2_arr)[0].tolist()
+        r_new = [1.0 / sqrt(x) if x > 0 else 1.0 for x in row]
+        logs = log(asarray(r_new))
+        if n < 8:  # numpy's add.reduce of fewer than 8 terms: in order
+            tot = 0.0
+            for x in logs.tolist():
+                tot += x
+        else:
+            tot = float(np.add.reduce(logs))
+        one[0] = tot / n
+        shift = float(exp(one)[0])
+        rn = [x / shift for x in r_new]
+        cn = [x * shift for x in c_new]
+        ratios = [x / y for x, y in zip(rn + cn, r + c, strict=True)]
+        d = max(abs(x - 1.0) if 0 < x < inf else inf for x in ratios)
+        if shortcut and d < 0.5 * tol:
+            converged = True
+        elif shortcut and 2 * tol < d < inf:
+            converged = False
+        else:
+            change = np.abs(log(asarray([ratios])))
+            delta = np.maximum.reduce(change, axis=None)
+            if delta != delta:  # NaN: as max(max over r, max over c), which may skip it
+                mx = np.maximum.reduce
+                delta = max(mx(change[:, :n], axis=None), mx(change[:, n:], axis=None))
+            converged = bool(delta < tol)
+        r, c = rn, cn
+        if converged:
+            break
+    peak = peak[:, :, 0]
+    return np.array([r]), np.array([c]) / np.where(peak > 0, peak, 1.0)
+
+
 def _inv_sqrt(x: np.ndarray) -> np.ndarray:
     """``1/sqrt(x)`` where ``x > 0``, else 1."""
     if np.minimum.reduce(x, axis=None) > 0:
@@ -137,7 +206,10 @@ def _equilibrated_cond(a: np.ndarray) -> np.ndarray:
     good = np.all(np.isfinite(a), axis=(1, 2))
     good &= np.all(np.any(a != 0, axis=1), axis=1) & np.all(np.any(a != 0, axis=2), axis=1)
     if good.any():
-        r, c = equilibrate(a[good], max_iter=50, tol=1e-9)
+        if good.sum() == 1:  # one system (the checked fit): the same scales, fewer calls
+            r, c = _equilibrate_one(a[good], max_iter=50, tol=1e-9)
+        else:
+            r, c = equilibrate(a[good], max_iter=50, tol=1e-9)
         out[good] = np.linalg.cond(a[good] * r[:, :, None] * c[:, None, :])
     return out
 
