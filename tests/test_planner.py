@@ -259,3 +259,34 @@ def test_disturbed_paths_weaken_the_instruments_as_in_a_simulated_trial():
     a = design_information(forces[0], vessel, calm, warmup=plan.warmup)
     b = design_information(forces[0], vessel, calm, warmup=plan.warmup, paths=2)
     assert all(np.allclose(x, y, rtol=1e-12, atol=0) for x, y in zip(a.a, b.a, strict=True))
+
+
+def test_success_probability_matches_the_normal_model():
+    """With a diagonal covariance the sampled probability that every relevant parameter is
+    within 10 % equals the product of the normal probabilities (within 4 binomial SE);
+    tolerance 0 gives 0, a huge tolerance 1."""
+    from dataclasses import replace
+
+    import pandas as pd
+    from scipy.stats import norm
+
+    plan = plan_trial(8000, 2, block=2000, evaluate_block=1000)
+    t = plan.table()
+    rel = t["relevant"].to_numpy()
+    th = t["theta0"].abs().to_numpy()
+    se = 0.04 * th  # 4 % relative SE, one of them biased
+    bias = np.zeros_like(th)
+    bias[np.flatnonzero(rel)[0]] = 0.03 * th[np.flatnonzero(rel)[0]]
+    pred = replace(plan.prediction,
+                   cov=pd.DataFrame(np.diag(se**2), index=plan.prediction.cov.index,
+                                    columns=plan.prediction.cov.columns),
+                   bias=pd.Series(bias, index=plan.prediction.bias.index))
+    diag = replace(plan, prediction=pred)
+    want = float(np.prod((norm.cdf((0.1 * th - bias) / se)
+                          - norm.cdf((-0.1 * th - bias) / se))[rel]))
+    draws = 40000
+    got = diag.success_probability(draws=draws)
+    assert abs(got - want) <= 4 * math.sqrt(want * (1 - want) / draws), (got, want)
+    assert diag.success_probability(tolerance=0.0) == 0.0
+    assert diag.success_probability(tolerance=1e6) == 1.0
+    assert 0.0 <= plan.success_probability() <= 1.0
