@@ -368,16 +368,24 @@ def _modulus_bias(factors: np.ndarray, sig: np.ndarray, std: np.ndarray) -> np.n
     n_x = std.size
     ones = np.ones(sig.shape[0])
 
+    cache: dict[int, tuple[np.ndarray, np.ndarray, int]] = {}
+
     def expect(c: int) -> tuple[np.ndarray, np.ndarray, int]:
+        if c in cache:
+            return cache[c]
         if c >= 2 * n_s:
             return ones, ones, -1
         j = c % n_s
         x = sig[:, j]
         if c < n_s or j >= n_x or std[j] <= 0:
-            return (x, x, j) if c < n_s else (np.abs(x), np.abs(x), j)
-        s = std[j]
-        return np.abs(x), x * erf(x / (s * math.sqrt(2))) + s * math.sqrt(2 / math.pi) * np.exp(
-            -0.5 * (x / s) ** 2), j
+            v = x if c < n_s else np.abs(x)
+            out_c = (v, v, j)
+        else:
+            s = std[j]
+            out_c = (np.abs(x), x * erf(x / (s * math.sqrt(2)))
+                     + s * math.sqrt(2 / math.pi) * np.exp(-0.5 * (x / s) ** 2), j)
+        cache[c] = out_c
+        return out_c
 
     out = np.zeros((sig.shape[0], factors.shape[0]))
     for p, (a, b) in enumerate(np.asarray(factors, int)):
@@ -391,7 +399,7 @@ def _modulus_bias(factors: np.ndarray, sig: np.ndarray, std: np.ndarray) -> np.n
             else:  # x·x or |x|·|x|
                 e = x * x + s * s
             out[:, p] = e - fa * fb
-        else:
+        elif ea is not fa or eb is not fb:  # else no noisy modulus factor: exactly zero
             out[:, p] = ea * eb - fa * fb
     return out
 
