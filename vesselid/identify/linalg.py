@@ -199,9 +199,32 @@ def stacked_row_weights(a_n: np.ndarray) -> np.ndarray:
     return r[0, :k] ** 2
 
 
+def _cond_one(a: np.ndarray) -> float:
+    """``_equilibrated_cond(a[None])[0]`` of one matrix ``a`` (n, m), bit-identical, with
+    the checks in Python floats (finite entries, no zero row or column), the scales of
+    :func:`_equilibrate_one` and the same SVD of the same scaled matrix (``(a r) c``,
+    ``np.linalg.cond``'s ``s[0] / s[-1]``, ``inf`` for a NaN ratio of finite entries)."""
+    rows = a.tolist()
+    isfinite = math.isfinite
+    if not (all(isfinite(x) for row in rows for x in row)
+            and all(any(x != 0 for x in row) for row in rows)
+            and all(any(row[j] != 0 for row in rows) for j in range(a.shape[1]))):
+        return math.inf
+    r, c = _equilibrate_one(a[None], max_iter=50, tol=1e-9)
+    rs, cs = r[0].tolist(), c[0].tolist()
+    scaled = np.array([[(x * ri) * cj for x, cj in zip(row, cs, strict=True)]
+                       for row, ri in zip(rows, rs, strict=True)])
+    sv = np.linalg.svd(scaled[None], compute_uv=False)[0]
+    with np.errstate(all="ignore"):
+        ratio = sv[0] / sv[-1]
+    return math.inf if ratio != ratio else float(ratio)
+
+
 def _equilibrated_cond(a: np.ndarray) -> np.ndarray:
     """Condition numbers of a stack ``(G, n, m)`` after :func:`equilibrate`."""
     a = np.asarray(a, dtype=float)
+    if a.shape[0] == 1 and a.shape[1] and a.shape[2]:  # one system: fewer calls
+        return np.array([_cond_one(a[0])])
     out = np.full(a.shape[0], np.inf)
     good = np.all(np.isfinite(a), axis=(1, 2))
     good &= np.all(np.any(a != 0, axis=1), axis=1) & np.all(np.any(a != 0, axis=2), axis=1)
@@ -241,6 +264,8 @@ def solve(a: np.ndarray, b: np.ndarray, *, cond_max: float = COND_MAX
     """
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
+    if a.shape[0] == 1 and b.shape[0] == 1 and a.shape[1]:  # one system: fewer calls
+        return _solve_one(a, b, cond_max)
     ok = np.all(np.isfinite(a), axis=(1, 2)) & np.all(np.isfinite(b), axis=1)
     out = np.full(b.shape, np.nan)
     if not ok.any():
@@ -266,6 +291,43 @@ def solve(a: np.ndarray, b: np.ndarray, *, cond_max: float = COND_MAX
     ok &= np.isfinite(cond) & (cond < cond_max) & np.all(np.isfinite(out), axis=1)
     out[~ok] = np.nan
     return out, ok
+
+
+def _solve_one(a: np.ndarray, b: np.ndarray, cond_max: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`solve` of one system ``a`` (1, P, P), ``b`` (1, P), bit-identical, with the
+    finiteness checks and the power-of-two column scales in Python floats (the column
+    norms are ``einsum``'s sequential sums of squares, ``frexp``/``ldexp`` are exact) and
+    the same LAPACK solve of the same scaled system and :func:`_cond_one`."""
+    rows = a[0].tolist()
+    isfinite = math.isfinite
+    p = len(rows)
+    out = np.full(b.shape, np.nan)
+    if not (all(isfinite(x) for row in rows for x in row) and all(isfinite(x)
+                                                                 for x in b[0].tolist())):
+        return out, np.zeros(1, dtype=bool)
+    col = []
+    for j in range(p):
+        acc = 0.0
+        for row in rows:
+            acc += row[j] * row[j]
+        norm = math.sqrt(acc)
+        if isfinite(norm) and norm > 0:
+            e = min(max(math.frexp(norm)[1], -1000), 1000)
+            col.append(math.ldexp(1.0, -e))
+        else:
+            col.append(1.0)
+    a_s = np.array([[[x * cj for x, cj in zip(row, col, strict=True)] for row in rows]])
+    with np.errstate(all="ignore"):
+        try:
+            y = np.linalg.solve(a_s, b[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            y = np.full(b.shape, np.nan)
+        out = y * np.array(col)
+    cond = _cond_one(a[0])
+    ok = isfinite(cond) and cond < cond_max and bool(np.all(np.isfinite(out)))
+    if not ok:
+        out[:] = np.nan
+    return out, np.array([ok])
 
 
 def inv_sym(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
