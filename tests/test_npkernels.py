@@ -334,8 +334,9 @@ def test_single_system_equilibration_bit_identical():
 
 def test_single_system_condition_bit_identical():
     """``linalg._cond_one`` (one system: the checked fit's solves and condition numbers)
-    equals the vectorised formulation (equilibrate, scale, ``np.linalg.cond``) bit for bit, including the infinite
-    condition of non-finite, zero-row/column, all-zero and singular matrices."""
+    equals the vectorised formulation (equilibrate, scale, ``np.linalg.cond``) bit for
+    bit, including the infinite condition of non-finite, zero-row/column, all-zero and
+    singular matrices; ``solve`` of one system equals that of the same system twice."""
     from vesselid.identify import linalg
 
     rng = np.random.default_rng(12)
