@@ -10,8 +10,10 @@ with its Wilson interval and the ratio of the reported SE to the Monte Carlo spr
 Writes ``docs/calibration.csv`` (the table) and ``docs/calibration.png`` (coverage
 per parameter and scenario with Wilson bars).
 
-    python scripts/calibration.py                  # 400 heave runs, 50 sea-trial runs
+    python scripts/calibration.py                  # 1000 heave runs, 100 sea-trial runs
     python scripts/calibration.py --quick          # smoke run
+    python scripts/calibration.py --scenarios "" --update   # the sea trial only, keep the
+                                                            # heave rows of the CSV
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ CANDIDATES = {
     "hac Bartlett, Andrews AR(1) bandwidth": ("hac", {"kernel": "bartlett",
                                                        "bandwidth": "andrews"}),
     "hac QS, Newey-West bandwidth": ("hac", {"kernel": "qs"}),
+    "hac Bartlett, Newey-West, VAR(1) pre-whitened": ("hac", {"prewhiten": True}),
 }
 
 
@@ -80,13 +83,15 @@ def plot(df: pd.DataFrame, path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--runs", type=int, default=400)
-    ap.add_argument("--seatrial-runs", type=int, default=50)
+    ap.add_argument("--runs", type=int, default=1000)
+    ap.add_argument("--seatrial-runs", type=int, default=100)
     ap.add_argument("--samples", type=int, default=10_000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--scenarios", default=",".join(SCENARIOS))
     ap.add_argument("--quick", action="store_true", help="40 heave runs, 4 sea-trial runs")
     ap.add_argument("--out", type=Path, default=DOCS)
+    ap.add_argument("--update", action="store_true",
+                    help="keep the rows of the scenarios not run from the existing CSV")
     args = ap.parse_args(argv)
     runs = 40 if args.quick else args.runs
     sea_runs = 4 if args.quick else args.seatrial_runs
@@ -105,6 +110,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"seatrial: {time.time() - t0:.0f} s", flush=True)
         print(_short(df), flush=True)
     out = pd.concat(frames, ignore_index=True)
+    old_csv = args.out / "calibration.csv"
+    if args.update and old_csv.exists():
+        old = pd.read_csv(old_csv)
+        old = old[~old["scenario"].isin(out["scenario"].unique())]
+        out = pd.concat([old, out], ignore_index=True)
     args.out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(args.out / "calibration.csv", out.to_csv(index=False, float_format="%.5g"))
     plot(out, args.out / "calibration.png")

@@ -349,3 +349,40 @@ def test_windmeijer_option_and_weight_jacobian_validation():
             est.estimate(z, phi, resid, **bad)
     with pytest.raises(CovarianceError, match="windmeijer"):
         get_covariance_estimator("unadjusted", windmeijer="yes")
+
+
+@pytest.mark.parametrize("kernel", ["bartlett", "qs"])
+def test_sriv_covariance_matches_iv2sls_on_its_prefiltered_rows(kernel):
+    """SRIV (``auto``'s fallback) hands the covariance its final rows: instruments,
+    regressors and residuals after the AR noise-model prefilter, instruments centred.
+    Its standard errors equal linearmodels ``IV2SLS`` with a constant on exactly those
+    rows (``y = ε + φθ``) with the same kernel and bandwidth, and ``identify`` reports
+    them."""
+    import warnings
+
+    from vesselid.identify import identify
+    from vesselid.identify.backend import kernels as kern
+    from vesselid.identify.data import from_log
+    from vesselid.identify.registry import get_estimator
+    from vesselid.systems import heave
+
+    log = heave(pulse_design="random").simulate(3000, seed=5).to_log()
+    est = get_estimator("sriv")
+    data, spec = from_log(log, None)
+    it = est.estimate_parameters(data, spec, keep_history=True)
+    phi_all = kern.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
+    (d,) = est.equation_designs(data, spec, it, phi_all, "pooled")
+    theta = it.theta[0]
+    assert d.zero_mean and d.weight is None and d.starts.tolist() == [0, d.z.shape[0]]
+    bw = 11
+    res = iv_covariance(d.z, d.phi, d.resid, d.starts, zero_mean=True, skip_first=False,
+                        cov_type="hac", kernel=kernel, bandwidth=bw)
+    y = d.resid + d.phi @ theta
+    fit = lm_iv.IV2SLS(y, np.ones((y.size, 1)), d.phi, d.z).fit(
+        cov_type="kernel", kernel=kernel, bandwidth=bw, debiased=False)
+    np.testing.assert_allclose(fit.params.to_numpy()[1:], theta, rtol=1e-8)
+    assert _rel(res.cov, fit.cov.to_numpy()[1:, 1:]) < 1e-8
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fitted = identify(log, method="sriv", cov_config={"kernel": kernel, "bandwidth": bw})
+    assert _rel(fitted.cov.to_numpy(), res.cov) < 1e-10

@@ -207,6 +207,7 @@ def coverage_study(
     batch: int | None = None,
     fit: str = "batched",
     experiments: int = 6,
+    design: str | None = None,
 ) -> pd.DataFrame:
     """Coverage of a scenario for one or several covariance estimators.
 
@@ -231,13 +232,17 @@ def coverage_study(
         ``estimate(data, spec, method)``.
     batch : int, optional
         Runs simulated (and, batched, estimated) at a time; default 200 heave runs or
-        5 sea trials.
+        1 sea trial (one trial per batch keeps its final design rows while estimating,
+        so its covariance needs no second estimation).
     fit : {"batched", "identify"}
         ``"batched"``: the batched fast path above; ``"identify"``: one trial log per
         run through the public :func:`vesselid.identify.identify` (the user's path;
         default method unless ``method``; no ``method`` column, no ``estimate_fn``).
     experiments : int
         Experiments per sea trial.
+    design : str, optional
+        Sea-trial input design (:data:`vesselid.seatrial.DESIGNS`; default: the default of
+        :func:`vesselid.seatrial.simulate_sea_trial`, planned for CyberShip II).
 
     Returns
     -------
@@ -249,15 +254,15 @@ def coverage_study(
     if fit == "identify" and estimate_fn is not None:
         raise VesselidError("estimate_fn goes with fit='batched', not 'identify'")
     sea = scenario == "seatrial"
-    batch = int(batch or (5 if sea else 200))
+    batch = int(batch or (1 if sea else 200))
     covariances = covariances or {DEFAULT_COV_TYPE: (DEFAULT_COV_TYPE, {})}
     if fit == "identify":
         return _coverage_identify(scenario, runs, samples, experiments, seed, method,
-                                  covariances, batch)
+                                  covariances, batch, design)
     method = method or default_method()
     batches: Iterator[RegressionData]
     if sea:
-        spec, n_e, trials = _seatrial_trials(runs, samples, experiments, seed)
+        spec, n_e, trials = _seatrial_trials(runs, samples, experiments, seed, design)
         batches = (_trials_data(spec, n_e, list(itertools.islice(trials, batch)))
                    for _ in range(0, int(runs), batch))
     else:
@@ -304,29 +309,43 @@ def _heave_batches(system: Any, runs: int, samples: int, seed: int, batch: int) 
 
 
 def _seatrial_trials(
-    runs: int, samples: int, experiments: int, seed: int,
+    runs: int, samples: int, experiments: int, seed: int, design: str | None = None,
 ) -> tuple[ModelSpec, int, Iterator[tuple[np.ndarray, np.ndarray]]]:
-    """The calibration sea trial: its spec, experiments per trial and the speed-log
-    readings ``u_log, v_log, r`` and forces, each (experiments, samples, 3), of ``runs``
-    independent trials with the study's current, wind, gusts and unmodelled forces."""
-    from vesselid.seatrial import _disturbances, design_sea_trial, seatrial_spec
-    from vesselid.vessels import SENSOR_CHANNELS, simulate_cybership2
+    """The calibration sea trial: its spec, experiments per trial and the states and forces,
+    each (experiments, samples, 3), of ``runs`` independent trials, exactly as a user gets
+    them from :func:`vesselid.seatrial.simulate_sea_trial` with its defaults (the default
+    design — planned for CyberShip II —, the study's current, wind, gusts and unmodelled
+    forces, the speed-log predictor and the anemometer's wind load among the forces).
 
-    spec = seatrial_spec()
-    design = design_sea_trial(experiments, samples, seed=seed)
-    dist = _disturbances(0.05, np.radians(30.0), 1.0, np.radians(-60.0), 0.005, 0.1,
-                         (0.02, 0.02, 0.01))
-    idx = [SENSOR_CHANNELS.index(c) for c in ("u_log", "v_log", "r")]
-    inputs = design.warmup_inputs()
-    n_e = design.n_experiments
+    ``design`` names another input design (:data:`vesselid.seatrial.DESIGNS`). The design
+    is built once (as ``simulate_sea_trial(seed=seed, design=design)`` builds it); run
+    ``r`` simulates it with its own seed, child ``r`` of ``SeedSequence(seed + 2000)``."""
+    from vesselid.seatrial import _make_design, simulate_sea_trial
+
+    trial = _make_design(design, int(experiments), int(samples), 0.1,
+                         np.random.SeedSequence(seed).spawn(2)[0], {})
+    n_e = trial.n_experiments
+    first = simulate_sea_trial(seed=_run_seed(seed, 0), design=trial)
+    spec = first.spec
+
+    def arrays(log: Any) -> tuple[np.ndarray, np.ndarray]:
+        frame = log.to_frame()
+        shape = (n_e, trial.n_samples, -1)
+        return (frame[list(spec.states)].to_numpy(float).reshape(shape),
+                frame[list(spec.inputs)].to_numpy(float).reshape(shape))
 
     def trials() -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        for ss in np.random.SeedSequence(seed + 2000).spawn(int(runs)):
-            sim = simulate_cybership2(inputs, run_seeds=ss.spawn(n_e), dt=design.dt,
-                                      disturbances=dist)
-            yield sim.sensors[:, design.warmup:, idx], sim.tau[:, design.warmup:]
+        yield arrays(first)
+        for r in range(1, int(runs)):
+            yield arrays(simulate_sea_trial(seed=_run_seed(seed, r), design=trial))
 
     return spec, n_e, trials()
+
+
+def _run_seed(seed: int, run: int) -> int:
+    """Integer seed of sea-trial run ``run``: child ``run`` of ``SeedSequence(seed + 2000)``."""
+    child = np.random.SeedSequence(seed + 2000).spawn(int(run) + 1)[-1]
+    return int(child.generate_state(1, np.uint64)[0])
 
 
 def _estimate_batch(
@@ -346,7 +365,10 @@ def _estimate_batch(
     if _has_registry() and estimate_fn is None:
         from vesselid.identify.registry import get_estimator
 
-        it = get_estimator(method).estimate_parameters(data, spec)
+        # one group: keep the final design rows now (registry_covariances would otherwise
+        # estimate again to get them; the estimates are the same)
+        it = get_estimator(method).estimate_parameters(data, spec,
+                                                       keep_history=data.n_groups == 1)
         thetas.append(it.theta)
         for label, se in registry_covariances(data, spec, it, method, covariances).items():
             ses[label].append(se)
@@ -429,13 +451,14 @@ def coverage_identify(scenario: str, runs: int, **options: Any) -> pd.DataFrame:
 def _coverage_identify(
     scenario: str, runs: int, samples: int, experiments: int, seed: int, method: str | None,
     covariances: Mapping[str, tuple[str, Mapping[str, Any]]], batch: int,
+    design: str | None = None,
 ) -> pd.DataFrame:
     """:func:`coverage_study`'s ``fit="identify"``."""
     theta_all: list[np.ndarray] = []
     ses_all: dict[str, list[np.ndarray]] = {k: [] for k in covariances}
     runs_frames: Iterator[list[pd.DataFrame]]
     if scenario == "seatrial":
-        spec, _, trials = _seatrial_trials(runs, samples, experiments, seed)
+        spec, _, trials = _seatrial_trials(runs, samples, experiments, seed, design)
         target = "measured"
         runs_frames = ([_trial_frame(spec, y, tau)] for y, tau in trials)
     else:

@@ -414,22 +414,18 @@ class _ColourCode:
             return
         add(f"{ind}clag = min(lags, b - a - 1)")
         add(f"{ind}cring = np.zeros((clag + 1, {self.k}))")
-        names = ([f"ct{p}" for p in range(self.n_par)] + [f"cmphi{p}" for p in range(self.n_par)]
-                 + [f"cmy{i}" for i in range(self.n_eq)] + [f"cmz{c}" for c in range(self.k)]
-                 + [f"cmg{c}" for c in range(self.k)] + [f"ch{c}" for c in range(self.k)]
-                 + [f"clh{c}_{c2}" for c, c2 in self._pairs()])
-        for name in names:
-            add(f"{ind}{name} = 0.0")
-        add(f"{ind}if colour:")
-        i2 = ind + "    "
+        # (the caller passes zeros of the full shapes when the test does not run)
         for p in range(self.n_par):
-            add(f"{i2}ct{p} = ctheta1[g, {p}]")
-            add(f"{i2}cmphi{p} = cmeans_phi[s, {p}]")
+            add(f"{ind}ct{p} = ctheta1[g, {p}]")
+            add(f"{ind}cmphi{p} = cmeans_phi[s, {p}]")
         for i in range(self.n_eq):
-            add(f"{i2}cmy{i} = cmeans_y[s, {i}]")
+            add(f"{ind}cmy{i} = cmeans_y[s, {i}]")
         for c in range(self.k):
-            add(f"{i2}cmz{c} = cmeans_z[s, {c}]")
-            add(f"{i2}cmg{c} = cmeans_g[s, {c}]")
+            add(f"{ind}cmz{c} = cmeans_z[s, {c}]")
+            add(f"{ind}cmg{c} = cmeans_g[s, {c}]")
+            add(f"{ind}ch{c} = 0.0")
+        for c, c2 in self._pairs():
+            add(f"{ind}clh{c}_{c2} = 0.0")
 
     def row(self, add: Callable[[str], None], ind: str, *, second: bool) -> None:
         add(f"{ind}if colour:")
@@ -502,9 +498,8 @@ class _ColourCode:
                 add(f"{i2}c_z[s, {c}] = cz{c}")
                 for p in self.own[c]:
                     add(f"{i2}c_a[s, {c}, {p}] = ca{c}_{p}")
-            for c, c2 in self._pairs():
+            for c, c2 in self._pairs():  # upper triangles (the caller mirrors them)
                 add(f"{i2}c_m[s, {c}, {c2}] = cm{c}_{c2}")
-                add(f"{i2}c_m[s, {c2}, {c}] = cm{c}_{c2}")
             for p in range(self.n_par):
                 add(f"{i2}c_phi[s, {p}] = cphi{p}")
             for i in range(self.n_eq):
@@ -516,7 +511,6 @@ class _ColourCode:
         self._window(add, i2 + "    ", False)
         for c, c2 in self._pairs():
             add(f"{i2}c_hac[s, {c}, {c2}] = clh{c}_{c2} / (clag + 1.0)")
-            add(f"{i2}c_hac[s, {c2}, {c}] = c_hac[s, {c}, {c2}]")
 
 
 def _combined_source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, ztype: np.ndarray,
@@ -667,7 +661,29 @@ def _combined_source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, ztype: np.
     full = ("regsig, target, u, starts, group, theta, active, fac, eq, ztype, zpar, zeq, "
             "limit, second, theta1, means_z, means_phi, means_y, means_g, lags, s_a, s_b, "
             "s_m, s_z, s_phi, s_y, count, status, s_hac, " + colour_args)
-    _entry_point(add, full, args)
+    # the two passes as two functions compiled apart (not inlined into one): LLVM's time
+    # grows faster than the code, and one function of both passes took 2.4x as long to
+    # compile as the two halves
+    i_if = lines.index("    if not second:")
+    i_else = lines.index("    else:", i_if)
+    common = lines[:i_if]
+    d_line = common.index("@njit(cache=True, inline='always')")
+    common[d_line] = "@njit(cache=True, nogil=True)"
+    first = [*common, *lines[i_if:i_else]]
+    second = [*common, "    if second:", *lines[i_else + 1:]]
+    first[d_line + 1] = first[d_line + 1].replace("def _segment(", "def _first(")
+    second[d_line + 1] = second[d_line + 1].replace("def _segment(", "def _second(")
+    second[0:d_line] = ["", ""]
+    lines[:] = [*first, *second]
+    add("")
+    add("")
+    add("@njit(cache=True, nogil=True)")
+    add(f"def segments(lo, hi, {full}):")
+    add("    for s in range(lo, hi):")
+    add("        if second:")
+    add(f"            _second(s, {args})")
+    add("        else:")
+    add(f"            _first(s, {args})")
     return "\n".join(lines) + "\n"
 
 

@@ -604,7 +604,11 @@ def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, 
              ] if fused else [dummy[None], dummy, dummy[None], dummy, dummy, dummy,
                               count[:1] * 0, dummy[None], dummy]
 
-    def run(*rest, c_in=(dummy, dummy, dummy, dummy, dummy)) -> bool:
+    # the second pass reads its colour inputs unconditionally: full-shape zeros
+    c_zero = (np.zeros((data.n_groups, n_par)), np.zeros((n_seg, k_c)),
+              np.zeros((n_seg, n_par)), np.zeros((n_seg, n)), np.zeros((n_seg, k_c)))
+
+    def run(*rest, c_in=c_zero) -> bool:
         # the generated kernel when it loads (True), else the generic one (False)
         if special is not None and special(parallel, *args, *rest, fused, (lo, hi), c_in,
                                            tuple(c_out)):
@@ -668,12 +672,20 @@ def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, 
     return sol, aux_ok
 
 
+def _mirror(x: np.ndarray) -> np.ndarray:
+    """Fill the lower triangles of a stack of matrices from the upper ones (in place)."""
+    lower = np.tril_indices(x.shape[1], -1)
+    x[:, lower[0], lower[1]] = x[:, lower[1], lower[0]]
+    return x
+
+
 def _colour_first_step(data: RegressionData, spec: ModelSpec, c_out: list,
                        cbounds: np.ndarray) -> tuple[tuple, tuple]:
     """First step of the fused colour test from the first pass's raw sums ``c_out``:
     centred sums per experiment, the 2SLS estimate per group and equation, and the
     second pass's inputs ``(θ₁, z̄, φ̄, ȳ, ḡ)``; also ``(A, b)`` per group."""
     c_a, c_b, c_m, c_z, c_phi, c_y, c_count, _, c_ref = c_out
+    _mirror(c_m)
     codes = spec.codes
     _, _, ceq, _ = _colour_layout(spec)
     blocks = block_starts(spec)
@@ -704,7 +716,7 @@ def _colour_second_step(data: RegressionData, spec: ModelSpec, c_out: list,
     """Two-step GMM and Hansen's J per group and equation of the fused colour test
     (:func:`solve_equations`' HAC branch on the group sums); ``(stat, df, ok)``."""
     a_g, b_g, m_g = sums
-    s_g = _group_sum(data, c_out[7])
+    s_g = _group_sum(data, _mirror(c_out[7]))
     blocks = block_starts(spec)
     n = spec.n_states
     stat = np.zeros((data.n_groups, n))
