@@ -383,3 +383,28 @@ def test_single_system_condition_bit_identical():
                 two_w, two_ok = linalg.inv_sym(np.concatenate([sym, sym]))
                 assert np.array_equal(one_w[0], two_w[0], equal_nan=True)
                 assert one_ok[0] == two_ok[0]
+
+
+def test_compiled_singularity_decision_is_the_exact_one():
+    """``solve``'s singularity decision from the compiled equilibration
+    (``linalg._cond_below``) equals the exact one on regular, badly scaled and nearly
+    singular systems; the compiled condition number agrees with the exact one to
+    rounding (``n ε κ``), far inside the margin the decision leaves to the exact path."""
+    from vesselid.identify import linalg
+
+    rng = np.random.default_rng(21)
+    for n in (1, 2, 3, 5, 7):
+        for k in range(300):
+            a = (rng.normal(size=(n, n)) * 10.0 ** rng.integers(-8, 8, size=(1, n))
+                 * 10.0 ** rng.integers(-5, 5, size=(n, 1)))
+            if k % 3 == 0 and n > 1:  # nearly singular, across the threshold 1e15
+                a[-1] = a[0] * rng.uniform(0.5, 2) + a[-1] * 10.0 ** rng.uniform(-18, -6)
+            if k % 17 == 0:
+                a[0, 0] = np.nan
+            exact = linalg._cond_one(a)
+            want = bool(np.isfinite(exact) and exact < linalg.COND_MAX)
+            assert linalg._cond_below(a, linalg.COND_MAX) == want
+            if np.isfinite(exact) and exact < 1e12:
+                r, c = ivk.equilibrate_one(np.ascontiguousarray(a), 50, 1e-9)
+                fast = np.linalg.cond((a * r[:, None]) * c[None, :])
+                assert abs(fast - exact) <= 1e3 * n * EPS * exact**2 + 1e-8 * exact

@@ -286,14 +286,9 @@ def _loaded_kernel(name: str) -> Any:
     """The compiled kernel ``name`` (:mod:`vesselid.identify._ivkernels`, bit-identical to
     the numpy lines it replaces) when that module is loaded already and the estimation is
     not on the numpy path (:mod:`vesselid.identify.backend`); never imports numba."""
-    import sys
+    from vesselid.identify.backend import loaded_kernel
 
-    mod = sys.modules.get("vesselid.identify._ivkernels")
-    if mod is None:
-        return None
-    from vesselid.identify.backend import numpy_active
-
-    return None if numpy_active() else getattr(mod, name, None)
+    return loaded_kernel(name)
 
 
 def bartlett_long_run(g: np.ndarray, lags: int) -> np.ndarray:
