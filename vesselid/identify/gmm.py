@@ -683,7 +683,7 @@ def _colour_first_step(data: RegressionData, spec: ModelSpec, c_out: list,
                        cbounds: np.ndarray) -> tuple[tuple, tuple]:
     """First step of the fused colour test from the first pass's raw sums ``c_out``:
     centred sums per experiment, the 2SLS estimate per group and equation, and the
-    second pass's inputs ``(θ₁, z̄, φ̄, ȳ, ḡ)``; also ``(A, b)`` per group."""
+    second pass's inputs ``(θ₁, z̄, φ̄, ȳ, ḡ)``; also the centred ``(A, b, M)`` per group."""
     c_a, c_b, c_m, c_z, c_phi, c_y, c_count, _, c_ref = c_out
     _mirror(c_m)
     codes = spec.codes
