@@ -100,6 +100,15 @@ def center(x, starts, valid):
 
 
 @njit(cache=True)
+def _window_valid(valid, k, p):
+    """Whether rows ``k − p … k`` are all valid (the rows an AR(p) filter reads)."""
+    for j in range(p + 1):
+        if not valid[k - j]:
+            return False
+    return True
+
+
+@njit(cache=True)
 def ar_filter(x, starts, valid, coef):
     """``x_f(k) = Σ_j coef[s, j] x(k − j)``, ``j = 0 … p`` per segment ``s``.
 
@@ -113,12 +122,7 @@ def ar_filter(x, starts, valid, coef):
     for s in range(starts.shape[0] - 1):
         a = starts[s]
         for k in range(a + p, starts[s + 1]):
-            good = True
-            for j in range(p + 1):
-                if not valid[k - j]:
-                    good = False
-                    break
-            if not good:
+            if not _window_valid(valid, k, p):
                 continue
             vf[k] = True
             for c in range(k_cols):
@@ -509,12 +513,7 @@ def design_ar_centre(z, phi, p_lo, p_hi, target, i_eq, valid, col, starts, coef,
         b = starts[s + 1]
         c = coef[group[s]]
         for k in range(a + p, b):
-            good = True
-            for j in range(p + 1):
-                if not valid[k - j]:
-                    good = False
-                    break
-            if not good:
+            if not _window_valid(valid, k, p):
                 continue
             vf[k] = True
             for col_j in range(k_z):
