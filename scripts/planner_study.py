@@ -36,6 +36,7 @@ def run(seeds: int, methods: list[str], sea_state: str | None, out: str | None,
         waves = WaveConditions(height=hs, period=tp, direction=np.radians(45.0))
     pred = design.plan.table()
     rec: dict = {"index": [f"{e}: {t}" for e, t in pred.index],
+                 "success_probability": design.plan.success_probability(),
                  "theta0": pred["theta0"].tolist(), "predicted_se": pred["predicted_se"].tolist(),
                  "sea_state": sea_state, "wave_filter": wave_filter if waves else 0.0,
                  "seeds": [], **{m: {"params": [], "se": [], "instruments": []}
@@ -71,6 +72,7 @@ def predictions(rec: dict) -> None:
     from vesselid.waves import SEA_STATES, WaveConditions
 
     plan = planned_sea_trial_design(6, 20000).plan
+    rec["success_probability"] = plan.success_probability()
     levels = None
     if rec.get("sea_state"):
         hs, tp = SEA_STATES[rec["sea_state"]]
@@ -87,6 +89,9 @@ def summarize(rec: dict, figure: str | None = None) -> None:
     th = np.asarray(rec["theta0"])
     pse = np.asarray(rec["predicted_se"])
     big = np.abs(th) >= 1e-3
+    if "success_probability" in rec and not rec.get("sea_state"):
+        print(f"planner: predicted probability that every |θ0|≥1e-3 parameter is within 10 %: "
+              f"{100 * rec['success_probability']:.0f} %")
     for m in [k for k in rec if isinstance(rec[k], dict) and "params" in rec[k]]:
         p, se = np.asarray(rec[m]["params"]), np.asarray(rec[m]["se"])
         if p.size == 0:

@@ -52,6 +52,21 @@ def test_bit_identical_whatever_the_thread_count(reference):
                                   reference)
 
 
+def test_concurrent_chunks_bit_identical(reference, monkeypatch):
+    """Chunks run concurrently on the local threads (serial kernels each) give the frame
+    of one chunk with threaded kernels; the default chunk count is a multiple of the
+    threads."""
+    from vesselid import montecarlo as mc
+
+    pd.testing.assert_frame_equal(run_study(SMALL, n_jobs=2, batch_size=5, progress=False),
+                                  reference)
+    monkeypatch.setattr("vesselid._threads.n_threads", lambda: 2)
+    assert mc._local_batch(1000) == 250 and mc._local_batch(750) == 188
+    assert mc._local_batch(200) == mc.DEFAULT_BATCH_SIZE  # one chunk: threaded kernels
+    monkeypatch.setattr("vesselid._threads.n_threads", lambda: 1)
+    assert mc._local_batch(750) == mc.DEFAULT_BATCH_SIZE
+
+
 def test_a_run_depends_only_on_its_own_seed(reference):
     chunk = run_chunk(SMALL, 7, 9).drop(columns="_p")
     ref = reference[reference["run"].isin([7, 8])]

@@ -199,3 +199,94 @@ def test_modulus_bias_matches_sampled_expectation():
     se = draws.std(axis=0) / np.sqrt(draws.shape[0])
     assert np.all(np.abs(got - want) <= 5 * se + 1e-12)
     assert got[0, 1] > 0.2 * std[0]  # E|x+e| − |x| is of the order of σ near zero
+
+
+def test_disturbed_paths_weaken_the_instruments_as_in_a_simulated_trial():
+    """The cross moment A = Σ ζ̃ φᵀ of the instruments with the regressors of the disturbed
+    vessel: the relative SEs the planner gets from single disturbed paths (a sample of the
+    random A) cover those of simulated trials (within 4 sd of log SE over the paths), and
+    the effect is real: their mean exceeds the noise-free-path prediction by more than 4
+    standard errors of that mean. Without process disturbances the paths are the
+    noise-free path (identical information)."""
+    from vesselid.planner import DisturbanceLevels, _Vessel, design_information
+    from vesselid.regressors import evaluate
+    from vesselid.seatrial import planned_sea_trial_design, simulate_sea_trial
+    from vesselid.simulate import simulate_states
+
+    plan = plan_trial(16000, 2, block=4000, evaluate_block=2000)
+    vessel = _Vessel.cybership2()
+    spec, lv = vessel.ident, DisturbanceLevels()
+    codes, th = spec.codes, spec.theta0_vector()
+    forces = plan.forces()
+
+    def centred(**kw):
+        out = None
+        for f in forces:
+            c = design_information(f, vessel, lv, warmup=plan.warmup, **kw).centred()
+            out = c if out is None else out + c
+        return out
+
+    base = centred()
+
+    def rel_se(a_list):
+        out = []
+        for i in range(spec.n_states):
+            cols = np.flatnonzero(codes.equation == i)
+            ai = np.linalg.inv(a_list[i])
+            out.append(np.sqrt(np.diag(ai @ base.s[i] @ ai.T)) / np.abs(th[cols]))
+        return np.concatenate(out)
+
+    big = np.abs(th) >= 1e-3
+    r0 = rel_se(base.a)[big]
+    logs = np.log([rel_se(centred(paths=1, seed=s).a)[big] for s in range(8)])
+    mean, sd = logs.mean(axis=0), logs.std(axis=0, ddof=1)
+    worst = np.argsort(-r0)[:5]
+    assert np.all(mean[worst] - np.log(r0[worst]) > 4 * sd[worst] / np.sqrt(logs.shape[0]))
+    log = simulate_sea_trial(2, 8000, seed=3, design=planned_sea_trial_design(plan=plan))
+    a_data = [0.0] * spec.n_states
+    for _, g in log.to_frame().groupby("experiment"):
+        tau = g[["X", "Y", "N"]].to_numpy()
+        xt = g[["true_u_r", "true_v_r", "true_r"]].to_numpy()
+        z = evaluate(codes, np.hstack([simulate_states(spec, tau, x0=xt[0]), tau])[:-1])
+        ph = evaluate(codes, np.hstack([xt, tau])[:-1])
+        for i in range(spec.n_states):
+            cols = np.flatnonzero(codes.equation == i)
+            a_data[i] = a_data[i] + (z[:, cols] - z[:, cols].mean(axis=0)).T @ ph[:, cols]
+    got = np.log(rel_se(a_data)[big])
+    assert np.all(np.abs(got[worst] - mean[worst]) <= 4 * sd[worst]), (got, mean, sd)
+    calm = DisturbanceLevels(force_noise_std=(0.0, 0.0, 0.0), gust_std=0.0,
+                             wind_direction_std=0.0)
+    a = design_information(forces[0], vessel, calm, warmup=plan.warmup)
+    b = design_information(forces[0], vessel, calm, warmup=plan.warmup, paths=2)
+    assert all(np.allclose(x, y, rtol=1e-12, atol=0) for x, y in zip(a.a, b.a, strict=True))
+
+
+def test_success_probability_matches_the_normal_model():
+    """With a diagonal covariance the sampled probability that every relevant parameter is
+    within 10 % equals the product of the normal probabilities (within 4 binomial SE);
+    tolerance 0 gives 0, a huge tolerance 1."""
+    from dataclasses import replace
+
+    import pandas as pd
+    from scipy.stats import norm
+
+    plan = plan_trial(8000, 2, block=2000, evaluate_block=1000)
+    t = plan.table()
+    rel = t["relevant"].to_numpy()
+    th = t["theta0"].abs().to_numpy()
+    se = 0.04 * th  # 4 % relative SE, one of them biased
+    bias = np.zeros_like(th)
+    bias[np.flatnonzero(rel)[0]] = 0.03 * th[np.flatnonzero(rel)[0]]
+    pred = replace(plan.prediction,
+                   cov=pd.DataFrame(np.diag(se**2), index=plan.prediction.cov.index,
+                                    columns=plan.prediction.cov.columns),
+                   bias=pd.Series(bias, index=plan.prediction.bias.index))
+    diag = replace(plan, prediction=pred)
+    want = float(np.prod((norm.cdf((0.1 * th - bias) / se)
+                          - norm.cdf((-0.1 * th - bias) / se))[rel]))
+    draws = 40000
+    got = diag.success_probability(draws=draws)
+    assert abs(got - want) <= 4 * math.sqrt(want * (1 - want) / draws), (got, want)
+    assert diag.success_probability(tolerance=0.0) == 0.0
+    assert diag.success_probability(tolerance=1e6) == 1.0
+    assert 0.0 <= plan.success_probability() <= 1.0

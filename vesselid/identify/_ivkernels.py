@@ -16,6 +16,8 @@ All work on concatenated rows with experiment boundaries ``starts`` and a row ma
   scaled, (AR-prefiltered and) centred without the stacked temporaries.
 * :func:`moving_sums` — :func:`vesselid.identify.covariance.moving_sums` (the Bartlett
   long-run covariances' running-sum differences) in one pass, bit-identical.
+* :func:`equilibrate_one` — the equilibration scales of one small system, to rounding
+  (the singularity decision of a checked fit's solves).
 """
 
 from __future__ import annotations
@@ -30,7 +32,8 @@ from vesselid.regressors import fill_factors_xu, kernel, one_step, regressors
 PARALLEL_MIN_SAMPLES = 200_000
 
 __all__ = ["ar_filter", "autocov", "center", "combined_moments", "cross_sums",
-           "design_ar_centre", "design_centre", "design_scan", "moving_sums", "noise_window",
+           "design_ar_centre", "design_centre", "design_scan", "equilibrate_one", "moving_sums",
+           "noise_window",
            "simulated_regressors"]
 
 
@@ -573,3 +576,61 @@ def moving_sums(x, lag):
             if j == w:
                 j = 0
     return out
+
+
+@njit(cache=True, error_model="numpy")
+def equilibrate_one(a, max_iter, tol):
+    """The row and column scales of :func:`vesselid.identify.linalg.equilibrate` for one
+    matrix ``a`` (n, m) with finite entries and no zero row or column, in compiled
+    loops: the same sweeps, with the C library's ``log``/``exp`` and sequential sums
+    instead of numpy's (so the scales agree to rounding, not bit for bit). Used only to
+    *decide* whether a system is singular, with a margin around the threshold inside
+    which the exact computation decides (:func:`vesselid.identify.linalg.solve`)."""
+    n, m = a.shape
+    peak = 0.0
+    for i in range(n):
+        for j in range(m):
+            v = abs(a[i, j])
+            if v > peak:
+                peak = v
+    sq = np.empty((n, m))
+    for i in range(n):
+        for j in range(m):
+            v = abs(a[i, j]) / peak
+            sq[i, j] = v * v
+    r = np.ones(n)
+    c = np.ones(m)
+    r_new = np.empty(n)
+    c_new = np.empty(m)
+    for _ in range(max_iter):
+        for j in range(m):
+            acc = 0.0
+            for i in range(n):
+                acc += sq[i, j] * (r[i] * r[i])
+            c_new[j] = 1.0 / np.sqrt(acc) if acc > 0 else 1.0
+        tot = 0.0
+        for i in range(n):
+            acc = 0.0
+            for j in range(m):
+                acc += sq[i, j] * (c_new[j] * c_new[j])
+            r_new[i] = 1.0 / np.sqrt(acc) if acc > 0 else 1.0
+            tot += np.log(r_new[i])
+        shift = np.exp(tot / n)
+        delta = 0.0
+        for i in range(n):
+            v = r_new[i] / shift
+            d = abs(np.log(v / r[i]))
+            if not d <= delta:  # NaN counts as not converged
+                delta = d if d == d else np.inf
+            r[i] = v
+        for j in range(m):
+            v = c_new[j] * shift
+            d = abs(np.log(v / c[j]))
+            if not d <= delta:
+                delta = d if d == d else np.inf
+            c[j] = v
+        if delta < tol:
+            break
+    for j in range(m):
+        c[j] = c[j] / peak
+    return r, c

@@ -31,8 +31,8 @@ from collections.abc import Callable, Iterator
 from types import ModuleType
 from typing import Any
 
-__all__ = ["NUMPY_MAX_SAMPLE_TERMS", "choose", "chooses_kernels", "ivk", "kernels", "numpy_active",
-           "use_numpy"]
+__all__ = ["NUMPY_MAX_SAMPLE_TERMS", "choose", "chooses_kernels", "ivk", "kernels",
+           "loaded_kernel", "numpy_active", "use_numpy"]
 
 #: The numpy path is chosen (numba not loaded yet) for logs of at most this many
 #: samples × terms (measured: ``scripts/bench_startup.py``; a 10⁴-sample heave log is
@@ -98,6 +98,16 @@ def chooses_kernels(fit: Callable[..., Any]) -> Callable[..., Any]:
             return fit(self, log, spec, *args, **kwargs)
 
     return wrapper
+
+
+def loaded_kernel(name: str) -> Any:
+    """The compiled kernel ``name`` of :mod:`vesselid.identify._ivkernels` when that module
+    is loaded already and the numpy path is not selected, else None: for helpers that
+    have a numpy formulation of their own and must never import numba."""
+    mod = sys.modules.get("vesselid.identify._ivkernels")
+    if mod is None or _NUMPY.get():
+        return None
+    return getattr(mod, name, None)
 
 
 class _Kernels:

@@ -286,14 +286,9 @@ def _loaded_kernel(name: str) -> Any:
     """The compiled kernel ``name`` (:mod:`vesselid.identify._ivkernels`, bit-identical to
     the numpy lines it replaces) when that module is loaded already and the estimation is
     not on the numpy path (:mod:`vesselid.identify.backend`); never imports numba."""
-    import sys
+    from vesselid.identify.backend import loaded_kernel
 
-    mod = sys.modules.get("vesselid.identify._ivkernels")
-    if mod is None:
-        return None
-    from vesselid.identify.backend import numpy_active
-
-    return None if numpy_active() else getattr(mod, name, None)
+    return loaded_kernel(name)
 
 
 def bartlett_long_run(g: np.ndarray, lags: int) -> np.ndarray:
@@ -348,6 +343,9 @@ def scores(
 
 
 def _residual(resid: np.ndarray, segs: list[slice], zero_mean: bool) -> np.ndarray:
+    if len(segs) == 1 and segs[0].start == 0 and segs[0].stop == resid.shape[0]:
+        # one experiment, every row (the fit path): the same numbers in one pass
+        return resid - resid.mean(axis=0) if zero_mean else resid.copy()
     eps = np.zeros_like(resid)
     for s in segs:
         eps[s] = resid[s] - resid[s].mean(axis=0) if zero_mean else resid[s]
@@ -660,10 +658,13 @@ def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
     # itself would take BLAS's symmetric rank-k path, rounded differently)
     phi = z.copy() if same else phi / phi_scale
     eps = _residual(resid, segs, zero_mean)
-    g = np.zeros((t_len, n_ins))
     one = eps.shape[1] == 1  # every instrument in equation 0: broadcast, no column copies
-    for s in segs:
-        g[s] = z[s] * (eps[s] if one else eps[s][:, z_equation])
+    if every_row and len(segs) == 1:  # the products themselves, without a zeroed copy
+        g = z * (eps if one else eps[:, z_equation])
+    else:
+        g = np.zeros((t_len, n_ins))
+        for s in segs:
+            g[s] = z[s] * (eps[s] if one else eps[s][:, z_equation])
     return _Scores(z=z, phi=phi, z_scale=z_scale, phi_scale=phi_scale, eps=eps, g=g,
                    segs=segs, equation=equation, z_equation=z_equation)
 

@@ -78,7 +78,7 @@ class RegressionData:
 
 def _aggregated(spec: ModelSpec, states: np.ndarray, sensors: dict[str, np.ndarray]):
     regsig = states.copy()
-    sensor = np.zeros_like(states)
+    sensor = np.zeros(states.shape)  # calloc: pages untouched where nothing is aggregated
     for i, s in enumerate(spec.states):
         if s in spec.aggregate:
             agg = spec.aggregate[s]

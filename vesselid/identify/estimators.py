@@ -196,7 +196,9 @@ def solve_moments(
         a_i = a_seg[:, sl, sl]
         b_i = b_seg[:, sl]
         if single or combine == "pooled":
-            if single:
+            if single and n_groups == 1:  # one segment: its equations as they are
+                a_g, b_g = a_i, b_i
+            elif single:
                 order = np.argsort(data.group, kind="stable")
                 a_g, b_g = a_i[order], b_i[order]
             else:
@@ -345,8 +347,11 @@ def refined_iv(
                             limits=limits)
         else:  # moments summed elsewhere (streamed experiments, a Dask cluster)
             moment_source(theta, active, mom, limits)
-        diverged = np.zeros(n_groups, dtype=bool)
-        np.logical_or.at(diverged, data.group, mom.status != kernels.AUX_OK)
+        if n_groups == 1:  # every segment is group 0's
+            diverged = np.array([bool(np.any(mom.status != kernels.AUX_OK))])
+        else:
+            diverged = np.zeros(n_groups, dtype=bool)
+            np.logical_or.at(diverged, data.group, mom.status != kernels.AUX_OK)
         t_theta, ok = solve_moments(mom, data, spec, zero_mean=zero_mean, combine=combine,
                                     active=active & ~diverged)
         return t_theta, ok & active & ~diverged
@@ -398,8 +403,9 @@ def refined_iv(
         res_c[good] = _rel(t_cand[good] - cand[good], cand[good])
         direction = t_cand - cand
         grew = good & (res_c > residual)
-        reversed_ = grew & (np.einsum("gp,gp->g", np.nan_to_num(direction), prev_dir) < 0)
-        oscillation |= reversed_
+        if grew.any():  # a sign reversal of successive steps with a growing residual
+            reversed_ = grew & (np.einsum("gp,gp->g", np.nan_to_num(direction), prev_dir) < 0)
+            oscillation |= reversed_
         step[grew] = np.maximum(step[grew] * 0.5, min_step)
         theta[good] = cand[good]
         t_theta[good] = t_cand[good]

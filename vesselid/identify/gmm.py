@@ -494,12 +494,22 @@ def solve_equations(
         theta[:, sl] = th * c_p / c_y  # back to the units of the data
         ok &= ok_i
         if designs is not None:
-            designs.append((zz[valid] / c_z, pp[valid] / c_p, yy[valid] / c_y, valid,
+            rows = _as_slice(valid)  # the valid rows (a slice when they are one block)
+            designs.append((zz[rows] / c_z, pp[rows] / c_p, yy[rows] / c_y, valid,
                             None if w is None else np.asarray(w)[0] * np.outer(c_z, c_z)))
             jacobians.append(jac)
     theta[~ok] = np.nan
     return GMMSolution(theta=theta, ok=ok, j=j_stat, df=df, c=c_stat, c_df=c_df,
                        designs=designs, jacobians=jacobians)
+
+
+def _as_slice(mask: np.ndarray) -> slice | np.ndarray:
+    """The rows of a boolean ``mask`` as a slice when they form one block (one experiment
+    whose first rows are invalid), else the mask itself: the same rows, no gather."""
+    idx = np.flatnonzero(mask)
+    if idx.size and int(idx[-1]) - int(idx[0]) + 1 == idx.size:
+        return slice(int(idx[0]), int(idx[-1]) + 1)
+    return mask
 
 
 def _combined_layout(spec: ModelSpec):
@@ -673,7 +683,7 @@ def _colour_first_step(data: RegressionData, spec: ModelSpec, c_out: list,
                        cbounds: np.ndarray) -> tuple[tuple, tuple]:
     """First step of the fused colour test from the first pass's raw sums ``c_out``:
     centred sums per experiment, the 2SLS estimate per group and equation, and the
-    second pass's inputs ``(θ₁, z̄, φ̄, ȳ, ḡ)``; also ``(A, b)`` per group."""
+    second pass's inputs ``(θ₁, z̄, φ̄, ȳ, ḡ)``; also the centred ``(A, b, M)`` per group."""
     c_a, c_b, c_m, c_z, c_phi, c_y, c_count, _, c_ref = c_out
     _mirror(c_m)
     codes = spec.codes

@@ -119,7 +119,17 @@ def _equilibrate_one(a: np.ndarray, max_iter: int, tol: float) -> tuple[np.ndarr
     ``max |log(new/old)| < tol`` is decided from ``max |new/old − 1|`` where that bounds
     it on the right side with a wide margin (``|log x| ≤ |x − 1|/min(x, 1)`` and
     ``|log x| ≥ |x − 1|/max(x, 1)``), and with numpy's logarithms otherwise."""
-    a = np.abs(np.asarray(a, dtype=float))
+    try:
+        return _equilibrate_one_loop(np.asarray(a, dtype=float), max_iter, tol)
+    except ZeroDivisionError:  # a scale underflowed to 0: numpy's inf/NaN semantics
+        return equilibrate(a, max_iter=max_iter, tol=tol)
+
+
+def _equilibrate_one_loop(a: np.ndarray, max_iter: int, tol: float
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """The sweeps of :func:`_equilibrate_one` (raises ZeroDivisionError where numpy would
+    divide by zero)."""
+    a = np.abs(a)
     _, n, m = a.shape
     sq = np.where(np.isfinite(a), a, 0.0)
     peak = np.max(sq, axis=(1, 2), keepdims=True)
@@ -199,9 +209,32 @@ def stacked_row_weights(a_n: np.ndarray) -> np.ndarray:
     return r[0, :k] ** 2
 
 
+def _cond_one(a: np.ndarray) -> float:
+    """``_equilibrated_cond(a[None])[0]`` of one matrix ``a`` (n, m), bit-identical, with
+    the checks in Python floats (finite entries, no zero row or column), the scales of
+    :func:`_equilibrate_one` and the same SVD of the same scaled matrix (``(a r) c``,
+    ``np.linalg.cond``'s ``s[0] / s[-1]``, ``inf`` for a NaN ratio of finite entries)."""
+    rows = a.tolist()
+    isfinite = math.isfinite
+    if not (all(isfinite(x) for row in rows for x in row)
+            and all(any(x != 0 for x in row) for row in rows)
+            and all(any(row[j] != 0 for row in rows) for j in range(a.shape[1]))):
+        return math.inf
+    r, c = _equilibrate_one(a[None], max_iter=50, tol=1e-9)
+    rs, cs = r[0].tolist(), c[0].tolist()
+    scaled = np.array([[(x * ri) * cj for x, cj in zip(row, cs, strict=True)]
+                       for row, ri in zip(rows, rs, strict=True)])
+    sv = np.linalg.svd(scaled[None], compute_uv=False)[0]
+    with np.errstate(all="ignore"):
+        ratio = sv[0] / sv[-1]
+    return math.inf if ratio != ratio else float(ratio)
+
+
 def _equilibrated_cond(a: np.ndarray) -> np.ndarray:
     """Condition numbers of a stack ``(G, n, m)`` after :func:`equilibrate`."""
     a = np.asarray(a, dtype=float)
+    if a.shape[0] == 1 and a.shape[1] and a.shape[2]:  # one system: fewer calls
+        return np.array([_cond_one(a[0])])
     out = np.full(a.shape[0], np.inf)
     good = np.all(np.isfinite(a), axis=(1, 2))
     good &= np.all(np.any(a != 0, axis=1), axis=1) & np.all(np.any(a != 0, axis=2), axis=1)
@@ -241,6 +274,8 @@ def solve(a: np.ndarray, b: np.ndarray, *, cond_max: float = COND_MAX
     """
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
+    if a.shape[0] == 1 and b.shape[0] == 1 and a.shape[1]:  # one system: fewer calls
+        return _solve_one(a, b, cond_max)
     ok = np.all(np.isfinite(a), axis=(1, 2)) & np.all(np.isfinite(b), axis=1)
     out = np.full(b.shape, np.nan)
     if not ok.any():
@@ -268,6 +303,85 @@ def solve(a: np.ndarray, b: np.ndarray, *, cond_max: float = COND_MAX
     return out, ok
 
 
+#: The compiled condition number (equal to rounding) decides that a system is regular only
+#: below this fraction of ``cond_max``; elsewhere the exact computation decides.
+COND_CLEAR = 1e-3
+
+
+def _cond_below(a: np.ndarray, cond_max: float) -> bool:
+    """``_cond_one(a) < cond_max`` (finite), the decision of :func:`solve` for one system.
+
+    With the compiled kernels loaded, the equilibration scales come from
+    :func:`vesselid.identify._ivkernels.equilibrate_one`: the same sweeps with the C
+    library's ``log``/``exp``, so the scales agree with the exact ones to rounding (and
+    to the convergence tolerance 1e-9 where the two stop one sweep apart). The two
+    scaled matrices then differ by diagonal factors within ``1 ± 1e-9`` and entrywise
+    roundings, which move a condition number ``κ`` by at most ~``4e-9 + n ε κ``
+    relative: far below :data:`COND_CLEAR` for ``κ < COND_CLEAR · cond_max``. So a
+    compiled ``κ`` below that proves the system regular (every refined-IV and GMM solve
+    of a fit: ``κ`` ~ 1e2–1e4); otherwise — singular or ill-conditioned systems, the
+    numpy path — :func:`_cond_one` decides, as before. The decision is the exact one's;
+    only its cost changes."""
+    from vesselid.identify.backend import loaded_kernel
+
+    kernel = loaded_kernel("equilibrate_one")
+    if kernel is not None:
+        rows = a.tolist()
+        isfinite = math.isfinite
+        if (all(isfinite(x) for row in rows for x in row)
+                and all(any(x != 0 for x in row) for row in rows)
+                and all(any(row[j] != 0 for row in rows) for j in range(a.shape[1]))):
+            try:
+                r, c = kernel(np.ascontiguousarray(a), 50, 1e-9)
+                with np.errstate(all="ignore"):
+                    cond = float(np.linalg.cond((a * r[:, None]) * c[None, :]))
+            except (np.linalg.LinAlgError, ZeroDivisionError):
+                cond = math.nan
+            if cond < COND_CLEAR * cond_max:  # False for NaN
+                return True
+    cond = _cond_one(a)
+    return math.isfinite(cond) and cond < cond_max
+
+
+def _pow2_one(norm: float) -> float:
+    """:func:`pow2_scale` of one value (``frexp``/``ldexp`` are exact; a zero or
+    non-finite norm is scaled as 1 is, by 1/2)."""
+    if not (math.isfinite(norm) and norm > 0):
+        norm = 1.0
+    return math.ldexp(1.0, -min(max(math.frexp(norm)[1], -1000), 1000))
+
+
+def _solve_one(a: np.ndarray, b: np.ndarray, cond_max: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`solve` of one system ``a`` (1, P, P), ``b`` (1, P), bit-identical, with the
+    finiteness checks and the power-of-two column scales in Python floats (the column
+    norms are ``einsum``'s sequential sums of squares, ``frexp``/``ldexp`` are exact) and
+    the same LAPACK solve of the same scaled system and :func:`_cond_one`."""
+    rows = a[0].tolist()
+    isfinite = math.isfinite
+    p = len(rows)
+    out = np.full(b.shape, np.nan)
+    if not (all(isfinite(x) for row in rows for x in row) and all(isfinite(x)
+                                                                 for x in b[0].tolist())):
+        return out, np.zeros(1, dtype=bool)
+    col = []
+    for j in range(p):
+        acc = 0.0
+        for row in rows:
+            acc += row[j] * row[j]
+        col.append(_pow2_one(math.sqrt(acc)))
+    a_s = np.array([[[x * cj for x, cj in zip(row, col, strict=True)] for row in rows]])
+    with np.errstate(all="ignore"):
+        try:
+            y = np.linalg.solve(a_s, b[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            y = np.full(b.shape, np.nan)
+        out = y * np.array(col)
+    ok = _cond_below(a[0], cond_max) and bool(np.all(np.isfinite(out)))
+    if not ok:
+        out[:] = np.nan
+    return out, np.array([ok])
+
+
 def inv_sym(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Inverse of a stack of symmetric positive definite matrices ``(G, K, K)``.
 
@@ -278,6 +392,8 @@ def inv_sym(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ``ok = False``.
     """
     s = np.asarray(s, dtype=float)
+    if s.shape[0] == 1 and s.shape[1]:
+        return _inv_sym_one(s)
     ok = np.all(np.isfinite(s), axis=(1, 2))
     diag = np.diagonal(s, axis1=1, axis2=2)
     ok &= np.all(diag > 0, axis=1)
@@ -298,6 +414,30 @@ def inv_sym(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ok[ok] = good
     out[~ok] = np.nan
     return out, ok
+
+
+def _inv_sym_one(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`inv_sym` of one matrix ``s`` (1, K, K), bit-identical: the checks and the
+    power-of-two scales in Python floats, the same scaled matrix, SVD and inverse."""
+    out = np.full(s.shape, np.nan)
+    rows = s[0].tolist()
+    isfinite = math.isfinite
+    diag = [rows[i][i] for i in range(len(rows))]
+    if not (all(isfinite(x) for row in rows for x in row) and all(x > 0 for x in diag)):
+        return out, np.zeros(1, dtype=bool)
+    d = [_pow2_one(math.sqrt(x)) for x in diag]
+    x = np.array([[[(v * di) * dj for v, dj in zip(row, d, strict=True)]
+                   for row, di in zip(rows, d, strict=True)]])
+    cond = np.linalg.cond(x)
+    if not (np.isfinite(cond[0]) and cond[0] < COND_MAX):
+        return out, np.zeros(1, dtype=bool)
+    dd = np.array([d])
+    with np.errstate(all="ignore"):
+        inv = np.linalg.inv(x) * dd[:, :, None] * dd[:, None, :]
+    res = 0.5 * (inv + np.swapaxes(inv, 1, 2))
+    if not np.all(np.isfinite(res)):
+        return out, np.zeros(1, dtype=bool)
+    return res, np.ones(1, dtype=bool)
 
 
 def gmm_solve(a: np.ndarray, b: np.ndarray, w: np.ndarray | None = None, *,
