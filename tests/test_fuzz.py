@@ -345,3 +345,11 @@ def test_plan_trial_option_values(option, value):
     code, out, err = run(["plan-trial", option, value])
     assert_clean(code, out, err)
     assert code == 2
+
+
+def test_plan_trial_absurd_wind():
+    """A finite but absurd wind (10^11 m/s) passes the option checks, simulates, and is
+    refused with the reason (the disturbed simulation diverges), not a traceback."""
+    code, out, err = run(["plan-trial", "--wind-speed", str(10**11)])
+    assert_clean(code, out, err)
+    assert code == 2 and err.strip()

@@ -408,3 +408,24 @@ def test_compiled_singularity_decision_is_the_exact_one():
                 r, c = ivk.equilibrate_one(np.ascontiguousarray(a), 50, 1e-9)
                 fast = np.linalg.cond((a * r[:, None]) * c[None, :])
                 assert abs(fast - exact) <= 1e3 * n * EPS * exact**2 + 1e-8 * exact
+
+
+def test_compiled_column_sums_bit_identical(monkeypatch):
+    """The compiled column sums (of squares) are numpy's row-order sums bit for bit, and
+    ``covariance.column_means`` takes them only where numpy adds rows in order (C order,
+    two columns or more) on the compiled path."""
+    from vesselid.identify import covariance
+
+    rng = np.random.default_rng(9)
+    for rows in (1, 2, 7, 1000, 10001):
+        for cols in range(2, 12):
+            x = rng.normal(size=(rows, cols)) * 10.0 ** rng.integers(-20, 20, size=(rows, cols))
+            x[::4] = -0.0
+            assert np.array_equal(ivk.column_sums(x, False), x.sum(axis=0))
+            assert np.array_equal(ivk.column_sums(x, True) / rows, np.mean(x**2, axis=0))
+    monkeypatch.setenv("VESSELID_KERNELS", "compiled")
+    x = rng.normal(size=(5000, 7))
+    with backend.choose(10, 1):
+        assert np.array_equal(covariance.column_means(x), x.mean(axis=0))
+        assert np.array_equal(covariance.column_means(x[:, :1]), x[:, :1].mean(axis=0))
+        assert np.array_equal(covariance.column_means(x.T), x.T.mean(axis=0))

@@ -18,6 +18,7 @@ All work on concatenated rows with experiment boundaries ``starts`` and a row ma
   long-run covariances' running-sum differences) in one pass, bit-identical.
 * :func:`equilibrate_one` — the equilibration scales of one small system, to rounding
   (the singularity decision of a checked fit's solves).
+* :func:`column_sums` — column sums (of squares) in row order, bit-identical to numpy's.
 """
 
 from __future__ import annotations
@@ -31,10 +32,9 @@ from vesselid.regressors import fill_factors_xu, kernel, one_step, regressors
 #: Below this many samples the segments run in the calling thread only.
 PARALLEL_MIN_SAMPLES = 200_000
 
-__all__ = ["ar_filter", "autocov", "center", "combined_moments", "cross_sums",
+__all__ = ["ar_filter", "autocov", "center", "column_sums", "combined_moments", "cross_sums",
            "design_ar_centre", "design_centre", "design_scan", "equilibrate_one", "moving_sums",
-           "noise_window",
-           "simulated_regressors"]
+           "noise_window", "simulated_regressors"]
 
 
 @kernel()
@@ -634,3 +634,18 @@ def equilibrate_one(a, max_iter, tol):
     for j in range(m):
         c[j] = c[j] / peak
     return r, c
+
+
+@njit(cache=True)
+def column_sums(x, square):
+    """``Σ_t x[t, k]`` (``square``: of ``x[t, k]²``) of a C-contiguous ``x`` (T, K), each
+    column summed in row order: numpy's ``x.sum(axis=0)`` of such an array with ``K ≥ 2``
+    (it adds the rows one after another), bit-identical, without the per-row loop
+    overhead or the squared copy."""
+    n_rows, n_cols = x.shape
+    out = np.zeros(n_cols)
+    for t in range(n_rows):
+        for k in range(n_cols):
+            v = x[t, k]
+            out[k] += v * v if square else v
+    return out

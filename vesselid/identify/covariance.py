@@ -81,6 +81,7 @@ __all__ = [
     "UnadjustedCovariance",
     "automatic_bandwidth",
     "bartlett_long_run",
+    "column_means",
     "get_covariance_estimator",
     "iv_covariance",
     "kernel_weights",
@@ -209,7 +210,7 @@ def _newey_west_bandwidth(g: np.ndarray, segs: list[slice], kernel: str, t_total
     q, c, n_exp = {"bartlett": (1, 1.1447, 2 / 9), "parzen": (2, 2.6614, 4 / 25),
                    "qs": (2, 1.3221, 2 / 25)}[kernel]
     n = math.ceil(4 * (t_total / 100) ** n_exp)
-    scale = np.sqrt(np.mean(_compact(g, segs) ** 2, axis=0))
+    scale = np.sqrt(column_means(_compact(g, segs), square=True))
     scale[scale == 0] = 1.0
     x = [_row_sums(g[s], scale) for s in segs] if g.shape[1] > 1 else [g[s, 0] for s in segs]
     sig = np.zeros(n + 1)
@@ -223,6 +224,18 @@ def _newey_west_bandwidth(g: np.ndarray, segs: list[slice], kernel: str, t_total
         return 0.0
     gamma = c * ((sq / s0) ** 2) ** (1 / (2 * q + 1))
     return float(math.ceil(gamma * t_total ** (1 / (2 * q + 1))))
+
+
+def column_means(x: np.ndarray, *, square: bool = False) -> np.ndarray:
+    """``x.mean(axis=0)`` (``square``: ``np.mean(x ** 2, axis=0)``), bit-identical: numpy
+    adds the rows of a C-contiguous ``(T, K ≥ 2)`` array one after another, which the
+    compiled :func:`vesselid.identify._ivkernels.column_sums` does without the per-row
+    call overhead (or the squared copy) when the compiled kernels are loaded."""
+    kernel = _loaded_kernel("column_sums")
+    if (kernel is not None and x.ndim == 2 and x.shape[1] >= 2 and x.shape[0] > 0
+            and x.dtype == np.float64 and x.flags.c_contiguous):
+        return kernel(x, square) / x.shape[0]
+    return np.mean(x**2, axis=0) if square else x.mean(axis=0)
 
 
 def _row_sums(g: np.ndarray, scale: np.ndarray) -> np.ndarray:

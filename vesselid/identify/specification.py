@@ -30,7 +30,12 @@ from typing import Any
 
 import numpy as np
 
-from vesselid.identify.covariance import DEFAULT_COV_TYPE, CovarianceError, get_covariance_estimator
+from vesselid.identify.covariance import (
+    DEFAULT_COV_TYPE,
+    CovarianceError,
+    column_means,
+    get_covariance_estimator,
+)
 
 __all__ = [
     "ResidualCorrelation",
@@ -118,10 +123,10 @@ def _segs(starts: np.ndarray | None, t_len: int, skip_first: bool) -> list[slice
 
 def _demean(x: np.ndarray, segs: list[slice]) -> np.ndarray:
     if len(segs) == 1 and segs[0].start == 0 and segs[0].stop == x.shape[0]:
-        return x - x.mean(axis=0)  # one experiment, every row: the same numbers, one pass
+        return x - column_means(x)  # one experiment, every row: the same numbers, one pass
     out = np.zeros_like(x, dtype=float)
     for s in segs:
-        out[s] = x[s] - x[s].mean(axis=0)
+        out[s] = x[s] - column_means(x[s])
     return out
 
 
