@@ -12,8 +12,9 @@ to the Monte Carlo spread.
 Scenarios (:data:`SCENARIOS`): the paper's heave vehicle (§6) with the Table 1 design
 (alternating and random pulses), Table 2 (current measured, relative target), a
 Gauss–Markov current (time constant 25 samples) and Gauss–Markov sensor noise
-(time constant 20 samples), each with both pulse designs; the CyberShip II sea trial
-is in ``scripts/calibration.py``.
+(time constant 20 samples), each with both pulse designs; and ``"seatrial"``, the
+CyberShip II sea trial a user gets from :func:`vesselid.seatrial.simulate_sea_trial`
+(:func:`seatrial_coverage`).
 """
 
 from __future__ import annotations
@@ -163,7 +164,8 @@ def coverage_table(
 
     ``se_ratio`` is the RMS standard error over the Monte Carlo standard deviation;
     ``se_ratio_robust`` the median SE over the IQR-based spread (``IQR/1.349``), which
-    a few runs with very large errors or SEs do not dominate.
+    a few runs with very large errors or SEs do not dominate; ``kurtosis`` the
+    (non-excess) kurtosis of the errors.
 
     Runs with a non-finite estimate or standard error are left out (``runs`` counts
     the ones used).
@@ -191,6 +193,9 @@ def coverage_table(
             "se_ratio_robust": float(np.median(se) / (np.subtract(*np.percentile(err, [75, 25]))
                                                       / 1.349)) if n > 3 else np.nan,
             "bias_z": float(np.mean(err) / sd * math.sqrt(n)) if n > 1 and sd > 0 else np.nan,
+            # non-excess kurtosis of the errors (3 for Gaussian): the sampling error of
+            # log(mc_sd) is √((κ − 1)/(4n))
+            "kurtosis": float(stats.kurtosis(err, fisher=False)) if n > 3 else np.nan,
         })
     return pd.DataFrame(rows)
 
@@ -214,10 +219,11 @@ def coverage_study(
     Parameters
     ----------
     scenario : str
-        Key of :data:`SCENARIOS`, or ``"seatrial"``: the CyberShip II sea trial
-        (:mod:`vesselid.seatrial`), ``experiments × samples`` per run with the study's
-        current, wind, gusts and unmodelled forces, identified with the relative
-        predictor (speed log); :func:`seatrial_coverage`.
+        Key of :data:`SCENARIOS`, or ``"seatrial"``: the CyberShip II sea trial as
+        :func:`vesselid.seatrial.simulate_sea_trial` gives it by default (``design``),
+        ``experiments × samples`` per run with the study's current, wind, gusts and
+        unmodelled forces, the anemometer's wind load among the forces, identified with
+        the relative predictor (speed log); :func:`seatrial_coverage`.
     runs, samples, seed : int
         Monte Carlo runs, samples per run (experiment), root seed (run ``r`` uses
         child ``r``).

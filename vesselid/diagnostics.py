@@ -172,7 +172,10 @@ def check_moment_range(phi: np.ndarray, names: Sequence[str]) -> None:
     if phi.size == 0:
         return
     with np.errstate(invalid="ignore"):
-        big = np.max(np.abs(phi), axis=0)
+        # column by column (a maximum is exact in any order; numpy's axis-0 reduction of a
+        # few columns pays a call per row)
+        big = (np.array([np.max(np.abs(phi[:, j])) for j in range(phi.shape[1])])
+               if phi.shape[1] <= 16 else np.max(np.abs(phi), axis=0))
     limit = math.sqrt(np.finfo(float).max / (phi.shape[0] * max(phi.shape[1], 1))) / 16.0
     # below this a regressor's squares leave float64's normal range (precision is lost in
     # subnormals, or the products round to zero): the "collinear" it would cause is units

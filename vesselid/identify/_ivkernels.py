@@ -100,6 +100,15 @@ def center(x, starts, valid):
 
 
 @njit(cache=True)
+def _window_valid(valid, k, p):
+    """Whether rows ``k − p … k`` are all valid (the rows an AR(p) filter reads)."""
+    for j in range(p + 1):
+        if not valid[k - j]:
+            return False
+    return True
+
+
+@njit(cache=True)
 def ar_filter(x, starts, valid, coef):
     """``x_f(k) = Σ_j coef[s, j] x(k − j)``, ``j = 0 … p`` per segment ``s``.
 
@@ -113,12 +122,7 @@ def ar_filter(x, starts, valid, coef):
     for s in range(starts.shape[0] - 1):
         a = starts[s]
         for k in range(a + p, starts[s + 1]):
-            good = True
-            for j in range(p + 1):
-                if not valid[k - j]:
-                    good = False
-                    break
-            if not good:
+            if not _window_valid(valid, k, p):
                 continue
             vf[k] = True
             for c in range(k_cols):
@@ -454,29 +458,38 @@ def design_centre(z, phi, p_lo, p_hi, target, i_eq, valid, col, starts):
             yy[k] = 0.0 * col[last]
     mean = np.empty(last + 1)
     for s in range(starts.shape[0] - 1):
-        a = starts[s]
-        b = starts[s + 1]
-        cnt = 0
-        mean[:] = 0.0
-        for k in range(a, b):
-            if valid[k]:
-                cnt += 1
-                for j in range(k_z):
-                    mean[j] += zz[k, j]
-                for p in range(n_p):
-                    mean[k_z + p] += pp[k, p]
-                mean[last] += yy[k]
-        if cnt == 0:
-            continue
-        for j in range(last + 1):
-            mean[j] /= cnt
-        for k in range(a, b):
-            for j in range(k_z):
-                zz[k, j] = zz[k, j] - mean[j]
-            for p in range(n_p):
-                pp[k, p] = pp[k, p] - mean[k_z + p]
-            yy[k] = yy[k] - mean[last]
+        _centre_rows(zz, pp, yy, valid, starts[s], starts[s + 1], mean)
     return zz, pp, yy
+
+
+@njit(cache=True)
+def _centre_rows(zz, pp, yy, valid, a, b, mean):
+    """Subtract from rows ``a … b−1`` of ``zz``, ``pp``, ``yy`` their means over the
+    ``valid`` rows (in place; nothing when none is valid): :func:`center` of one segment,
+    the sums in row order."""
+    k_z = zz.shape[1]
+    n_p = pp.shape[1]
+    last = k_z + n_p
+    cnt = 0
+    mean[:] = 0.0
+    for k in range(a, b):
+        if valid[k]:
+            cnt += 1
+            for j in range(k_z):
+                mean[j] += zz[k, j]
+            for q in range(n_p):
+                mean[k_z + q] += pp[k, q]
+            mean[last] += yy[k]
+    if cnt == 0:
+        return
+    for j in range(last + 1):
+        mean[j] /= cnt
+    for k in range(a, b):
+        for j in range(k_z):
+            zz[k, j] = zz[k, j] - mean[j]
+        for q in range(n_p):
+            pp[k, q] = pp[k, q] - mean[k_z + q]
+        yy[k] = yy[k] - mean[last]
 
 
 @njit(cache=True)
@@ -500,12 +513,7 @@ def design_ar_centre(z, phi, p_lo, p_hi, target, i_eq, valid, col, starts, coef,
         b = starts[s + 1]
         c = coef[group[s]]
         for k in range(a + p, b):
-            good = True
-            for j in range(p + 1):
-                if not valid[k - j]:
-                    good = False
-                    break
-            if not good:
+            if not _window_valid(valid, k, p):
                 continue
             vf[k] = True
             for col_j in range(k_z):
@@ -522,26 +530,7 @@ def design_ar_centre(z, phi, p_lo, p_hi, target, i_eq, valid, col, starts, coef,
             for j in range(p + 1):
                 acc += c[j] * (target[k - j, i_eq] * col[last])
             yy[k] = acc
-        cnt = 0
-        mean[:] = 0.0
-        for k in range(a, b):
-            if vf[k]:
-                cnt += 1
-                for j in range(k_z):
-                    mean[j] += zz[k, j]
-                for q in range(n_p):
-                    mean[k_z + q] += pp[k, q]
-                mean[last] += yy[k]
-        if cnt == 0:
-            continue
-        for j in range(last + 1):
-            mean[j] /= cnt
-        for k in range(a, b):
-            for j in range(k_z):
-                zz[k, j] = zz[k, j] - mean[j]
-            for q in range(n_p):
-                pp[k, q] = pp[k, q] - mean[k_z + q]
-            yy[k] = yy[k] - mean[last]
+        _centre_rows(zz, pp, yy, vf, a, b, mean)
     return zz, pp, yy, vf
 
 

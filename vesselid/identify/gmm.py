@@ -620,13 +620,8 @@ def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, 
                  count, status, s_hac)
     aux_ok = active.copy()
     np.logical_and.at(aux_ok, data.group, status == 0)
-    cnt = np.maximum(count, 1).astype(float)
-    mz, mphi, my = s_z / cnt[:, None], s_phi / cnt[:, None], s_y / cnt[:, None]
-    same = zeq[:, None] == codes.equation[None, :]
-    a_c = s_a - np.einsum("sk,sp->skp", s_z, mphi) * same
-    b_c = s_b - s_z * my[:, zeq]
-    m_c = s_m - np.einsum("sk,sl->skl", s_z, mz)
-    a_g, b_g, m_g = _group_sum(data, a_c), _group_sum(data, b_c), _group_sum(data, m_c)
+    cnt, (mz, mphi, my), (a_c, b_c, _), (a_g, b_g, m_g) = _centred_sums(
+        data, codes.equation, zeq, s_a, s_b, s_m, s_z, s_phi, s_y, count)
     blocks = block_starts(spec)
     theta1 = np.full((data.n_groups, n_par), np.nan)
     ok = aux_ok.copy()
@@ -654,13 +649,8 @@ def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, 
     for i in range(n):
         zs, ps = slice(int(bounds[i]), int(bounds[i + 1])), slice(int(blocks[i]),
                                                                      int(blocks[i + 1]))
-        s_inv, ok_s = linalg.inv_sym(s_g[:, zs, zs])
-        a_i, b_i = a_g[:, zs, ps], b_g[:, zs]
-        t2, ok_2 = linalg.gmm_solve(a_i, b_i, np.nan_to_num(s_inv))
-        theta2[:, ps] = t2
-        ok &= ok_s & ok_2
-        gbar = b_i - np.einsum("gkp,gp->gk", a_i, np.nan_to_num(t2))
-        j_stat[:, i] = np.einsum("gk,gkl,gl->g", gbar, np.nan_to_num(s_inv), gbar)
+        theta2[:, ps], ok_2, j_stat[:, i] = _second_step(a_g, b_g, s_g, zs, ps)
+        ok &= ok_2
         df[i] = (zs.stop - zs.start) - (ps.stop - ps.start)
         c_stat[:, i] = j_stat[:, i]  # the simulated subset alone is just identified
         c_df[i] = n_lag[i]
@@ -670,6 +660,36 @@ def combined_solution(data: RegressionData, spec: ModelSpec, theta: np.ndarray, 
         sol.colour, sol.colour_df, sol.colour_ok = _colour_second_step(
             data, spec, c_out, cbounds, c_in[1], active)
     return sol, aux_ok
+
+
+def _centred_sums(data: RegressionData, equation: np.ndarray, zeq: np.ndarray,
+                  s_a: np.ndarray, s_b: np.ndarray, s_m: np.ndarray, s_z: np.ndarray,
+                  s_phi: np.ndarray, s_y: np.ndarray, count: np.ndarray) -> tuple:
+    """Per-segment raw sums of a fused pass (``Σ zφᵀ``, ``Σ zy``, ``Σ zzᵀ``, ``Σ z``,
+    ``Σ φ``, ``Σ y``, row count) → ``(counts, (z̄, φ̄, ȳ), (A, b, M) centred per segment,
+    (A, b, M) summed per group)``; instrument ``c`` belongs to equation ``zeq[c]``, parameter
+    ``p`` to ``equation[p]``."""
+    cnt = np.maximum(count, 1).astype(float)
+    mz, mphi, my = s_z / cnt[:, None], s_phi / cnt[:, None], s_y / cnt[:, None]
+    same = zeq[:, None] == equation[None, :]
+    a_c = s_a - np.einsum("sk,sp->skp", s_z, mphi) * same
+    b_c = s_b - s_z * my[:, zeq]
+    m_c = s_m - np.einsum("sk,sl->skl", s_z, mz)
+    a_g, b_g, m_g = _group_sum(data, a_c), _group_sum(data, b_c), _group_sum(data, m_c)
+    return cnt, (mz, mphi, my), (a_c, b_c, m_c), (a_g, b_g, m_g)
+
+
+def _second_step(a_g: np.ndarray, b_g: np.ndarray, s_g: np.ndarray, zs: slice, ps: slice
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Two-step GMM of one equation (instrument columns ``zs``, parameters ``ps``) per
+    group with the HAC weight ``S⁻¹`` of the group score sums ``s_g``:
+    ``(θ₂, ok, Hansen's J)``."""
+    s_inv, ok_s = linalg.inv_sym(s_g[:, zs, zs])
+    a_i, b_i = a_g[:, zs, ps], b_g[:, zs]
+    t2, ok_2 = linalg.gmm_solve(a_i, b_i, np.nan_to_num(s_inv))
+    gbar = b_i - np.einsum("gkp,gp->gk", a_i, np.nan_to_num(t2))
+    j = np.einsum("gk,gkl,gl->g", gbar, np.nan_to_num(s_inv), gbar)
+    return t2, ok_s & ok_2, j
 
 
 def _mirror(x: np.ndarray) -> np.ndarray:
@@ -689,14 +709,9 @@ def _colour_first_step(data: RegressionData, spec: ModelSpec, c_out: list,
     codes = spec.codes
     _, _, ceq, _ = _colour_layout(spec)
     blocks = block_starts(spec)
-    cnt = np.maximum(c_count, 1).astype(float)
     # sums of differences from reference values (the centred sums do not depend on them)
-    mz, mphi, my = c_z / cnt[:, None], c_phi / cnt[:, None], c_y / cnt[:, None]
-    same = ceq[:, None] == codes.equation[None, :]
-    a_c = c_a - np.einsum("sk,sp->skp", c_z, mphi) * same
-    b_c = c_b - c_z * my[:, ceq]
-    m_c = c_m - np.einsum("sk,sl->skl", c_z, mz)
-    a_g, b_g, m_g = _group_sum(data, a_c), _group_sum(data, b_c), _group_sum(data, m_c)
+    cnt, (mz, mphi, my), (a_c, b_c, _), (a_g, b_g, m_g) = _centred_sums(
+        data, codes.equation, ceq, c_a, c_b, c_m, c_z, c_phi, c_y, c_count)
     theta1 = np.full((data.n_groups, spec.n_params), np.nan)
     for i in range(spec.n_states):
         zs = slice(int(cbounds[i]), int(cbounds[i + 1]))
@@ -726,11 +741,7 @@ def _colour_second_step(data: RegressionData, spec: ModelSpec, c_out: list,
         ps = slice(int(blocks[i]), int(blocks[i + 1]))
         if zs.stop - zs.start == ps.stop - ps.start:
             continue  # no state term: just identified, nothing to test
-        s_inv, _ = linalg.inv_sym(s_g[:, zs, zs])
-        a_i, b_i = a_g[:, zs, ps], b_g[:, zs]
-        t2, _ = linalg.gmm_solve(a_i, b_i, np.nan_to_num(s_inv))
-        gbar = b_i - np.einsum("gkp,gp->gk", a_i, np.nan_to_num(t2))
-        stat[:, i] = np.einsum("gk,gkl,gl->g", gbar, np.nan_to_num(s_inv), gbar)
+        stat[:, i] = _second_step(a_g, b_g, s_g, zs, ps)[2]
         df[i] = (zs.stop - zs.start) - (ps.stop - ps.start)
     finite = np.ones(data.n_groups, dtype=bool)
     for arr in (*c_out[:6], *c_out[7:]):
