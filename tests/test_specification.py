@@ -124,3 +124,28 @@ def test_identify_reports_diagnostics_and_plots_residuals():
     assert len(fig.axes) == 2
     rc = res.diagnostics["residual_correlation"]
     assert len(rc["acf"][0]) == len(rc["lags"]) and rc["band"] > 0
+
+
+def test_equations_with_the_same_rows_share_their_work_and_get_the_same_numbers():
+    """``shared``: a second equation with the same instruments and regressors (another
+    target) reuses the prepared rows, first stage and first-stage residuals; its results
+    are those of a call on its own, and a third equation with other regressors is not
+    served from the shared work."""
+    from vesselid.identify.specification import equation_diagnostics
+
+    rng = np.random.default_rng(3)
+    y, phi, z = _endogenous(rng, n=900)
+    y2 = y + 0.7 * phi[:, 0] + rng.normal(size=y.size)
+    z3 = z.copy()
+    z3[:, 0] += 0.3 * rng.normal(size=z.shape[0])
+    starts = np.array([0, 400, 900])
+    opts = {"names": ["x", "u"], "skip_first": True}
+    shared: dict = {}
+    got = [equation_diagnostics(zz, phi, yy, starts, shared=shared, **opts)
+           for zz, yy in ((z, y), (z, y2), (z3, y2))]
+    alone = [equation_diagnostics(zz, phi, yy, starts, **opts)
+             for zz, yy in ((z, y), (z, y2), (z3, y2))]
+    assert got == alone
+    assert got[0]["endogeneity"] != got[1]["endogeneity"]  # the target does matter
+    assert got[1]["first_stage"] is not got[0]["first_stage"]  # copies, not one object
+    assert got[2]["first_stage"] != got[1]["first_stage"]

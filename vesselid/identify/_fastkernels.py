@@ -51,16 +51,25 @@ from vesselid.regressors import SALT, factor_source
 __all__ = [
     "MAX_KEPT_FILES",
     "MAX_SPECIALISED_PARAMS",
+    "MAX_SPECIALISED_PRODUCTS",
     "PRUNE_AFTER_DAYS",
     "SpecialisedMoments",
     "kernel_dir",
+    "moment_products",
     "prune",
     "specialised_combined",
     "specialised_moments",
 ]
 
-#: Larger structures use the generic kernel (unrolled code grows as P²).
+#: Larger structures use the generic combined-instrument pass (unrolled code grows as P²).
 MAX_SPECIALISED_PARAMS = 24
+
+#: Moment structures whose distinct equation blocks accumulate more products ``z_p φ_q``
+#: per sample (:func:`moment_products`) use the generic kernel (unrolled code grows as
+#: their number): 24², one 24-term equation, so every structure of at most 24 parameters
+#: qualifies; the 25-parameter CyberShip II sea-trial model (blocks 5, 10, 10, the last
+#: two with the same terms) accumulates 125.
+MAX_SPECIALISED_PRODUCTS = 24 * 24
 
 #: Generated kernels unused for this many days are deleted.
 PRUNE_AFTER_DAYS = 30
@@ -266,9 +275,29 @@ def _entry_point(add: Callable[[str], None], params: str, args: str) -> None:
     add(f"        _segment(s, {args})")
 
 
+def _duplicate_blocks(fac: np.ndarray, blocks: np.ndarray) -> list[int]:
+    """For each equation, the first equation whose terms have the same factor codes (or
+    itself): its regressors, instruments and so its ``S_zφ``, ``S_z``, ``S_φ`` block are
+    the same numbers (the generic kernel copies them too, ``block_src``)."""
+    keys = [np.asarray(fac[int(blocks[i]):int(blocks[i + 1])]).tobytes()
+            for i in range(len(blocks) - 1)]
+    return [keys.index(k) for k in keys]
+
+
+def moment_products(fac: np.ndarray, blocks: np.ndarray) -> int:
+    """Products ``z_p φ_q`` the specialised moment kernel accumulates per sample: the
+    squared sizes of the distinct equation blocks (the size of its unrolled code)."""
+    src = _duplicate_blocks(fac, blocks)
+    return sum((int(blocks[i + 1]) - int(blocks[i])) ** 2
+               for i in range(len(blocks) - 1) if src[i] == i)
+
+
 def _source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.ndarray) -> str:
     n_par = fac.shape[0]
     blk = [list(range(int(blocks[i]), int(blocks[i + 1]))) for i in range(n)]
+    src = _duplicate_blocks(fac, blocks)
+    # regressors only a duplicate block uses are never accumulated: not computed
+    needed = [p for i in range(n) if src[i] == i for p in blk[i]]
     ind = " " * 8
     lines: list[str] = []
     add = lines.append
@@ -285,7 +314,10 @@ def _source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.ndarray)
         add(f"    ly{i} = 0.0")
 
     def sums(i: int, p: int) -> list[tuple[str, str, str]]:
-        """The local sums of parameter ``p`` (equation ``i``): name, increment, output."""
+        """The local sums of parameter ``p`` (equation ``i``): name, increment, output
+        (a duplicate block accumulates only ``S_zy``)."""
+        if src[i] != i:
+            return [(f"lzy{p}", f"z{p} * y{i}", f"s_zy[s, {p}]")]
         return ([(f"lzy{p}", f"z{p} * y{i}", f"s_zy[s, {p}]"),
                  (f"lz{p}", f"z{p}", f"s_z[s, {p}]"),
                  (f"lphi{p}", f"phi{p}", f"s_phi[s, {p}]")]
@@ -300,7 +332,7 @@ def _source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.ndarray)
         add(f"{ind}for k in range(a + 1, b):")
         i2 = ind + "    "
         _data_row(add, i2, n, (("d", 1),), m)
-        for p in range(n_par):
+        for p in needed:
             add(f"{i2}phi{p} = {_term(p, 'd', n, m, fac)}")
         if sim:
             for i in range(n):
@@ -308,7 +340,9 @@ def _source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.ndarray)
             _advance(add, i2, n, m, fac, eq, "z")
         else:
             for p in range(n_par):
-                add(f"{i2}z{p} = phi{p}")
+                i = int(eq[p])  # a duplicate block's regressor: its source's
+                q = p + int(blocks[src[i]]) - int(blocks[i])
+                add(f"{i2}z{p} = phi{q}")
         for i in range(n):
             add(f"{i2}y{i} = target[k, {i}]")
             add(f"{i2}ly{i} += y{i}")
@@ -321,9 +355,15 @@ def _source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.ndarray)
     add("    else:")
     body(False)
     for i in range(n):
+        off = int(blocks[src[i]]) - int(blocks[i])
         for p in blk[i]:
             for local, _, out in sums(i, p):
                 add(f"    {out} = {local}")
+            if src[i] != i:  # copied from the first equation with these terms
+                add(f"    s_z[s, {p}] = lz{p + off}")
+                add(f"    s_phi[s, {p}] = lphi{p + off}")
+                for q in blk[i]:
+                    add(f"    s_zphi[s, {p}, {q}] = lzphi{p + off}_{q + off}")
             for q in range(n_par):
                 if q not in blk[i]:  # another equation's regressor
                     add(f"    s_zphi[s, {p}, {q}] = 0.0")
@@ -671,20 +711,37 @@ def _combined_source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, ztype: np.
     common[d_line] = "@njit(cache=True, nogil=True)"
     first = [*common, *lines[i_if:i_else]]
     second = [*common, "    if second:", *lines[i_else + 1:]]
-    first[d_line + 1] = first[d_line + 1].replace("def _segment(", "def _first(")
-    second[d_line + 1] = second[d_line + 1].replace("def _segment(", "def _second(")
+    first[d_line + 1] = first[d_line + 1].replace("def _segment(s, ", "def _first(lo, hi, ")
+    second[d_line + 1] = second[d_line + 1].replace("def _segment(s, ",
+                                                    "def _second(lo, hi, ")
     second[0:d_line] = ["", ""]
-    lines[:] = [*first, *second]
+    lines[:] = [*_over_segments(first), *_over_segments(second)]
+    # the entry point is Python, not a third compiled function: a compiled ``segments``
+    # calling both passes links and optimises their code again (≈ 0.5 s of CPU on the
+    # first run, measured with numba's compile events)
     add("")
     add("")
-    add("@njit(cache=True, nogil=True)")
     add(f"def segments(lo, hi, {full}):")
-    add("    for s in range(lo, hi):")
-    add("        if second:")
-    add(f"            _second(s, {args})")
-    add("        else:")
-    add(f"            _first(s, {args})")
+    add('    """Pass 1 (``second`` false) or 2 over the segments ``lo .. hi - 1``."""')
+    add("    if second:")
+    add(f"        _second(lo, hi, {args})")
+    add("    else:")
+    add(f"        _first(lo, hi, {args})")
+    add("")
+    add("")
+    add("segments.kernels = (_first, _second)")
     return "\n".join(lines) + "\n"
+
+
+def _over_segments(lines: list[str]) -> list[str]:
+    """A generated per-segment function (body from ``g = group[s]``) as a loop over the
+    segments ``lo .. hi - 1``: the body indented once more, its early ``return`` (an
+    inactive group) a ``continue``."""
+    start = lines.index("    g = group[s]")
+    body = ["        continue" if line == "        return" else line
+            for line in lines[start:]]
+    return [*lines[:start], "    for s in range(lo, hi):",
+            *(("    " + line) if line.strip() else line for line in body)]
 
 
 
@@ -748,7 +805,8 @@ class SpecialisedMoments:
         if self.failed:
             return False
         fn = self.kernel
-        if not getattr(fn, "signatures", ()):
+        # a generated Python entry point names its compiled kernels (compiled on first use)
+        if not all(getattr(k, "signatures", ()) for k in getattr(fn, "kernels", (fn,))):
             try:
                 fn(0, 0, *args)  # compile here, in the calling thread, over no segment
             except Exception as exc:
@@ -773,7 +831,8 @@ def specialised_moments(
     use_sim, limit, s_zphi, s_zy, s_z, s_phi, s_y, count, status)``; it returns False if
     the generated code could not be compiled (then run the generic kernel).
     """
-    if fac.shape[0] > MAX_SPECIALISED_PARAMS or os.environ.get("VESSELID_GENERIC_KERNELS"):
+    if (moment_products(fac, blocks) > MAX_SPECIALISED_PRODUCTS
+            or os.environ.get("VESSELID_GENERIC_KERNELS")):
         return None
     key = (int(n), int(m), fac.tobytes(), eq.tobytes(), np.asarray(blocks).tobytes())
     return _cached_kernel(key, "moment", lambda: _source(

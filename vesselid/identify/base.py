@@ -430,12 +430,14 @@ def _specification_tests(spec: ModelSpec, designs: list[EquationDesign], theta: 
     if fn is None:  # pragma: no cover - older module
         return {}
     out: dict[str, Any] = {}
+    shared: dict[str, Any] = {}  # equations with the same terms share their rows' work
     for i, s in enumerate(spec.states):
         d = designs[i]
         sl = slice(int(blocks[i]), int(blocks[i + 1]))
         y = d.resid + d.phi @ theta[sl]
         out[s] = fn(d.z, d.phi, y, d.starts, zero_mean=d.zero_mean, skip_first=False,
-                    names=[str(t) for t in spec.equations[s]], cov_type=cov_type)
+                    names=[str(t) for t in spec.equations[s]], cov_type=cov_type,
+                    shared=shared)
     return out
 
 

@@ -24,6 +24,7 @@ Autocorrelation-robust versions use the covariance estimators of
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -338,15 +339,31 @@ def _prepare(z: Any, phi: Any, y: Any, starts: np.ndarray | None, zero_mean: boo
     phi = np.asarray(phi, dtype=float)
     segs = _segs(starts, phi.shape[0], skip_first)
     arrays = [z, phi] if y is None else [z, phi, np.asarray(y, dtype=float).reshape(-1)]
-    # one experiment: its rows are a view (centring below copies; nothing writes into them)
-    arrays = [np.ascontiguousarray(a[segs[0]]) if len(segs) == 1 else _rows(a, segs)
-              for a in arrays]
     cs = _compact_starts(segs)
     inner = [slice(int(cs[i]), int(cs[i + 1])) for i in range(len(segs))]
-    if zero_mean:
-        arrays = [_demean(a, inner) for a in arrays]
+    arrays = [_prepared_rows(a, segs, inner, zero_mean) for a in arrays]
     return _Prepared(arrays[0], arrays[1], arrays[2] if y is not None else None, inner,
                      zero_mean)
+
+
+def _prepared_rows(a: np.ndarray, segs: list[slice], inner: list[slice],
+                   zero_mean: bool) -> np.ndarray:
+    """One array's usable rows, concatenated (``inner`` index them), centred per
+    experiment with ``zero_mean`` (each array on its own: the numbers do not depend on
+    which others are prepared with it)."""
+    # one experiment: its rows are a view (centring below copies; nothing writes into them)
+    a = np.ascontiguousarray(a[segs[0]]) if len(segs) == 1 else _rows(a, segs)
+    return _demean(a, inner) if zero_mean else a
+
+
+def _with_target(prep: _Prepared, y: Any, starts: np.ndarray | None,
+                 skip_first: bool) -> _Prepared:
+    """``prep`` (instruments and regressors prepared already) with the target ``y``:
+    :func:`_prepare` of the same arrays and ``y``, without preparing them again."""
+    y = np.asarray(y, dtype=float).reshape(-1)
+    segs = _segs(starts, y.shape[0], skip_first)
+    return _Prepared(prep.z, prep.phi, _prepared_rows(y, segs, prep.segs, prep.zero_mean),
+                     prep.segs, prep.zero_mean)
 
 
 def _starts_of(segs: list[slice]) -> np.ndarray:
@@ -373,17 +390,24 @@ def endogeneity_test(z: np.ndarray, phi: np.ndarray, y: np.ndarray,
 
 
 def _endogeneity(prep: _Prepared, cov_type: str, cov_config: Mapping[str, Any],
-                 level: float = 0.05, exo: np.ndarray | None = None) -> TestResult:
-    """:func:`endogeneity_test` on prepared rows (``exo``: :func:`exogenous_columns`)."""
+                 level: float = 0.05, exo: np.ndarray | None = None,
+                 memo: dict[str, Any] | None = None) -> TestResult:
+    """:func:`endogeneity_test` on prepared rows (``exo``: :func:`exogenous_columns`;
+    ``memo``: keeps the regressors augmented with the first-stage residuals, which do not
+    depend on ``y``, for another target with the same instruments and regressors)."""
     z, phi, y, segs = prep.z, prep.phi, prep.y, prep.segs
     exo = exogenous_columns(z, phi) if exo is None else exo
     endo = np.flatnonzero(~exo)
     if endo.size == 0:
         return TestResult("Durbin-Wu-Hausman", 0.0, 0, 1.0, "chi2", "LS is consistent",
                           "no endogenous regressor: LS and IV coincide")
-    coef, *_ = np.linalg.lstsq(z, phi[:, endo], rcond=None)
-    v = phi[:, endo] - z @ coef
-    x = np.hstack([phi, v])
+    x = None if memo is None else memo.get("x")
+    if x is None:
+        coef, *_ = np.linalg.lstsq(z, phi[:, endo], rcond=None)
+        v = phi[:, endo] - z @ coef
+        x = np.hstack([phi, v])
+        if memo is not None:
+            memo["x"] = x
     beta, *_ = np.linalg.lstsq(x, y, rcond=None)
     est = get_covariance_estimator(cov_type, **cov_config)
     cov = est.estimate(x, x, y - x @ beta, _starts_of(segs), skip_first=False,
@@ -579,6 +603,7 @@ def equation_diagnostics(
     skip_first: bool = True,
     names: list[str] | None = None,
     cov_type: str = DEFAULT_COV_TYPE,
+    shared: dict[str, Any] | None = None,
     **cov_config: Any,
 ) -> dict[str, Any]:
     """Instrument strength, endogeneity (and J when over-identified) of one equation.
@@ -588,18 +613,56 @@ def equation_diagnostics(
     ``first_stage`` (:func:`first_stage`), ``endogeneity`` and, for ``K > P``,
     ``hansen_j`` (:meth:`TestResult.to_dict`). A test that cannot be computed
     (singular matrices) is reported with ``None`` values and a reason, never raised.
+
+    ``shared`` (a dict the caller passes for every equation of one model, empty at
+    first): an equation whose instruments, regressors, experiments, options and names
+    equal the previous equation's (the sway and yaw equations of a model whose two
+    equations have the same terms) reuses its prepared rows, exogenous columns, first
+    stage and the first-stage residuals of the endogeneity regression — the same
+    numbers, computed once.
     """
     errors = (np.linalg.LinAlgError, ValueError)
+    key = (zero_mean, skip_first, None if names is None else tuple(names),
+           None if starts is None else np.asarray(starts).tobytes(), cov_type)
+    prev = None if shared is None else shared.get("previous")
+    if prev is not None and not (prev["key"] == key and _same(prev["z"], z)
+                                 and _same(prev["phi"], phi)):
+        prev = None
     try:  # the three tests share the prepared rows and the exogenous columns
-        prep = _prepare(z, phi, y, starts, zero_mean, skip_first)
-        exo = exogenous_columns(prep.z, prep.phi)
+        if prev is not None:
+            prep = _with_target(prev["prep"], y, starts, skip_first)
+            exo = prev["exo"]
+        else:
+            prep = _prepare(z, phi, y, starts, zero_mean, skip_first)
+            exo = exogenous_columns(prep.z, prep.phi)
     except errors:  # let each test report its own reason
         return _equation_diagnostics_apart(z, phi, y, starts, zero_mean, skip_first, names,
                                            cov_type, cov_config)
-    tests = {"first_stage": lambda: _first_stage(prep, names, exo),
-             "endogeneity": lambda: _endogeneity(prep, cov_type, cov_config, exo=exo),
+    if shared is not None and prev is None:
+        prev = shared["previous"] = {"key": key, "z": z, "phi": phi, "prep": prep, "exo": exo,
+                                     "memo": {}}
+    memo = None if prev is None else prev["memo"]
+
+    def first() -> dict[str, Any]:
+        if memo is None:
+            return _first_stage(prep, names, exo)
+        if "first_stage" not in memo:
+            memo["first_stage"] = _first_stage(prep, names, exo)
+        return copy.deepcopy(memo["first_stage"])
+
+    tests = {"first_stage": first,
+             "endogeneity": lambda: _endogeneity(prep, cov_type, cov_config, exo=exo,
+                                                 memo=memo),
              "hansen_j": lambda: _hansen_j(prep, cov_type, cov_config)}
     return _run_tests(tests, np.shape(z)[1] > np.shape(phi)[1])
+
+
+def _same(a: Any, b: Any) -> bool:
+    """The same array (object, or shape and values)."""
+    if a is b:
+        return True
+    a, b = np.asarray(a), np.asarray(b)
+    return a.shape == b.shape and a.dtype == b.dtype and bool(np.array_equal(a, b))
 
 
 def _equation_diagnostics_apart(z, phi, y, starts, zero_mean, skip_first, names, cov_type,
