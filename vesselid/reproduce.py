@@ -497,7 +497,9 @@ def _write(res: ReproductionResult, out: Path, fmt: str, figures: bool) -> None:
             title = (f"Table {t} setting: normalized estimation errors "
                      f"({st.runs} runs × {st.samples} samples)")
             fig = error_histograms(df, labels=PARAMETER_LABELS, title=title)
-            atomic_write_with(out / name, lambda p, f=fig: f.savefig(p, dpi=90, format="png"))
+            # zlib level 1: ~4 ms less than the default 6 per figure, ~10 % larger file
+            atomic_write_with(out / name, lambda p, f=fig: f.savefig(
+                p, dpi=90, format="png", pil_kwargs={"compress_level": 1}))
             res.files.append(str(out / name))
         res.timings["figures_s"] = time.perf_counter() - t0
     path = out / "summary.json"
