@@ -222,6 +222,7 @@ def bench_cold_start(table: str = "all") -> dict:
     with tempfile.TemporaryDirectory() as tmpdir:
         tmp = Path(tmpdir)
         venv = _fresh_venv(tmp)
+        load_before = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
         env = user_env(NUMBA_CACHE_DIR=str(tmp / "numba"),
                        VESSELID_KERNEL_DIR=str(tmp / "kernels"), MPLBACKEND="Agg")
         env.pop("PYTHONPATH", None)
@@ -231,21 +232,27 @@ def bench_cold_start(table: str = "all") -> dict:
         timings = json.loads((tmp / "first" / "summary.json").read_text())["timings"]
         second, p2 = run_timed([*cmd, "--out", str(tmp / "second")], env=env, cwd=tmp)
         # the compile time of kernels on the first run, measured in-process
+        # (each top-level compile event: the dispatcher's CPU seconds, nested ones inside)
         probe = ("import json, time, numba.core.event as ev\n"
-                 "stack, tot = [], [0, 0.0]\n"
+                 "stack, tot, per = [], [0, 0.0], {}\n"
                  "class L(ev.Listener):\n"
                  "    def on_start(self, e): stack.append(time.process_time())\n"
                  "    def on_end(self, e):\n"
                  "        t0 = stack.pop()\n"
                  "        if not stack:\n"
+                 "            dt = time.process_time() - t0\n"
                  "            tot[0] += 1\n"
-                 "            tot[1] += time.process_time() - t0\n"
+                 "            tot[1] += dt\n"
+                 "            f = e.data['dispatcher'].py_func\n"
+                 "            k = f.__module__.rsplit('.', 1)[-1][:24] + '.' + f.__name__\n"
+                 "            per[k] = round(per.get(k, 0.0) + dt, 3)\n"
                  "ev.register('numba:compile', L())\n"
                  "from vesselid.reproduce import warm_up\n"
                  "warm_up()\n"
-                 "print(json.dumps(tot))")
+                 "print(json.dumps([*tot, per]))")
+        # in-process compiles only: no helper process (vesselid._precompile)
         cold_env = dict(env, NUMBA_CACHE_DIR=str(tmp / "numba2"),
-                        VESSELID_KERNEL_DIR=str(tmp / "kernels2"))
+                        VESSELID_KERNEL_DIR=str(tmp / "kernels2"), VESSELID_PRECOMPILE="0")
         compiles = json.loads(subprocess.run(
             [str(venv / "bin" / "python"), "-c", probe], env=cold_env, capture_output=True,
             text=True, check=True, cwd=tmp).stdout.strip().splitlines()[-1])
@@ -263,6 +270,11 @@ def bench_cold_start(table: str = "all") -> dict:
         # a fresh-cache warm-up in the new venv: kernels compiled, CPU seconds compiling
         "cold_warm_up_compile_events": compiles[0],
         "cold_warm_up_compile_cpu_s": compiles[1],
+        "cold_warm_up_compile_cpu_s_per_kernel": compiles[2],
+        "load_average_before": load_before,
+        # VESSELID_PRECOMPILE as set for the timed runs ("" = automatic: a helper process
+        # compiles kernels on the first run when two cores are idle)
+        "precompile_setting": os.environ.get("VESSELID_PRECOMPILE", ""),
         "installed_from": where,
         "target_first_run_s": 15.0,
     }
