@@ -408,6 +408,12 @@ def test_compiled_singularity_decision_is_the_exact_one():
                 r, c = ivk.equilibrate_one(np.ascontiguousarray(a), 50, 1e-9)
                 fast = np.linalg.cond((a * r[:, None]) * c[None, :])
                 assert abs(fast - exact) <= 1e3 * n * EPS * exact**2 + 1e-8 * exact
+                # the bound the decision uses: ‖S‖_F ‖S⁻¹‖_F, between κ₂ and n κ₂
+                bound = ivk.cond_bound(np.ascontiguousarray(a), 50, 1e-9)
+                slack = 1e3 * n * EPS * fast + 1e-8
+                assert fast * (1 - slack) <= bound <= n * fast * (1 + slack)
+            if not np.all(np.isfinite(a)):
+                assert ivk.cond_bound(np.ascontiguousarray(a), 50, 1e-9) == np.inf
 
 
 def test_compiled_column_sums_bit_identical(monkeypatch):

@@ -32,7 +32,8 @@ from vesselid.regressors import fill_factors_xu, kernel, one_step, regressors
 #: Below this many samples the segments run in the calling thread only.
 PARALLEL_MIN_SAMPLES = 200_000
 
-__all__ = ["ar_filter", "autocov", "center", "column_sums", "combined_moments", "cross_sums",
+__all__ = ["ar_filter", "autocov", "center", "column_sums", "combined_moments", "cond_bound",
+           "cross_sums",
            "design_ar_centre", "design_centre", "design_scan", "equilibrate_one", "moving_sums",
            "noise_window", "simulated_regressors"]
 
@@ -623,6 +624,76 @@ def equilibrate_one(a, max_iter, tol):
     for j in range(m):
         c[j] = c[j] / peak
     return r, c
+
+
+@njit(cache=True, error_model="numpy")
+def cond_bound(a, max_iter, tol):
+    """An upper bound of the condition number of the equilibrated square matrix ``a``
+    (n, n) that :func:`equilibrate_one` gives: ``‖S‖_F ‖S⁻¹‖_F ≥ κ₂(S)`` of
+    ``S = (a r) c``, ``S⁻¹`` by Gauss–Jordan elimination with partial pivoting; ``inf``
+    where ``a`` has a non-finite entry, a zero row or column, or a zero pivot. One call
+    instead of the checks, the scales, the scaled matrix and its SVD: the fast side of
+    :func:`vesselid.identify.linalg._cond_below` (a bound far below its threshold proves
+    the system regular; elsewhere the exact computation decides)."""
+    n = a.shape[0]
+    if a.shape[1] != n or n == 0:
+        return np.inf
+    for i in range(n):
+        row_nz = False
+        for j in range(n):
+            v = a[i, j]
+            if not np.isfinite(v):
+                return np.inf
+            if v != 0.0:
+                row_nz = True
+        if not row_nz:
+            return np.inf
+    for j in range(n):
+        col_nz = False
+        for i in range(n):
+            if a[i, j] != 0.0:
+                col_nz = True
+        if not col_nz:
+            return np.inf
+    r, c = equilibrate_one(a, max_iter, tol)
+    m = np.empty((n, 2 * n))
+    fro = 0.0
+    for i in range(n):
+        for j in range(n):
+            v = (a[i, j] * r[i]) * c[j]
+            m[i, j] = v
+            fro += v * v
+            m[i, n + j] = 1.0 if i == j else 0.0
+    for k in range(n):
+        piv = k
+        best = abs(m[k, k])
+        for i in range(k + 1, n):
+            if abs(m[i, k]) > best:
+                best = abs(m[i, k])
+                piv = i
+        if not best > 0.0:
+            return np.inf
+        if piv != k:
+            for j in range(2 * n):
+                t = m[k, j]
+                m[k, j] = m[piv, j]
+                m[piv, j] = t
+        d = m[k, k]
+        for j in range(2 * n):
+            m[k, j] /= d
+        for i in range(n):
+            if i != k:
+                f = m[i, k]
+                if f != 0.0:
+                    for j in range(2 * n):
+                        m[i, j] -= f * m[k, j]
+    fro_inv = 0.0
+    for i in range(n):
+        for j in range(n):
+            v = m[i, n + j]
+            fro_inv += v * v
+    bound = np.sqrt(fro) * np.sqrt(fro_inv)
+    return bound if bound == bound else np.inf
 
 
 @njit(cache=True)
