@@ -109,6 +109,16 @@ def _window_valid(valid, k, p):
     return True
 
 
+@njit(cache=True, inline="always")
+def _fir_at(c, x, k, col, p, scale):
+    """``Σ_{j=0}^{p} c[j] · (x[k − j, col] · scale)`` in that order (``scale`` 1.0 is exact:
+    the plain filter); inlined into the callers."""
+    acc = 0.0
+    for j in range(p + 1):
+        acc += c[j] * (x[k - j, col] * scale)
+    return acc
+
+
 @njit(cache=True)
 def ar_filter(x, starts, valid, coef):
     """``x_f(k) = Σ_j coef[s, j] x(k − j)``, ``j = 0 … p`` per segment ``s``.
@@ -127,10 +137,7 @@ def ar_filter(x, starts, valid, coef):
                 continue
             vf[k] = True
             for c in range(k_cols):
-                acc = 0.0
-                for j in range(p + 1):
-                    acc += coef[s, j] * x[k - j, c]
-                out[k, c] = acc
+                out[k, c] = _fir_at(coef[s], x, k, c, p, 1.0)
     return out, vf
 
 
@@ -518,19 +525,10 @@ def design_ar_centre(z, phi, p_lo, p_hi, target, i_eq, valid, col, starts, coef,
                 continue
             vf[k] = True
             for col_j in range(k_z):
-                acc = 0.0
-                for j in range(p + 1):
-                    acc += c[j] * (z[k - j, col_j] * col[col_j])
-                zz[k, col_j] = acc
+                zz[k, col_j] = _fir_at(c, z, k, col_j, p, col[col_j])
             for q in range(n_p):
-                acc = 0.0
-                for j in range(p + 1):
-                    acc += c[j] * (phi[k - j, p_lo + q] * col[k_z + q])
-                pp[k, q] = acc
-            acc = 0.0
-            for j in range(p + 1):
-                acc += c[j] * (target[k - j, i_eq] * col[last])
-            yy[k] = acc
+                pp[k, q] = _fir_at(c, phi, k, p_lo + q, p, col[k_z + q])
+            yy[k] = _fir_at(c, target, k, i_eq, p, col[last])
         _centre_rows(zz, pp, yy, vf, a, b, mean)
     return zz, pp, yy, vf
 
