@@ -378,6 +378,26 @@ def _source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.ndarray)
 MAX_COMBINED_COLUMNS = 16
 
 
+def _hac_window(add: Callable[[str], None], ind: str, pre: str, lags: str, k: int,
+                pairs: list[tuple[int, int]], entering: bool,
+                score: Callable[[int], str]) -> None:
+    """Slide a Bartlett HAC window (a ring of ``lags + 1`` scores, names prefixed ``pre``)
+    one sample: the new scores ``score(c)`` enter (or, draining at the end, zeros), the
+    oldest leave; accumulate ``h hᵀ`` over ``pairs``."""
+    add(f"{ind}{pre}slot = {pre}cnt % ({lags} + 1)")
+    for c in range(k):
+        if entering:
+            add(f"{ind}{pre}sc{c} = {score(c)}")
+            add(f"{ind}{pre}h{c} += {pre}sc{c} - {pre}ring[{pre}slot, {c}]")
+            add(f"{ind}{pre}ring[{pre}slot, {c}] = {pre}sc{c}")
+        else:
+            add(f"{ind}{pre}h{c} -= {pre}ring[{pre}slot, {c}]")
+            add(f"{ind}{pre}ring[{pre}slot, {c}] = 0.0")
+    add(f"{ind}{pre}cnt += 1")
+    for c, c2 in pairs:
+        add(f"{ind}{pre}lh{c}_{c2} += {pre}h{c} * {pre}h{c2}")
+
+
 class _ColourCode:
     """Generated code of the colour test fused into the combined pass (run when the
     kernel's ``colour`` argument is true; :func:`vesselid.identify.gmm.combined_solution`).
@@ -515,18 +535,8 @@ class _ColourCode:
         self._window(add, i3, True)
 
     def _window(self, add: Callable[[str], None], ind: str, entering: bool) -> None:
-        add(f"{ind}cslot = ccnt % (clag + 1)")
-        for c in range(self.k):
-            if entering:
-                add(f"{ind}csc{c} = ({self.value[c]} - cmz{c}) * ec{self.ceq[c]} - cmg{c}")
-                add(f"{ind}ch{c} += csc{c} - cring[cslot, {c}]")
-                add(f"{ind}cring[cslot, {c}] = csc{c}")
-            else:
-                add(f"{ind}ch{c} -= cring[cslot, {c}]")
-                add(f"{ind}cring[cslot, {c}] = 0.0")
-        add(f"{ind}ccnt += 1")
-        for c, c2 in self._pairs():
-            add(f"{ind}clh{c}_{c2} += ch{c} * ch{c2}")
+        _hac_window(add, ind, "c", "clag", self.k, self._pairs(), entering,
+                    lambda c: f"({self.value[c]} - cmz{c}) * ec{self.ceq[c]} - cmg{c}")
 
     def finish(self, add: Callable[[str], None], ind: str, *, second: bool) -> None:
         add(f"{ind}if colour and status[s] == 0:")
@@ -588,21 +598,9 @@ def _combined_source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, ztype: np.
         load_row(ind + "    ", early=True)
 
     def window_step(ind: str, entering: bool) -> None:
-        # slide the HAC window (a ring of lags + 1 scores) one sample: the new scores sc
-        # enter (or, draining at the end, zeros), the oldest leave; accumulate h hᵀ
-        add(f"{ind}slot = cnt % (lags + 1)")
-        for c in range(k_tot):
-            if entering:
-                add(f"{ind}sc{c} = (z{c} - mz{c}) * e{int(zeq[c])} - mg{c}")
-                add(f"{ind}h{c} += sc{c} - ring[slot, {c}]")
-                add(f"{ind}ring[slot, {c}] = sc{c}")
-            else:
-                add(f"{ind}h{c} -= ring[slot, {c}]")
-                add(f"{ind}ring[slot, {c}] = 0.0")
-        add(f"{ind}cnt += 1")
-        for c in range(k_tot):
-            for c2 in range(c, k_tot):
-                add(f"{ind}lh{c}_{c2} += h{c} * h{c2}")
+        _hac_window(add, ind, "", "lags", k_tot,
+                    [(c, c2) for c in range(k_tot) for c2 in range(c, k_tot)], entering,
+                    lambda c: f"(z{c} - mz{c}) * e{int(zeq[c])} - mg{c}")
 
     def inputs_and_state(ind: str) -> None:
         _data_row(add, ind, 0, (), m)
