@@ -306,6 +306,15 @@ def test_compiled_moving_sums_bit_identical(monkeypatch):
                 assert np.array_equal(np.signbit(got), np.signbit(want))
 
 
+def _badly_scaled(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+    """Normal matrices (the last two axes) with column scales 1e-8…1e7 and row scales
+    1e-5…1e4, one draw per column and row shared by the leading axis."""
+    *lead, n, m = shape
+    ones = [1] * len(lead)
+    return (rng.normal(size=shape) * 10.0 ** rng.integers(-8, 8, size=(*ones, 1, m))
+            * 10.0 ** rng.integers(-5, 5, size=(*ones, n, 1)))
+
+
 def test_single_system_equilibration_bit_identical():
     """``linalg._equilibrate_one`` (the checked fit's one system) returns the scales of
     the vectorised ``equilibrate`` bit for bit: badly scaled, nearly singular, with zero,
@@ -315,8 +324,7 @@ def test_single_system_equilibration_bit_identical():
     rng = np.random.default_rng(11)
     for n, m in ((1, 1), (2, 2), (3, 3), (4, 4), (3, 5), (7, 3), (8, 8), (9, 9)):
         for k in range(60):
-            a = (rng.normal(size=(1, n, m)) * 10.0 ** rng.integers(-8, 8, size=(1, 1, m))
-                 * 10.0 ** rng.integers(-5, 5, size=(1, n, 1)))
+            a = _badly_scaled(rng, (1, n, m))
             if k % 5 == 0:
                 a[0, rng.integers(n), rng.integers(m)] = 0.0
             if k % 7 == 0:
@@ -343,8 +351,7 @@ def test_single_system_condition_bit_identical():
     rng = np.random.default_rng(12)
     for n, m in ((1, 1), (2, 2), (3, 3), (4, 4), (3, 5), (5, 3), (8, 8), (9, 9)):
         for k in range(40):
-            a = (rng.normal(size=(2, n, m)) * 10.0 ** rng.integers(-8, 8, size=(1, 1, m))
-                 * 10.0 ** rng.integers(-5, 5, size=(1, n, 1)))
+            a = _badly_scaled(rng, (2, n, m))
             if k % 5 == 0:
                 a[0, rng.integers(n), rng.integers(m)] = 0.0
             if k % 7 == 0:
@@ -395,8 +402,7 @@ def test_compiled_singularity_decision_is_the_exact_one():
     rng = np.random.default_rng(21)
     for n in (1, 2, 3, 5, 7):
         for k in range(300):
-            a = (rng.normal(size=(n, n)) * 10.0 ** rng.integers(-8, 8, size=(1, n))
-                 * 10.0 ** rng.integers(-5, 5, size=(n, 1)))
+            a = _badly_scaled(rng, (n, n))
             if k % 3 == 0 and n > 1:  # nearly singular, across the threshold 1e15
                 a[-1] = a[0] * rng.uniform(0.5, 2) + a[-1] * 10.0 ** rng.uniform(-18, -6)
             if k % 17 == 0:
