@@ -324,15 +324,22 @@ def _cond_below(a: np.ndarray, cond_max: float) -> bool:
     system regular (every refined-IV and GMM solve of a fit: ``κ`` ~ 1e2–1e4); otherwise
     — singular or ill-conditioned systems, the numpy path — :func:`_cond_one` decides,
     as before. The decision is the exact one's; only its cost changes."""
-    from vesselid.identify.backend import loaded_kernel
-
-    kernel = loaded_kernel("cond_bound")
-    # the compiled bound ‖S‖_F ‖S⁻¹‖_F ≥ κ₂(S) of the compiled equilibration: below the
-    # margin, κ₂ is too (what the exact computation decides then); inf where a check fails
-    if kernel is not None and kernel(np.ascontiguousarray(a), 50, 1e-9) < COND_CLEAR * cond_max:
+    if _bound_proves_regular(a, 50, cond_max):
         return True
     cond = _cond_one(a)
     return math.isfinite(cond) and cond < cond_max
+
+
+def _bound_proves_regular(a: np.ndarray, sweeps: int, cond_max: float) -> bool:
+    """Whether the compiled bound ``‖S‖_F ‖S⁻¹‖_F ≥ κ₂(S)`` of ``a`` (n, n) after
+    ``sweeps`` equilibration sweeps (:func:`vesselid.identify._ivkernels.cond_bound`; inf
+    where a check fails) lies below :data:`COND_CLEAR` of ``cond_max``: then κ₂ does too,
+    which is what the exact computation decides. False without the compiled kernels."""
+    from vesselid.identify.backend import loaded_kernel
+
+    kernel = loaded_kernel("cond_bound")
+    return kernel is not None and kernel(np.ascontiguousarray(a), sweeps,
+                                         1e-9) < COND_CLEAR * cond_max
 
 
 def _pow2_one(norm: float) -> float:
@@ -437,10 +444,7 @@ def _regular_sym(x: np.ndarray) -> bool:
     (:func:`vesselid.identify._ivkernels.cond_bound` without equilibration sweeps, a
     uniform scale only) when it is below :data:`COND_CLEAR` of the threshold, as in
     :func:`_cond_below`; otherwise (and on the numpy path) by the SVD, as before."""
-    from vesselid.identify.backend import loaded_kernel
-
-    kernel = loaded_kernel("cond_bound")
-    if kernel is not None and kernel(np.ascontiguousarray(x[0]), 0, 1e-9) < COND_CLEAR * COND_MAX:
+    if _bound_proves_regular(x[0], 0, COND_MAX):
         return True
     cond = np.linalg.cond(x)
     return bool(np.isfinite(cond[0]) and cond[0] < COND_MAX)
