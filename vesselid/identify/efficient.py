@@ -147,6 +147,17 @@ class InstrumentalGMM(Estimator):
         does the equation error remember the past estimated sensor noise? The delayed
         instruments are used only when neither test rejects (Bonferroni: at most
         ``alpha + colour_alpha`` false rejections on white disturbances).
+    colour_order : int
+        AR order ``p`` of a whitening prefilter of the colour test (0, the default: the
+        unfiltered test over :data:`vesselid.identify.gmm.COLOUR_WINDOW`, fused into the
+        combined pass of the Monte Carlo path). ``p > 0``: the whitened test of
+        :func:`vesselid.identify.gmm.colour_test` (noise lags
+        :func:`vesselid.identify.gmm.whitened_colour_window`; ``p = 2``,
+        :data:`vesselid.identify.gmm.WHITENED_COLOUR_ORDER`, is the studied one), more
+        powerful at the same level (Gauss–Markov sensor noise, random pulses, 1000 runs:
+        98.3 against 96.7 % rejected at 5 %; white designs 4.9–5.2 against 3.8–4.0 %)
+        but computed on explicit rows (batched, not fused): ~4× the cost of ``auto`` on the
+        Monte Carlo path (README "Choosing the estimator").
     refine : int
         Refinement steps after the converged IV_{E{ζ}=0} iteration (each re-simulates
         the instruments from the latest estimate and re-estimates the noise model).
@@ -163,14 +174,16 @@ class InstrumentalGMM(Estimator):
     def __init__(self, instruments: str = "simulated", noise_order: int = 0,
                  alpha: float = 0.01, colour_alpha: float = 0.05, refine: int = 3,
                  fallback_refine: int = 3, name: str | None = None, label: str | None = None,
-                 short: str | None = None) -> None:
+                 short: str | None = None,
+                 colour_order: int = 0) -> None:
         super().__init__(instruments=instruments, noise_order=noise_order, alpha=alpha,
                          colour_alpha=colour_alpha, refine=refine,
-                         fallback_refine=fallback_refine)
+                         fallback_refine=fallback_refine, colour_order=colour_order)
         self.instruments = instruments
         self.noise_order = noise_order
         self.alpha = alpha
         self.colour_alpha = colour_alpha
+        self.colour_order = colour_order
         self.refine = refine
         self.fallback_refine = fallback_refine
         name = name or f"gmm-{instruments}" + (f"-ar{noise_order}" if noise_order else "")
@@ -189,6 +202,9 @@ class InstrumentalGMM(Estimator):
         if not (isinstance(self.noise_order, int | np.integer) and 0 <= self.noise_order <= 50):
             raise IdentificationError(
                 f"noise_order must be an integer in 0..50, got {self.noise_order!r}")
+        if not (isinstance(self.colour_order, int | np.integer) and 0 <= self.colour_order <= 10):
+            raise IdentificationError(
+                f"colour_order must be an integer in 0..10, got {self.colour_order!r}")
         for key in ("alpha", "colour_alpha"):
             val = getattr(self, key)
             if not (isinstance(val, float | int | np.floating | np.integer)
@@ -257,6 +273,13 @@ class InstrumentalGMM(Estimator):
         instruments when the first refinement step simulated them already (the same call
         on the same arrays). ``(stat, df)``."""
         n = data.n_groups
+        if self.colour_order:  # the whitened test: explicit rows, batched over groups
+            phi = phi if phi is not None else kernels.regressor_matrix(
+                data.regsig, data.u, data.starts, spec.codes.factors)
+            z_sim = (z_first if z_first is not None else
+                     gmm.simulated_instruments(data, spec, theta0)[0])
+            return gmm.colour_test(data, spec, phi, z_sim, theta=theta0,
+                                   noise_order=int(self.colour_order))
         if sol.colour is not None:
             stat, df, todo = sol.colour.copy(), sol.colour_df, ~sol.colour_ok
         else:
@@ -287,10 +310,13 @@ class InstrumentalGMM(Estimator):
         n = data.n_groups
         keep = keep_history and n == 1
         fused = self.instruments in ("combined", "auto") and not keep
-        # the fused combined path (with auto's colour test) needs no regressor rows; the
-        # explicit colour test and auto's fallback compute them for their groups
-        phi = None if fused else kernels.regressor_matrix(data.regsig, data.u, data.starts,
-                                                          spec.codes.factors)
+        # the fused combined path (with auto's unfiltered colour test) needs no regressor
+        # rows; the whitened colour test needs them for every group (auto's fallback then
+        # takes its groups' rows from them), the explicit unfiltered test and the fallback
+        # compute them for their groups
+        whitened = self.instruments == "auto" and bool(self.colour_order)
+        phi = None if fused and not whitened else kernels.regressor_matrix(
+            data.regsig, data.u, data.starts, spec.codes.factors)
         lagged = None
         if self.instruments in ("combined", "auto") and keep:  # explicit rows (fit path)
             lagged = [gmm.lagged_regressors(data, spec, lag) for lag in gmm.LAGS]
@@ -305,7 +331,9 @@ class InstrumentalGMM(Estimator):
         else:
             first_z: list = []
             sol, theta, iters = self._refine(data, spec, phi, lagged, theta0, "combined", 0,
-                                             keep, tol, colour=self.instruments == "auto",
+                                             keep, tol,
+                                             colour=self.instruments == "auto"
+                                             and not self.colour_order,
                                              first_z=first_z)
             pvals = np.ones((n, spec.n_states))
             for i in range(spec.n_states):
@@ -322,7 +350,8 @@ class InstrumentalGMM(Estimator):
                 for i in range(spec.n_states):
                     if w_df[i]:
                         w_p[:, i] = _chi2_sf(w_stat[:, i], w_df[i])
-                info.update(colour_stat=w_stat, colour_df=w_df, colour_pvalue=w_p.min(axis=1))
+                info.update(colour_stat=w_stat, colour_df=w_df, colour_pvalue=w_p.min(axis=1),
+                            colour_order=int(self.colour_order))
                 reject = (c_p < float(self.alpha)) | (w_p.min(axis=1) < float(self.colour_alpha))
                 if reject.any():
                     sub = _subset(data, reject)
@@ -377,6 +406,8 @@ class InstrumentalGMM(Estimator):
             out["c_test_lagged"] = _jdict(info["c_stat"][0], info["c_df"])
             if "colour_pvalue" in info:
                 out["colour_test"] = _jdict(info["colour_stat"][0], info["colour_df"])
+                out["colour_test_prefilter"] = (f"AR({info['colour_order']})"
+                                                if info.get("colour_order") else "none")
                 out["instrument_choice"] = self._choice_text(info)
         return out
 
@@ -384,7 +415,9 @@ class InstrumentalGMM(Estimator):
         """The ``auto`` decision in plain words, with both tests' p-values."""
         p_c, p_w = float(info["c_pvalue"][0]), float(info["colour_pvalue"][0])
         c_txt = f"C test of the delayed instruments p = {p_c:.3g} (level {self.alpha:g})"
-        w_txt = (f"colour test (does the equation error remember the past sensor noise?) "
+        order = int(info.get("colour_order", 0))
+        kind = f"AR({order})-whitened colour test" if order else "colour test"
+        w_txt = (f"{kind} (does the equation error remember the past sensor noise?) "
                  f"p = {p_w:.3g} (level {self.colour_alpha:g})")
         if info["instrument_set"][0] == "simulated":
             why = [t for t, p, a in ((c_txt, p_c, self.alpha), (w_txt, p_w, self.colour_alpha))

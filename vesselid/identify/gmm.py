@@ -55,6 +55,8 @@ from vesselid.model import ModelSpec
 __all__ = [
     "COLOUR_WINDOW",
     "INSTRUMENT_SETS",
+    "WHITENED_COLOUR_ORDER",
+    "WHITENED_COLOUR_SPAN",
     "GMMSolution",
     "ar_coefficients",
     "colour_test",
@@ -69,6 +71,7 @@ __all__ = [
     "solve_equations",
     "state_terms",
     "weight_jacobian",
+    "whitened_colour_window",
     "yule_walker",
 ]
 
@@ -113,6 +116,22 @@ def lagged_regressors(data: RegressionData, spec: ModelSpec, lag: int) -> np.nda
 #: 1–2, 3–8, 9–32 against Gauss–Markov sensor noise, size kept on white noise).
 COLOUR_WINDOW = (1, 32)
 
+#: AR order of the whitened colour test (:func:`colour_test` with ``noise_order``;
+#: ``InstrumentalGMM("auto", colour_order=...)``) and the number of noise lags it
+#: averages, from ``order + 1``:
+#: ``scripts/colour_study.py`` compared orders 1–3 and spans 8–24 (AR(2), lags 3–18: the
+#: most powerful against Gauss–Markov sensor noise at its level on white noise).
+WHITENED_COLOUR_ORDER = 2
+WHITENED_COLOUR_SPAN = 16
+
+
+def whitened_colour_window(order: int) -> tuple[int, int]:
+    """Noise lags of the colour test whitened by an AR(``order``) prefilter: the first
+    ``order + 1`` (the prefiltered error ``Ĉ(q)ε(k)`` reaches back to ``ε(k − order)``,
+    whose MA(1) part remembers the noise at ``k − order``), :data:`WHITENED_COLOUR_SPAN`
+    of them."""
+    return (int(order) + 1, int(order) + WHITENED_COLOUR_SPAN)
+
 
 def noise_instruments(data: RegressionData, spec: ModelSpec, phi: np.ndarray,
                       z_sim: np.ndarray, window: tuple[int, int] = COLOUR_WINDOW
@@ -141,7 +160,8 @@ def noise_instruments(data: RegressionData, spec: ModelSpec, phi: np.ndarray,
 
 
 def colour_test(data: RegressionData, spec: ModelSpec, phi: np.ndarray, z_sim: np.ndarray,
-                window: tuple[int, int] = COLOUR_WINDOW) -> tuple[np.ndarray, np.ndarray]:
+                window: tuple[int, int] | None = None, *, theta: np.ndarray | None = None,
+                noise_order: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Test of white disturbances aimed at the delayed instruments' validity.
 
     Per equation: two-step HAC GMM with the simulated instruments ``ζ`` (valid whatever
@@ -150,8 +170,51 @@ def colour_test(data: RegressionData, spec: ModelSpec, phi: np.ndarray, z_sim: n
     statistic of the added columns) is χ²(number of state terms) when those moments
     hold — the condition under which the delayed measurements are valid instruments.
 
-    Returns ``(stat (G, n), df (n,))``.
+    With ``noise_order = p > 0`` (the whitened test) the moments are whitened first: an
+    AR(p) noise model ``Ĉ(q)`` of the equation error of (3) at ``theta`` (the
+    IV_{E{ζ}=0} estimate, (4) with (A7)) is fitted by Yule–Walker per group
+    (:func:`ar_coefficients`) and target, regressors and instruments are prefiltered
+    with it as in SRIV (refined IV with a noise model); the noise window then starts at
+    lag ``p + 1`` (:func:`whitened_colour_window`): with white disturbances the error is
+    an MA(1) (sensor noise at ``k`` and ``k + 1``), so ``Ĉ(q)ε(k)`` involves the noise
+    back to ``k − p`` only and ``E{η(k − j) Ĉ(q)ε(k)} = 0`` for ``j > p``. Under
+    coloured sensor noise the prefilter removes most of the error's own persistence,
+    whose long-run variance otherwise drowns the correlation the test looks for
+    (Gauss–Markov sensor noise, random pulses, 1000 runs: 98.3 % rejected at 5 % against
+    96.7 % without it, at 4.9–5.2 % on white designs; ``scripts/colour_study.py``).
+
+    Parameters
+    ----------
+    data, spec : RegressionData, ModelSpec
+        The regression data (one or many groups) and the model.
+    phi : ndarray (T, P)
+        Regressors (:func:`vesselid.identify.kernels.regressor_matrix`).
+    z_sim : ndarray (T, P)
+        Instruments simulated from ``theta`` (:func:`simulated_instruments`).
+    window : (int, int), optional
+        Noise lags averaged (:func:`noise_instruments`); default :data:`COLOUR_WINDOW`,
+        or :func:`whitened_colour_window` with ``noise_order``. Must start after
+        ``noise_order``.
+    theta : ndarray (G, P), optional
+        Estimate whose residual the noise model is fitted to (needed with
+        ``noise_order``).
+    noise_order : int
+        AR order of the whitening prefilter (0: none, the unfiltered test).
+
+    Returns
+    -------
+    stat : ndarray (G, n)
+        Hansen's J of the noise moments per group and equation.
+    df : ndarray (n,)
+        Its degrees of freedom (the equation's number of state terms).
     """
+    order = int(noise_order)
+    if window is None:
+        window = whitened_colour_window(order) if order else COLOUR_WINDOW
+    if order < 0 or int(window[0]) <= order:
+        raise ValueError(f"the noise window {window!r} must start after the AR order {order}")
+    if order and theta is None:
+        raise ValueError("a whitened colour test (noise_order > 0) needs theta")
     blocks = block_starts(spec)
     endo = state_terms(spec)
     eta = noise_instruments(data, spec, phi, z_sim, window)
@@ -161,7 +224,16 @@ def colour_test(data: RegressionData, spec: ModelSpec, phi: np.ndarray, z_sim: n
         cols = np.arange(int(blocks[i]), int(blocks[i + 1]))
         e_cols = col_of[cols[endo[cols]]]
         z_blocks.append((np.column_stack([z_sim[:, cols], eta[:, e_cols]]), e_cols.size))
-    sol = solve_equations(data, spec, phi, z_blocks, weight="hac")
+    ar = None
+    if order:
+        th = np.nan_to_num(np.asarray(theta, dtype=float))[_row_groups(data)]
+        ar = np.zeros((data.n_groups, spec.n_states, order + 1))
+        for i in range(spec.n_states):
+            cols = np.arange(int(blocks[i]), int(blocks[i + 1]))
+            resid = data.target[:, i] - np.einsum("tp,tp->t", phi[:, cols], th[:, cols])
+            valid = np.isfinite(resid)
+            ar[:, i] = ar_coefficients(data, resid, valid, order)
+    sol = solve_equations(data, spec, phi, z_blocks, weight="hac", ar=ar)
     return sol.c, sol.c_df
 
 
