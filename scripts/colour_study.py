@@ -14,8 +14,8 @@ Size (white Table-1 designs) and power (Gauss–Markov sensor noise and current)
 
 all on the same runs (heave of §6, 10⁴ samples per run). With ``--coverage`` it also
 runs the calibration's Gauss–Markov sensor-noise, random-pulse scenario (its seed) and
-prints the default covariance's coverage for ``auto`` as it is and with the whitened
-colour test (SRIV estimates and SEs in the runs the whitened test rejects).
+prints the default covariance's coverage for ``auto`` as it is, ``auto`` with the whitened
+colour test and ``sriv`` in every run.
 
     python scripts/colour_study.py --runs 1000 --seed 100 [--designs 0 1 5]
     python scripts/colour_study.py --coverage --runs 1000
@@ -156,7 +156,8 @@ def coverage(runs: int, seed: int = 6, scenario: str = "gm-sensor-random") -> pd
     variants = {"auto": get_estimator("auto"),
                 "auto, whitened colour test": InstrumentalGMM(
                     "auto", noise_order=4, refine=1, colour_order=gmm.WHITENED_COLOUR_ORDER,
-                    name="auto-whitened")}
+                    name="auto-whitened"),
+                "sriv (every run)": get_estimator("sriv")}
     hits: dict[str, list] = {k: [] for k in variants}
     for sim in _heave_batches(system_, runs, 10_000, seed, 200):
         data = _heave_data(spec, sim, aggregate, target)
