@@ -241,8 +241,30 @@ def cmd_identify(args: argparse.Namespace) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = identify(log, spec, method=args.method, combine=args.combine,
-                          target=args.target, cov_type=args.cov, max_iter=args.max_iter)
+                          target=args.target, cov_type=args.cov, max_iter=args.max_iter,
+                          sensor_noise=_sensor_noise(getattr(args, "sensor_noise", None)))
     return _report_identify(args, result, caught)
+
+
+def _sensor_noise(text: str | None) -> dict[str, float] | bool | None:
+    """``--sensor-noise``: ``None`` (the log's metadata), ``none`` (False: no correction)
+    or ``STATE=STD,...``."""
+    if text is None:
+        return None
+    if text.strip().lower() == "none":
+        return False
+    out: dict[str, float] = {}
+    for item in text.split(","):
+        name, sep, val = item.partition("=")
+        try:
+            std = float(val)
+        except ValueError:
+            std = float("nan")
+        if not sep or not name.strip() or not math.isfinite(std) or std < 0:
+            raise CLIError(f"argument --sensor-noise: expected STATE=STD,... with STD >= 0 "
+                           f"(or 'none'), got {item!r}")
+        out[name.strip()] = std
+    return out
 
 
 def _identify_stream(args: argparse.Namespace) -> int:
@@ -373,6 +395,11 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
                    help="multi-experiment equations: pooled normal equations (default) or the "
                         "stacked least-squares form (6)")
     p.add_argument("--max-iter", type=int_at_least(1), default=100)
+    p.add_argument("--sensor-noise", metavar="STATE=STD,...|none", default=None,
+                   help="std of the white sensor noise on each regressor signal (e.g. "
+                        "u=0.005,v=0.005,r=0.002): auto/sriv/gmm correct the square modulus "
+                        "regressors for it; default the log's metadata sensor_noise_std "
+                        "(written by sea-trial); 'none': no correction")
     p.add_argument("--json", metavar="PATH|-", help="write the result as JSON ('-' = stdout)")
     p.add_argument("--stream", action="store_true",
                    help="logs larger than memory: read the Parquet log(s) one experiment at a "

@@ -356,12 +356,16 @@ def sriv_prefilter(acov: np.ndarray) -> list[np.ndarray]:
     return list(yule_walker(acov))
 
 
-def _modulus_bias(factors: np.ndarray, sig: np.ndarray, std: np.ndarray) -> np.ndarray:
+def _modulus_bias(factors: np.ndarray, sig: np.ndarray, std: np.ndarray,
+                  corrected: bool = False) -> np.ndarray:
     """``E[φ(x + e)] − φ(x)`` of every regressor for Gaussian sensor noise ``e`` of std
     ``std`` on the states (the first ``std.size`` signals; inputs noise free):
     ``E|x+e| = x erf(x/σ√2) + σ√(2/π) e^{−x²/2σ²}``,
     ``E[(x+e)|x+e|] = (x²+σ²) erf(x/σ√2) + xσ√(2/π) e^{−x²/2σ²}``, ``E(x+e)² = x²+σ²``;
-    different signals have independent noise."""
+    different signals have independent noise. ``corrected``: of the errors-in-variables
+    corrected regressors ``y|y| − σ² sign(y)``, ``y² − σ²`` (:mod:`vesselid.identify.eiv`,
+    what ``identify``'s refined-IV family evaluates on a log with its sensor noise):
+    ``E[sign(x+e)] = erf(x/σ√2)``, so only the bump within a few σ of zero remains."""
     from scipy.special import erf
 
     n_s = sig.shape[1]
@@ -394,10 +398,10 @@ def _modulus_bias(factors: np.ndarray, sig: np.ndarray, std: np.ndarray) -> np.n
         if ja >= 0 and ja == jb and ja < n_x and std[ja] > 0:
             x, s = sig[:, ja], std[ja]
             if (a >= n_s) != (b >= n_s):  # x·|x|
-                e = ((x * x + s * s) * erf(x / (s * math.sqrt(2)))
+                e = ((x * x + (0.0 if corrected else s * s)) * erf(x / (s * math.sqrt(2)))
                      + x * s * math.sqrt(2 / math.pi) * np.exp(-0.5 * (x / s) ** 2))
             else:  # x·x or |x|·|x|
-                e = x * x + s * s
+                e = x * x + (0.0 if corrected and a == b else s * s)
             out[:, p] = e - fa * fb
         elif ea is not fa or eb is not fb:  # else no noisy modulus factor: exactly zero
             out[:, p] = ea * eb - fa * fb
@@ -462,6 +466,7 @@ def design_information(
     acov_only: bool = False,
     paths: int = 0,
     seed: int = 0,
+    sensor_noise_corrected: bool = False,
 ) -> Information:
     """Information of one experiment with the given forces (first ``warmup`` discarded).
 
@@ -495,6 +500,10 @@ def design_information(
     seed : int
         Seed of those realisations (``np.random.default_rng``; the planner is
         deterministic).
+    sensor_noise_corrected : bool
+        The estimator corrects the square modulus regressors for the sensor noise
+        (:mod:`vesselid.identify.eiv`; ``auto`` and ``sriv`` on a sea-trial log): the
+        predicted errors-in-variables bias is that of the corrected regressors.
 
     Returns
     -------
@@ -543,9 +552,10 @@ def design_information(
     sig_std = (np.asarray(levels.sensor_std, float)
                * math.sqrt(_clipped_variance(levels.sensor_clip)))
     if x_paths is None:
-        d_phi = _modulus_bias(codes.factors, sig_t[:-1], sig_std)
+        d_phi = _modulus_bias(codes.factors, sig_t[:-1], sig_std, sensor_noise_corrected)
     else:  # where the vessel's states are near zero: along its disturbed paths
-        d_phi = np.mean([_modulus_bias(codes.factors, np.hstack([xp, tau])[:-1], sig_std)
+        d_phi = np.mean([_modulus_bias(codes.factors, np.hstack([xp, tau])[:-1], sig_std,
+                                       sensor_noise_corrected)
                          for xp in x_paths], axis=0)
     theta_id = spec.theta0_vector()
     for i in range(spec.n_states):
@@ -1191,8 +1201,11 @@ def _assembled_prediction(forces: list[np.ndarray], vessel: _Vessel, lv: Disturb
         acov = sum(design_information(f, vessel, lv, warmup=warmup, acov_lags=SRIV_ORDER,
                                       acov_only=True).acov for f in forces)
         c = sriv_prefilter(acov)
+    # identify's refined-IV family (auto's SRIV fallback) corrects the square modulus
+    # regressors for the sensor noise recorded in the sea-trial log; IV_E{ζ}=0 does not
     raw = [design_information(f, vessel, lv, warmup=warmup, prefilter=c, paths=paths,
-                              seed=seed + e) for e, f in enumerate(forces)]
+                              seed=seed + e, sensor_noise_corrected=c is not None)
+           for e, f in enumerate(forces)]
     info = None
     for r in raw:
         e = r.centred()

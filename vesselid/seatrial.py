@@ -617,11 +617,46 @@ def simulate_sea_trial(
         "experiments": design.n_experiments,
         "wind_input": wind_key if dist.wind_on else "none",
     })
+    noise = _regressor_noise_std(key, (meta.get("system") or {}).get("sensors"))
+    if noise:
+        meta["sensor_noise_std"] = noise
     if design.plan is not None:
         meta["plan"] = design.plan.to_dict()
     if waves is not None:
         meta["waves"] = waves.to_dict()
     return TrialLog(frame, meta)
+
+
+def _regressor_noise_std(key: str, sensors: Mapping[str, Any] | None) -> dict[str, float]:
+    """Std of the white sensor noise on each regressor signal of the aggregate option
+    ``key``, from the simulation's sensor specification ``sensors``
+    (``metadata["sensor_noise_std"]``, for identify's errors-in-variables
+    correction, :mod:`vesselid.identify.eiv`): the speed log for ``u, v`` with
+    ``relative``/``speed_log``, GNSS and current meter for ``current_meter``, GNSS for
+    ``none``; the gyro for ``r``. The noise is clipped at ``±clip`` std, which lowers its
+    variance to ``(2Φ(c) − 1) − 2cφ(c) + 2c²(1 − Φ(c))`` times ``σ²``."""
+    if not sensors:  # the log's metadata["system"]["sensors"]
+        return {}
+    c = float(sensors.get("clip", np.inf))
+    factor = 1.0
+    if math.isfinite(c):
+        phi_c = math.exp(-0.5 * c * c) / math.sqrt(2 * math.pi)
+        factor = (math.erf(c / math.sqrt(2)) - 2 * c * phi_c
+                  + c * c * math.erfc(c / math.sqrt(2)))
+
+    def std(*names: str) -> float | None:
+        var = 0.0
+        for n in names:
+            val = sensors.get(n)
+            if val is None:
+                return None
+            var += float(np.max(np.atleast_1d(val))) ** 2
+        return math.sqrt(var * factor)
+
+    uv = {"relative": ("speed_log",), "speed_log": ("speed_log",),
+          "current_meter": ("gnss", "current_meter"), "none": ("gnss",)}[key]
+    out = {"u": std(*uv), "v": std(*uv), "r": std("gyro")}
+    return {k: v for k, v in out.items() if v is not None and v > 0}
 
 
 #: How the wind load enters the identification (:func:`simulate_sea_trial`).

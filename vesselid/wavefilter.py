@@ -141,4 +141,7 @@ def wave_filter_log(log: Any, filt: WaveFilter,
         out[c] = filtered[:, j]
     meta = dict(log.metadata)
     meta["wave_filter"] = {**filt.to_dict(), "columns": list(columns)}
+    # the filter changes the sensor noise (coloured, smaller variance): the white-noise
+    # std of the errors-in-variables correction no longer describes it
+    meta.pop("sensor_noise_std", None)
     return TrialLog(out, meta)

@@ -112,6 +112,12 @@ def identify(
         Warn when the equilibrated ``ZᵀΦ`` has a larger condition number.
     min_samples : int, optional
         Minimum samples per experiment (default: parameters per equation + 2).
+    sensor_noise : mapping state -> float, or False, optional
+        Std of the white sensor noise on each regressor signal; the refined-IV family
+        (``auto``, ``sriv``, ``gmm-*``) then corrects the square modulus regressors for
+        it (``y|y| − σ² sign(y)``, ``y² − σ²``; :mod:`vesselid.identify.eiv`). Default
+        the log's ``metadata["sensor_noise_std"]`` (written by ``vesselid sea-trial``);
+        ``False``: no correction.
 
     Returns
     -------

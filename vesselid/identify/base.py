@@ -118,6 +118,10 @@ class Estimator:
     plot_label: ClassVar[str] = ""
     uses_instruments: ClassVar[bool] = True
     multi_experiment: ClassVar[tuple[str, ...]] = COMBINE_MODES
+    #: the estimator evaluates its regressors with the errors-in-variables correction of
+    #: the square modulus terms when the data carry the sensor noise
+    #: (:mod:`vesselid.identify.eiv`); others ignore ``sensor_noise``
+    corrects_sensor_noise: ClassVar[bool] = False
 
     def __init__(self, **options: Any) -> None:
         self.options = dict(options)
@@ -182,6 +186,7 @@ class Estimator:
         design_threshold: float = 0.01,
         weak_instrument_cond: float = 1e6,
         min_samples: int | None = None,
+        sensor_noise: Mapping[str, float] | bool | None = None,
     ) -> IdentificationResult:
         """Identify θ from a trial log (see :func:`vesselid.identify.identify`)."""
         from vesselid.identify import covariance_api
@@ -194,7 +199,7 @@ class Estimator:
             raise IdentificationError(f"tol must be a positive number, got {tol!r}")
         if target not in TARGETS:
             raise IdentificationError(f"unknown target {target!r}; choose from {list(TARGETS)}")
-        data, spec = from_log(log, spec, min_samples=min_samples)
+        data, spec = from_log(log, spec, min_samples=min_samples, sensor_noise=sensor_noise)
         if target == "aggregated":
             if not spec.aggregate:
                 raise IdentificationError("target 'aggregated' needs an [aggregate] relation "
@@ -203,7 +208,12 @@ class Estimator:
         codes = spec.codes
         names = [f"{eq}: {term}" for eq, term in spec.param_index]
         blocks = block_starts(spec)
-        phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, codes.factors)
+        if self.corrects_sensor_noise:
+            from vesselid.identify.eiv import corrected_regressor_matrix
+
+            phi = corrected_regressor_matrix(data, spec)
+        else:
+            phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, codes.factors)
         rows = equation_rows(data)
         # one experiment: every row but the first, as a view (no gathered copy)
         _check_rank(phi[1:] if data.n_segments == 1 else phi[rows], spec, blocks, names)

@@ -42,6 +42,10 @@ class RegressionData:
     #: ``sea-trial --wave-filter``): a whitening noise-model prefilter would re-weight the
     #: regression toward the band the filter removed
     lowpassed: bool = False
+    #: std of the white sensor noise on each regressor signal (``regsig`` column), for the
+    #: errors-in-variables correction of the square modulus regressors
+    #: (:mod:`vesselid.identify.eiv`); ``None``: no correction
+    regressor_noise: np.ndarray | None = None
 
     @property
     def n_segments(self) -> int:
@@ -91,11 +95,14 @@ def _aggregated(spec: ModelSpec, states: np.ndarray, sensors: dict[str, np.ndarr
     return regsig, sensor
 
 
-def from_log(log, spec: ModelSpec | None = None, *, min_samples: int | None = None):
+def from_log(log, spec: ModelSpec | None = None, *, min_samples: int | None = None,
+             sensor_noise: Any = None):
     """Build regression data from a :class:`~vesselid.logs.TrialLog` (or DataFrame).
 
     The log is validated first (missing columns, NaN/inf, time order, samples per
-    experiment); nothing is silently dropped.
+    experiment); nothing is silently dropped. ``sensor_noise`` (``{state: σ}``, or
+    ``False`` for none; default the log's ``metadata["sensor_noise_std"]``) sets
+    ``regressor_noise`` (:func:`vesselid.identify.eiv.resolve_sensor_noise`).
 
     Returns
     -------
@@ -129,6 +136,9 @@ def from_log(log, spec: ModelSpec | None = None, *, min_samples: int | None = No
     except (KeyError, ValueError) as exc:  # pragma: no cover - validate() catches these first
         raise LogValidationError(str(exc)) from exc
     regsig, sensor = _aggregated(spec, states, sensors)
+    from vesselid.identify.eiv import resolve_sensor_noise
+
+    noise = resolve_sensor_noise(sensor_noise, log.metadata, spec.states)
     data = RegressionData(
         target=np.ascontiguousarray(states),
         regsig=np.ascontiguousarray(regsig),
@@ -139,6 +149,7 @@ def from_log(log, spec: ModelSpec | None = None, *, min_samples: int | None = No
         experiment_ids=tuple(eid for eid, _ in parts),
         sensor=sensor,
         lowpassed=bool((log.metadata or {}).get("wave_filter")),
+        regressor_noise=noise,
     )
     data.check_lengths(spec, min_samples)
     return data, spec

@@ -41,6 +41,7 @@ from vesselid.identify import gmm
 from vesselid.identify.backend import kernels
 from vesselid.identify.base import EquationDesign, Estimator
 from vesselid.identify.data import RegressionData
+from vesselid.identify.eiv import corrected_regressor_matrix
 from vesselid.identify.estimators import IterationResult, estimate
 from vesselid.model import ModelSpec
 
@@ -132,6 +133,8 @@ def _named(key: str) -> property:
 class InstrumentalGMM(Estimator):
     """Refined IV with simulated instruments, optional AR noise-model prefilter (SRIV)
     and optional lagged over-identifying instruments (GMM), or the automatic choice.
+    With the sensor noise known (``sensor_noise`` or the log's metadata) the square
+    modulus regressors are corrected for it (:mod:`vesselid.identify.eiv`).
 
     Parameters
     ----------
@@ -170,6 +173,7 @@ class InstrumentalGMM(Estimator):
     """
 
     multi_experiment: ClassVar[tuple[str, ...]] = ("pooled",)
+    corrects_sensor_noise: ClassVar[bool] = True
 
     def __init__(self, instruments: str = "simulated", noise_order: int = 0,
                  alpha: float = 0.01, colour_alpha: float = 0.05, refine: int = 3,
@@ -286,8 +290,8 @@ class InstrumentalGMM(Estimator):
             stat, df, todo = np.zeros((n, spec.n_states)), None, np.ones(n, dtype=bool)
         if todo.any():
             sub = data if todo.all() else _subset(data, todo)
-            phi_s = phi if phi is not None and todo.all() else kernels.regressor_matrix(
-                sub.regsig, sub.u, sub.starts, spec.codes.factors)
+            phi_s = (phi if phi is not None and todo.all() else
+                     corrected_regressor_matrix(sub, spec))
             z_sim = (z_first if z_first is not None and todo.all() else
                      gmm.simulated_instruments(sub, spec, theta0[todo])[0])
             stat[todo], df = gmm.colour_test(sub, spec, phi_s, z_sim)
@@ -313,10 +317,11 @@ class InstrumentalGMM(Estimator):
         # the fused combined path (with auto's unfiltered colour test) needs no regressor
         # rows; the whitened colour test needs them for every group (auto's fallback then
         # takes its groups' rows from them), the explicit unfiltered test and the fallback
-        # compute them for their groups
+        # compute them for their groups (with the errors-in-variables correction of the
+        # square modulus regressors when the data carry the sensor noise,
+        # :mod:`vesselid.identify.eiv`)
         whitened = self.instruments == "auto" and bool(self.colour_order)
-        phi = None if fused and not whitened else kernels.regressor_matrix(
-            data.regsig, data.u, data.starts, spec.codes.factors)
+        phi = (None if fused and not whitened else corrected_regressor_matrix(data, spec))
         lagged = None
         if self.instruments in ("combined", "auto") and keep:  # explicit rows (fit path)
             lagged = [gmm.lagged_regressors(data, spec, lag) for lag in gmm.LAGS]
@@ -356,8 +361,7 @@ class InstrumentalGMM(Estimator):
                 if reject.any():
                     sub = _subset(data, reject)
                     phi_s = (phi[_rows(data, reject)] if phi is not None else
-                             kernels.regressor_matrix(sub.regsig, sub.u, sub.starts,
-                                                      spec.codes.factors))
+                             corrected_regressor_matrix(sub, spec))
                     sol_s, th_s, it_s = self._refine(
                         sub, spec, phi_s, None, theta0[reject], "simulated",
                         info["noise_order"], keep, tol, steps=self.fallback_refine)
@@ -372,7 +376,11 @@ class InstrumentalGMM(Estimator):
             sol.segment_starts = data.starts  # type: ignore[attr-defined]
         reason = np.where(ok, base.reason, np.where(np.isfinite(base.theta).all(axis=1),
                                                     SINGULAR, base.reason)).astype(object)
-        info.update(solution=sol, instrument_set=used, base=base, lowpassed=data.lowpassed)
+        info.update(solution=sol, instrument_set=used, base=base, lowpassed=data.lowpassed,
+                    sensor_noise=(None if data.regressor_noise is None else
+                                  {s: float(v) for s, v in zip(spec.states,
+                                                               data.regressor_noise,
+                                                               strict=True) if v > 0}))
         return IterationResult(
             theta=theta, theta_aux=theta.copy(), converged=base.converged & ok,
             iterations=base.iterations + iters, reason=reason, residual=base.residual,
@@ -400,6 +408,11 @@ class InstrumentalGMM(Estimator):
         out: dict[str, Any] = {
             "instruments": str(info["instrument_set"][0]),
             "noise_model": noise_model,
+            "sensor_noise_correction": (
+                "none" if not info.get("sensor_noise") else
+                "square modulus regressors corrected for white sensor noise (std "
+                + ", ".join(f"{k} {v:.3g}" for k, v in info["sensor_noise"].items())
+                + "): y|y| - s^2 sign(y), y^2 - s^2"),
         }
         if "c_pvalue" in info:
             out["hansen_j_combined"] = _jdict(info["j_stat"][0], info["j_df"])

@@ -135,7 +135,7 @@ class IdentificationResult:
             f"converged: {self.converged}   iterations: {self.iterations}   "
             f"stop: {self.stop_reason}",
         ]
-        for key in ("instruments", "noise_model", "instrument_choice"):
+        for key in ("instruments", "noise_model", "instrument_choice", "sensor_noise_correction"):
             if self.diagnostics.get(key) not in (None, "none"):
                 lines.append(f"{key.replace('_', ' ')}: {self.diagnostics[key]}")
         if self.spec.aggregate:
