@@ -167,3 +167,28 @@ def test_sea_trial_records_the_regressor_noise():
     assert e.std() == pytest.approx(sqrt(factor), abs=4 * sqrt(factor) / sqrt(2 * e.size))
     filtered = wave_filter_log(log, WaveFilter(0.5, 0.1))
     assert "sensor_noise_std" not in filtered.metadata
+
+
+def test_noise_order_from_the_log_or_the_option():
+    """`metadata["noise_order"]` (sea-trial writes the planner's SRIV order) or the
+    `noise_order` option sets SRIV's AR order; estimators without a prefilter ignore it;
+    a bad order is a clear error."""
+    from vesselid.planner import SRIV_ORDER
+
+    log = _toy_log(1, 0.02, n=1500, experiments=2)
+    tagged = TrialLog(log.data, {"noise_order": 8})
+    a = _fit(tagged)
+    b = _fit(log, noise_order=8)
+    np.testing.assert_array_equal(a.params.to_numpy(), b.params.to_numpy())
+    assert "AR(8)" in a.diagnostics["noise_model"]
+    assert "AR(4)" in _fit(log).diagnostics["noise_model"]
+    assert "AR(2)" in _fit(tagged, noise_order=2).diagnostics["noise_model"]
+    np.testing.assert_array_equal(_fit(tagged, "iv-zero-mean").params.to_numpy(),
+                                  _fit(log, "iv-zero-mean").params.to_numpy())
+    for bad in (0, 51, 2.5, True):
+        with pytest.raises(IdentificationError, match="noise_order"):
+            _fit(log, noise_order=bad)
+    from vesselid.seatrial import simulate_sea_trial
+
+    assert simulate_sea_trial(2, 300, seed=0, design="static-offset"
+                              ).metadata["noise_order"] == SRIV_ORDER

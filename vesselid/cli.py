@@ -242,7 +242,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
         warnings.simplefilter("always")
         result = identify(log, spec, method=args.method, combine=args.combine,
                           target=args.target, cov_type=args.cov, max_iter=args.max_iter,
-                          sensor_noise=_sensor_noise(getattr(args, "sensor_noise", None)))
+                          sensor_noise=_sensor_noise(getattr(args, "sensor_noise", None)),
+                          noise_order=getattr(args, "noise_order", None))
     return _report_identify(args, result, caught)
 
 
@@ -400,6 +401,9 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
                         "u=0.005,v=0.005,r=0.002): auto/sriv/gmm correct the square modulus "
                         "regressors for it; default the log's metadata sensor_noise_std "
                         "(written by sea-trial); 'none': no correction")
+    p.add_argument("--noise-order", type=int_at_least(1), default=None,
+                   help="AR order of the noise-model prefilter of sriv / auto's fallback "
+                        "(default 4, or the log's metadata noise_order: sea-trial writes 16)")
     p.add_argument("--json", metavar="PATH|-", help="write the result as JSON ('-' = stdout)")
     p.add_argument("--stream", action="store_true",
                    help="logs larger than memory: read the Parquet log(s) one experiment at a "

@@ -620,6 +620,11 @@ def simulate_sea_trial(
     noise = _regressor_noise_std(key, (meta.get("system") or {}).get("sensors"))
     if noise:
         meta["sensor_noise_std"] = noise
+    # the AR order of the SRIV noise model (auto's fallback) this trial's equation error
+    # needs (the planner predicts with the same order)
+    from vesselid.planner import SRIV_ORDER
+
+    meta["noise_order"] = SRIV_ORDER
     if design.plan is not None:
         meta["plan"] = design.plan.to_dict()
     if waves is not None:

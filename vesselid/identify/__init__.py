@@ -118,6 +118,10 @@ def identify(
         it (``y|y| − σ² sign(y)``, ``y² − σ²``; :mod:`vesselid.identify.eiv`). Default
         the log's ``metadata["sensor_noise_std"]`` (written by ``vesselid sea-trial``);
         ``False``: no correction.
+    noise_order : int, optional
+        AR order of the noise-model prefilter of the estimators that use one (``sriv``,
+        ``auto``'s fallback) instead of their default 4; default the log's
+        ``metadata["noise_order"]`` (``vesselid sea-trial`` writes 16).
 
     Returns
     -------

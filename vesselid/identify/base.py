@@ -187,6 +187,7 @@ class Estimator:
         weak_instrument_cond: float = 1e6,
         min_samples: int | None = None,
         sensor_noise: Mapping[str, float] | bool | None = None,
+        noise_order: int | None = None,
     ) -> IdentificationResult:
         """Identify θ from a trial log (see :func:`vesselid.identify.identify`)."""
         from vesselid.identify import covariance_api
@@ -199,7 +200,8 @@ class Estimator:
             raise IdentificationError(f"tol must be a positive number, got {tol!r}")
         if target not in TARGETS:
             raise IdentificationError(f"unknown target {target!r}; choose from {list(TARGETS)}")
-        data, spec = from_log(log, spec, min_samples=min_samples, sensor_noise=sensor_noise)
+        data, spec = from_log(log, spec, min_samples=min_samples, sensor_noise=sensor_noise,
+                              noise_order=noise_order)
         if target == "aggregated":
             if not spec.aggregate:
                 raise IdentificationError("target 'aggregated' needs an [aggregate] relation "

@@ -46,6 +46,10 @@ class RegressionData:
     #: errors-in-variables correction of the square modulus regressors
     #: (:mod:`vesselid.identify.eiv`); ``None``: no correction
     regressor_noise: np.ndarray | None = None
+    #: AR order of the noise-model prefilter the log asks for (``metadata["noise_order"]``,
+    #: written by ``vesselid sea-trial``, or identify's ``noise_order``); ``None``: the
+    #: estimator's own. Used by the estimators that prefilter (SRIV, ``auto``'s fallback)
+    noise_order: int | None = None
 
     @property
     def n_segments(self) -> int:
@@ -96,13 +100,15 @@ def _aggregated(spec: ModelSpec, states: np.ndarray, sensors: dict[str, np.ndarr
 
 
 def from_log(log, spec: ModelSpec | None = None, *, min_samples: int | None = None,
-             sensor_noise: Any = None):
+             sensor_noise: Any = None, noise_order: int | None = None):
     """Build regression data from a :class:`~vesselid.logs.TrialLog` (or DataFrame).
 
     The log is validated first (missing columns, NaN/inf, time order, samples per
     experiment); nothing is silently dropped. ``sensor_noise`` (``{state: σ}``, or
     ``False`` for none; default the log's ``metadata["sensor_noise_std"]``) sets
-    ``regressor_noise`` (:func:`vesselid.identify.eiv.resolve_sensor_noise`).
+    ``regressor_noise`` (:func:`vesselid.identify.eiv.resolve_sensor_noise`);
+    ``noise_order`` (default the log's ``metadata["noise_order"]``) the AR order of the
+    noise-model prefilter (an integer in 1..50).
 
     Returns
     -------
@@ -150,9 +156,21 @@ def from_log(log, spec: ModelSpec | None = None, *, min_samples: int | None = No
         sensor=sensor,
         lowpassed=bool((log.metadata or {}).get("wave_filter")),
         regressor_noise=noise,
+        noise_order=_noise_order(noise_order, log.metadata),
     )
     data.check_lengths(spec, min_samples)
     return data, spec
+
+
+def _noise_order(option: Any, metadata: Any) -> int | None:
+    """The AR noise-model order asked for: the option, else ``metadata["noise_order"]``,
+    else ``None``; an integer in 1..50 (else :class:`IdentificationError`)."""
+    val = option if option is not None else (metadata or {}).get("noise_order")
+    if val is None:
+        return None
+    if isinstance(val, bool) or not isinstance(val, int | np.integer) or not 1 <= val <= 50:
+        raise IdentificationError(f"noise_order must be an integer in 1..50, got {val!r}")
+    return int(val)
 
 
 def _columns(frame: Any, names: Sequence[str]) -> np.ndarray:

@@ -328,11 +328,11 @@ class InstrumentalGMM(Estimator):
         theta0 = base.theta.copy()
         used = np.full(n, self.instruments, dtype=object)
         # the AR order of the simulated-instrument set (sriv; auto's fallback)
-        info: dict[str, Any] = {"noise_order": (self.noise_order if self.instruments
+        info: dict[str, Any] = {"noise_order": (self._ar_order(data) if self.instruments
                                                 == "simulated" else self._fallback_order(data))}
         if self.instruments == "simulated":
             sol, theta, iters = self._refine(data, spec, phi, None, theta0, "simulated",
-                                             self.noise_order, keep, tol)
+                                             info["noise_order"], keep, tol)
         else:
             first_z: list = []
             sol, theta, iters = self._refine(data, spec, phi, lagged, theta0, "combined", 0,
@@ -396,7 +396,18 @@ class InstrumentalGMM(Estimator):
         whitening prefilter re-weights the regression toward the removed band (measured on
         the wave-filtered sea trial, moderate sea: SRIV's bias on ``r: r`` was 7.7 Monte
         Carlo sd, IV_E{ζ}=0's 0.5)."""
-        return 0 if data.lowpassed else self.noise_order
+        return 0 if data.lowpassed else self._ar_order(data)
+
+    def _ar_order(self, data: RegressionData) -> int:
+        """The AR noise-model order: the estimator's ``noise_order``, or the order the log
+        asks for (``data.noise_order``: ``metadata["noise_order"]`` or identify's
+        ``noise_order``) when the estimator prefilters at all. The sea trial asks for
+        :data:`vesselid.planner.SRIV_ORDER`: its equation error is the differenced white
+        sensor noise (an MA(1) with its root near the unit circle) plus 2-s Gauss–Markov
+        forces, which a short AR model whitens poorly."""
+        if not self.noise_order or data.noise_order is None:
+            return int(self.noise_order)
+        return int(data.noise_order)
 
     def describe(self, it: IterationResult) -> dict[str, Any]:
         info = it.info
