@@ -278,8 +278,7 @@ class InstrumentalGMM(Estimator):
         on the same arrays). ``(stat, df)``."""
         n = data.n_groups
         if self.colour_order:  # the whitened test: explicit rows, batched over groups
-            phi = phi if phi is not None else kernels.regressor_matrix(
-                data.regsig, data.u, data.starts, spec.codes.factors)
+            phi = phi if phi is not None else corrected_regressor_matrix(data, spec)
             z_sim = (z_first if z_first is not None else
                      gmm.simulated_instruments(data, spec, theta0)[0])
             return gmm.colour_test(data, spec, phi, z_sim, theta=theta0,
