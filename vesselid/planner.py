@@ -1142,7 +1142,8 @@ def plan_trial(
     # exact evaluation of the assembled design
     forces = [p.schedule(vessel.nominal, n_d, warmup=warmup) for p in programmes]
     pred = _assembled_prediction(forces, vessel, lv, warmup, estimator, n_paths, seed)
-    worst = np.sqrt(np.diag(pred.cov.to_numpy()))[relevant]
+    with np.errstate(invalid="ignore"):  # a negative variance is a non-finite SE below
+        worst = np.sqrt(np.diag(pred.cov.to_numpy()))[relevant]
     if candidates is None and not np.all(np.isfinite(worst)):
         # small budgets: the greedy choice among thruster squares at one engine setting
         # can leave the surge equation unexcited; plan with the rudder manoeuvres only
