@@ -91,6 +91,7 @@ from vesselid.manoeuvres import (
 from vesselid.model import ModelSpec
 from vesselid.regressors import evaluate as evaluate_regressors
 from vesselid.regressors import predict as predict_regressors
+from vesselid.vessels.environment import clipped_variance
 
 __all__ = [
     "DisturbanceLevels",
@@ -157,15 +158,6 @@ class DisturbanceLevels:
         d = {k: getattr(self, k) for k in self.__dataclass_fields__ if k != "waves"}
         d["waves"] = None if self.waves is None else self.waves.to_dict()
         return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
-
-
-def _clipped_variance(c: float) -> float:
-    """Variance of a standard normal clipped at ``±c``."""
-    if not math.isfinite(c):
-        return 1.0
-    p = math.erf(c / math.sqrt(2.0))
-    pdf = math.exp(-0.5 * c * c) / math.sqrt(2.0 * math.pi)
-    return float(p - 2 * c * pdf + c * c * math.erfc(c / math.sqrt(2.0)))
 
 
 # ------------------------------------------------------------------- vessel glue
@@ -550,7 +542,7 @@ def design_information(
     # measured modulus regressors are biased there (what A10/A15 exclude) and the
     # noise-free instruments do not remove it
     sig_std = (np.asarray(levels.sensor_std, float)
-               * math.sqrt(_clipped_variance(levels.sensor_clip)))
+               * math.sqrt(clipped_variance(levels.sensor_clip)))
     if x_paths is None:
         d_phi = _modulus_bias(codes.factors, sig_t[:-1], sig_std, sensor_noise_corrected)
     else:  # where the vessel's states are near zero: along its disturbed paths
@@ -579,7 +571,7 @@ def design_information(
             eps_det = eps_det + base @ vessel.dt_minv.T
         g_speed = g_speed @ vessel.dt_minv.T
         g_dir = g_dir @ vessel.dt_minv.T
-    sig = np.asarray(levels.sensor_std, float) ** 2 * _clipped_variance(levels.sensor_clip)
+    sig = np.asarray(levels.sensor_std, float) ** 2 * clipped_variance(levels.sensor_clip)
     fn = np.asarray(levels.force_noise_std, float)
     w_var = (vessel.dt_minv**2) @ (fn**2)
     a_fn = math.exp(-dt / levels.force_noise_time_constant)

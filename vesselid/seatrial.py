@@ -639,15 +639,12 @@ def _regressor_noise_std(key: str, sensors: Mapping[str, Any] | None) -> dict[st
     correction, :mod:`vesselid.identify.eiv`): the speed log for ``u, v`` with
     ``relative``/``speed_log``, GNSS and current meter for ``current_meter``, GNSS for
     ``none``; the gyro for ``r``. The noise is clipped at ``±clip`` std, which lowers its
-    variance to ``(2Φ(c) − 1) − 2cφ(c) + 2c²(1 − Φ(c))`` times ``σ²``."""
+    variance by :func:`~vesselid.vessels.environment.clipped_variance`."""
     if not sensors:  # the log's metadata["system"]["sensors"]
         return {}
-    c = float(sensors.get("clip", np.inf))
-    factor = 1.0
-    if math.isfinite(c):
-        phi_c = math.exp(-0.5 * c * c) / math.sqrt(2 * math.pi)
-        factor = (math.erf(c / math.sqrt(2)) - 2 * c * phi_c
-                  + c * c * math.erfc(c / math.sqrt(2)))
+    from vesselid.vessels.environment import clipped_variance
+
+    factor = clipped_variance(sensors.get("clip", np.inf))
 
     def std(*names: str) -> float | None:
         var = 0.0

@@ -31,6 +31,7 @@ __all__ = [
     "DisturbanceComponent",
     "VesselDisturbances",
     "VesselSensors",
+    "clipped_variance",
 ]
 
 
@@ -192,6 +193,18 @@ SENSOR_GROUPS: dict[str, tuple[str, ...]] = {
 #: All sensor channels in kernel order.
 SENSOR_CHANNELS: tuple[str, ...] = tuple(c for g in SENSOR_GROUPS.values() for c in g)
 N_SENSOR_CHANNELS = len(SENSOR_CHANNELS)
+
+
+def clipped_variance(clip: float) -> float:
+    """Variance of a standard normal clipped at ``±clip`` (``1`` for an infinite clip):
+    the factor by which :class:`VesselSensors`' clipping lowers a noise variance,
+    ``(2Φ(c) − 1) − 2cφ(c) + 2c²(1 − Φ(c))``."""
+    c = float(clip)
+    if not math.isfinite(c):
+        return 1.0
+    p = math.erf(c / math.sqrt(2.0))
+    pdf = math.exp(-0.5 * c * c) / math.sqrt(2.0 * math.pi)
+    return float(p - 2 * c * pdf + c * c * math.erfc(c / math.sqrt(2.0)))
 
 
 @dataclass(frozen=True)
