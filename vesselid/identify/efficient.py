@@ -249,13 +249,7 @@ class InstrumentalGMM(Estimator):
                 z_sim, ok_sim = gmm.simulated_instruments(data, spec, theta)
                 if first_z is not None and step == 0:
                     first_z.append(z_sim)
-                ar = None
-                if order:
-                    ar = np.zeros((n, spec.n_states, order + 1))
-                    resid = data.target - _predict(phi, theta, spec, data)
-                    for i in range(spec.n_states):
-                        valid = np.isfinite(resid[:, i])
-                        ar[:, i] = gmm.ar_coefficients(data, resid[:, i], valid, order)
+                ar = gmm.noise_model(data, spec, phi, theta, order) if order else None
                 blocks = gmm.instrument_blocks(spec, kind, phi, z_sim, lagged)
                 sol = gmm.solve_equations(data, spec, phi, blocks, weight="hac", ar=ar,
                                           keep_designs=keep,
@@ -454,19 +448,6 @@ class InstrumentalGMM(Estimator):
         return ("simulated + delayed measurements: the disturbances look white, so the "
                 "delayed measurements are valid and make the estimate more precise; neither "
                 f"test rejects ({c_txt}; {w_txt})")
-
-
-def _predict(phi: np.ndarray, theta: np.ndarray, spec: ModelSpec, data: RegressionData
-             ) -> np.ndarray:
-    """One-step predictions ``φᵀθ_g`` per row, with each row's group parameters."""
-    rg = np.repeat(data.group, np.diff(data.starts))
-    th = np.nan_to_num(theta)[rg]
-    eq = spec.codes.equation
-    out = np.zeros((phi.shape[0], spec.n_states))
-    prod = phi * th
-    for i in range(spec.n_states):
-        out[:, i] = prod[:, eq == i].sum(axis=1)
-    return out
 
 
 def _rows(data: RegressionData, groups: np.ndarray) -> np.ndarray:

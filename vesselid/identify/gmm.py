@@ -67,6 +67,7 @@ __all__ = [
     "instrument_blocks",
     "lagged_regressors",
     "noise_instruments",
+    "noise_model",
     "simulated_instruments",
     "solve_equations",
     "state_terms",
@@ -224,15 +225,7 @@ def colour_test(data: RegressionData, spec: ModelSpec, phi: np.ndarray, z_sim: n
         cols = np.arange(int(blocks[i]), int(blocks[i + 1]))
         e_cols = col_of[cols[endo[cols]]]
         z_blocks.append((np.column_stack([z_sim[:, cols], eta[:, e_cols]]), e_cols.size))
-    ar = None
-    if order:
-        th = np.nan_to_num(np.asarray(theta, dtype=float))[_row_groups(data)]
-        ar = np.zeros((data.n_groups, spec.n_states, order + 1))
-        for i in range(spec.n_states):
-            cols = np.arange(int(blocks[i]), int(blocks[i + 1]))
-            resid = data.target[:, i] - np.einsum("tp,tp->t", phi[:, cols], th[:, cols])
-            valid = np.isfinite(resid)
-            ar[:, i] = ar_coefficients(data, resid, valid, order)
+    ar = noise_model(data, spec, phi, np.asarray(theta, dtype=float), order) if order else None
     sol = solve_equations(data, spec, phi, z_blocks, weight="hac", ar=ar)
     return sol.c, sol.c_df
 
@@ -442,6 +435,22 @@ def _group_sum(data: RegressionData, x: np.ndarray) -> np.ndarray:
     out = np.zeros((data.n_groups, *x.shape[1:]))
     np.add.at(out, data.group, x)
     return out
+
+
+def noise_model(data: RegressionData, spec: ModelSpec, phi: np.ndarray, theta: np.ndarray,
+                order: int) -> np.ndarray:
+    """AR(``order``) noise model of the equation error of (3) at ``theta``, per group and
+    equation (:func:`ar_coefficients` of the residual ``y(k) − φᵀ(k)θ_g``; a non-finite
+    ``θ`` counts as zero, non-finite residual rows are left out): the prefilter of SRIV
+    and of the whitened colour test, shape ``(G, n, order + 1)``."""
+    th = np.nan_to_num(theta)[_row_groups(data)]
+    eq = spec.codes.equation
+    prod = phi * th
+    ar = np.zeros((data.n_groups, spec.n_states, order + 1))
+    for i in range(spec.n_states):
+        resid = data.target[:, i] - prod[:, eq == i].sum(axis=1)
+        ar[:, i] = ar_coefficients(data, resid, np.isfinite(resid), order)
+    return ar
 
 
 def _row_groups(data: RegressionData) -> np.ndarray:
