@@ -144,10 +144,17 @@ def exogenous_columns(z: np.ndarray, phi: np.ndarray, *, rtol: float = 1e-10) ->
     z = np.asarray(z, dtype=float)
     phi = np.asarray(phi, dtype=float)
     out = np.zeros(phi.shape[1], dtype=bool)
+    if phi.shape[1] == 0:
+        return out
     head = min(64, phi.shape[0])
+    # every column's scale and every pair's screen over the first rows in one reduction
+    # each (maxima are exact: the values of the column-by-column loop, which raised the
+    # same ValueError on rows-free input)
+    scales = np.max(np.abs(phi), axis=0)
+    screen = np.max(np.abs(z[:head, :, None] - phi[:head, None, :]), axis=0)
     for j in range(phi.shape[1]):
-        scale = np.max(np.abs(phi[:, j])) or 1.0
-        cand = np.flatnonzero(np.max(np.abs(z[:head] - phi[:head, [j]]), axis=0) <= rtol * scale)
+        scale = float(scales[j]) or 1.0
+        cand = np.flatnonzero(screen[:, j] <= rtol * scale)
         out[j] = any(np.max(np.abs(z[:, k] - phi[:, j])) <= rtol * scale for k in cand)
     return out
 
