@@ -35,7 +35,9 @@ __all__ = [
     "check_moment_range",
     "collinear_terms",
     "condition_number",
+    "design_frame",
     "design_margins",
+    "design_rows",
     "free_run_ratio",
     "modulus_signals",
     "normalized_error",
@@ -89,6 +91,22 @@ def design_margins(
         One row per (experiment, state): ``eta``, ``share_within_eta``,
         ``sign_changes``, ``min_abs``, ``under_modulus``, ``ok``.
     """
+    return design_frame(design_rows(signal, starts, spec, eta, experiment_ids,
+                                    threshold=threshold))
+
+
+def design_rows(
+    signal: np.ndarray,
+    starts: np.ndarray,
+    spec: ModelSpec,
+    eta: Mapping[str, float],
+    experiment_ids: Sequence | None = None,
+    *,
+    threshold: float = 0.01,
+) -> list[dict[str, Any]]:
+    """The rows of :func:`design_margins` as dicts (column name -> value), before the
+    frame is built: ``identify`` words its A10/A15 warnings from them (no row lookups in
+    the frame)."""
     ids = list(experiment_ids) if experiment_ids is not None else list(range(starts.size - 1))
     mod = set(modulus_signals(spec))
     rows: list[dict[str, Any]] = []
@@ -111,6 +129,11 @@ def design_margins(
                 "under_modulus": under,
                 "ok": (not under) or share <= threshold,
             })
+    return rows
+
+
+def design_frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
+    """The frame of :func:`design_margins` from :func:`design_rows`."""
     if not rows:
         return pd.DataFrame(rows)
     # column by column: the frame pandas builds from the records, at a fraction of the cost

@@ -29,7 +29,8 @@ import pandas as pd
 
 from vesselid.diagnostics import (
     collinear_terms,
-    design_margins,
+    design_frame,
+    design_rows,
     free_run_ratio,
     modulus_signals,
     nrmse_fit,
@@ -301,10 +302,10 @@ class Estimator:
         else:
             eta_used = {s: float(eta.get(s, 0.0)) for s in spec.states}
             eta_source = "given"
-        design = design_margins(data.regsig, data.starts, spec, eta_used, data.experiment_ids,
-                                threshold=design_threshold)
-        bad_design = ~design["ok"].to_numpy(bool)  # filter the frame only when needed
-        for _, r in (design[bad_design].iterrows() if bad_design.any() else ()):
+        design_checks = design_rows(data.regsig, data.starts, spec, eta_used,
+                                    data.experiment_ids, threshold=design_threshold)
+        design = design_frame(design_checks)  # design_margins(...), worded from its rows
+        for r in (r for r in design_checks if not r["ok"]):
             _warn(f"state {r['state']!r} in experiment {r['experiment']} is within "
                   f"η={r['eta']:.3g} of zero in {100 * r['share_within_eta']:.1f} % of samples "
                   f"({r['sign_changes']} sign changes): the modulus cannot be treated as "
