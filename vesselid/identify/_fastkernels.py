@@ -798,13 +798,17 @@ class SpecialisedMoments:
     def __init__(self, segments: Callable) -> None:
         self.kernel = segments
         self.failed = False
+        #: every compiled kernel has a signature (numba keeps it): the check below, which
+        #: costs numba's signature list on every call, is done until it first holds
+        self.compiled = False
 
     def __call__(self, parallel: bool, *args) -> bool:
         if self.failed:
             return False
         fn = self.kernel
         # a generated Python entry point names its compiled kernels (compiled on first use)
-        if not all(getattr(k, "signatures", ()) for k in getattr(fn, "kernels", (fn,))):
+        if not self.compiled and not all(getattr(k, "signatures", ())
+                                         for k in getattr(fn, "kernels", (fn,))):
             try:
                 fn(0, 0, *args)  # compile here, in the calling thread, over no segment
             except Exception as exc:
@@ -814,6 +818,7 @@ class SpecialisedMoments:
                               f"{str(exc).splitlines()[0] if str(exc) else ''}); using the "
                               "generic kernel", RuntimeWarning, stacklevel=3)
                 return False
+        self.compiled = True
         from vesselid._threads import run_ranges
 
         run_ranges(fn, args[3].shape[0] - 1, args, parallel=parallel)

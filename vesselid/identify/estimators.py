@@ -90,6 +90,17 @@ def _empty_moments(n_seg: int, n_par: int, n: int) -> Moments:
     )
 
 
+def _layout(spec: ModelSpec) -> tuple[np.ndarray, np.ndarray]:
+    """``(block_starts(spec), duplicate_blocks(spec))``, remembered on the spec (which is
+    immutable; like its ``codes``): the refined iteration reads them at every evaluation
+    of ``T``. Read-only use only (the kernels and the solvers index them)."""
+    memo = spec.__dict__.get("_estimator_layout")
+    if memo is None:
+        memo = spec.__dict__["_estimator_layout"] = (block_starts(spec),
+                                                     duplicate_blocks(spec))
+    return memo
+
+
 def _limits(data: RegressionData, factor: float) -> np.ndarray:
     return factor * np.maximum(data.target_abs_max, 1.0)
 
@@ -117,9 +128,10 @@ def compute_moments(
     th = np.zeros((data.n_groups, n_par)) if theta is None else np.ascontiguousarray(theta, float)
     act = np.ones(data.n_groups, dtype=np.bool_) if active is None else active
     lim = _limits(data, limit_factor) if limits is None else limits
+    blocks, dup = _layout(spec)
     kernels.moments(
         data.regsig, data.target, data.u, data.starts, data.group, th, act, int(mode),
-        codes.factors, codes.equation, block_starts(spec), duplicate_blocks(spec), lim,
+        codes.factors, codes.equation, blocks, dup, lim,
         mom.zphi, mom.zy, mom.z, mom.phi, mom.y, mom.count, mom.status,
     )
     return mom
@@ -186,7 +198,7 @@ def solve_moments(
     n_groups = data.n_groups
     act = np.ones(n_groups, dtype=bool) if active is None else active
     a_seg, b_seg = _segment_equations(mom, spec, zero_mean)
-    blocks = block_starts(spec)
+    blocks = _layout(spec)[0]
     theta = np.full((n_groups, spec.n_params), np.nan)
     ok = np.ones(n_groups, dtype=bool)
     seg_counts = np.bincount(data.group, minlength=n_groups)
