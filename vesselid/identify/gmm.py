@@ -457,7 +457,7 @@ def noise_model(data: RegressionData, spec: ModelSpec, phi: np.ndarray, theta: n
     equation (:func:`ar_coefficients` of the residual ``y(k) − φᵀ(k)θ_g``; a non-finite
     ``θ`` counts as zero, non-finite residual rows are left out): the prefilter of SRIV
     and of the whitened colour test, shape ``(G, n, order + 1)``."""
-    th = np.nan_to_num(theta)[_row_groups(data)]
+    th = _per_row(np.nan_to_num(theta), data)
     eq = spec.codes.equation
     prod = phi * th
     ar = np.zeros((data.n_groups, spec.n_states, order + 1))
@@ -469,6 +469,13 @@ def noise_model(data: RegressionData, spec: ModelSpec, phi: np.ndarray, theta: n
 
 def _row_groups(data: RegressionData) -> np.ndarray:
     return np.repeat(data.group, np.diff(data.starts))
+
+
+def _per_row(x: np.ndarray, data: RegressionData) -> np.ndarray:
+    """``x[_row_groups(data)]`` (each row's group's row of ``x``, (T, …)): the same array,
+    built by repeating each segment's row over its rows (a gather per segment, not per row:
+    ~3x faster for one group of 10⁴ rows)."""
+    return np.repeat(x[data.group], np.diff(data.starts), axis=0)
 
 
 def solve_equations(
@@ -512,7 +519,6 @@ def solve_equations(
     c_stat = np.zeros((n_groups, spec.n_states))
     df = np.zeros(spec.n_states, dtype=int)
     c_df = np.zeros(spec.n_states, dtype=int)
-    rg = _row_groups(data)
     bw = hac_lags(int(np.median(np.diff(data.starts)))) if lags is None else int(lags)
     designs = [] if keep_designs else None
     keep_jacobians = keep_designs if keep_jacobians is None else keep_jacobians
@@ -556,7 +562,7 @@ def solve_equations(
         s_mat = None
         jac = None
         if k_i > p_i:
-            e = yy - np.einsum("tp,tp->t", pp, np.nan_to_num(th)[rg])
+            e = yy - np.einsum("tp,tp->t", pp, _per_row(np.nan_to_num(th), data))
             s_mat = _group_sum(data, hac_sums(zz, e, data.starts, valid, bw))
             s_inv, ok_s = linalg.inv_sym(s_mat)
             if weight == "hac":
