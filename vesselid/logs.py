@@ -337,14 +337,18 @@ class TrialLog:
 
         checked = [*required, "time"] if "time" in data.columns else required
         checked = list(dict.fromkeys(checked))
+        series = {col: data[col] for col in checked}  # each column looked up once
         for col in checked:
-            if not _is_real_numeric(data[col]):
+            if not _is_real_numeric(series[col]):
                 raise LogValidationError(
-                    f"column {col!r} must be numeric, got dtype {data[col].dtype}"
+                    f"column {col!r} must be numeric, got dtype {series[col].dtype}"
                 )
 
         if "experiment" in data.columns:
-            bad = data["experiment"].isna().to_numpy()
+            exp = data["experiment"]
+            # integer ids cannot be missing: no isna pass
+            bad = (np.zeros(0, dtype=bool) if isinstance(exp.dtype, np.dtype)
+                   and exp.dtype.kind in "iu" else exp.isna().to_numpy())
             if bad.any():
                 pos = int(np.flatnonzero(bad)[0])
                 raise LogValidationError(
@@ -363,7 +367,7 @@ class TrialLog:
                 )
 
         for col in checked:
-            values = data[col].to_numpy(dtype=float, na_value=np.nan)
+            values = series[col].to_numpy(dtype=float, na_value=np.nan)
             bad = ~np.isfinite(values)
             if bad.any():
                 positions = np.flatnonzero(bad)
@@ -379,7 +383,7 @@ class TrialLog:
                 )
 
         if "time" in data.columns:
-            times = data["time"].to_numpy(dtype=float)
+            times = series["time"].to_numpy(dtype=float)
             for eid, pos in offsets:
                 if pos.size < 2:
                     continue
