@@ -203,6 +203,8 @@ def solve_moments(
     ok = np.ones(n_groups, dtype=bool)
     seg_counts = np.bincount(data.group, minlength=n_groups)
     single = np.all(seg_counts == 1)
+    every = bool(act.all())  # every group solved: no gathered copies, slices for rows
+    rows = slice(None) if every else act
     for i in range(spec.n_states):
         sl = slice(int(blocks[i]), int(blocks[i + 1]))
         a_i = a_seg[:, sl, sl]
@@ -218,7 +220,7 @@ def solve_moments(
                 b_g = np.zeros((n_groups, b_i.shape[1]))
                 np.add.at(a_g, data.group, a_i)
                 np.add.at(b_g, data.group, b_i)
-            th_i, ok_i = _batched_solve(a_g[act], b_g[act])
+            th_i, ok_i = _batched_solve(a_g[rows], b_g[rows])
         else:
             nrm = np.maximum(mom.count, 1)[:, None]
             a_n = a_i / nrm[:, :, None]
@@ -245,7 +247,7 @@ def solve_moments(
                     ok_i[j] = False
                 else:
                     th_i[j] = sol
-        theta[np.flatnonzero(act)[:, None], np.arange(sl.start, sl.stop)[None, :]] = th_i
+        theta[rows, sl] = th_i
         ok[np.flatnonzero(act)[~ok_i]] = False
     ok &= act
     return theta, ok
@@ -449,7 +451,14 @@ def refined_iv(
 
 
 def _rel(diff: np.ndarray, ref: np.ndarray) -> np.ndarray:
-    return np.linalg.norm(diff, axis=-1) / np.maximum(np.linalg.norm(ref, axis=-1), 1e-300)
+    """``‖diff‖ / max(‖ref‖, 1e-300)`` along the last axis: ``np.linalg.norm(·, axis=-1)``'s
+    own formula for real arrays (``sqrt(add.reduce(x·x))``, the same bits) without its
+    argument handling (the refined iteration calls this at every step)."""
+    def norm(x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        return np.sqrt(np.add.reduce(x * x, axis=-1))
+
+    return norm(diff) / np.maximum(norm(ref), 1e-300)
 
 
 METHODS = ("ls", "iv", "iv-zero-mean")
