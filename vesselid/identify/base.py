@@ -212,9 +212,10 @@ class Estimator:
         names = [f"{eq}: {term}" for eq, term in spec.param_index]
         blocks = block_starts(spec)
         if self.corrects_sensor_noise:
-            from vesselid.identify.eiv import corrected_regressor_matrix
+            from vesselid.identify.eiv import corrected_regressor_matrix, remember_regressors
 
             phi = corrected_regressor_matrix(data, spec)
+            remember_regressors(data, spec, phi)  # the estimator's own rows (data is ours)
         else:
             phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, codes.factors)
         rows = equation_rows(data)

@@ -144,9 +144,24 @@ def corrected_regressor_matrix(data: Any, spec: Any) -> np.ndarray:
     """:func:`vesselid.identify.kernels.regressor_matrix` of ``data`` (a
     :class:`~vesselid.identify.data.RegressionData`) with :func:`correct_regressors`
     applied for ``data.regressor_noise`` (unchanged when it is ``None``)."""
+    hit = getattr(data, "__dict__", {}).get(_REMEMBERED)
+    if hit is not None and hit[0] is spec:
+        return hit[1]
     from vesselid.identify.backend import kernels
 
     codes = spec.codes
     phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, codes.factors)
     return correct_regressors(phi, data.regsig, codes.factors, codes.n_signals,
                               data.regressor_noise)
+
+
+_REMEMBERED = "_corrected_regressors"
+
+
+def remember_regressors(data: Any, spec: Any, phi: np.ndarray) -> None:
+    """Keep ``phi`` (:func:`corrected_regressor_matrix` of ``data`` and ``spec``) on
+    ``data`` for the later calls with the same ``spec``: the checked ``fit`` forms the
+    rows for its rank check and residuals and the estimator would form them again. Only
+    for a ``data`` that dies with the fit (the Monte Carlo's chunks must not hold rows);
+    nothing writes into the rows."""
+    data.__dict__[_REMEMBERED] = (spec, phi)
