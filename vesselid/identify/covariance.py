@@ -57,6 +57,7 @@ white designs and understates them under coloured currents; the calibration stud
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from collections.abc import Mapping
@@ -324,12 +325,22 @@ def bartlett_long_run(g: np.ndarray, lags: int) -> np.ndarray:
     mean = gt.mean(axis=1)
     gt -= mean[:, None]
     h = moving_sums(gt, lags)  # moving sums of g − mean
-    t = np.arange(n + lags)
-    count = (np.minimum(t, n - 1) - np.maximum(t - lags, 0) + 1).astype(float)  # window sizes
+    count, count_sq = _window_sizes(n, lags)
     # the moving sums of g are h + count·meanᵀ: add the mean's share as rank-one terms
     v = h @ count
-    out = h @ h.T + np.outer(v, mean) + np.outer(mean, v) + (count @ count) * np.outer(mean, mean)
+    out = h @ h.T + np.outer(v, mean) + np.outer(mean, v) + count_sq * np.outer(mean, mean)
     return out / (lags + 1.0)
+
+
+@functools.lru_cache(maxsize=16)
+def _window_sizes(n: int, lags: int) -> tuple[np.ndarray, float]:
+    """The moving-sum window sizes of :func:`bartlett_long_run` (``t = 0 … n + lags − 1``)
+    and their sum of squares, per ``(n, lags)`` (a fit's three HAC estimates share them);
+    read-only."""
+    t = np.arange(n + lags)
+    count = (np.minimum(t, n - 1) - np.maximum(t - lags, 0) + 1).astype(float)
+    count.flags.writeable = False
+    return count, count @ count
 
 
 # --------------------------------------------------------------------------- scores
