@@ -90,19 +90,24 @@ def test_auto_rejects_delayed_instruments_under_coloured_disturbances(
     spec = system.identification_spec(aggregate=False)
     sim = system.simulate(samples, n_runs=4, seed=3)
     it = get_estimator("auto").estimate_parameters(from_arrays(spec, sim.y, sim.u), spec)
-    assert (it.info["instrument_set"] == "simulated").all()
+    assert (it.info["instrument_set"] != "combined").all()
+    if field == "current":  # both tests reject: the prediction-error estimator
+        assert (it.info["instrument_set"] == "pem").all()
+        assert (it.info["pem_model"] == "current").all()
     assert np.all(it.info[p_key] < p_max), it.info[p_key]
 
 
 def test_auto_falls_back_without_prefilter_on_a_low_pass_filtered_log():
     """A log whose metadata records a low-pass (wave) filter: ``auto``'s fallback uses the
     simulated instruments without the whitening AR prefilter (IV_E{ζ}=0-like) and says
-    so; the same data without the record fall back to SRIV."""
+    so (the prediction-error model has no filter in it); the same data without the record
+    fall back to the prediction-error estimator, and without it to SRIV."""
     import dataclasses
     import warnings
 
     from vesselid.disturbances import GaussMarkov
     from vesselid.identify import identify
+    from vesselid.identify.efficient import InstrumentalGMM
 
     system = dataclasses.replace(heave(pulse_design="alternating"),
                                  current={"w": GaussMarkov(0.0, 0.1, 25.0)})
@@ -111,13 +116,16 @@ def test_auto_falls_back_without_prefilter_on_a_low_pass_filtered_log():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         plain = identify(log, spec)
+        sriv = identify(log, spec, method=InstrumentalGMM("auto", noise_order=4, refine=1))
         log.metadata["wave_filter"] = {"kind": "butterworth", "columns": ["w"]}
         low = identify(log, spec)
-    assert plain.diagnostics["instruments"] == low.diagnostics["instruments"] == "simulated"
-    assert plain.diagnostics["noise_model"].startswith("AR(4) prefilter")
+    assert plain.diagnostics["instruments"] == "none: prediction-error estimator (PEM)"
+    assert plain.diagnostics["disturbance_model"] == "current"
+    assert sriv.diagnostics["instruments"] == low.diagnostics["instruments"] == "simulated"
+    assert sriv.diagnostics["noise_model"].startswith("AR(4) prefilter")
     assert low.diagnostics["noise_model"] == "none (the log is low-pass filtered)"
     assert "no noise-model prefilter" in low.diagnostics["instrument_choice"]
-    assert not np.array_equal(plain.params.to_numpy(), low.params.to_numpy())
+    assert not np.array_equal(sriv.params.to_numpy(), low.params.to_numpy())
 
 
 @pytest.mark.parametrize("method", ["gmm", "sriv"])
@@ -416,7 +424,7 @@ def test_auto_decision_and_estimates_do_not_depend_on_the_fused_colour_test(monk
         np.testing.assert_allclose(fast.info["colour_stat"], slow.info["colour_stat"],
                                    rtol=1e-9, atol=0)
         if scenario.startswith("gm"):
-            assert (fast.info["instrument_set"] == "simulated").any()
+            assert (fast.info["instrument_set"] != "combined").any()
 
 
 def test_prefiltered_design_in_one_pass_is_bit_identical(monkeypatch):

@@ -578,6 +578,11 @@ def registry_covariances(
             continue
         if len(designs) < spec.n_states:
             continue
+        own = est.own_covariance(it_g)
+        if own is not None:  # a likelihood's inverse Fisher information, whatever cov_type
+            for label in cov_est:
+                out[label][g] = np.sqrt(np.abs(np.diag(own)))
+            continue
         for label, ce in cov_est.items():
             for i in range(spec.n_states):
                 d = designs[i]

@@ -123,6 +123,9 @@ class Estimator:
     #: the square modulus terms when the data carry the sensor noise
     #: (:mod:`vesselid.identify.eiv`); others ignore ``sensor_noise``
     corrects_sensor_noise: ClassVar[bool] = False
+    #: ``fit`` warns when the estimator's iteration did not converge (set for the
+    #: iterative estimators without instruments; the instrumental ones always warn)
+    reports_convergence: ClassVar[bool] = False
 
     def __init__(self, **options: Any) -> None:
         self.options = dict(options)
@@ -156,6 +159,15 @@ class Estimator:
     def describe(self, it: IterationResult) -> dict[str, Any]:
         """Estimator-specific diagnostics of a one-group result (JSON-ready)."""
         return {}
+
+    def own_covariance(self, it: IterationResult) -> np.ndarray | None:
+        """The covariance of a one-group result when the estimator computes its own
+        (a likelihood's inverse Fisher information); ``None``: the covariance estimator
+        ``cov_type`` works on :meth:`equation_designs`."""
+        return None
+
+    def check_covariance(self, cov_type: str | None) -> None:
+        """Refuse a ``cov_type`` the estimator cannot honour (one-line reason)."""
 
     # ---------------------------------------------------------- checked path
     def check_options(self, *, combine: str) -> None:
@@ -194,6 +206,7 @@ class Estimator:
         from vesselid.identify import covariance_api
 
         self.check_options(combine=combine)
+        self.check_covariance(cov_type)
         cov_name, cov_fn = covariance_api.resolve(cov_type, cov_config)
         if not (isinstance(max_iter, int | np.integer) and max_iter >= 1):
             raise IdentificationError(f"max_iter must be a positive integer, got {max_iter!r}")
@@ -242,6 +255,11 @@ class Estimator:
             start = None if theta_start is None else spec.vector_from(theta_start)
             it = self.estimate_parameters(data, spec, combine=combine, theta_start=start,
                                           max_iter=max_iter, tol=tol, keep_history=True)
+            if not np.all(np.isfinite(it.theta[0])) and not self.uses_instruments:
+                raise IdentificationError(
+                    f"{self.name}: {it.reason[0]}; the likelihood could not be maximised "
+                    "from the IV_E{ζ}=0 start — use longer or better-excited experiments, "
+                    "or method 'auto'")
             if not np.all(np.isfinite(it.theta[0])):
                 tried = ("the LS estimate and basic IV with delayed measurements"
                          if it.start is not None and it.start[0] == "lagged-iv"
@@ -262,11 +280,16 @@ class Estimator:
         cov = np.zeros((spec.n_params, spec.n_params))
         cond: dict[str, float] = {}
         cov_label = cov_name
+        own_cov = self.own_covariance(it)
+        if own_cov is not None:
+            cov = np.array(own_cov, dtype=float)
+            cov_name, cov_label = "fisher", "inverse Fisher information (quasi-ML)"
         for i, s in enumerate(spec.states):
             sl = slice(int(blocks[i]), int(blocks[i + 1]))
             d = designs[i]
             cond[s] = linalg.condition_number(d.z.T @ d.phi)
-            cov[sl, sl], cov_label = cov_fn(d, combine=combine)
+            if own_cov is None:
+                cov[sl, sl], cov_label = cov_fn(d, combine=combine)
             if self.uses_instruments and cond[s] > weak_instrument_cond:
                 _warn(f"weak instruments in equation {s!r}: cond(ZᵀΦ) = {cond[s]:.3g}",
                       WeakInstrumentWarning)
@@ -274,7 +297,11 @@ class Estimator:
         # iteration that supplied their instruments)
         src = it.info.get("base", it)
         step_se = _fixed_point_step_in_se((src.theta - src.theta_aux)[0], cov)
-        if self.uses_instruments and not bool(it.converged[0]):
+        if self.reports_convergence and not bool(it.converged[0]):
+            _warn(f"{self.name}: the likelihood maximisation did not converge "
+                  f"({it.reason[0]}, {int(it.iterations[0])} iterations); returning the last "
+                  "iterate", ConvergenceWarning)
+        elif self.uses_instruments and not bool(it.converged[0]):
             size = ("" if not np.isfinite(step_se) else
                     f"; its last fixed-point step is at most {step_se:.2g} standard errors "
                     "of any parameter")
@@ -283,7 +310,9 @@ class Estimator:
                   f"estimate of the best iterate{size}", ConvergenceWarning)
         if it.oscillation[0]:
             _warn("the refined iteration oscillated; the step was damped", ConvergenceWarning)
-        specification = _specification_tests(spec, designs, theta, blocks, cov_name)
+        # instrument strength, endogeneity and over-identification: not for a likelihood
+        specification = ({} if own_cov is not None else
+                         _specification_tests(spec, designs, theta, blocks, cov_name))
         residual_checks = _residual_checks(spec, data, resid)
         if not np.all(np.isfinite(cov)):
             _warn("the covariance of the estimates could not be computed (singular "

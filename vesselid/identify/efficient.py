@@ -37,9 +37,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from vesselid.errors import IdentificationError
-from vesselid.identify import gmm
+from vesselid.identify import gmm, pem
 from vesselid.identify.backend import kernels
-from vesselid.identify.base import EquationDesign, Estimator
+from vesselid.identify.base import EquationDesign, Estimator, square_designs
 from vesselid.identify.data import RegressionData
 from vesselid.identify.eiv import corrected_regressor_matrix
 from vesselid.identify.estimators import IterationResult, estimate
@@ -170,6 +170,13 @@ class InstrumentalGMM(Estimator):
     fallback_refine : int
         Refinement steps of the simulated-instrument fallback of ``auto`` (the AR noise
         model needs a few: one step had heavier tails under a coloured current).
+    pem_fallback : bool
+        ``auto`` on a one-state log without a disturbance sensor: when both tests reject
+        the delayed instruments, use the prediction-error estimator with the current or the
+        sensor noise as a Gauss–Markov state (:mod:`vesselid.identify.pem`) instead of
+        SRIV where its likelihood maximisation converges (SRIV elsewhere). Under a
+        Gauss–Markov current it is unbiased where every instrument built from the input
+        is not, and 12× more precise on the damping (README "Choosing the estimator").
     """
 
     multi_experiment: ClassVar[tuple[str, ...]] = ("pooled",)
@@ -179,10 +186,12 @@ class InstrumentalGMM(Estimator):
                  alpha: float = 0.01, colour_alpha: float = 0.05, refine: int = 3,
                  fallback_refine: int = 3, name: str | None = None, label: str | None = None,
                  short: str | None = None,
-                 colour_order: int = 0) -> None:
+                 colour_order: int = 0, pem_fallback: bool = False) -> None:
         super().__init__(instruments=instruments, noise_order=noise_order, alpha=alpha,
                          colour_alpha=colour_alpha, refine=refine,
-                         fallback_refine=fallback_refine, colour_order=colour_order)
+                         fallback_refine=fallback_refine, colour_order=colour_order,
+                         pem_fallback=pem_fallback)
+        self.pem_fallback = bool(pem_fallback)
         self.instruments = instruments
         self.noise_order = noise_order
         self.alpha = alpha
@@ -350,7 +359,14 @@ class InstrumentalGMM(Estimator):
                         w_p[:, i] = _chi2_sf(w_stat[:, i], w_df[i])
                 info.update(colour_stat=w_stat, colour_df=w_df, colour_pvalue=w_p.min(axis=1),
                             colour_order=int(self.colour_order))
-                reject = (c_p < float(self.alpha)) | (w_p.min(axis=1) < float(self.colour_alpha))
+                c_rej = c_p < float(self.alpha)
+                w_rej = w_p.min(axis=1) < float(self.colour_alpha)
+                reject = c_rej | w_rej
+                # both tests reject: the disturbance is coloured beyond doubt — model it
+                both = c_rej & w_rej
+                if both.any() and self.pem_fallback and pem.supports(spec, data):
+                    self._pem_fallback(data, spec, theta0, both, theta, iters, used, info)
+                    reject = reject & (used != "pem")
                 if reject.any():
                     sub = _subset(data, reject)
                     phi_s = (phi[_rows(data, reject)] if phi is not None else
@@ -381,8 +397,37 @@ class InstrumentalGMM(Estimator):
             history=[theta.copy()] if keep_history else [],
         )
 
+    def _pem_fallback(self, data, spec, theta0, reject, theta, iters, used, info) -> None:
+        """The prediction-error estimator on the groups ``reject``, from their IV_{E{ζ}=0}
+        estimates; taken where its likelihood maximisation converged (in place; the
+        others fall back to SRIV)."""
+        sub = _subset(data, reject)
+        res = pem.fit_groups(sub, spec, theta0[reject])
+        ok = res["converged"] & np.all(np.isfinite(res["theta"]), axis=1)
+        idx = np.flatnonzero(reject)
+        n = data.n_groups
+        for key in ("psi", "cov", "loglik", "vuong", "model"):
+            arr = res[key]
+            full = (np.full(n, "", dtype=object) if arr.dtype == object else
+                    np.full((n, *arr.shape[1:]), np.nan))
+            full[idx] = arr
+            info[f"pem_{key}"] = full
+        info["pem_tried"] = reject.copy()
+        take = idx[ok]
+        theta[take] = res["theta"][ok]
+        iters[take] += res["iterations"][ok]
+        used[take] = "pem"
+
     def equation_designs(self, data, spec, it, phi, combine):
+        if it.info["instrument_set"][0] == "pem":  # diagnostics only (own covariance)
+            return square_designs(data, spec, phi, phi, it.theta[0], zero_mean=False,
+                                  combine=combine)
         return _designs_from(it.info["solution"], it.theta[0], spec)
+
+    def own_covariance(self, it: IterationResult) -> np.ndarray | None:
+        if it.info["instrument_set"][0] == "pem":
+            return it.info["pem_cov"][0]
+        return None
 
     def _fallback_order(self, data: RegressionData) -> int:
         """AR order of ``auto``'s fallback: none on a low-pass-filtered log, where the
@@ -405,6 +450,16 @@ class InstrumentalGMM(Estimator):
     def describe(self, it: IterationResult) -> dict[str, Any]:
         info = it.info
         noise_model = "none"
+        if info["instrument_set"][0] == "pem":
+            out = pem.describe_fit(info, 0, it.theta.shape[1])
+            out["instruments"] = "none: prediction-error estimator (PEM)"
+            out["hansen_j_combined"] = _jdict(info["j_stat"][0], info["j_df"])
+            out["c_test_lagged"] = _jdict(info["c_stat"][0], info["c_df"])
+            out["colour_test"] = _jdict(info["colour_stat"][0], info["colour_df"])
+            out["colour_test_prefilter"] = (f"AR({info['colour_order']})"
+                                            if info.get("colour_order") else "none")
+            out["instrument_choice"] = self._choice_text(info)
+            return out
         if info["instrument_set"][0] == "simulated" and self.noise_order:
             order = info["noise_order"]
             noise_model = (f"AR({order}) prefilter (SRIV)" if order
@@ -436,9 +491,14 @@ class InstrumentalGMM(Estimator):
         kind = f"AR({order})-whitened colour test" if order else "colour test"
         w_txt = (f"{kind} (does the equation error remember the past sensor noise?) "
                  f"p = {p_w:.3g} (level {self.colour_alpha:g})")
+        why = [t for t, p, a in ((c_txt, p_c, self.alpha), (w_txt, p_w, self.colour_alpha))
+               if p < a]
+        if info["instrument_set"][0] == "pem":
+            return ("prediction-error estimator with the disturbance as a Gauss–Markov filter "
+                    f"state ({info['pem_model'][0]} model): the delayed measurements are not "
+                    "valid instruments on this log — the disturbances look coloured; "
+                    "rejected by the " + " and the ".join(why))
         if info["instrument_set"][0] == "simulated":
-            why = [t for t, p, a in ((c_txt, p_c, self.alpha), (w_txt, p_w, self.colour_alpha))
-                   if p < a]
             how = ("simulated only, no noise-model prefilter (the log is low-pass "
                    "filtered, and a whitening prefilter would weight the removed band)"
                    if info.get("lowpassed") else "simulated only (SRIV)")

@@ -12,6 +12,7 @@ from vesselid.errors import IdentificationError
 from vesselid.identify.base import Estimator
 from vesselid.identify.efficient import InstrumentalGMM, LaggedIV
 from vesselid.identify.methods import LeastSquares, RefinedIV
+from vesselid.identify.pem import PredictionError
 
 __all__ = [
     "DEFAULT_METHOD",
@@ -43,10 +44,12 @@ for _est in (
     InstrumentalGMM("combined", refine=1, name="gmm",
                     label="two-step GMM, simulated + delayed-measurement instruments",
                     short="GMM"),
-    InstrumentalGMM("auto", noise_order=4, refine=1, name="auto",
+    InstrumentalGMM("auto", noise_order=4, refine=1, name="auto", pem_fallback=True,
                     label="GMM, simulated + delayed instruments unless the C test or the "
-                          "colour test rejects the delayed ones (then SRIV)",
+                          "colour test rejects the delayed ones (then PEM on one-state "
+                          "logs, else SRIV)",
                     short="auto"),
+    PredictionError(),
 ):
     register(_est)
 
