@@ -249,7 +249,9 @@ def _takes_base(est: Any, study: Study) -> bool:
 
     Sharing is bit-identical by construction: the same function on the same arrays.
     """
-    return isinstance(est, InstrumentalGMM) and study.combine == "pooled"
+    from vesselid.identify.pem import PredictionError
+
+    return isinstance(est, InstrumentalGMM | PredictionError) and study.combine == "pooled"
 
 
 def _tidy(res, method: str, spec: ModelSpec, theta0: np.ndarray, start: int) -> pd.DataFrame:

@@ -182,5 +182,9 @@ def term_kinds(fac: np.ndarray, n_signals: int) -> tuple[np.ndarray, np.ndarray,
     code = {state: 1, abs_state: 2}
     for t, (a, b) in enumerate(fac):
         lo, hi = sorted((code.get(int(a), 0), code.get(int(b), 0)))
-        kinds[t] = {(0, 0): 0, (0, 1): 1, (0, 2): 2, (1, 2): 3, (1, 1): 4, (2, 2): 4}[(lo, hi)]
+        kinds[t] = _KINDS[(lo, hi)]
     return kinds, fac[:, 0].copy(), fac[:, 1].copy()
+
+
+#: (sorted state codes of the two factors: 0 none, 1 x, 2 |x|) -> coefficient of h(r)
+_KINDS = {(0, 0): 0, (0, 1): 1, (0, 2): 2, (1, 2): 3, (1, 1): 4, (2, 2): 4}
