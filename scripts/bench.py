@@ -160,6 +160,49 @@ def bench_identify(repeats: int = 15) -> dict:
     return out
 
 
+def bench_pem(repeats: int = 5) -> dict:
+    """The prediction-error estimator on one 10⁴-sample heave log with a Gauss–Markov
+    current (time constant 25 samples, random pulses): ``identify(log)`` as a user calls it
+    (``auto`` takes ``pem`` there: both validity tests reject) and ``method="pem"``, median
+    wall time; and one pass of its compiled Gaussian filter (10 parameter rows together, as
+    the Fisher scoring runs it, and one row) against the same function run as plain Python
+    (``gaussian_filter.py_func``, one row), per row and sample."""
+    from vesselid.calibration import heave_scenario
+    from vesselid.identify import identify
+    from vesselid.identify._pemkernels import gaussian_filter, term_kinds
+
+    warnings.simplefilter("ignore")
+    system, _, _ = heave_scenario("gm-current-random")
+    log = system.simulate(10_000, seed=0).to_log(aggregate=False)
+    res = identify(log)
+    assert res.diagnostics["instruments"].startswith("none: prediction-error"), res.diagnostics
+    out: dict = {"auto_choice": res.diagnostics["disturbance_model"] + " model (pem)"}
+    out["identify_gm_current_1e4_default_ms"] = 1000 * median_time(lambda: identify(log),
+                                                                   repeats)
+    out["identify_gm_current_1e4_pem_ms"] = 1000 * median_time(
+        lambda: identify(log, method="pem"), repeats)
+    y = log.data["w"].to_numpy(float)
+    u = log.data[["tau"]].to_numpy(float)
+    n = y.size
+    kinds = term_kinds(res.spec.codes.factors, 2)
+    starts, p_init = np.array([0, n]), np.array([float(np.var(y))])
+    row = np.r_[res.params.to_numpy(), 0.0, 1.8, -2.3, 0.0, -np.inf, -2.3, -2.3]
+
+    def run(rows, fn=gaussian_filter):
+        e, v = np.empty((rows.shape[0], n)), np.empty((rows.shape[0], n))
+        fn(0, rows.shape[0], rows, y, u, starts, p_init, *kinds, e, v)
+
+    ten = np.repeat(row[None], 10, axis=0)
+    per = {k: median_time(lambda r=r: run(r), repeats * 3) / (r.shape[0] * n)
+           for k, r in (("10_rows", ten), ("1_row", row[None]))}
+    base = median_time(lambda: run(row[None], gaussian_filter.py_func), 3, warmup=0) / n
+    out["filter_ns_per_row_sample_10_rows"] = 1e9 * per["10_rows"]
+    out["filter_ns_per_row_sample_1_row"] = 1e9 * per["1_row"]
+    out["filter_plain_python_ns_per_row_sample"] = 1e9 * base
+    out["filter_speedup_vs_python_10_rows"] = base / per["10_rows"]
+    return out
+
+
 def bench_identify_3state(repeats: int = 5) -> dict:
     """Refined IV, zero-mean, on a 3-state log of 4 experiments × 10⁵ samples."""
     from vesselid.identify import identify
@@ -185,6 +228,7 @@ def _load(name: str, func: str) -> Callable | None:
 BENCHES: dict[str, Callable[[], Callable | None]] = {
     "simulate": lambda: bench_simulate,
     "identify": lambda: bench_identify,
+    "pem": lambda: bench_pem,
     "identify_3state": lambda: bench_identify_3state,
     "heave_env": lambda: _load("bench_envs_heave", "bench_heave"),
     "manoeuvring_env": lambda: _load("bench_envs", "bench_manoeuvring"),

@@ -211,6 +211,16 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
             "reason": reason, "nll_terms": terms, "free": int(d)}
 
 
+def _unit(x: np.ndarray) -> float:
+    """A signal's unit for the scoring: its standard deviation (its largest magnitude
+    when constant, 1 when zero or not finite)."""
+    sd = float(np.std(x))
+    if np.isfinite(sd) and sd > 0:
+        return sd
+    top = float(np.max(np.abs(x))) if x.size else 0.0
+    return top if np.isfinite(top) and top > 0 else 1.0
+
+
 def _vuong(a: dict[str, Any], b: dict[str, Any], count: int) -> float:
     """Vuong's z of model ``a`` against ``b`` (positive: ``a`` fits better), with
     Schwarz's correction for the number of free parameters."""
@@ -258,12 +268,18 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
         segs = np.flatnonzero(data.group == g)
         a, b = int(data.starts[segs[0]]), int(data.starts[segs[-1] + 1])
         starts = data.starts[segs[0]: segs[-1] + 2] - a
-        y = data.target[a:b, 0]
-        u = data.u[a:b]
+        # in units of each signal's spread: the scoring's finite differences and start
+        # values are then the same whatever units the log is in (results scale exactly)
+        cx = _unit(data.target[a:b, 0])
+        cu = np.array([_unit(data.u[a:b, q]) for q in range(data.u.shape[1])])
+        fscale = np.concatenate([[cx], cu, [cx], cu, [1.0]])  # F = [x, u, |x|, |u|, 1]
+        tscale = fscale[fac[:, 0]] * fscale[fac[:, 1]] / cx  # θ' = θ · tscale
+        y = data.target[a:b, 0] / cx
+        u = data.u[a:b] / cu
         filt = _Filter(y, u, starts, fac, parallel)
         fits = []
         for m in models:
-            psi0, free, scale = _start(th0, y, u, starts, fac, m)
+            psi0, free, scale = _start(th0 * tscale, y, u, starts, fac, m)
             if not scale > EXACT_FIT * max(float(np.max(np.abs(y))), 1e-300):
                 break  # noise-free: the likelihood has no maximum, the start is exact
             fits.append(_scoring(filt, psi0, free, max_iter, tol))
@@ -275,7 +291,7 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
             out["reason"][g] = EXACT
             continue
         ll = np.array([-np.sum(f["nll_terms"]) if f["nll_terms"] is not None else -np.inf
-                       for f in fits])
+                       for f in fits]) - filt.count * math.log(cx)
         ll = np.where(np.isfinite(ll), ll, -np.inf)
         best = int(np.argmax(ll))
         f = fits[best]
@@ -287,9 +303,15 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
         out["iterations"][g] = sum(x["iterations"] for x in fits)
         out["reason"][g] = f["reason"]
         if np.isfinite(ll[best]) and np.all(np.isfinite(f["psi"][:n_par])):
-            out["theta"][g] = f["psi"][:n_par]
-            out["psi"][g] = f["psi"]
-            out["cov"][g] = f["cov"][:n_par, :n_par]
+            psi = f["psi"].copy()
+            psi[:n_par] /= tscale
+            ix = _layout(n_par)
+            psi[ix["mu_w"]] *= cx
+            for key in ("sigma_v", "sigma_c", "sigma_w", "sigma_e"):
+                psi[ix[key]] += math.log(cx)
+            out["theta"][g] = psi[:n_par]
+            out["psi"][g] = psi
+            out["cov"][g] = f["cov"][:n_par, :n_par] / np.outer(tscale, tscale)
     return out
 
 
