@@ -47,7 +47,8 @@ from vesselid.identify.data import RegressionData
 from vesselid.identify.estimators import IterationResult, estimate
 from vesselid.model import ModelSpec
 
-__all__ = ["DISTURBANCE_MODELS", "PredictionError", "fit_groups", "supports"]
+__all__ = ["DISTURBANCE_MODELS", "PredictionError", "fit_groups", "load_kernels",
+           "supports"]
 
 #: The disturbance models fitted (see module docstring).
 DISTURBANCE_MODELS = ("current", "sensor")
@@ -148,6 +149,14 @@ class _Filter:
                    (rows, self.y, self.u, self.starts, self.p_init, *self.terms, eps, var),
                    parallel=self.parallel and rows.shape[0] > 1)
         return eps, var
+
+
+def load_kernels() -> None:
+    """Load (or compile, on first use) the filter kernel with the signature every fit
+    calls it with (:mod:`vesselid._precompile` compiles the same one)."""
+    fac = np.array([[0, 4], [0, 2], [1, 4]], dtype=np.int64)  # heave: x, x|x|, u
+    filt = _Filter(np.zeros(4), np.zeros((4, 1)), np.array([0, 4]), fac, parallel=False)
+    filt.run(np.zeros((1, fac.shape[0] + 7)))
 
 
 def _nll_terms(eps: np.ndarray, var: np.ndarray) -> np.ndarray:
