@@ -360,11 +360,11 @@ class PredictionError(Estimator):
             raise IdentificationError(
                 f"scoring_tol must be a positive number, got {self.scoring_tol!r}")
         if not supports(spec):
+            has = ([f"{spec.n_states} state equations"] if spec.n_states != 1 else []) + (
+                ["an [aggregate] relation (a disturbance sensor)"] if spec.aggregate else [])
             raise IdentificationError(
                 "method 'pem' models one state equation without a disturbance sensor; "
-                f"this spec has {spec.n_states} states"
-                + (" and an [aggregate] relation" if spec.aggregate else "")
-                + " — use 'auto' or 'iv-zero-mean'")
+                f"this spec has {' and '.join(has)} — use 'auto' or 'iv-zero-mean'")
 
     def check_covariance(self, cov_type: str | None) -> None:
         if cov_type is not None:
