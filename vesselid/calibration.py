@@ -122,10 +122,8 @@ def group_covariances(
     for g in range(data.n_groups):
         if not np.all(np.isfinite(theta[g])):
             continue
-        segs = np.flatnonzero(data.group == g)
-        a, b = int(data.starts[segs[0]]), int(data.starts[segs[-1] + 1])
-        starts = data.starts[segs[0]: segs[-1] + 2] - a
-        sl = slice(a, b)
+        sl, starts = data.group_rows(g)
+        a, b = sl.start, sl.stop
         phi = kernels.regressor_matrix(data.regsig[sl], data.u[sl], starts, codes.factors)
         if method == "ls":
             z = phi
@@ -554,13 +552,12 @@ def registry_covariances(
     for g in range(n_groups):
         if not np.all(np.isfinite(it.theta[g])):
             continue
-        segs = np.flatnonzero(data.group == g)
-        a, b = int(data.starts[segs[0]]), int(data.starts[segs[-1] + 1])
-        sl = slice(a, b)
+        sl, starts = data.group_rows(g)
+        n_seg = starts.size - 1
         sub = dataclasses.replace(
             data, target=data.target[sl], regsig=data.regsig[sl], u=data.u[sl],
-            starts=data.starts[segs[0]: segs[-1] + 2] - a, group=np.zeros(segs.size, np.int64),
-            n_groups=1, experiment_ids=tuple(range(segs.size)),
+            starts=starts, group=np.zeros(n_seg, np.int64),
+            n_groups=1, experiment_ids=tuple(range(n_seg)),
             sensor=None if data.sensor is None else data.sensor[sl])
         it_g = dataclasses.replace(it, **{f: _slice_group(getattr(it, f), g, n_groups)
                                           for f in fields if f != "history"})

@@ -54,6 +54,7 @@ from vesselid.identify.data import RegressionData, from_arrays
 from vesselid.identify.efficient import InstrumentalGMM
 from vesselid.identify.estimators import COMBINE_MODES, IterationResult
 from vesselid.identify.methods import RefinedIV
+from vesselid.identify.pem import PredictionError
 from vesselid.identify.registry import ESTIMATORS, PAPER_METHODS, get_estimator
 from vesselid.model import ModelSpec
 from vesselid.systems import System, get_system
@@ -249,8 +250,6 @@ def _takes_base(est: Any, study: Study) -> bool:
 
     Sharing is bit-identical by construction: the same function on the same arrays.
     """
-    from vesselid.identify.pem import PredictionError
-
     return isinstance(est, InstrumentalGMM | PredictionError) and study.combine == "pooled"
 
 

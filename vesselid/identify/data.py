@@ -67,6 +67,13 @@ class RegressionData:
         out.flags.writeable = False
         return out
 
+    def group_rows(self, g: int) -> tuple[slice, np.ndarray]:
+        """The rows of group ``g`` (its experiments are contiguous) and its experiment
+        starts relative to them."""
+        segs = np.flatnonzero(self.group == g)
+        a, b = int(self.starts[segs[0]]), int(self.starts[segs[-1] + 1])
+        return slice(a, b), self.starts[segs[0]: segs[-1] + 2] - a
+
     def segment(self, s: int) -> slice:
         return slice(int(self.starts[s]), int(self.starts[s + 1]))
 

@@ -412,7 +412,6 @@ class InstrumentalGMM(Estimator):
                     np.full((n, *arr.shape[1:]), np.nan))
             full[idx] = arr
             info[f"pem_{key}"] = full
-        info["pem_tried"] = reject.copy()
         take = idx[ok]
         theta[take] = res["theta"][ok]
         iters[take] += res["iterations"][ok]
@@ -450,29 +449,23 @@ class InstrumentalGMM(Estimator):
     def describe(self, it: IterationResult) -> dict[str, Any]:
         info = it.info
         noise_model = "none"
-        if info["instrument_set"][0] == "pem":
-            out = pem.describe_fit(info, 0, it.theta.shape[1])
-            out["instruments"] = "none: prediction-error estimator (PEM)"
-            out["hansen_j_combined"] = _jdict(info["j_stat"][0], info["j_df"])
-            out["c_test_lagged"] = _jdict(info["c_stat"][0], info["c_df"])
-            out["colour_test"] = _jdict(info["colour_stat"][0], info["colour_df"])
-            out["colour_test_prefilter"] = (f"AR({info['colour_order']})"
-                                            if info.get("colour_order") else "none")
-            out["instrument_choice"] = self._choice_text(info)
-            return out
-        if info["instrument_set"][0] == "simulated" and self.noise_order:
-            order = info["noise_order"]
-            noise_model = (f"AR({order}) prefilter (SRIV)" if order
-                           else "none (the log is low-pass filtered)")
-        out: dict[str, Any] = {
-            "instruments": str(info["instrument_set"][0]),
-            "noise_model": noise_model,
-            "sensor_noise_correction": (
-                "none" if not info.get("sensor_noise") else
-                "square modulus regressors corrected for white sensor noise (std "
-                + ", ".join(f"{k} {v:.3g}" for k, v in info["sensor_noise"].items())
-                + "): y|y| - s^2 sign(y), y^2 - s^2"),
-        }
+        if info["instrument_set"][0] == "pem":  # its disturbance model; the tests below
+            out: dict[str, Any] = {**pem.describe_fit(info, 0, it.theta.shape[1]),
+                                   "instruments": "none: prediction-error estimator (PEM)"}
+        else:
+            if info["instrument_set"][0] == "simulated" and self.noise_order:
+                order = info["noise_order"]
+                noise_model = (f"AR({order}) prefilter (SRIV)" if order
+                               else "none (the log is low-pass filtered)")
+            out = {
+                "instruments": str(info["instrument_set"][0]),
+                "noise_model": noise_model,
+                "sensor_noise_correction": (
+                    "none" if not info.get("sensor_noise") else
+                    "square modulus regressors corrected for white sensor noise (std "
+                    + ", ".join(f"{k} {v:.3g}" for k, v in info["sensor_noise"].items())
+                    + "): y|y| - s^2 sign(y), y^2 - s^2"),
+            }
         if "c_pvalue" in info:
             out["hansen_j_combined"] = _jdict(info["j_stat"][0], info["j_df"])
             out["c_test_lagged"] = _jdict(info["c_stat"][0], info["c_df"])

@@ -274,17 +274,15 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
         th0 = np.asarray(theta_start[g], dtype=float)
         if not np.all(np.isfinite(th0)):
             continue
-        segs = np.flatnonzero(data.group == g)
-        a, b = int(data.starts[segs[0]]), int(data.starts[segs[-1] + 1])
-        starts = data.starts[segs[0]: segs[-1] + 2] - a
+        rows, starts = data.group_rows(g)
         # in units of each signal's spread: the scoring's finite differences and start
         # values are then the same whatever units the log is in (results scale exactly)
-        cx = _unit(data.target[a:b, 0])
-        cu = np.array([_unit(data.u[a:b, q]) for q in range(data.u.shape[1])])
+        cx = _unit(data.target[rows, 0])
+        cu = np.array([_unit(data.u[rows, q]) for q in range(data.u.shape[1])])
         fscale = np.concatenate([[cx], cu, [cx], cu, [1.0]])  # F = [x, u, |x|, |u|, 1]
         tscale = fscale[fac[:, 0]] * fscale[fac[:, 1]] / cx  # θ' = θ · tscale
-        y = data.target[a:b, 0] / cx
-        u = data.u[a:b] / cu
+        y = data.target[rows, 0] / cx
+        u = data.u[rows] / cu
         filt = _Filter(y, u, starts, fac, parallel)
         fits = []
         for m in models:
