@@ -1,4 +1,4 @@
-"""ROS 2 bags → trial log (rosbags writes the bag in the test)."""
+"""ROS 1 and ROS 2 bags → trial log (rosbags writes the bag in the test)."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pymap3d  # noqa: F401  (a missing test dependency fails)
+import pytest
 
 from vesselid.ingest import ingest
 
@@ -83,3 +84,67 @@ def test_bag_to_trial_log_in_ned_frd(tmp_path):
     q = log.metadata["quality"]
     assert q["columns"]["r"]["source"].endswith("imu gyro")
     assert q["columns"]["u"]["resampling"].startswith("anti-aliased")
+
+
+def _write_ros1_bag(path, n=400, dt=0.05):
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    T = ts.types
+    Vec = T["geometry_msgs/msg/Vector3"]
+    t0 = 1_780_000_000.0
+    k = np.arange(n)
+    t = t0 + k * dt
+    yaw = 0.3 + 0.05 * np.sin(0.02 * k)
+    u = 0.8 + 0.1 * np.sin(0.01 * k)
+    wz = 0.02 * np.cos(0.02 * k)
+    with Writer(path) as w:
+        c_odom = w.add_connection("/odom", "nav_msgs/msg/Odometry", typestore=ts)
+        c_wr = w.add_connection("/thrust", "geometry_msgs/msg/WrenchStamped", typestore=ts)
+        for i in range(n):
+            sec = int(t[i])
+            ns = round((t[i] - sec) * 1e9)
+            hdr = T["std_msgs/msg/Header"](seq=i, stamp=T["builtin_interfaces/msg/Time"](
+                sec=sec, nanosec=ns), frame_id="odom")
+            q = T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(yaw[i] / 2),
+                                                  w=math.cos(yaw[i] / 2))
+            pose = T["geometry_msgs/msg/PoseWithCovariance"](
+                pose=T["geometry_msgs/msg/Pose"](
+                    position=T["geometry_msgs/msg/Point"](x=0.04 * i, y=0.01 * i, z=0.0),
+                    orientation=q), covariance=np.zeros(36))
+            twist = T["geometry_msgs/msg/TwistWithCovariance"](
+                twist=T["geometry_msgs/msg/Twist"](linear=Vec(x=u[i], y=0.0, z=0.0),
+                                                   angular=Vec(x=0.0, y=0.0, z=wz[i])),
+                covariance=np.zeros(36))
+            odom = T["nav_msgs/msg/Odometry"](header=hdr, child_frame_id="base_link",
+                                              pose=pose, twist=twist)
+            stamp = sec * 1_000_000_000 + ns
+            w.write(c_odom, stamp, ts.serialize_ros1(odom, "nav_msgs/msg/Odometry"))
+            wr = T["geometry_msgs/msg/WrenchStamped"](
+                header=hdr, wrench=T["geometry_msgs/msg/Wrench"](
+                    force=Vec(x=5.0, y=0.5, z=0.0), torque=Vec(x=0.0, y=0.0, z=0.2)))
+            w.write(c_wr, stamp, ts.serialize_ros1(wr, "geometry_msgs/msg/WrenchStamped"))
+    return yaw, u, wz
+
+
+def test_ros1_bag_to_trial_log(tmp_path):
+    yaw, u, wz = _write_ros1_bag(tmp_path / "run.bag")
+    log = ingest(tmp_path / "run.bag", 0.1, min_duration=5)
+    d = log.data
+    assert len(log.experiment_ids) == 1 and len(d) > 150
+    np.testing.assert_allclose(d["psi"].iloc[0], np.pi / 2 - yaw[0], atol=2e-3)
+    np.testing.assert_allclose(d["u"].iloc[:50], u[:100:2], atol=2e-3)
+    np.testing.assert_allclose(d["r"].iloc[:50], -wz[:100:2], atol=2e-4)
+    np.testing.assert_array_equal(d["X"], 5.0)
+    np.testing.assert_array_equal(d["N"], -0.2)
+    src = log.metadata["quality"]["sources"][0]
+    assert src["type"] == "ros1bag" and src["topics"] == {"/odom": 400, "/thrust": 400}
+
+
+def test_ros1_bag_garbage_is_refused(tmp_path):
+    from vesselid.ingest import IngestError
+
+    (tmp_path / "x.bag").write_bytes(b"#ROSBAG V2.0\n" + bytes(range(256)) * 20)
+    with pytest.raises(IngestError, match=r"cannot read ROS 1 bag .*x\.bag"):
+        ingest(tmp_path / "x.bag", 0.1)

@@ -1,8 +1,8 @@
 """Raw sensor data → trial logs: ``vesselid ingest RAW_DIR_OR_FILES --dt 0.1 --out trial.csv``.
 
 One module per source: :mod:`~vesselid.ingest.nmea` (NMEA 0183), :mod:`~vesselid.ingest.tables`
-(mapped multi-rate CSV), :mod:`~vesselid.ingest.rosbag` (ROS 2 bags, optional extra
-``ros``); :mod:`~vesselid.ingest.streams` resamples, :mod:`~vesselid.ingest.pipeline`
+(mapped multi-rate CSV), :mod:`~vesselid.ingest.rosbag` (ROS 1 and ROS 2 bags, optional
+extra ``ros``); :mod:`~vesselid.ingest.streams` resamples, :mod:`~vesselid.ingest.pipeline`
 assembles the log and its quality report, :mod:`~vesselid.ingest.config` reads the small
 configuration TOML (origin, latencies, column mappings).
 """
@@ -35,6 +35,9 @@ def add_parser(subparsers: Any) -> None:
                    help="longest gap bridged by interpolation (s); longer ones split experiments")
     p.add_argument("--min-duration", type=float, default=None,
                    help="shortest experiment kept (s)")
+    p.add_argument("--sample-rate", type=float, default=None, metavar="HZ",
+                   help="the tables' logging rate (Hz): rebuilds a quantised or duplicated "
+                        "time column (refused without it)")
     p.set_defaults(func=cmd_ingest)
 
 
@@ -55,7 +58,8 @@ def cmd_ingest(args: argparse.Namespace) -> int:
     check_output_file("--out", args.out)  # before parsing anything
     limits.check_inputs("ingest", args.inputs)
     log = ingest(args.inputs, args.dt, config=args.config, origin=origin,
-                 max_gap=args.max_gap, min_duration=args.min_duration)
+                 max_gap=args.max_gap, min_duration=args.min_duration,
+                 sample_rate=args.sample_rate)
     log.metadata["command"] = "vesselid " + " ".join(sys.argv[1:]) if sys.argv else ""
     log.save(out)
     print(summary(log))
@@ -68,17 +72,41 @@ def cmd_ingest(args: argparse.Namespace) -> int:
 
 
 def summary(log: Any) -> str:
-    """A few lines of the quality report."""
+    """The quality report in a few lines: per source what was read and what was not,
+    per column the rate and every dropped, interpolated or re-timed sample."""
     q = log.metadata.get("quality", {})
     lines = []
     for s in q.get("sources", []):
         if s.get("type") == "nmea0183":
-            lines.append(
-                f"{s['file']}: {s['lines']} lines, {s['sentences']} sentences ok, "
-                f"{s['bad_checksum']} bad checksums, {s['corrupt']} corrupt, "
-                f"{s.get('clock_jumps', 0)} clock jumps, unsupported {s.get('unsupported', {})}")
+            line = (f"{s['file']}: {s['lines']} lines, {s['sentences']} sentences ok, "
+                    f"{s['bad_checksum']} bad checksums, {s['corrupt']} corrupt, "
+                    f"{s.get('clock_jumps', 0)} clock jumps, "
+                    f"unsupported {s.get('unsupported', {})}")
+            if s.get("invalid"):
+                line += f", invalid (void/empty) {s['invalid']}"
+            lines.append(line)
+            for kind, why in s.get("unusable", {}).items():
+                lines.append(f"  unused {kind}: {why}")
+            if s.get("xdr_unmapped"):
+                lines.append(f"  XDR transducers not mapped in [nmea] xdr (not read): "
+                             f"{s['xdr_unmapped']}")
+            if s.get("time_outliers"):
+                lines.append(f"  {s['time_outliers']} fix(es) with an outlying clock dropped")
+        elif s.get("type") == "csv":
+            line = f"{s.get('file')}: csv ({s.get('kind')}), {s.get('rows')} rows"
+            if s.get("bad_time"):
+                line += f", {s['bad_time']} rows without a usable time dropped"
+            if s.get("bad_values"):
+                line += f", empty/unparsable cells skipped {s['bad_values']}"
+            if s.get("time_rebuilt"):
+                tr = s["time_rebuilt"]
+                line += (f"; time axis rebuilt at {tr['sample_rate_hz']:g} Hz "
+                         f"({tr['duplicate_times']} duplicated stamps, max shift "
+                         f"{tr['max_shift_s']:.3g} s)")
+            lines.append(line)
         else:
-            lines.append(f"{s.get('file', s.get('bag'))}: {s.get('type')}")
+            lines.append(f"{s.get('file', s.get('bag'))}: {s.get('type')}"
+                         + (f", topics {s['topics']}" if s.get("topics") else ""))
     for name, c in q.get("columns", {}).items():
         if "derived" in c:
             lines.append(f"  {name:<10} derived: {c['derived']}")
@@ -88,7 +116,28 @@ def summary(log: Any) -> str:
         if rate:
             head += (f": {rate:.2f} Hz, {c.get('dropouts', 0)} dropouts, interpolated "
                      f"{100 * c['interpolated_fraction']:.2f} %, {c.get('resampling')}")
+        extra = []
+        if c.get("duplicate_times"):
+            extra.append(f"{c['duplicate_times']} duplicate-time samples dropped")
+        if c.get("non_finite"):
+            extra.append(f"{c['non_finite']} empty/non-finite samples dropped")
+        if c.get("time_interpolated"):
+            extra.append(f"{c['time_interpolated']} sample times interpolated between fixes")
+        if c.get("quantisation_deg"):
+            extra.append(f"quantised to {c['quantisation_deg']:g} deg (noise std "
+                         f"{c['quantisation_noise_std_rad']:.4f} rad)")
+        if c.get("magnetic"):
+            extra.append(f"magnetic, variation from {c.get('variation_from')}")
+        if c.get("heading_offset_deg"):
+            extra.append(f"heading offset {c['heading_offset_deg']:g} deg removed")
+        if c.get("renamed_from"):
+            extra.append(f"from NMEA channel {c['renamed_from']!r}")
+        if extra:
+            head += "; " + "; ".join(extra)
         lines.append(head)
+    if q.get("lever_arm_m"):
+        lines.append(f"  lever arm {q['lever_arm_m']} m applied to "
+                     f"{', '.join(q.get('lever_arm_applied_to', [])) or 'nothing'}")
     for d in q.get("dropped_segments", []):
         lines.append(f"  dropped a {d['rows']}-row stretch at {d['start_utc']} (too short)")
     return "\n".join(lines)

@@ -17,9 +17,22 @@
     time_unit = "s"                    # s | ms | us | ns | iso
     clock_offset = 0.0                 # s, subtracted (file clock minus UTC)
     kind = "command"                   # command (zero-order hold) | measurement
+    sample_rate = 10.0                 # Hz, optional: the logger's rate, used only to
+                                       # rebuild a quantised/duplicated time column
     columns = { X = "X_cmd", psi = { column = "heading_deg", scale = 0.0174533 } }
 
-    [ros]                              # ROS 2 bags (optional extra "ros")
+    heading_offset = 0.0               # deg: heading sensor axis minus the bow, clockwise
+                                       # (psi = sensor heading - heading_offset)
+    lever_arm = [0.0, 0.0]             # m: GNSS antenna from the reference point, body
+                                       # axes (x forward, y starboard[, z down])
+
+    [nmea]                             # NMEA 0183 options
+    magnetic_variation = -2.5          # deg, east positive (HDG/HDM without a variation)
+    deviation = 0.0                    # deg, east positive (HDG without a deviation)
+    channels = { rudder = "delta", shaft_rpm = { name = "n", scale = 0.0166667 } }
+    xdr = { RUDDER = "delta", ENGINE0 = { name = "n", scale = 0.0166667 } }
+
+    [ros]                              # ROS 1 / ROS 2 bags (optional extra "ros")
     odometry = "/odom"                 # nav_msgs/msg/Odometry topic (default: by type)
     imu = "/imu"                       # sensor_msgs/msg/Imu
     wrench = "/wrench"                 # geometry_msgs/msg/WrenchStamped
@@ -29,6 +42,9 @@
 Canonical channel names a mapping may target: ``u, v, r, psi, north, east, lat, lon,
 vel_north, vel_east, u_log, v_log, wind_speed, wind_angle`` and any other name (an input or
 sensor column, copied as is). ``psi`` and ``wind_angle`` are treated as angles.
+NMEA channel names (renamed by ``[nmea] channels``): ``rudder`` (RSA, rad, + to
+starboard), ``rudder_port``, ``shaft_rpm`` / ``engine_rpm`` (RPM, rev/min; ``_<n>`` suffix
+with several shafts/engines), and the XDR transducer names mapped in ``[nmea] xdr``.
 """
 
 from __future__ import annotations
@@ -40,9 +56,13 @@ from typing import Any
 
 from vesselid.errors import VesselidError
 
-__all__ = ["CsvMapping", "IngestConfig", "IngestError", "load_config"]
+__all__ = ["ChannelMap", "CsvMapping", "IngestConfig", "IngestError", "NmeaOptions",
+           "load_config"]
 
 ANGLE_CHANNELS = ("psi", "wind_angle")
+
+#: Top-level configuration tables owned by other readers (kept in ``IngestConfig.extra``).
+EXTRA_TABLES: set[str] = {"tank"}
 
 
 class IngestError(VesselidError):
@@ -57,6 +77,37 @@ class ColumnMap:
 
 
 @dataclass(frozen=True)
+class ChannelMap:
+    """A renamed (and scaled) channel: ``value = raw * scale + offset``."""
+
+    name: str
+    scale: float = 1.0
+    offset: float = 0.0
+
+
+@dataclass(frozen=True)
+class NmeaOptions:
+    """The ``[nmea]`` table: magnetic corrections and channel names.
+
+    Attributes
+    ----------
+    magnetic_variation, deviation : float or None
+        Degrees, east positive; used where an HDG sentence leaves the field empty and for
+        HDM (which has neither). ``None``: not stated.
+    channels : dict
+        NMEA channel name → :class:`ChannelMap` (rename/scale, e.g. ``rudder`` → ``delta``).
+    xdr : dict
+        XDR transducer name → :class:`ChannelMap` (unmapped transducers are counted, not
+        read).
+    """
+
+    magnetic_variation: float | None = None
+    deviation: float | None = None
+    channels: dict[str, ChannelMap] = field(default_factory=dict)
+    xdr: dict[str, ChannelMap] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
 class CsvMapping:
     file: str
     time: str = "time"
@@ -64,6 +115,7 @@ class CsvMapping:
     clock_offset: float = 0.0
     kind: str = "measurement"
     columns: dict[str, ColumnMap] = field(default_factory=dict)
+    sample_rate: float | None = None
 
 
 @dataclass(frozen=True)
@@ -76,6 +128,10 @@ class IngestConfig:
     csv: tuple[CsvMapping, ...] = ()
     ros: dict[str, Any] = field(default_factory=dict)
     base: Path = Path(".")
+    heading_offset: float = 0.0
+    lever_arm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    nmea: NmeaOptions = field(default_factory=NmeaOptions)
+    extra: dict[str, Any] = field(default_factory=dict)
 
 
 def _num(value: Any, what: str) -> float:
@@ -98,10 +154,50 @@ def _column_map(name: str, raw: Any, where: str) -> ColumnMap:
                       f"{{column = ..., scale = ..., offset = ...}}, got {raw!r}")
 
 
+def _channel_map(raw: Any, where: str) -> ChannelMap:
+    if isinstance(raw, str) and raw:
+        return ChannelMap(raw)
+    if isinstance(raw, dict) and isinstance(raw.get("name"), str) and raw["name"]:
+        bad = sorted(set(raw) - {"name", "scale", "offset"})
+        if bad:
+            raise IngestError(f"{where}: unknown keys {bad} (known: name, scale, offset)")
+        return ChannelMap(raw["name"], _num(raw.get("scale", 1.0), f"{where}.scale"),
+                          _num(raw.get("offset", 0.0), f"{where}.offset"))
+    raise IngestError(f"{where} must be a channel name or {{name = ..., scale = ..., "
+                      f"offset = ...}}, got {raw!r}")
+
+
+def _nmea_options(raw: Any) -> NmeaOptions:
+    if not isinstance(raw, dict):
+        raise IngestError("[nmea] must be a table")
+    known = {"magnetic_variation", "deviation", "channels", "xdr"}
+    unknown = sorted(set(raw) - known)
+    if unknown:
+        raise IngestError(f"unknown [nmea] keys {unknown}; known: {sorted(known)}")
+    var = raw.get("magnetic_variation")
+    dev = raw.get("deviation")
+    var = None if var is None else _num(var, "nmea.magnetic_variation")
+    dev = None if dev is None else _num(dev, "nmea.deviation")
+    for name, v in (("magnetic_variation", var), ("deviation", dev)):
+        if v is not None and abs(v) > 180:
+            raise IngestError(f"nmea.{name} must be within ±180 degrees, got {v}")
+    maps = {}
+    for key in ("channels", "xdr"):
+        table = raw.get(key, {})
+        if not isinstance(table, dict):
+            raise IngestError(f"nmea.{key} must be a table of name = channel")
+        maps[key] = {str(k): _channel_map(v, f"nmea.{key}.{k}") for k, v in table.items()}
+    return NmeaOptions(var, dev, maps["channels"], maps["xdr"])
+
+
 def config_from_dict(data: dict[str, Any], base: Path = Path(".")) -> IngestConfig:
-    """Validate a parsed configuration."""
+    """Validate a parsed configuration.
+
+    Top-level tables of other readers (e.g. a tank-test table reader) are kept in
+    ``IngestConfig.extra`` when their names are registered in :data:`EXTRA_TABLES`.
+    """
     known = {"origin", "max_gap", "min_duration", "epoch_tolerance", "relative_latency", "csv",
-             "ros"}
+             "ros", "heading_offset", "lever_arm", "nmea", *EXTRA_TABLES}
     unknown = sorted(set(data) - known)
     if unknown:
         raise IngestError(f"unknown ingest configuration keys {unknown}; known: {sorted(known)}")
@@ -140,16 +236,36 @@ def config_from_dict(data: dict[str, Any], base: Path = Path(".")) -> IngestConf
         cols = t.get("columns", {})
         if not isinstance(cols, dict) or not cols:
             raise IngestError(f"{where}.columns must map channel names to CSV columns")
+        rate = t.get("sample_rate")
+        if rate is not None:
+            rate = _num(rate, f"{where}.sample_rate")
+            if rate <= 0:
+                raise IngestError(f"{where}.sample_rate must be a positive rate in Hz, got {rate}")
         csv.append(CsvMapping(
             file=t["file"], time=str(t.get("time", "time")), time_unit=unit,
             clock_offset=_num(t.get("clock_offset", 0.0), f"{where}.clock_offset"), kind=kind,
-            columns={str(k): _column_map(str(k), v, where) for k, v in cols.items()}))
+            columns={str(k): _column_map(str(k), v, where) for k, v in cols.items()},
+            sample_rate=rate))
     ros = data.get("ros", {})
     if not isinstance(ros, dict):
         raise IngestError("[ros] must be a table")
+    heading_offset = _num(data.get("heading_offset", 0.0), "heading_offset")
+    if abs(heading_offset) > 360:
+        raise IngestError(f"heading_offset must be within ±360 degrees, got {heading_offset}")
+    arm = data.get("lever_arm", [0.0, 0.0, 0.0])
+    if not isinstance(arm, list | tuple) or len(arm) not in (2, 3):
+        raise IngestError(f"lever_arm must be [x, y] or [x, y, z] in metres (body axes: x "
+                          f"forward, y starboard, z down), got {arm!r}")
+    arm_v = [_num(x, "lever_arm") for x in arm]
+    if max(abs(x) for x in arm_v) > 1000:
+        raise IngestError(f"lever_arm components must be within ±1000 m, got {arm!r}")
+    lever = (arm_v[0], arm_v[1], arm_v[2] if len(arm_v) == 3 else 0.0)
     return IngestConfig(origin=origin, max_gap=max_gap, min_duration=min_duration,
                         epoch_tolerance=epoch_tolerance,
-                        relative_latency=rel, csv=tuple(csv), ros=dict(ros), base=base)
+                        relative_latency=rel, csv=tuple(csv), ros=dict(ros), base=base,
+                        heading_offset=heading_offset, lever_arm=lever,
+                        nmea=_nmea_options(data.get("nmea", {})),
+                        extra={k: data[k] for k in EXTRA_TABLES if k in data})
 
 
 def load_config(path: str | Path) -> IngestConfig:

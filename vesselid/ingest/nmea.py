@@ -1,19 +1,30 @@
 """NMEA 0183 files → channel streams, with per-sentence quality counts.
 
-Supported sentences (any talker): GGA, RMC (position, time of fix, speed/course over
-ground), VTG (speed/course over ground), HDT and THS (true heading), ROT (rate of turn),
-VHW (speed through water), VBW (dual-axis water speed), MWV (apparent wind). Lines may
+Supported sentences (any talker): GGA, RMC, GLL (position, time of fix; RMC also
+speed/course over ground), ZDA (UTC date and time), VTG (speed/course over ground), HDT and
+THS (true heading), HDG and HDM (magnetic heading, made true with the variation and
+deviation of the sentence, else of ``[nmea]`` in the ingest configuration, else RMC's
+variation), ROT (rate of turn), RSA (rudder angle), RPM (shaft/engine speed), XDR
+(transducers, read by the names mapped in ``[nmea] xdr``), VHW (speed through water), VBW
+(dual-axis water speed), MWV (apparent wind). Lines may
 carry a receive time as an IEC 61162-450 TAG block (``\\c:<unix s or ms>*hh\\``) or as a
 leading UNIX time or ISO 8601 stamp (``1780308000.123 $GPGGA,...``).
 
 Clocks. GGA and RMC carry the UTC time of validity of the fix. Their receive times give
 the logger clock offset (receive − fix, i.e. logger offset plus GNSS latency), estimated
 as the median over runs of consecutive sentences; a change of more than 0.5 s is a clock
-jump, counted, and starts a new run. Untimed sentences (HDT, ROT, VTG, VHW, VBW, MWV) get
-``receive time − offset of the run − relative latency`` (``[relative_latency]`` in the
-ingest configuration: the sensor's latency minus the GNSS receiver's). Without receive
-times, an untimed sentence takes the time of the last timed sentence before it (one
-burst per epoch).
+jump, counted, and starts a new run. ZDA, GLL and GGA without a date take the date of the
+nearest RMC/ZDA, else of the receive time. Untimed sentences (HDT, HDG, ROT, VTG, VHW,
+...) get ``receive time − offset of the run − relative latency`` (``[relative_latency]``
+in the ingest configuration: the sensor's latency minus the GNSS receiver's). Without
+receive times, an untimed sentence takes the time of the last timed sentence before it
+(one burst per epoch); where a sentence type comes several times between two timed
+sentences, its sentences are spread evenly over that interval and counted as
+``time_interpolated``. A file with neither a timed sentence nor receive times is refused
+("no time source").
+
+Headings in whole degrees (typical of magnetic compasses) are detected and reported
+(``quantisation_deg`` with the equivalent noise standard deviation ``q/√12``).
 
 Speed. Parsing is vectorised over the file's bytes (:func:`_scan`): checksums from one
 cumulative XOR, talker and formatter by byte gathers, and the fields of each sentence type
@@ -33,7 +44,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from vesselid.errors import VesselidError
+from vesselid.ingest.config import IngestError, NmeaOptions
 from vesselid.ingest.streams import Stream
 from vesselid.nmea import KNOT, field_index
 
@@ -46,11 +57,15 @@ for _i, _c in enumerate(b"0123456789ABCDEF"):
 for _i, _c in enumerate(b"abcdef"):
     _HEXVAL[_c] = 10 + _i
 
-TIMED = ("GGA", "RMC")
-SUPPORTED = ("GGA", "RMC", "VTG", "HDT", "THS", "ROT", "VHW", "VBW", "MWV")
+TIMED = ("GGA", "RMC", "ZDA", "GLL")
+DATED = ("RMC", "ZDA")
+SUPPORTED = ("GGA", "RMC", "ZDA", "GLL", "VTG", "HDT", "THS", "HDG", "HDM", "ROT", "RSA", "RPM",
+             "XDR", "VHW", "VBW", "MWV")
+#: Most XDR quadruplets (type, value, unit, name) read from one sentence.
+XDR_MAX = 10
 
 
-class NmeaError(VesselidError):
+class NmeaError(IngestError):
     """An NMEA file that cannot be used at all."""
 
 
@@ -64,10 +79,36 @@ def _fields(kind: str) -> tuple[int, int, dict[str, int]]:
                        "alt": fi("GGA", "altitude")}
     if kind == "RMC":
         return 9, 14, {"time": fi("RMC", "timestamp"), "status": fi("RMC", "status"),
+                       "var": fi("RMC", "mag_variation"), "var_dir": fi("RMC", "mag_var_dir"),
                        "lat": fi("RMC", "lat"), "lat_dir": fi("RMC", "lat_dir"),
                        "lon": fi("RMC", "lon"), "lon_dir": fi("RMC", "lon_dir"),
                        "sog": fi("RMC", "spd_over_grnd"), "cog": fi("RMC", "true_course"),
                        "date": fi("RMC", "datestamp")}
+    if kind == "ZDA":
+        return 4, 6, {"time": fi("ZDA", "timestamp"), "day": fi("ZDA", "day"),
+                      "month": fi("ZDA", "month"), "year": fi("ZDA", "year")}
+    if kind == "GLL":
+        return 6, 7, {"lat": fi("GLL", "lat"), "lat_dir": fi("GLL", "lat_dir"),
+                      "lon": fi("GLL", "lon"), "lon_dir": fi("GLL", "lon_dir"),
+                      "time": fi("GLL", "timestamp"), "status": fi("GLL", "status")}
+    if kind == "HDG":
+        return 1, 5, {"heading": fi("HDG", "heading"), "dev": fi("HDG", "deviation"),
+                      "dev_dir": fi("HDG", "dev_dir"), "var": fi("HDG", "variation"),
+                      "var_dir": fi("HDG", "var_dir")}
+    if kind == "HDM":
+        return 1, 2, {"heading": fi("HDM", "heading")}
+    if kind == "RSA":
+        return 2, 4, {"stbd": fi("RSA", "rsa_starboard"),
+                      "stbd_status": fi("RSA", "rsa_starboard_status"),
+                      "port": fi("RSA", "rsa_port"), "port_status": fi("RSA", "rsa_port_status")}
+    if kind == "RPM":
+        return 3, 5, {"source": fi("RPM", "source"), "number": fi("RPM", "engine_no"),
+                      "speed": fi("RPM", "speed"), "status": fi("RPM", "status")}
+    if kind == "XDR":
+        base = {"type": fi("XDR", "type"), "value": fi("XDR", "value"),
+                "unit": fi("XDR", "units"), "id": fi("XDR", "id")}
+        return 4, 4 * XDR_MAX, {f"x{k}_{name}": 4 * k + i for k in range(XDR_MAX)
+                                for name, i in base.items()}
     if kind == "VTG":
         return 5, 10, {"cog": fi("VTG", "true_track"), "sog": fi("VTG", "spd_over_grnd_kts")}
     if kind == "HDT":
@@ -88,7 +129,12 @@ def _fields(kind: str) -> tuple[int, int, dict[str, int]]:
     raise KeyError(kind)  # pragma: no cover
 
 
-_STRING_FIELDS = {"lat_dir", "lon_dir", "status", "ref", "unit"}
+_STRING_FIELDS = {"lat_dir", "lon_dir", "status", "ref", "unit", "dev_dir", "var_dir",
+                  "stbd_status", "port_status", "source", "number"}
+
+
+def _is_string_field(name: str) -> bool:
+    return name in _STRING_FIELDS or (name.startswith("x") and not name.endswith("_value"))
 
 
 # ----------------------------------------------------------------------------- scanning
@@ -200,7 +246,7 @@ def _split_fields(buf: np.ndarray, off: np.ndarray, idx: np.ndarray, start: np.n
     m[np.arange(ln.size), ln + missing] = 10  # '\n'
     text = m[cols <= end].tobytes()
     usecols = sorted(names.values())
-    str_cols = {names[k] for k in names if k in _STRING_FIELDS}
+    str_cols = {names[k] for k in names if _is_string_field(k)}
     dtypes = {c: (str if c in str_cols else float) for c in usecols}
     kwargs: dict[str, Any] = {"header": None, "names": list(range(mx)), "usecols": usecols,
                               "skip_blank_lines": False, "keep_default_na": False,
@@ -377,6 +423,7 @@ def read_nmea(
     *,
     relative_latency: dict[str, float] | None = None,
     epoch_tolerance: float = 0.02,
+    options: NmeaOptions | None = None,
 ) -> tuple[list[Stream], dict[str, Any]]:
     """Parse an NMEA 0183 log into channel streams.
 
@@ -389,25 +436,32 @@ def read_nmea(
         An untimed sentence whose aligned time is within this many seconds of a GNSS
         epoch (a GGA/RMC time of validity) takes the epoch's time (burst association;
         0 switches it off).
+    options : NmeaOptions, optional
+        Magnetic variation/deviation, channel renames and XDR transducer names (the
+        ``[nmea]`` table of the ingest configuration).
 
     Returns
     -------
     streams : list of Stream
-        ``lat, lon, alt`` (GGA, else RMC), ``vel_north, vel_east`` (RMC, else VTG), ``psi``
-        (HDT, else THS), ``r`` (ROT), ``u_log`` (+ ``v_log``: VBW, else VHW), ``wind_speed,
-        wind_angle`` (MWV, relative).
+        ``lat, lon, alt`` (GGA, else RMC, else GLL), ``vel_north, vel_east`` (RMC, else
+        VTG), ``psi`` (HDT, else THS, else HDG, else HDM; true heading), ``r`` (ROT),
+        ``rudder``/``rudder_port`` (RSA), ``shaft_rpm``/``engine_rpm`` (RPM), mapped XDR
+        transducers, ``u_log`` (+ ``v_log``: VBW, else VHW), ``wind_speed, wind_angle``
+        (MWV, relative); renamed by ``options.channels``.
     quality : dict
         Line and sentence counts: ``lines``, ``sentences``, ``bad_checksum``, ``corrupt``,
         ``unsupported`` (per formatter), ``invalid`` (void status/no fix, per formatter),
         ``talkers`` (per formatter and talker), ``ignored_talkers``, ``clock_jumps``,
-        ``time_outliers``, ``timing``.
+        ``time_outliers``, ``timing``, ``unusable`` (sentence type → why it gave no
+        samples), ``xdr_unmapped`` (transducer name → count).
 
     Raises
     ------
     NmeaError
-        Unreadable file or no valid supported sentence in it.
+        Unreadable file, no valid supported sentence in it, or no time source.
     """
     path = Path(path)
+    opts = options or NmeaOptions()
     rel = {k.upper(): float(v) for k, v in (relative_latency or {}).items()}
     q: dict[str, Any] = {"file": str(path)}
     try:
@@ -432,6 +486,7 @@ def read_nmea(
     q["sentences"] = int(good.sum())
     frames: dict[str, tuple[np.ndarray, pd.DataFrame]] = lines["frames"]
     invalid: dict[str, int] = {}
+    unusable: dict[str, str] = {}
     talkers: dict[str, dict[str, int]] = {}
     for kind, (idx, _frame) in frames.items():
         tk, cnt = np.unique(sc["talker"][idx], return_counts=True)
@@ -440,10 +495,12 @@ def read_nmea(
     if not frames:
         raise NmeaError(
             f"no valid NMEA 0183 sentence of a supported type ({', '.join(SUPPORTED)}) in "
-            f"{path}: {n} lines, {q['bad_checksum']} bad checksums, {q['corrupt']} corrupt")
+            f"{path}: {n} lines, {q['bad_checksum']} bad checksums, {q['corrupt']} corrupt"
+            + (f"; found {_counts_text(q['unsupported'])}" if q["unsupported"] else ""))
 
     # ----------------------------------------------------------- times of validity
     line_time = np.full(n, np.nan)
+    line_tod = np.full(n, np.nan)
     timed_lines = []
     for kind in TIMED:
         if kind not in frames:
@@ -452,6 +509,9 @@ def read_nmea(
         tod = _time_of_day(f["time"].to_numpy(dtype=float))
         if kind == "RMC":
             day = _dates(f["date"].to_numpy(dtype=float))
+        elif kind == "ZDA":
+            day = _ymd(f["year"].to_numpy(float), f["month"].to_numpy(float),
+                       f["day"].to_numpy(float))
         else:
             day = np.full(idx.size, np.nan)
         t_abs = day + tod
@@ -461,29 +521,34 @@ def read_nmea(
         wrap = np.mod(tod - np.mod(r, 86400.0) + 43200.0, 86400.0) - 43200.0
         t_abs = np.where(use_rx, r + wrap, t_abs)
         line_time[idx] = t_abs
+        line_tod[idx] = tod
         timed_lines.append(idx)
     timed_idx = np.sort(np.concatenate(timed_lines)) if timed_lines else np.zeros(0, np.int64)
     if timed_idx.size:
-        # GGA without date and without receive time: take the date of the nearest RMC
-        miss = timed_idx[~np.isfinite(line_time[timed_idx])]
-        if miss.size and "RMC" in frames and "GGA" in frames:
-            ridx = frames["RMC"][0]
-            rday = line_time[ridx] - np.mod(line_time[ridx], 86400.0)
-            okr = np.isfinite(rday)
-            if okr.any():
-                pos = np.searchsorted(ridx[okr], miss).clip(0, okr.sum() - 1)
-                gidx, gf = frames["GGA"]
-                loc = np.searchsorted(gidx, miss)
-                tod = _time_of_day(gf["time"].to_numpy(dtype=float)[loc])
-                line_time[miss] = rday[okr][pos] + tod
+        # a time of day without date and receive time: the date of the nearest dated
+        # sentence (RMC/ZDA), across midnight where the times of day say so
+        miss = timed_idx[~np.isfinite(line_time[timed_idx]) & np.isfinite(line_tod[timed_idx])]
+        dated = [frames[k][0] for k in DATED if k in frames]
+        dated_idx = np.sort(np.concatenate(dated)) if dated else np.zeros(0, np.int64)
+        dated_idx = dated_idx[np.isfinite(line_time[dated_idx])]
+        if miss.size and dated_idx.size:
+            pos = np.searchsorted(dated_idx, miss).clip(0, dated_idx.size - 1)
+            ref = line_time[dated_idx[pos]]
+            t = ref - np.mod(ref, 86400.0) + line_tod[miss]
+            line_time[miss] = t + 86400.0 * np.round((ref - t) / 86400.0)
         if not np.isfinite(line_time[timed_idx]).any():
             # neither date nor receive time: relative times of day
-            for kind in TIMED:
-                if kind in frames:
-                    idx, f = frames[kind]
-                    line_time[idx] = _time_of_day(f["time"].to_numpy(dtype=float))
+            line_time[timed_idx] = line_tod[timed_idx]
             q["timing_note"] = "no date and no receive time: times are seconds of the UTC day"
     timed_ok = timed_idx[np.isfinite(line_time[timed_idx])]
+    if timed_ok.size == 0 and not has_rx.any():
+        found = {k: int(frames[k][0].size) for k in TIMED if k in frames}
+        why = (f"{_counts_text(found)} but none with a valid time field" if found
+               else "found no RMC/GGA/ZDA/GLL sentences with a time")
+        raise NmeaError(
+            f"{path.name}: no time source: {why}, and no receive times (TAG block or a "
+            f"leading UNIX/ISO time) on the lines; sentences found: "
+            f"{_counts_text(_sentence_counts(frames, q['unsupported']))}")
     jumps = 0
     outliers = 0
     offset_of_line = np.full(n, np.nan)
@@ -510,9 +575,14 @@ def read_nmea(
         offset_of_line = np.zeros(n)
         q["timing"] = "receive times (no GNSS time of validity)"
     else:
-        q["timing"] = "GNSS time of validity; untimed sentences take the preceding fix time"
+        q["timing"] = ("GNSS time of validity; untimed sentences take the preceding fix time "
+                       "(several between two fixes: spread evenly over the interval)")
     q["clock_jumps"] = int(jumps)
     q["time_outliers"] = outliers
+
+    epochs = np.unique(line_time[timed_ok]) if timed_ok.size else np.zeros(0)
+    epochs = epochs[np.isfinite(epochs)]
+    spread: dict[str, int] = {}
 
     def untimed_times(kind: str, idx: np.ndarray) -> np.ndarray:
         if np.isfinite(offset_of_line).any():
@@ -524,10 +594,8 @@ def read_nmea(
                 return np.full(idx.size, np.nan)
             pos = np.searchsorted(good_t, idx, side="right") - 1
             t = np.where(pos >= 0, line_time[good_t[np.clip(pos, 0, None)]], np.nan)
+            t = _spread(t, epochs, kind, spread)
         return t - rel.get(kind, 0.0)
-
-    epochs = np.unique(line_time[timed_ok]) if timed_ok.size else np.zeros(0)
-    epochs = epochs[np.isfinite(epochs)]
 
     def times(kind: str, idx: np.ndarray) -> np.ndarray:
         if kind in TIMED:
@@ -548,13 +616,22 @@ def read_nmea(
     ignored: dict[str, int] = {}
     name = path.name
 
-    def add(kind, idx, f, valid, channels):
+    def add(kind, idx, valid, channels, why_invalid="", notes=None, t_all=None, moved=0):
         bad = int((~valid).sum())
         if bad:
             invalid[kind] = invalid.get(kind, 0) + bad
-        t_all = times(kind, idx)
+        if t_all is None:
+            before = spread.get(kind, 0)
+            t_all = times(kind, idx)
+            moved = spread.get(kind, 0) - before
         tk = sc["talker"][idx]
         keep = valid & np.isfinite(t_all)
+        if not keep.any():
+            if not valid.any():
+                why = why_invalid or "none with a valid value (empty fields or void status)"
+            else:
+                why = "none with a usable time"
+            unusable[kind] = f"{idx.size} {kind} sentence(s), {why}"
         primary = _primary_talker(tk[keep])
         sel = keep & (tk == primary)
         other = keep & (tk != primary)
@@ -570,10 +647,13 @@ def read_nmea(
             o_idx = np.flatnonzero(other)
             sel[o_idx[fill]] = True
             ignored[kind] = ignored.get(kind, 0) + int((~fill).sum())
-        src = f"{name}:{kind} ({_decode(int(primary), 2)})"
+        src = f"{name}:{kind} ({_decode(int(primary), 2)})" if keep.any() else f"{name}:{kind}"
+        extra = dict(notes or {})
+        if moved:
+            extra["time_interpolated"] = moved
         for ch, values, knd, prio in channels:
             streams.append(Stream(ch, t_all[sel], np.asarray(values)[sel], kind=knd,
-                                  source=src, priority=prio).clean())
+                                  source=src, priority=prio, notes=dict(extra)).clean())
 
     if "GGA" in frames:
         idx, f = frames["GGA"]
@@ -582,8 +662,9 @@ def read_nmea(
         qual = f["qual"].to_numpy(float)
         valid = (qual > 0) & np.isfinite(lat) & np.isfinite(lon)
         alt = np.nan_to_num(f["alt"].to_numpy(float))
-        add("GGA", idx, f, valid, [("lat", lat, "linear", 0), ("lon", lon, "linear", 0),
-                                   ("alt", alt, "linear", 0)])
+        add("GGA", idx, valid, [("lat", lat, "linear", 0), ("lon", lon, "linear", 0),
+                                ("alt", alt, "linear", 0)])
+    rmc_var: tuple[np.ndarray, np.ndarray] | None = None
     if "RMC" in frames:
         idx, f = frames["RMC"]
         status = f["status"].astype(str).str.upper().to_numpy()
@@ -593,40 +674,120 @@ def read_nmea(
         cog_ok = np.where(sog == 0, 0.0, cog)
         lat = _degrees(f["lat"].to_numpy(float), f["lat_dir"], "S")
         lon = _degrees(f["lon"].to_numpy(float), f["lon_dir"], "W")
-        add("RMC", idx, f, valid & np.isfinite(cog_ok),
+        add("RMC", idx, valid & np.isfinite(cog_ok),
             [("vel_north", sog * np.cos(cog_ok), "linear", 0),
              ("vel_east", sog * np.sin(cog_ok), "linear", 0),
              ("lat", lat, "linear", 1), ("lon", lon, "linear", 1)])
+        var = _east_positive(f["var"].to_numpy(float), f["var_dir"])
+        t_var = line_time[idx]
+        ok = np.isfinite(var) & np.isfinite(t_var)
+        if ok.any():
+            order = np.argsort(t_var[ok], kind="stable")
+            rmc_var = (t_var[ok][order], var[ok][order])
+    if "GLL" in frames:
+        idx, f = frames["GLL"]
+        lat = _degrees(f["lat"].to_numpy(float), f["lat_dir"], "S")
+        lon = _degrees(f["lon"].to_numpy(float), f["lon_dir"], "W")
+        status = f["status"].astype(str).str.upper().to_numpy()
+        valid = (status == "A") & np.isfinite(lat) & np.isfinite(lon)
+        add("GLL", idx, valid, [("lat", lat, "linear", 2), ("lon", lon, "linear", 2)])
     if "VTG" in frames:
         idx, f = frames["VTG"]
         sog = f["sog"].to_numpy(float) * KNOT
         cog = np.where(sog == 0, 0.0, np.radians(f["cog"].to_numpy(float)))
         valid = np.isfinite(sog) & np.isfinite(cog)
-        add("VTG", idx, f, valid, [("vel_north", sog * np.cos(cog), "linear", 1),
-                                   ("vel_east", sog * np.sin(cog), "linear", 1)])
+        add("VTG", idx, valid, [("vel_north", sog * np.cos(cog), "linear", 1),
+                                ("vel_east", sog * np.sin(cog), "linear", 1)])
     for kind, prio in (("HDT", 0), ("THS", 1)):
         if kind in frames:
             idx, f = frames[kind]
-            hdg = np.radians(f["heading"].to_numpy(float))
+            raw_deg = f["heading"].to_numpy(float)
+            hdg = np.radians(raw_deg)
             valid = np.isfinite(hdg)
             if kind == "THS":
                 valid &= f["status"].astype(str).str.upper().to_numpy() != "V"
-            add(kind, idx, f, valid, [("psi", hdg, "angle", prio)])
+            add(kind, idx, valid, [("psi", hdg, "angle", prio)],
+                notes=_quantisation(raw_deg[valid]))
+    for kind, prio in (("HDG", 2), ("HDM", 3)):
+        if kind not in frames:
+            continue
+        idx, f = frames[kind]
+        raw_deg = f["heading"].to_numpy(float)
+        n_s = idx.size
+        if kind == "HDG":
+            dev = _east_positive(f["dev"].to_numpy(float), f["dev_dir"])
+            var = _east_positive(f["var"].to_numpy(float), f["var_dir"])
+        else:
+            dev = var = np.full(n_s, np.nan)
+        var_src = np.where(np.isfinite(var), "sentence", "")
+        if opts.magnetic_variation is not None:
+            var_src = np.where(np.isfinite(var), var_src, "configuration")
+            var = np.where(np.isfinite(var), var, opts.magnetic_variation)
+        before = spread.get(kind, 0)
+        t_h = times(kind, idx)
+        moved = spread.get(kind, 0) - before
+        if rmc_var is not None and not np.isfinite(var).all():
+            j = np.clip(np.searchsorted(rmc_var[0], t_h, side="right") - 1, 0,
+                        rmc_var[0].size - 1)
+            from_rmc = ~np.isfinite(var) & np.isfinite(t_h)
+            var = np.where(from_rmc, rmc_var[1][j], var)
+            var_src = np.where(from_rmc, "RMC", var_src)
+        dev = np.where(np.isfinite(dev), dev,
+                       opts.deviation if opts.deviation is not None else 0.0)
+        true_deg = raw_deg + dev + var
+        has_hdg = np.isfinite(raw_deg)
+        valid = has_hdg & np.isfinite(var)
+        why = ""
+        if has_hdg.any() and not valid.any():
+            why = ("magnetic headings without a magnetic variation (none in the sentence, "
+                   "no RMC variation; set [nmea] magnetic_variation in ingest.toml)")
+        srcs, cnt = np.unique(var_src[valid], return_counts=True)
+        notes = {**_quantisation(raw_deg[valid]), "magnetic": True,
+                 "variation_from": {str(a): int(c) for a, c in zip(srcs, cnt, strict=True)}}
+        add(kind, idx, valid, [("psi", np.radians(true_deg), "angle", prio)], why, notes,
+            t_h, moved)
     if "ROT" in frames:
         idx, f = frames["ROT"]
         rot = np.radians(f["rot"].to_numpy(float)) / 60.0
         valid = np.isfinite(rot) & (f["status"].astype(str).str.upper().to_numpy() == "A")
-        add("ROT", idx, f, valid, [("r", rot, "linear", 0)])
+        add("ROT", idx, valid, [("r", rot, "linear", 0)])
+    if "RSA" in frames:
+        idx, f = frames["RSA"]
+        for side, ch in (("stbd", "rudder"), ("port", "rudder_port")):
+            val = np.radians(f[side].to_numpy(float))
+            valid = np.isfinite(val) & \
+                (f[f"{side}_status"].astype(str).str.upper().to_numpy() == "A")
+            if side == "port" and not valid.any():
+                continue  # a single rudder sensor
+            add("RSA", idx, valid, [(ch, val, "linear", 0)])
+    if "RPM" in frames:
+        idx, f = frames["RPM"]
+        source = f["source"].astype(str).str.strip().str.upper().to_numpy()
+        number = f["number"].astype(str).str.strip().to_numpy()
+        speed = f["speed"].to_numpy(float)
+        status = f["status"].astype(str).str.upper().to_numpy()
+        okr = np.isfinite(speed) & ((status == "A") | (status == "NAN"))
+        for src_code, base in (("S", "shaft_rpm"), ("E", "engine_rpm")):
+            mine = source == src_code
+            if not mine.any():
+                continue
+            nums = sorted(set(number[mine]))
+            for num in nums:
+                g = mine & (number == num)
+                ch = base if len(nums) == 1 else f"{base}_{num}"
+                add("RPM", idx[g], okr[g], [(ch, speed[g], "linear", 0)])
+    if "XDR" in frames:
+        _xdr(frames["XDR"], opts, add, q)
     if "VBW" in frames:
         idx, f = frames["VBW"]
         valid = (f["status"].astype(str).str.upper().to_numpy() == "A") & \
             np.isfinite(f["lon"].to_numpy(float)) & np.isfinite(f["trans"].to_numpy(float))
-        add("VBW", idx, f, valid, [("u_log", f["lon"].to_numpy(float) * KNOT, "linear", 0),
-                                   ("v_log", f["trans"].to_numpy(float) * KNOT, "linear", 0)])
+        add("VBW", idx, valid, [("u_log", f["lon"].to_numpy(float) * KNOT, "linear", 0),
+                                ("v_log", f["trans"].to_numpy(float) * KNOT, "linear", 0)])
     if "VHW" in frames:
         idx, f = frames["VHW"]
         spd = f["speed"].to_numpy(float) * KNOT
-        add("VHW", idx, f, np.isfinite(spd), [("u_log", spd, "linear", 1)])
+        add("VHW", idx, np.isfinite(spd), [("u_log", spd, "linear", 1)])
     if "MWV" in frames:
         idx, f = frames["MWV"]
         unit = f["unit"].astype(str).str.upper().to_numpy()
@@ -637,11 +798,129 @@ def read_nmea(
         valid = (f["ref"].astype(str).str.upper().to_numpy() == "R") & \
             (f["status"].astype(str).str.upper().to_numpy() == "A") & np.isfinite(spd) & \
             np.isfinite(ang)
-        add("MWV", idx, f, valid, [("wind_speed", spd, "linear", 0),
-                                   ("wind_angle", ang, "angle", 0)])
+        add("MWV", idx, valid, [("wind_speed", spd, "linear", 0),
+                                ("wind_angle", ang, "angle", 0)],
+            "none relative (R) with status A and a speed unit M/K/N")
+    for s in streams:
+        m = opts.channels.get(s.name)
+        if m is not None:
+            s.notes["renamed_from"] = s.name
+            s.name = m.name
+            s.values = s.values * m.scale + m.offset
     q["invalid"] = invalid
     q["ignored_talkers"] = ignored
+    q["unusable"] = unusable
+    q["time_interpolated"] = spread
     return streams, q
+
+
+def _xdr(frame: tuple[np.ndarray, pd.DataFrame], opts: NmeaOptions, add: Any,
+         q: dict[str, Any]) -> None:
+    """XDR quadruplets (type, value, unit, name): the names mapped in ``[nmea] xdr``."""
+    idx, f = frame
+    ids = {k: f[f"x{k}_id"].astype(str).str.strip().to_numpy() for k in range(XDR_MAX)}
+    seen: dict[str, int] = {}
+    for k in range(XDR_MAX):
+        names, cnt = np.unique(ids[k][f[f"x{k}_type"].notna().to_numpy()
+                                      | f[f"x{k}_value"].notna().to_numpy()],
+                               return_counts=True)
+        for a, c in zip(names, cnt, strict=True):
+            if a and a != "nan":
+                seen[str(a)] = seen.get(str(a), 0) + int(c)
+    q["xdr_unmapped"] = {a: c for a, c in seen.items() if a not in opts.xdr}
+    for tname, m in opts.xdr.items():
+        rows, vals = [], []
+        for k in range(XDR_MAX):
+            hit = ids[k] == tname
+            if not hit.any():
+                continue
+            v = f[f"x{k}_value"].to_numpy(float)
+            typ = f[f"x{k}_type"].astype(str).str.strip().str.upper().to_numpy()
+            unit = f[f"x{k}_unit"].astype(str).str.strip().str.upper().to_numpy()
+            v = np.where((typ == "A") & (unit == "D"), np.radians(v), v)
+            rows.append(np.flatnonzero(hit))
+            vals.append(v[hit])
+        if not rows:
+            continue
+        r = np.concatenate(rows)
+        v = np.concatenate(vals) * m.scale + m.offset
+        order = np.argsort(r, kind="stable")
+        r, v = r[order], v[order]
+        add("XDR", idx[r], np.isfinite(v), [(m.name, v, "linear", 0)])
+
+
+def _spread(t: np.ndarray, epochs: np.ndarray, kind: str, counts: dict[str, int]) -> np.ndarray:
+    """Sentences of one type sharing the preceding fix time, spread over the interval to
+    the next fix (k-th of m at ``T + k (T_next − T) / m``); counted in ``counts``."""
+    if t.size < 2 or epochs.size < 2:
+        return t
+    ok = np.isfinite(t)
+    e = np.searchsorted(epochs, t[ok])
+    if e.size < 2:
+        return t
+    _u, first, inverse, m = np.unique(e, return_index=True, return_inverse=True,
+                                      return_counts=True)
+    rank = np.arange(e.size) - first[inverse]
+    many = m[inverse] > 1
+    nxt = np.minimum(e + 1, epochs.size - 1)
+    width = epochs[nxt] - epochs[np.minimum(e, epochs.size - 1)]
+    # after the last fix: the typical fix interval
+    width = np.where(e + 1 < epochs.size, width, float(np.median(np.diff(epochs))))
+    movable = many & (width > 0) & (e < epochs.size)
+    if not movable.any():
+        return t
+    out = t.copy()
+    vals = t[ok]
+    vals = np.where(movable, vals + rank * width / m[inverse], vals)
+    out[ok] = vals
+    counts[kind] = counts.get(kind, 0) + int((movable & (rank > 0)).sum())
+    return out
+
+
+def _east_positive(value: np.ndarray, direction: pd.Series) -> np.ndarray:
+    """A magnetic variation/deviation with its E/W letter as degrees, east positive."""
+    d = direction.astype(str).str.strip().str.upper().to_numpy()
+    sign = np.where(d == "W", -1.0, np.where(d == "E", 1.0, np.nan))
+    return np.abs(value) * sign
+
+
+def _quantisation(deg: np.ndarray) -> dict[str, Any]:
+    """Report a heading in whole (or half) degrees: step and equivalent noise std."""
+    deg = deg[np.isfinite(deg)]
+    if deg.size < 10:
+        return {}
+    for step in (1.0, 0.5):
+        if np.all(np.abs(deg / step - np.round(deg / step)) < 1e-6):
+            return {"quantisation_deg": step,
+                    "quantisation_noise_std_rad": math.radians(step) / math.sqrt(12.0)}
+    return {}
+
+
+def _ymd(year: np.ndarray, month: np.ndarray, day: np.ndarray) -> np.ndarray:
+    """UNIX seconds of midnight of (year, month, day) (NaN when invalid or missing)."""
+    out = np.full(year.size, np.nan)
+    ok = np.isfinite(year) & np.isfinite(month) & np.isfinite(day) & (year >= 1970) & \
+        (year < 2200)
+    if ok.any():
+        frame = pd.DataFrame({"year": year[ok].astype(np.int64),
+                              "month": month[ok].astype(np.int64),
+                              "day": day[ok].astype(np.int64)})
+        ts = pd.to_datetime(frame, errors="coerce", utc=True)
+        secs = ts.to_numpy(dtype="datetime64[ns]").astype(np.int64) / 1e9
+        secs[ts.isna().to_numpy()] = np.nan
+        out[ok] = secs
+    return out
+
+
+def _sentence_counts(frames: dict[str, Any], unsupported: dict[str, int]) -> dict[str, int]:
+    out = {k: int(v[0].size) for k, v in frames.items()}
+    out.update(unsupported)
+    return out
+
+
+def _counts_text(counts: dict[str, int]) -> str:
+    items = sorted(counts.items(), key=lambda kv: -kv[1])
+    return ", ".join(f"{v} {k}" for k, v in items) if items else "none"
 
 
 def _primary_talker(talkers: np.ndarray) -> int:

@@ -13,11 +13,15 @@ HDT before THS; bags: IMU gyro before odometry twist for yaw rate), and then
    dropped and reported,
 3. resamples each channel (:func:`vesselid.ingest.streams.resample`: anti-aliased
    decimation, interpolation, or zero-order hold for commands; heading unwrapped),
-4. rotates earth-frame velocity into body-frame surge/sway with the heading,
+4. subtracts the heading sensor's mounting offset (``heading_offset``) from the heading,
+   rotates earth-frame velocity into body-frame surge/sway with the heading,
    ``u = cos ψ v_N + sin ψ v_E``, ``v = −sin ψ v_N + cos ψ v_E``, and takes the yaw rate
    from the rate-of-turn sensor/gyro, or differentiates the unwrapped heading when there
    is none,
-5. writes a quality report (per source and per column) into ``metadata["quality"]``.
+5. moves GNSS position and velocity from the antenna to the reference point
+   (``lever_arm = [x, y]``, body axes): ``n_ref = n − (cos ψ x − sin ψ y)``,
+   ``e_ref = e − (sin ψ x + cos ψ y)``, ``u_ref = u + r y``, ``v_ref = v − r x``,
+6. writes a quality report (per source and per column) into ``metadata["quality"]``.
 """
 
 from __future__ import annotations
@@ -38,7 +42,10 @@ from vesselid.ingest.streams import Stream, coverage, resample, stream_quality
 __all__ = ["NMEA_SUFFIXES", "ingest"]
 
 NMEA_SUFFIXES = (".nmea", ".txt", ".log", ".0183", ".n0183")
-BAG_SUFFIXES = (".db3", ".mcap")
+BAG_SUFFIXES = (".db3", ".mcap", ".bag")
+#: Optional packages per input kind: (import name, extra).
+_NEEDS = {"nmea": (("pynmea2", "raw"), ("pymap3d", "raw")), "bag": (("rosbags", "ros"),),
+          "position": (("pymap3d", "raw"),)}
 CONFIG_NAME = "ingest.toml"
 #: Grid points beyond which ingest refuses (a clock error making the span absurd).
 MAX_GRID = 50_000_000
@@ -104,6 +111,28 @@ def _csv_jobs(config: IngestConfig, csv_files: list[Path]):
     return jobs, unmapped
 
 
+def require(kind: str, what: str) -> None:
+    """Refuse with one line naming the extra to install when an optional package is missing.
+
+    Parameters
+    ----------
+    kind : {"nmea", "bag", "position"}
+    what : str
+        What needs it, for the message (e.g. ``"reading NMEA 0183 (nav.nmea)"``).
+
+    Raises
+    ------
+    IngestError
+        ``<what> needs the optional package 'pynmea2': pip install 'vesselid[raw]'``.
+    """
+    import importlib.util
+
+    for module, extra in _NEEDS[kind]:
+        if importlib.util.find_spec(module) is None:
+            raise IngestError(f"{what} needs the optional package {module!r}: "
+                              f"pip install 'vesselid[{extra}]'")
+
+
 def _find_spec(tomls: list[Path]):
     from vesselid.model import ModelSpec
 
@@ -132,6 +161,7 @@ def _choose(streams: list[Stream]) -> tuple[dict[str, Stream], dict[str, list[st
 def _ned(chosen: dict[str, Stream], config: IngestConfig, notes: dict) -> tuple | None:
     if "lat" not in chosen or "lon" not in chosen:
         return None
+    require("position", "converting GNSS latitude/longitude to local north/east")
     import pymap3d
 
     lat, lon = chosen.pop("lat"), chosen.pop("lon")
@@ -160,6 +190,7 @@ def ingest(
     origin: Sequence[float] | None = None,
     max_gap: float | None = None,
     min_duration: float | None = None,
+    sample_rate: float | None = None,
 ) -> Any:
     """Turn raw sensor files into a :class:`~vesselid.logs.TrialLog`.
 
@@ -177,6 +208,10 @@ def ingest(
         Local NED origin, overriding the configuration.
     max_gap, min_duration : float, optional
         Override the configuration (s).
+    sample_rate : float, optional
+        The logger's sample rate (Hz) of every mapped table: a time column with
+        duplicated (quantised) timestamps is rebuilt from it; without it such a table
+        is refused.
 
     Returns
     -------
@@ -190,7 +225,9 @@ def ingest(
     Raises
     ------
     IngestError
-        Nothing usable, a required channel missing, no stretch of data long enough.
+        Nothing usable, a required channel missing (the reason names the channel and
+        why), no stretch of data long enough, a quantised time column without a stated
+        sample rate, an optional package missing (the extra to install).
     """
     if isinstance(paths, str | Path):
         paths = [paths]
@@ -223,20 +260,32 @@ def ingest(
         if not (math.isfinite(cfg.min_duration) and cfg.min_duration >= 0):
             raise IngestError(f"--min-duration must be a non-negative number of seconds, got "
                               f"{cfg.min_duration}")
+    if sample_rate is not None:
+        sample_rate = float(sample_rate)
+        if not (math.isfinite(sample_rate) and sample_rate > 0):
+            raise IngestError(f"--sample-rate must be a positive rate in Hz, got {sample_rate}")
     _check_sizes([*nmea_files, *csv_files])
+    if nmea_files:
+        require("nmea", f"reading NMEA 0183 ({nmea_files[0].name})")
+    if bags:
+        require("bag", f"reading ROS bags ({bags[0].name})")
     streams: list[Stream] = []
     sources: list[dict[str, Any]] = []
     for f in nmea_files:
         from vesselid.ingest.nmea import read_nmea
 
         s, q = read_nmea(f, relative_latency=cfg.relative_latency,
-                         epoch_tolerance=cfg.epoch_tolerance)
+                         epoch_tolerance=cfg.epoch_tolerance, options=cfg.nmea)
         streams += s
         sources.append({"type": "nmea0183", **q})
     jobs, unmapped = _csv_jobs(cfg, csv_files)
     for f, m in jobs:
         from vesselid.ingest.tables import read_csv_streams
 
+        if sample_rate is not None:
+            from dataclasses import replace
+
+            m = replace(m, sample_rate=sample_rate)
         s, q = read_csv_streams(f, m)
         streams += s
         sources.append({"type": "csv", "kind": m.kind, **q})
@@ -245,27 +294,39 @@ def ingest(
 
         s, q = read_bag(b, cfg.ros)
         streams += s
-        sources.append({"type": "ros2bag", **q})
+        sources.append({"type": q.get("format", "ros2bag"), **q})
+    for reader in EXTRA_READERS:
+        s, srcs = reader(paths, cfg, sample_rate)
+        streams += s
+        sources += srcs
     if not streams:
-        what = "no NMEA 0183 file, ROS 2 bag or mapped CSV file"
+        what = "no NMEA 0183 file, ROS bag or mapped CSV file"
         extra = f" (unmapped CSV files: {unmapped}; add a [[csv]] table)" if unmapped else ""
         raise IngestError(f"{what} among the inputs{extra}")
     notes: dict[str, Any] = {}
     chosen, unused = _choose(streams)
+    gnss_position = "lat" in chosen and "lon" in chosen
     _ned(chosen, cfg, notes)
     chosen.pop("alt", None)
     body_direct = "u" in chosen and "v" in chosen
     if not body_direct:
-        have = [c for c in ("vel_north", "vel_east", "psi") if c in chosen]
-        if "vel_north" in chosen and "psi" not in chosen:
-            raise IngestError(
-                "no heading (HDT/THS, odometry orientation or a mapped 'psi' column): earth-frame "
-                "velocities cannot be rotated into body-frame surge/sway")
         if "vel_north" not in chosen:
             raise IngestError(
                 "no velocity: need speed/course over ground (RMC/VTG), odometry twist or mapped "
-                f"'u'/'v' columns (found channels: {sorted(chosen)})")
-        del have
+                "'u'/'v' columns; " + _why_missing(("RMC", "VTG"), sources, chosen, unused,
+                                                   ("vel_north",)))
+        if "psi" not in chosen:
+            raise IngestError(
+                "no heading (HDT/THS, HDG/HDM with a magnetic variation, odometry orientation "
+                "or a mapped 'psi' column): earth-frame velocities cannot be rotated into "
+                "body-frame surge/sway; " + _why_missing(("HDT", "THS", "HDG", "HDM"), sources,
+                                                         chosen, unused, ("psi",)))
+    if "psi" in chosen and cfg.heading_offset:
+        p = chosen["psi"]
+        chosen["psi"] = Stream(p.name, p.t, p.values - math.radians(cfg.heading_offset),
+                               kind=p.kind, source=p.source, priority=p.priority,
+                               notes={**p.notes, "heading_offset_deg": cfg.heading_offset})
+        notes["heading_offset_deg"] = cfg.heading_offset
     used = dict(chosen)
     if body_direct:
         for c in ("vel_north", "vel_east"):
@@ -306,6 +367,25 @@ def ingest(
             r[m] = np.gradient(arrays["psi"][m], dt) if m.sum() > 1 else 0.0
         arrays["r"] = r
         derived["r"] = "derivative of the unwrapped heading (no rate-of-turn sensor or gyro)"
+    if any(cfg.lever_arm[:2]):
+        x, y = cfg.lever_arm[0], cfg.lever_arm[1]
+        moved = []
+        if "psi" not in arrays:
+            raise IngestError("lever_arm needs a heading (psi) to move the antenna's position "
+                              "and velocity to the reference point")
+        psi = arrays["psi"]
+        if gnss_position and "north" in arrays:
+            arrays["north"] = arrays["north"] - (np.cos(psi) * x - np.sin(psi) * y)
+            arrays["east"] = arrays["east"] - (np.sin(psi) * x + np.cos(psi) * y)
+            moved.append("north/east")
+        if not body_direct:
+            arrays["u"] = arrays["u"] + arrays["r"] * y
+            arrays["v"] = arrays["v"] - arrays["r"] * x
+            moved.append("u/v")
+            derived["u"] = derived["v"] = (derived["u"] + ", moved from the antenna to the "
+                                           "reference point (lever arm)")
+        notes["lever_arm_m"] = list(cfg.lever_arm)
+        notes["lever_arm_applied_to"] = moved
     if "wind_angle" in arrays:
         arrays["wind_angle"] = np.mod(arrays["wind_angle"] + math.pi, 2 * math.pi) - math.pi
     order = [c for c in _ORDER if c in arrays] + sorted(c for c in arrays if c not in _ORDER)
@@ -354,6 +434,35 @@ def ingest(
             meta["spec"] = spec.to_dict()
             meta["spec_file"] = str(spec_path)
     return TrialLog(frame, _jsonable(meta))
+
+
+#: Further readers ``f(paths, config, sample_rate) -> (streams, sources)`` (e.g. model-test
+#: tables); each returns nothing for inputs that are not its own.
+EXTRA_READERS: list[Any] = []
+
+
+def _why_missing(kinds: tuple[str, ...], sources: list[dict[str, Any]],
+                 chosen: dict[str, Stream], unused: dict[str, list[str]],
+                 channels: tuple[str, ...]) -> str:
+    """Why no stream of ``channels``: the sentences seen and why they gave no samples."""
+    reasons = []
+    seen: dict[str, int] = {}
+    for src in sources:
+        for k, why in src.get("unusable", {}).items():
+            if k in kinds:
+                reasons.append(why)
+        for k, tk in src.get("talkers", {}).items():
+            seen[k] = seen.get(k, 0) + sum(tk.values())
+        for k, c in src.get("unsupported", {}).items():
+            seen[k] = seen.get(k, 0) + c
+    for ch in channels:
+        reasons += [f"{s} gave no samples" for s in unused.get(ch, []) if "no valid" in s]
+    if not reasons:
+        absent = [k for k in kinds if k not in seen]
+        reasons.append(f"no {'/'.join(absent) or '/'.join(kinds)} sentences")
+    found = ", ".join(f"{c} {k}" for k, c in sorted(seen.items(), key=lambda kv: -kv[1]))
+    return ("; ".join(dict.fromkeys(reasons)) + f" (channels found: {sorted(chosen)}"
+            + (f"; sentences: {found}" if found else "") + ")")
 
 
 def _check_sizes(files: list[Path]) -> None:

@@ -1,4 +1,11 @@
-"""ROS 2 bags → channel streams (optional extra ``ros``: the ``rosbags`` package).
+"""ROS 1 and ROS 2 bags → channel streams (optional extra ``ros``: the ``rosbags`` package).
+
+ROS 2 bags (a directory with ``metadata.yaml``, or a ``.db3``/``.mcap`` file) and ROS 1
+bags (``.bag``) are read through :class:`rosbags.highlevel.AnyReader` (which uses
+:class:`rosbags.rosbag1.Reader` / :class:`rosbags.rosbag2.Reader`); ROS 1 message
+definitions come from the bag's connection records, and anything the bag does not define
+from the ROS 1 Noetic typestore (:func:`rosbags.typesys.get_typestore`). ROS 1 type names
+(``nav_msgs/Odometry``) are normalised to the ``pkg/msg/Type`` form used below.
 
 Read message types (topics chosen by ``[ros]`` in the ingest configuration, else the first
 topic of each type):
@@ -39,7 +46,7 @@ _KEYS = {"odometry": ODOM, "imu": IMU, "navsatfix": FIX, "wrench": WRENCH}
 
 def _stamp(msg: Any, fallback_ns: int) -> float:
     st = msg.header.stamp
-    ns = int(st.sec) * 1_000_000_000 + int(st.nanosec)
+    ns = int(st.sec) * 1_000_000_000 + int(getattr(st, "nanosec", getattr(st, "nsec", 0)))
     return (ns if ns > 0 else fallback_ns) / 1e9
 
 
@@ -50,12 +57,13 @@ def _get(obj: Any, dotted: str) -> float:
 
 
 def read_bag(path: str | Path, ros: dict[str, Any] | None = None):
-    """Read odometry, IMU, GNSS fix and wrench messages of a ROS 2 bag.
+    """Read odometry, IMU, GNSS fix and wrench messages of a ROS 1 or ROS 2 bag.
 
     Parameters
     ----------
     path : str or Path
-        Bag directory (with ``metadata.yaml``) or a single ``.db3``/``.mcap`` file.
+        ROS 2 bag directory (with ``metadata.yaml``), a single ``.db3``/``.mcap`` file, or
+        a ROS 1 ``.bag`` file.
     ros : dict, optional
         The ``[ros]`` table of the ingest configuration (topics, ``frame``, ``inputs``).
 
@@ -63,7 +71,7 @@ def read_bag(path: str | Path, ros: dict[str, Any] | None = None):
     -------
     streams : list of Stream
     quality : dict
-        Topics read and message counts.
+        ``format`` (``ros1bag``/``ros2bag``), topics read and message counts.
 
     Raises
     ------
@@ -73,18 +81,24 @@ def read_bag(path: str | Path, ros: dict[str, Any] | None = None):
     ros = dict(ros or {})
     try:
         from rosbags.highlevel import AnyReader
+        from rosbags.typesys import Stores, get_typestore
     except ImportError as exc:
-        raise IngestError("reading ROS 2 bags needs rosbags: pip install 'vesselid[ros]'") from exc
+        raise IngestError("reading ROS bags needs the optional package 'rosbags': "
+                          "pip install 'vesselid[ros]'") from exc
     frame = str(ros.get("frame", "enu")).lower()
     if frame not in ("enu", "ned"):
         raise IngestError(f"[ros] frame must be 'enu' or 'ned', got {frame!r}")
     enu = frame == "enu"
     inputs = ros.get("inputs", {"X": "force.x", "Y": "force.y", "N": "torque.z"})
     path = Path(path)
+    ros1 = path.is_file() and path.suffix.lower() == ".bag"
+    kind = "ROS 1" if ros1 else "ROS 2"
     data: dict[str, dict[str, list[float]]] = {}
-    q: dict[str, Any] = {"bag": str(path), "frame": frame, "topics": {}}
+    q: dict[str, Any] = {"bag": str(path), "format": "ros1bag" if ros1 else "ros2bag",
+                         "frame": frame, "topics": {}}
+    store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     try:
-        with AnyReader([path]) as reader:
+        with AnyReader([path], default_typestore=store) as reader:
             chosen: dict[str, Any] = {}
             for key, msgtype in _KEYS.items():
                 want = ros.get(key)
@@ -126,7 +140,8 @@ def read_bag(path: str | Path, ros: dict[str, Any] | None = None):
     except IngestError:
         raise
     except Exception as exc:
-        raise IngestError(f"cannot read ROS 2 bag {path}: {str(exc).splitlines()[0]}") from exc
+        first = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise IngestError(f"cannot read {kind} bag {path}: {first}") from exc
     streams: list[Stream] = []
     name = path.name
 

@@ -3,7 +3,9 @@
 Each ``[[csv]]`` table of the ingest configuration (:mod:`vesselid.ingest.config`) names a
 file, its time column and unit, a clock offset, whether it holds commands (zero-order
 hold) or measurements, and which CSV column (scaled and offset) feeds which channel.
-Rows with an empty or unparsable value are skipped per column and counted.
+Rows with an empty or unparsable value are skipped per column and counted. A quantised
+time column (repeated stamps) is refused unless the sample rate is stated, and then
+rebuilt (:func:`vesselid.ingest.timeaxis.check_time_axis`).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import pandas as pd
 
 from vesselid.ingest.config import ANGLE_CHANNELS, CsvMapping, IngestError
 from vesselid.ingest.streams import Stream
+from vesselid.ingest.timeaxis import check_time_axis
 
 __all__ = ["read_csv_streams"]
 
@@ -50,12 +53,14 @@ def read_csv_streams(path: str | Path, mapping: CsvMapping) -> tuple[list[Stream
     streams : list of Stream
     quality : dict
         ``rows``, ``bad_time`` (rows without a usable time), ``bad_values`` per channel,
-        ``clock_jumps`` (time going backwards).
+        ``clock_jumps`` (time going backwards), ``time_rebuilt`` (a quantised time column
+        rebuilt from ``sample_rate``).
 
     Raises
     ------
     IngestError
-        Unreadable file, or a mapped column (or the time column) that is not in the file.
+        Unreadable file, a mapped column (or the time column) that is not in the file, or
+        a quantised time column without a sample rate.
     """
     path = Path(path)
     try:
@@ -78,9 +83,14 @@ def read_csv_streams(path: str | Path, mapping: CsvMapping) -> tuple[list[Stream
     else:
         t = _numeric(raw_t) * _UNITS[mapping.time_unit]
     t = t - mapping.clock_offset
+    t, rebuilt = check_time_axis(t, path.name, mapping.sample_rate)
     q: dict[str, Any] = {"file": str(path), "rows": len(frame),
-                         "bad_time": int((~np.isfinite(t)).sum())}
+                         "bad_time": int((~np.isfinite(t)).sum()), **rebuilt}
     ft = t[np.isfinite(t)]
+    if ft.size == 0 and len(frame):
+        raise IngestError(f"{path.name}: no row has a usable time in column {mapping.time!r} "
+                          f"(time_unit = {mapping.time_unit!r}; first value "
+                          f"{str(raw_t.iloc[0])!r})")
     q["clock_jumps"] = int(np.sum(np.diff(ft) < 0)) if ft.size > 1 else 0
     kind = "hold" if mapping.kind == "command" else "linear"
     streams = []
