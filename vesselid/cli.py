@@ -212,6 +212,17 @@ def _check_cov(cov: str | None) -> None:
                        f"(choose from {', '.join(_names.COV_TYPES)})")
 
 
+def _fraction(text: str) -> float:
+    """A number in [0, 1) (argparse type)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (math.isfinite(value) and 0 <= value < 1):
+        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1), got {text!r}")
+    return value
+
+
 def cmd_identify(args: argparse.Namespace) -> int:
     for option, target in (("--json", args.json), ("--export", getattr(args, "export", None))):
         if target and target != "-":  # fail before the work (and the imports), not after it
@@ -239,6 +250,9 @@ def cmd_identify(args: argparse.Namespace) -> int:
     log = TrialLog.load(args.log, spec=spec)
     if spec is None and log.spec is None:
         raise CLIError(f"{args.log} carries no model spec; pass --model SPEC.toml")
+    from vesselid.sampling import check_sampling
+
+    check_sampling(log, (spec or log.spec).dt, tolerance=args.dt_tolerance)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = identify(log, spec, method=args.method, combine=args.combine,
@@ -288,6 +302,7 @@ def _identify_stream(args: argparse.Namespace) -> int:
         raise CLIError("--target aggregated is not available with --stream")
     spec = ModelSpec.load(args.model) if args.model else None
     source = ParquetExperiments(args.log)
+    _check_stream_sampling(source, spec, args.dt_tolerance)
     # memory: the largest experiment (with its regressors and instruments); time: one pass
     biggest = max(source.rows, default=0)
     limits.check("identify", f"{args.log} (largest experiment ~{biggest:.3g} rows × "
@@ -299,6 +314,22 @@ def _identify_stream(args: argparse.Namespace) -> int:
         result = identify_stream(source, spec, method=args.method, combine=args.combine,
                                  cov_type=args.cov, max_iter=args.max_iter)
     return _report_identify(args, result, caught)
+
+
+def _check_stream_sampling(source: Any, spec: Any, tolerance: float) -> None:
+    """The sampling check of ``identify --stream``: only the time and experiment columns
+    of each file are read."""
+    import pyarrow.parquet as pq
+
+    from vesselid.sampling import check_sampling
+
+    the_spec = spec or source.spec
+    dt = the_spec.dt if the_spec is not None else None
+    for f in source.files:
+        names = pq.read_schema(f).names
+        if "time" in names:
+            cols = [c for c in ("experiment", "time") if c in names]
+            check_sampling(pq.read_table(f, columns=cols).to_pandas(), dt, tolerance=tolerance)
 
 
 def _report_identify(args: argparse.Namespace, result: Any, caught: list) -> int:
@@ -411,6 +442,10 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
                         "time (methods ls, iv, iv-zero-mean; default iv-zero-mean)")
     p.add_argument("--export", metavar="MODEL.toml",
                    help="write the identified model (spec with θ̂ and its covariance) for reuse")
+    p.add_argument("--dt-tolerance", type=_fraction, default=0.01, metavar="FRACTION",
+                   help="relative tolerance of the sampling check: every time step within it "
+                        "of the median step, which must equal the spec's dt within it "
+                        "(default 0.01; a log that fails: resample it with `ingest --dt`)")
     p.set_defaults(func=cmd_identify)
 
     lazy_modules = {entry[0] for entry in LAZY_COMMANDS.values()}

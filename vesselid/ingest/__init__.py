@@ -83,7 +83,7 @@ def summary(log: Any) -> str:
                     f"{s.get('clock_jumps', 0)} clock jumps, "
                     f"unsupported {s.get('unsupported', {})}")
             if s.get("invalid"):
-                line += f", invalid (void/empty) {s['invalid']}"
+                line += f", not used (void, empty or of another kind) {s['invalid']}"
             lines.append(line)
             for kind, why in s.get("unusable", {}).items():
                 lines.append(f"  unused {kind}: {why}")

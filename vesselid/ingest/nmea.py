@@ -621,8 +621,11 @@ def read_nmea(
         if bad:
             invalid[kind] = invalid.get(kind, 0) + bad
         if t_all is None:
+            # times of the valid sentences only (spreading counts the sentences used)
             before = spread.get(kind, 0)
-            t_all = times(kind, idx)
+            t_all = np.full(idx.size, np.nan)
+            if valid.any():
+                t_all[valid] = times(kind, idx[valid])
             moved = spread.get(kind, 0) - before
         tk = sc["talker"][idx]
         keep = valid & np.isfinite(t_all)
@@ -723,8 +726,11 @@ def read_nmea(
         if opts.magnetic_variation is not None:
             var_src = np.where(np.isfinite(var), var_src, "configuration")
             var = np.where(np.isfinite(var), var, opts.magnetic_variation)
+        has_hdg = np.isfinite(raw_deg)
         before = spread.get(kind, 0)
-        t_h = times(kind, idx)
+        t_h = np.full(idx.size, np.nan)
+        if has_hdg.any():
+            t_h[has_hdg] = times(kind, idx[has_hdg])
         moved = spread.get(kind, 0) - before
         if rmc_var is not None and not np.isfinite(var).all():
             j = np.clip(np.searchsorted(rmc_var[0], t_h, side="right") - 1, 0,
@@ -735,7 +741,6 @@ def read_nmea(
         dev = np.where(np.isfinite(dev), dev,
                        opts.deviation if opts.deviation is not None else 0.0)
         true_deg = raw_deg + dev + var
-        has_hdg = np.isfinite(raw_deg)
         valid = has_hdg & np.isfinite(var)
         why = ""
         if has_hdg.any() and not valid.any():
@@ -762,11 +767,11 @@ def read_nmea(
             add("RSA", idx, valid, [(ch, val, "linear", 0)])
     if "RPM" in frames:
         idx, f = frames["RPM"]
-        source = f["source"].astype(str).str.strip().str.upper().to_numpy()
-        number = f["number"].astype(str).str.strip().to_numpy()
+        source = f["source"].fillna("").astype(str).str.strip().str.upper().to_numpy()
+        number = f["number"].fillna("").astype(str).str.strip().to_numpy()
         speed = f["speed"].to_numpy(float)
-        status = f["status"].astype(str).str.upper().to_numpy()
-        okr = np.isfinite(speed) & ((status == "A") | (status == "NAN"))
+        status = f["status"].fillna("").astype(str).str.strip().str.upper().to_numpy()
+        okr = np.isfinite(speed) & ((status == "A") | (status == ""))
         for src_code, base in (("S", "shaft_rpm"), ("E", "engine_rpm")):
             mine = source == src_code
             if not mine.any():
@@ -818,14 +823,15 @@ def _xdr(frame: tuple[np.ndarray, pd.DataFrame], opts: NmeaOptions, add: Any,
          q: dict[str, Any]) -> None:
     """XDR quadruplets (type, value, unit, name): the names mapped in ``[nmea] xdr``."""
     idx, f = frame
-    ids = {k: f[f"x{k}_id"].astype(str).str.strip().to_numpy() for k in range(XDR_MAX)}
+    ids = {k: f[f"x{k}_id"].fillna("").astype(str).str.strip().to_numpy()
+           for k in range(XDR_MAX)}
     seen: dict[str, int] = {}
     for k in range(XDR_MAX):
         names, cnt = np.unique(ids[k][f[f"x{k}_type"].notna().to_numpy()
                                       | f[f"x{k}_value"].notna().to_numpy()],
                                return_counts=True)
         for a, c in zip(names, cnt, strict=True):
-            if a and a != "nan":
+            if a:
                 seen[str(a)] = seen.get(str(a), 0) + int(c)
     q["xdr_unmapped"] = {a: c for a, c in seen.items() if a not in opts.xdr}
     for tname, m in opts.xdr.items():
@@ -835,8 +841,8 @@ def _xdr(frame: tuple[np.ndarray, pd.DataFrame], opts: NmeaOptions, add: Any,
             if not hit.any():
                 continue
             v = f[f"x{k}_value"].to_numpy(float)
-            typ = f[f"x{k}_type"].astype(str).str.strip().str.upper().to_numpy()
-            unit = f[f"x{k}_unit"].astype(str).str.strip().str.upper().to_numpy()
+            typ = f[f"x{k}_type"].fillna("").astype(str).str.strip().str.upper().to_numpy()
+            unit = f[f"x{k}_unit"].fillna("").astype(str).str.strip().str.upper().to_numpy()
             v = np.where((typ == "A") & (unit == "D"), np.radians(v), v)
             rows.append(np.flatnonzero(hit))
             vals.append(v[hit])
@@ -899,6 +905,7 @@ def _quantisation(deg: np.ndarray) -> dict[str, Any]:
 def _ymd(year: np.ndarray, month: np.ndarray, day: np.ndarray) -> np.ndarray:
     """UNIX seconds of midnight of (year, month, day) (NaN when invalid or missing)."""
     out = np.full(year.size, np.nan)
+    year = np.where(year < 100, 2000 + year, year)  # two-digit years (seen in real logs)
     ok = np.isfinite(year) & np.isfinite(month) & np.isfinite(day) & (year >= 1970) & \
         (year < 2200)
     if ok.any():

@@ -455,8 +455,9 @@ def _why_missing(kinds: tuple[str, ...], sources: list[dict[str, Any]],
             seen[k] = seen.get(k, 0) + sum(tk.values())
         for k, c in src.get("unsupported", {}).items():
             seen[k] = seen.get(k, 0) + c
-    for ch in channels:
-        reasons += [f"{s} gave no samples" for s in unused.get(ch, []) if "no valid" in s]
+    if not reasons:
+        for ch in channels:
+            reasons += [f"{s} gave no samples" for s in unused.get(ch, []) if "no valid" in s]
     if not reasons:
         absent = [k for k in kinds if k not in seen]
         reasons.append(f"no {'/'.join(absent) or '/'.join(kinds)} sentences")

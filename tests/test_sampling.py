@@ -1,0 +1,103 @@
+"""identify's sampling check: the log's time steps against the spec's dt."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from vesselid.cli import main
+from vesselid.sampling import SamplingError, check_sampling
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    d = tmp_path_factory.mktemp("dt")
+    assert main(["simulate", "--samples", "400", "--experiments", "2", "--seed", "3",
+                 "--out", str(d / "t.csv")]) == 0
+    return d
+
+
+def _with_time(sim, tmp_path, fn, name="x.csv"):
+    frame = pd.read_csv(sim / "t.csv")
+    frame = fn(frame)
+    frame.to_csv(tmp_path / name, index=False)
+    return str(tmp_path / name)
+
+
+def _identify(path, spec, capsys, *extra):
+    code = main(["identify", path, "--model", str(spec), "--method", "ls", *extra])
+    return code, capsys.readouterr().err.strip()
+
+
+def test_matching_dt_passes(sim, capsys):
+    code, _err = _identify(str(sim / "t.csv"), sim / "t.toml", capsys)
+    assert code == 0
+
+
+def test_dt_mismatch_is_refused_naming_ingest_dt(sim, tmp_path, capsys):
+    path = _with_time(sim, tmp_path, lambda f: f.assign(time=f["time"] * 0.1))
+    code, err = _identify(path, sim / "t.toml", capsys)
+    assert code == 2 and len(err.splitlines()) == 1
+    assert "sampled every 0.1 s" in err and "spec's dt is 1 s" in err
+    assert "ingest RAW --dt 1" in err
+
+
+def test_jittered_time_is_refused(sim, tmp_path, capsys):
+    rng = np.random.default_rng(0)
+
+    def jitter(f):
+        out = []
+        for _e, g in f.groupby("experiment"):
+            out.append(np.cumsum(rng.uniform(0.05, 3.0, len(g))))
+        return f.assign(time=np.concatenate(out))
+
+    path = _with_time(sim, tmp_path, jitter)
+    code, err = _identify(path, sim / "t.toml", capsys)
+    assert code == 2 and len(err.splitlines()) == 1
+    assert "irregular sampling in experiment 0" in err and "--dt 1" in err
+
+
+def test_tolerance_option(sim, tmp_path, capsys):
+    # one step 3 % long: refused at the default 1 %, accepted with --dt-tolerance 0.05
+    def stretch(f):
+        t = f["time"].to_numpy(dtype=float).copy()
+        t[10:200] += 0.03
+        return f.assign(time=t)
+
+    path = _with_time(sim, tmp_path, stretch)
+    code, err = _identify(path, sim / "t.toml", capsys)
+    assert code == 2 and "beyond the 1 % tolerance" in err
+    code, _ = _identify(path, sim / "t.toml", capsys, "--dt-tolerance", "0.05")
+    assert code == 0
+    code, err = _identify(path, sim / "t.toml", capsys, "--dt-tolerance", "2")
+    assert code == 2 and "fraction" in err
+
+
+def test_no_time_column_is_taken_at_the_spec_dt(sim, tmp_path, capsys):
+    path = _with_time(sim, tmp_path, lambda f: f.drop(columns=["time"]))
+    code, _ = _identify(path, sim / "t.toml", capsys)
+    assert code == 0
+
+
+def test_spec_without_dt_checks_regularity_only(sim, tmp_path, capsys):
+    spec = tmp_path / "nodt.toml"
+    spec.write_text("\n".join(ln for ln in (sim / "t.toml").read_text().splitlines()
+                              if not ln.startswith("dt")) + "\n")
+    path = _with_time(sim, tmp_path, lambda f: f.assign(time=f["time"] * 0.1))
+    assert _identify(path, spec, capsys)[0] == 0
+    path = _with_time(sim, tmp_path, lambda f: f.assign(
+        time=f["time"] ** 1.5), name="y.csv")
+    code, err = _identify(path, spec, capsys)
+    assert code == 2 and "irregular sampling" in err
+
+
+def test_check_sampling_api():
+    f = pd.DataFrame({"experiment": [0] * 5 + [1] * 5,
+                      "time": [0, .1, .2, .3, .4, 7, 7.1, 7.2, 7.3, 7.4]})
+    rep = check_sampling(f, 0.1)
+    assert rep.checked and abs(rep.interval - 0.1) < 1e-12 and rep.worst_step_deviation < 1e-9
+    with pytest.raises(SamplingError, match="experiment 1"):
+        check_sampling(f.assign(time=[0, .1, .2, .3, .4, 7, 7.2, 7.4, 7.6, 7.8]), 0.1)
+    assert not check_sampling(f.drop(columns="time"), 0.1).checked
+    assert isinstance(SamplingError("x"), ValueError)
