@@ -400,6 +400,155 @@ def sparse_csv(d: Path) -> None:
         fh.truncate(200 * 10**9)
 
 
+# ------------------------------------------------------- real-vessel NMEA, tables, bags
+#: the vessel of the synthetic real-format logs: 3 m/s on a true heading of 30 degrees
+REAL_U, REAL_PSI_DEG = 3.0, 30.0
+
+
+def real_nmea(*kinds: str, n: int = 120):
+    """A 1 Hz NMEA log in the formats real vessels send (RMC, ZDA, VTG, HDT, HDG with or
+    without variation, HDT with empty fields), one sentence of each kind per second."""
+    def setup(d: Path) -> None:
+        import numpy as np
+
+        from vesselid.nmea import KNOT, sentence_lines
+
+        t = 1_780_308_000.0 + np.arange(n)
+        hms = [time.strftime("%H%M%S", time.gmtime(x)) + ".00" for x in t]
+        psi = math.radians(REAL_PSI_DEG)
+        north, east = REAL_U * math.cos(psi) * (t - t[0]), REAL_U * math.sin(psi) * (t - t[0])
+        lat = 63.43 + north / 111_320.0
+        lon = 10.39 + east / (111_320.0 * math.cos(math.radians(63.43)))
+        la = [f"{int(x):02d}{(x - int(x)) * 60:010.7f}" for x in lat]
+        lo = [f"{int(x):03d}{(x - int(x)) * 60:010.7f}" for x in lon]
+        kn = f"{REAL_U / KNOT:.4f}"
+        c = [""] * n
+        one = {
+            "RMC": lambda: sentence_lines("GP", "RMC", [hms, ["A"] * n, la, ["N"] * n, lo,
+                                                        ["E"] * n, [kn] * n, ["30.0"] * n,
+                                                        ["010626"] * n, c, c, ["A"] * n]),
+            "ZDA": lambda: sentence_lines("GP", "ZDA", [hms, ["01"] * n, ["06"] * n,
+                                                        ["2026"] * n, ["00"] * n, ["00"] * n]),
+            "VTG": lambda: sentence_lines("GP", "VTG", [["30.0"] * n, ["T"] * n, c, ["M"] * n,
+                                                        [kn] * n, ["N"] * n, c, ["K"] * n,
+                                                        ["A"] * n]),
+            "HDT": lambda: sentence_lines("HE", "HDT", [["30.0"] * n, ["T"] * n]),
+            "HDT-empty": lambda: sentence_lines("II", "HDT", [c, ["T"] * n]),
+            "HDG": lambda: sentence_lines("HC", "HDG", [["33"] * n, c, c, ["3.0"] * n,
+                                                        ["W"] * n]),
+            "HDG-novar": lambda: sentence_lines("HC", "HDG", [["33"] * n]),
+        }
+        groups = [one[k]() for k in kinds]
+        (d / "raw").mkdir()
+        (d / "raw" / "nav.nmea").write_text(
+            "\n".join(x for row in zip(*groups, strict=True) for x in row) + "\n")
+    return setup
+
+
+def real_log_check(d: Path, r: subprocess.CompletedProcess) -> str | None:
+    """ingest exit 0 on a real-format log: u = 3 m/s and the true heading 30 degrees."""
+    problem = ingested_log_check(d, r)
+    if problem or r.returncode != 0:
+        return problem
+    import pandas as pd
+
+    data = pd.read_csv(d / "x.csv")
+    psi = float((data["psi"].median() + math.pi) % (2 * math.pi) - math.pi)
+    if abs(psi - math.radians(REAL_PSI_DEG)) > 1e-3 or abs(data["u"].median() - REAL_U) > 1e-2:
+        return f"wrong values: psi {math.degrees(psi):.3f} deg, u {data['u'].median():.4f} m/s"
+    return None
+
+
+def quantised_table(d: Path, rate: float = 7.39, n: int = 3000) -> None:
+    """A table whose time column has 3 significant digits (each stamp repeated ~7 times)."""
+    raw = d / "raw"
+    raw.mkdir()
+    rows = ["time,u,v,r,psi"]
+    for k in range(n):
+        rows.append(f"{float(f'{100.0 + k / rate:.3g}'):.6g},{1.0 + 0.001 * (k % 50):.6f},"
+                    f"0.0,0.01,{0.01 * k / rate:.6f}")
+    (raw / "tank.csv").write_text("\n".join(rows) + "\n")
+    (raw / "ingest.toml").write_text('[[csv]]\nfile = "tank.csv"\n'
+                                     'columns = { u = "u", v = "v", r = "r", psi = "psi" }\n')
+
+
+def all_rows_check(span_s: float):
+    def check(d: Path, r: subprocess.CompletedProcess) -> str | None:
+        problem = ingested_log_check(d, r)
+        if problem or r.returncode != 0:
+            return problem
+        import pandas as pd
+
+        t = pd.read_csv(d / "x.csv")["time"]
+        if abs(float(t.iloc[-1]) - span_s) > 0.5:
+            return f"rows dropped: the log spans {float(t.iloc[-1]):.1f} s of {span_s:.1f} s"
+        return None
+    return check
+
+
+def retimed_log(fn_name: str):
+    """t.csv (heave, spec dt = 1 s) with its time column rewritten."""
+    def setup(d: Path) -> None:
+        import numpy as np
+        import pandas as pd
+
+        make_log(d)
+        df = pd.read_csv(d / "t.csv")
+        if fn_name == "0.1 s":
+            df["time"] = df["time"] * 0.1
+        else:
+            df["time"] = np.cumsum(np.random.default_rng(0).uniform(0.05, 3.0, len(df)))
+        df.to_csv(d / "t.csv", index=False, float_format="%.17g")
+    return setup
+
+
+def ros1_bag(truncate: bool):
+    def setup(d: Path) -> None:
+        if not truncate:
+            (d / "x.bag").write_bytes(b"#ROSBAG V2.0\n" + os.urandom(30000))
+            return
+        from rosbags.rosbag1 import Writer
+        from rosbags.typesys import Stores, get_typestore
+
+        ts = get_typestore(Stores.ROS1_NOETIC)
+        T = ts.types
+        with Writer(d / "x.bag") as w:
+            c = w.add_connection("/imu", "sensor_msgs/msg/Imu", typestore=ts)
+            for i in range(2000):
+                hdr = T["std_msgs/msg/Header"](seq=i, stamp=T["builtin_interfaces/msg/Time"](
+                    sec=1_780_000_000 + i // 10, nanosec=(i % 10) * 100_000_000), frame_id="b")
+                v = T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.01)
+                q = T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)
+                import numpy as np
+
+                m = T["sensor_msgs/msg/Imu"](header=hdr, orientation=q,
+                                             orientation_covariance=np.zeros(9),
+                                             angular_velocity=v,
+                                             angular_velocity_covariance=np.zeros(9),
+                                             linear_acceleration=v,
+                                             linear_acceleration_covariance=np.zeros(9))
+                w.write(c, (1_780_000_000 + i // 10) * 10**9 + (i % 10) * 10**8,
+                        ts.serialize_ros1(m, "sensor_msgs/msg/Imu"))
+        size = (d / "x.bag").stat().st_size
+        with open(d / "x.bag", "r+b") as fh:
+            fh.truncate(size // 2)
+    return setup
+
+
+MISSING_EXTRA = """
+import sys
+sys.modules["pynmea2"] = None  # as after a plain `pip install .`
+import io, contextlib
+from vesselid.cli import main
+err = io.StringIO()
+with contextlib.redirect_stderr(err):
+    rc = main(["ingest", "raw", "--dt", "1", "--out", "x.csv"])
+msg = err.getvalue().strip()
+print(rc, msg)
+sys.exit(0 if rc == 2 and len(msg.splitlines()) == 1 and "vesselid[raw]" in msg else 3)
+"""
+
+
 def readonly_dir(d: Path) -> str:
     ro = d / "ro"
     ro.mkdir()
@@ -611,6 +760,41 @@ def cases(long: bool = False) -> list[Case]:
         Case("raw: actuators.csv an extra column repeating X_cmd", [*ingest, "--dt", "0.1"],
              setup=raw_dir(_edit_lines("actuators.csv", lambda ls: [
                  ls[0] + ",X_cmd", *[ln + ",0" for ln in ls[1:]]]))),
+        # real-vessel formats: magnetic headings, ZDA time, quantised tables, dt, bags
+        Case("nmea: HDG-only heading (magnetic, variation in the sentence)",
+             [*ingest, "--dt", "1", "--min-duration", "10"], expect="ok",
+             setup=real_nmea("RMC", "HDG"), check=real_log_check),
+        Case("nmea: HDG without a variation anywhere", [*ingest, "--dt", "1"],
+             setup=real_nmea("RMC", "HDG-novar")),
+        Case("nmea: ZDA-only time (VTG + HDT, no RMC/GGA)",
+             [*ingest, "--dt", "1", "--min-duration", "10"], expect="ok",
+             setup=real_nmea("ZDA", "VTG", "HDT"), check=real_log_check),
+        Case("nmea: no time source (VTG + HDT only)", [*ingest, "--dt", "1"],
+             setup=real_nmea("VTG", "HDT")),
+        Case("nmea: every heading field empty", [*ingest, "--dt", "1"],
+             setup=real_nmea("ZDA", "VTG", "HDT-empty")),
+        Case("table: quantised time column (3 significant digits)",
+             [*ingest, "--dt", "0.1", "--min-duration", "5"], setup=quantised_table),
+        Case("table: quantised time column, --sample-rate 7.39",
+             [*ingest, "--dt", "0.1", "--min-duration", "5", "--sample-rate", "7.39"],
+             expect="ok", setup=quantised_table, check=all_rows_check(2999 / 7.39)),
+        Case("table: quantised time column, a wrong --sample-rate 7.2",
+             [*ingest, "--dt", "0.1", "--min-duration", "5", "--sample-rate", "7.2"],
+             setup=quantised_table),
+        Case("table: --sample-rate -1", [*ingest, "--dt", "0.1", "--sample-rate", "-1"],
+             setup=quantised_table),
+        Case("identify: log sampled at 0.1 s, spec dt = 1.0", [*ident, "--method", "ls"],
+             setup=retimed_log("0.1 s")),
+        Case("identify: irregular 0.05-3 s time column", [*ident, "--method", "ls"],
+             setup=retimed_log("jitter")),
+        Case("identify: --dt-tolerance 5", [*ident, "--dt-tolerance", "5"], setup=base_log),
+        Case("raw: ROS 1 bag garbage (.bag)", ["ingest", "x.bag", "--dt", "0.1", "--out",
+                                               "x.csv"], setup=ros1_bag(False)),
+        Case("raw: ROS 1 bag truncated half-way", ["ingest", "x.bag", "--dt", "0.1", "--out",
+                                                   "x.csv"], expect="any", setup=ros1_bag(True),
+             check=ingested_log_check),
+        Case("raw: ingest NMEA without the [raw] extra (pynmea2 missing)",
+             setup=real_nmea("RMC", "HDT"), python=MISSING_EXTRA),
         Case("raw: simulate --raw for heave (no surface vessel)",
              ["simulate", "--samples", "300", "--out", "h.csv", "--raw", "rawh"],
              check=no_files_check("h.csv", "h.json", "h.toml", "rawh")),

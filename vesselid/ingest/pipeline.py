@@ -125,12 +125,14 @@ def require(kind: str, what: str) -> None:
     IngestError
         ``<what> needs the optional package 'pynmea2': pip install 'vesselid[raw]'``.
     """
-    import importlib.util
+    import importlib
 
     for module, extra in _NEEDS[kind]:
-        if importlib.util.find_spec(module) is None:
+        try:
+            importlib.import_module(module)
+        except ImportError:
             raise IngestError(f"{what} needs the optional package {module!r}: "
-                              f"pip install 'vesselid[{extra}]'")
+                              f"pip install 'vesselid[{extra}]'") from None
 
 
 def _find_spec(tomls: list[Path]):
