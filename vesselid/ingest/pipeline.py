@@ -297,7 +297,7 @@ def ingest(
         s, q = read_bag(b, cfg.ros)
         streams += s
         sources.append({"type": q.get("format", "ros2bag"), **q})
-    for reader in EXTRA_READERS:
+    for reader in _extra_readers():
         s, srcs = reader(paths, cfg, sample_rate)
         streams += s
         sources += srcs
@@ -441,6 +441,25 @@ def ingest(
 #: Further readers ``f(paths, config, sample_rate) -> (streams, sources)`` (e.g. model-test
 #: tables); each returns nothing for inputs that are not its own.
 EXTRA_READERS: list[Any] = []
+#: Reader modules looked up when ingest runs: their ``read_inputs`` function (same
+#: signature) joins :data:`EXTRA_READERS`; a module that is not installed is skipped.
+READER_MODULES: tuple[str, ...] = ("vesselid.ingest.tank",)
+
+
+def _extra_readers() -> list[Any]:
+    import importlib
+
+    for name in READER_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:
+                continue
+            raise
+        fn = getattr(module, "read_inputs", None)
+        if fn is not None and fn not in EXTRA_READERS:
+            EXTRA_READERS.append(fn)
+    return list(EXTRA_READERS)
 
 
 def _why_missing(kinds: tuple[str, ...], sources: list[dict[str, Any]],
