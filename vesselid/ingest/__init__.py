@@ -140,4 +140,10 @@ def summary(log: Any) -> str:
                      f"{', '.join(q.get('lever_arm_applied_to', [])) or 'nothing'}")
     for d in q.get("dropped_segments", []):
         lines.append(f"  dropped a {d['rows']}-row stretch at {d['start_utc']} (too short)")
+    if "kept_s" in q:
+        rest = q["input_span_s"] - q["kept_s"]
+        lines.append(f"  kept {q['kept_s']:.1f} s of the {q['input_span_s']:.1f} s the inputs "
+                     f"span in {len(q.get('experiments', []))} experiment(s)"
+                     + (f"; {rest:.1f} s outside: a channel missing there, a gap or a stretch "
+                        f"too short" if rest > 1e-6 else ""))
     return "\n".join(lines)

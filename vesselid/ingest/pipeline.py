@@ -410,6 +410,9 @@ def ingest(
                         for e, (k0, k1) in enumerate(segments)],
         "dropped_segments": grid_info["dropped"],
         "grid_coverage": grid_info["coverage"],
+        "input_span_s": float(max(v.t[-1] for v in used.values())
+                              - min(v.t[0] for v in used.values())),
+        "kept_s": float(sum((k1 - k0) * dt for k0, k1 in segments)),
         "columns": columns_q,
         "sources": sources,
         "unused_sources": unused,
