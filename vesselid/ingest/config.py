@@ -19,6 +19,10 @@
     kind = "command"                   # command (zero-order hold) | measurement
     columns = { X = "X_cmd", psi = { column = "heading_deg", scale = 0.0174533 } }
 
+    [tank]                             # model-test tables, one experiment per file
+    files = "raw_data/*.dat"           # (vesselid.ingest.tank: layout, units, frames, scale)
+    columns = { time = "time", psi = "psi", u = "u", v = "v", r = "r", delta = "delta" }
+
     [ros]                              # ROS 2 bags (optional extra "ros")
     odometry = "/odom"                 # nav_msgs/msg/Odometry topic (default: by type)
     imu = "/imu"                       # sensor_msgs/msg/Imu
@@ -76,6 +80,7 @@ class IngestConfig:
     csv: tuple[CsvMapping, ...] = ()
     ros: dict[str, Any] = field(default_factory=dict)
     base: Path = Path(".")
+    tank: Any = None  # vesselid.ingest.tank.TankFormat when the file has a [tank] table
 
 
 def _num(value: Any, what: str) -> float:
@@ -101,7 +106,7 @@ def _column_map(name: str, raw: Any, where: str) -> ColumnMap:
 def config_from_dict(data: dict[str, Any], base: Path = Path(".")) -> IngestConfig:
     """Validate a parsed configuration."""
     known = {"origin", "max_gap", "min_duration", "epoch_tolerance", "relative_latency", "csv",
-             "ros"}
+             "ros", "tank"}
     unknown = sorted(set(data) - known)
     if unknown:
         raise IngestError(f"unknown ingest configuration keys {unknown}; known: {sorted(known)}")
@@ -147,9 +152,15 @@ def config_from_dict(data: dict[str, Any], base: Path = Path(".")) -> IngestConf
     ros = data.get("ros", {})
     if not isinstance(ros, dict):
         raise IngestError("[ros] must be a table")
+    tank = None
+    if "tank" in data:
+        from vesselid.ingest.tank import tank_format_from_dict
+
+        tank = tank_format_from_dict(data["tank"], base=base)
     return IngestConfig(origin=origin, max_gap=max_gap, min_duration=min_duration,
                         epoch_tolerance=epoch_tolerance,
-                        relative_latency=rel, csv=tuple(csv), ros=dict(ros), base=base)
+                        relative_latency=rel, csv=tuple(csv), ros=dict(ros), base=base,
+                        tank=tank)
 
 
 def load_config(path: str | Path) -> IngestConfig:

@@ -4,6 +4,9 @@
 one stream per channel (NMEA: GGA before RMC for position, RMC before VTG for velocity,
 HDT before THS; bags: IMU gyro before odometry twist for yaw rate), and then
 
+Model-test tables (a ``[tank]`` table in the configuration) take the one-clock path of
+:mod:`vesselid.ingest.tank` instead: one experiment per file. For the other sources it
+
 1. converts latitude/longitude to local NED (``pymap3d.geodetic2ned``) around the
    configured origin or the first fix,
 2. lays the grid ``t_k = k·dt`` (UNIX seconds, so 10 Hz GNSS epochs fall on grid points),
@@ -200,6 +203,12 @@ def ingest(
     if not (math.isfinite(dt) and dt > 0):
         raise IngestError(f"--dt must be a positive number of seconds, got {dt}")
     cfg, cfg_file, nmea_files, bags, csv_files, tomls, other = _collect(paths, config)
+    if cfg.tank is not None:  # model-test tables: one clock per file, one experiment each
+        from vesselid.ingest.tank import ingest_tank
+
+        log = ingest_tank([*nmea_files, *csv_files, *other], dt, cfg.tank, cfg_file)
+        _attach_spec(log, tomls)
+        return log
     if origin is not None or max_gap is not None or min_duration is not None:
         from dataclasses import replace
 
@@ -347,13 +356,19 @@ def ingest(
         "quality": quality,
         "vesselid_version": __version__,
     }
+    log = TrialLog(frame, _jsonable(meta))
+    _attach_spec(log, tomls)
+    return log
+
+
+def _attach_spec(log: Any, tomls: list[Path]) -> None:
+    """Attach the first spec TOML among the inputs whose columns the log has."""
     spec, spec_path = _find_spec(tomls)
     if spec is not None:
         need = [*spec.states, *spec.inputs, *spec.sensors]
-        if all(c in frame.columns for c in need):
-            meta["spec"] = spec.to_dict()
-            meta["spec_file"] = str(spec_path)
-    return TrialLog(frame, _jsonable(meta))
+        if all(c in log.data.columns for c in need):
+            log.metadata["spec"] = spec.to_dict()
+            log.metadata["spec_file"] = str(spec_path)
 
 
 def _check_sizes(files: list[Path]) -> None:
