@@ -365,8 +365,7 @@ def _attach_spec(log: Any, tomls: list[Path]) -> None:
     """Attach the first spec TOML among the inputs whose columns the log has."""
     spec, spec_path = _find_spec(tomls)
     if spec is not None:
-        need = [*spec.states, *spec.inputs, *spec.sensors]
-        if all(c in log.data.columns for c in need):
+        if all(c in log.data.columns for c in spec.measured_columns):
             log.metadata["spec"] = spec.to_dict()
             log.metadata["spec_file"] = str(spec_path)
 
