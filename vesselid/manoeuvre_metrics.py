@@ -50,7 +50,7 @@ class ManoeuvreInfo:
     rate : float
         Rudder rate (rad/s) while the rudder moves.
     reversals : tuple of int
-        Samples where the rudder leaves a plateau to reverse (zig-zag).
+        First samples off a rudder plateau when it reverses (zig-zag).
     psi_switch : float
         Heading change at the reversals (rad; zig-zag), the mean of the first two.
     gain_sign : float
@@ -94,17 +94,19 @@ def _reversals(delta: np.ndarray, sign: np.ndarray) -> tuple[list[int], list[int
     for k in idx[1:]:
         s = int(sign[k])
         if s != segs[-1]:
-            # leave point: the last sample of the previous plateau still at its extreme
+            # the reversal: the first sample off the previous plateau (the rudder order was
+            # given when the heading reached the switching angle, at or just before it)
             seg_vals = delta[start: k]
             ext = seg_vals.max() if segs[-1] > 0 else seg_vals.min()
             near = np.flatnonzero(np.abs(seg_vals - ext) <= 0.02 * abs(ext))
-            revs.append(int(start + near[-1]))
+            revs.append(int(start + near[-1] + 1))
             segs.append(s)
             start = int(k)
     return revs, segs
 
 
-def detect(delta: np.ndarray, psi: np.ndarray, dt: float) -> ManoeuvreInfo | None:
+def detect(delta: np.ndarray, psi: np.ndarray, dt: float, *,
+           psi_switch: float | None = None) -> ManoeuvreInfo | None:
     """Classify a run as a zig-zag or a turning circle from its rudder signal.
 
     Parameters
@@ -115,6 +117,9 @@ def detect(delta: np.ndarray, psi: np.ndarray, dt: float) -> ManoeuvreInfo | Non
         Heading (rad, unwrapped), used for the switching angle and the turn.
     dt : float
         Sample time (s).
+    psi_switch : float, optional
+        The nominal switching angle of a zig-zag (rad; e.g. 10° of a 10°/10° test);
+        default the mean heading change at the first two reversals.
 
     Returns
     -------
@@ -143,7 +148,8 @@ def detect(delta: np.ndarray, psi: np.ndarray, dt: float) -> ManoeuvreInfo | Non
         sw = [abs(h[k]) for k in revs[:2]]
         gain = float(np.sign(h[revs[0]]) * first) or 1.0
         return ManoeuvreInfo("zigzag", execute, delta0, first, rate, tuple(revs),
-                             float(np.mean(sw)), gain)
+                             float(np.mean(sw)) if psi_switch is None else float(psi_switch),
+                             gain)
     if not revs and np.max(np.abs(h[execute:])) >= math.pi / 2:
         gain = float(np.sign(h[-1]) * first) or 1.0
         return ManoeuvreInfo("turning_circle", execute, delta0, first, rate, (), float("nan"),

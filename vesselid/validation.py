@@ -263,7 +263,8 @@ def _dt(spec: ModelSpec, log: Any) -> float:
 
 
 def validate(log: Any, model: Any, *, experiments: Sequence[Any] | None = None,
-             horizon: int = DEFAULT_HORIZON, rudder: str = "delta") -> ValidationReport:
+             horizon: int = DEFAULT_HORIZON, rudder: str = "delta",
+             manoeuvres: dict[str, dict[str, float]] | None = None) -> ValidationReport:
     """Simulate an identified model on (held-out) experiments and compare with the log.
 
     Parameters
@@ -277,6 +278,11 @@ def validate(log: Any, model: Any, *, experiments: Sequence[Any] | None = None,
         Steps of the k-step-ahead prediction (>= 1).
     rudder : str
         Rudder input column for manoeuvre detection.
+    manoeuvres : dict, optional
+        Nominal test settings per experiment id (text), e.g. ``{"Z_10_05":
+        {"psi_switch_deg": 5.0}}``: a zig-zag's overshoots are measured from its nominal
+        switching angle, and the simulated zig-zag reverses there. Default the log's
+        ``metadata["manoeuvres"]``, else the heading change read at the reversals.
 
     Returns
     -------
@@ -310,6 +316,10 @@ def validate(log: Any, model: Any, *, experiments: Sequence[Any] | None = None,
             raise ValidationError(f"experiment(s) {unknown} not in the log; it has "
                                   f"{list(have)}")
         parts = [have[w] for w in dict.fromkeys(wanted)]
+    nominal = manoeuvres if manoeuvres is not None else (log.metadata or {}).get("manoeuvres")
+    if nominal is not None and not isinstance(nominal, dict):
+        raise ValidationError("manoeuvres must map experiment ids to {psi_switch_deg = ...}")
+    nominal = {str(k): v for k, v in (nominal or {}).items()}
     plant = Plant(spec, theta)
     names = {s: s for s in spec.states}
     for s, (col, _a, _c) in plant.source_of.items():
@@ -360,7 +370,12 @@ def validate(log: Any, model: Any, *, experiments: Sequence[Any] | None = None,
                                               psi0=psi_m[0])
             series["psi_sim"] = psi_s
             delta = g[rudder].to_numpy(float)
-            info = detect(delta, psi_m, dt)
+            psw = nominal.get(str(eid), {}).get("psi_switch_deg")
+            if psw is not None and not (isinstance(psw, int | float) and 0 < psw < 180):
+                raise ValidationError(f"manoeuvres[{str(eid)!r}].psi_switch_deg must be an "
+                                      f"angle in (0, 180), got {psw!r}")
+            info = detect(delta, psi_m, dt,
+                          psi_switch=None if psw is None else math.radians(psw))
             if info is not None and info.kind == "zigzag" and rudder in spec.inputs:
                 zz = ZigZagLogic(info.execute, rudder, info.delta0, info.psi_switch, info.rate,
                                  info.gain_sign, info.first_sign)
