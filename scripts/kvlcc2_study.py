@@ -79,8 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     warnings.simplefilter("ignore")  # the design warnings are in the JSON of identify
     from vesselid.identify import DEFAULT_METHOD, identify
-    from vesselid.ingest.config import load_config
-    from vesselid.ingest.tank import ingest_tank
+    from vesselid.ingest.tank import ingest_tank, load_tank_format
     from vesselid.logs import TrialLog
     from vesselid.specs import load_spec, path
     from vesselid.validation import validate
@@ -92,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
 
         spec = replace(spec, dt=float(args.dt))
     files = _files(Path(args.data))
-    fmt = load_config(path("kvlcc2_hsva_ingest")).tank
+    fmt = load_tank_format(path("kvlcc2_hsva_ingest"))
     log = ingest_tank(files, dt, fmt)
     nominal = {}
     for f in files:

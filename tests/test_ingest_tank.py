@@ -12,7 +12,8 @@ import pandas as pd
 import pytest
 
 from vesselid.ingest import ingest
-from vesselid.ingest.config import IngestError, config_from_dict
+from vesselid.ingest.config import IngestError
+from vesselid.ingest.tank import tank_format_from_dict
 
 NAMES = ["time", "x0", "y0", "psi", "u", "v", "r", "p", "delta", "rev", "thrust", "torque"]
 DT = 0.05
@@ -153,7 +154,7 @@ def test_csv_with_header_row_body_frame_radians(tmp_path):
 ])
 def test_bad_tank_tables_refused(tank, match):
     with pytest.raises(IngestError, match=match):
-        config_from_dict({"tank": tank})
+        tank_format_from_dict(tank)
 
 
 def test_cli_ingest_and_one_line_refusal(tmp_path):

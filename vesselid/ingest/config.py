@@ -80,7 +80,7 @@ class IngestConfig:
     csv: tuple[CsvMapping, ...] = ()
     ros: dict[str, Any] = field(default_factory=dict)
     base: Path = Path(".")
-    tank: Any = None  # vesselid.ingest.tank.TankFormat when the file has a [tank] table
+    tank: dict[str, Any] | None = None  # the [tank] table (vesselid.ingest.tank)
 
 
 def _num(value: Any, what: str) -> float:
@@ -152,11 +152,9 @@ def config_from_dict(data: dict[str, Any], base: Path = Path(".")) -> IngestConf
     ros = data.get("ros", {})
     if not isinstance(ros, dict):
         raise IngestError("[ros] must be a table")
-    tank = None
-    if "tank" in data:
-        from vesselid.ingest.tank import tank_format_from_dict
-
-        tank = tank_format_from_dict(data["tank"], base=base)
+    tank = data.get("tank")
+    if tank is not None and not isinstance(tank, dict):
+        raise IngestError("[tank] must be a table")
     return IngestConfig(origin=origin, max_gap=max_gap, min_duration=min_duration,
                         epoch_tolerance=epoch_tolerance,
                         relative_latency=rel, csv=tuple(csv), ros=dict(ros), base=base,

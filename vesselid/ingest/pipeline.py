@@ -204,9 +204,10 @@ def ingest(
         raise IngestError(f"--dt must be a positive number of seconds, got {dt}")
     cfg, cfg_file, nmea_files, bags, csv_files, tomls, other = _collect(paths, config)
     if cfg.tank is not None:  # model-test tables: one clock per file, one experiment each
-        from vesselid.ingest.tank import ingest_tank
+        from vesselid.ingest.tank import ingest_tank, tank_format_from_dict
 
-        log = ingest_tank([*nmea_files, *csv_files, *other], dt, cfg.tank, cfg_file)
+        fmt = tank_format_from_dict(cfg.tank, base=cfg.base)
+        log = ingest_tank([*nmea_files, *csv_files, *other], dt, fmt, cfg_file)
         _attach_spec(log, tomls)
         return log
     if origin is not None or max_gap is not None or min_duration is not None:

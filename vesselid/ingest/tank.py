@@ -65,8 +65,8 @@ import pandas as pd
 
 from vesselid.ingest.config import IngestError
 
-__all__ = ["FROUDE_EXPONENTS", "TankColumn", "TankFormat", "ingest_tank", "read_tank_file",
-           "tank_format_from_dict"]
+__all__ = ["FROUDE_EXPONENTS", "TankColumn", "TankFormat", "ingest_tank", "load_tank_format",
+           "read_tank_file", "tank_format_from_dict"]
 
 #: Exponent ``e`` of the Froude scale factor ``λ^e`` per physical kind of channel.
 FROUDE_EXPONENTS: dict[str, float] = {
@@ -255,6 +255,17 @@ def tank_format_from_dict(data: dict[str, Any], base: Path = Path(".")) -> TankF
                               f"give kind = one of {sorted(FROUDE_EXPONENTS)} in "
                               f"[tank.columns]")
     return fmt
+
+
+def load_tank_format(path: str | Path) -> TankFormat:
+    """The ``[tank]`` table of an ingest configuration file as a :class:`TankFormat`
+    (e.g. ``vesselid.specs.path("kvlcc2_hsva_ingest")``)."""
+    from vesselid.ingest.config import load_config
+
+    cfg = load_config(path)
+    if cfg.tank is None:
+        raise IngestError(f"{path}: no [tank] table")
+    return tank_format_from_dict(cfg.tank, base=cfg.base)
 
 
 def _read_table(path: Path, fmt: TankFormat) -> pd.DataFrame:

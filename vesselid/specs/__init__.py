@@ -13,6 +13,8 @@
 >>> from vesselid.specs import load_spec, path   # doctest: +SKIP
 >>> spec = load_spec("kvlcc2")
 >>> path("kvlcc2_hsva_ingest")                    # pass it to ``vesselid ingest --config``
+>>> from vesselid.ingest.tank import ingest_tank, load_tank_format
+>>> log = ingest_tank(files, 0.5, load_tank_format(path("kvlcc2_hsva_ingest")))
 """
 
 from __future__ import annotations
