@@ -31,12 +31,12 @@ r = [0.96, -0.03, -0.05, -0.2, -0.005]
 
 
 def zigzag_log(spec: ModelSpec, n: int = 600, delta0: float = 0.35, psi_s: float = 0.17,
-               first: float = 1.0, theta: np.ndarray | None = None):
+               first: float = 1.0, theta: np.ndarray | None = None, u0: float = 1.0):
     """A noise-free zig-zag of the spec's own model (rudder switched on its heading)."""
     from vesselid.freerun import Plant, ZigZagLogic
 
     plant = Plant(spec, theta)
-    frame = pd.DataFrame({"u": np.ones(n), "v": np.zeros(n), "r": np.zeros(n),
+    frame = pd.DataFrame({"u": np.full(n, u0), "v": np.zeros(n), "r": np.zeros(n),
                           "delta": np.zeros(n)})
     logic = ZigZagLogic(execute=10, rudder="delta", delta0=delta0, psi_switch=psi_s,
                         rate=np.radians(10.0), gain_sign=-1.0, first_sign=first)
@@ -45,7 +45,7 @@ def zigzag_log(spec: ModelSpec, n: int = 600, delta0: float = 0.35, psi_s: float
     assert bad == -1
     from vesselid.manoeuvre_metrics import integrate_track
 
-    uu = x[:, 0] + 1.0
+    uu = x[:, 0] + u0
     psi, north, east = integrate_track(uu, x[:, 1], x[:, 2], spec.dt)
     return pd.DataFrame({"time": np.arange(n) * spec.dt, "u": uu, "v": x[:, 1], "r": x[:, 2],
                          "psi": psi, "north": north, "east": east, "delta": u_used[:, 0]})
