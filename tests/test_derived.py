@@ -67,6 +67,9 @@ def test_noise_free_identification_with_derived_signals_is_exact():
              for i, (a, b, f) in enumerate([(0.17, 0.17, 1), (0.35, 0.09, -1), (0.26, 0.17, -1),
                                             (0.35, 0.17, 1)])]
     log = pd.concat(parts, ignore_index=True)
-    res = identify(log, spec, method="ls")
+    from vesselid.errors import DerivedInputWarning
+
+    with pytest.warns(DerivedInputWarning, match=r"uud uses \['u'\]"):
+        res = identify(log, spec, method="ls")
     np.testing.assert_allclose(np.asarray(res.params), spec.theta0_vector(), rtol=1e-6,
                                atol=1e-9)

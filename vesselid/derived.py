@@ -41,7 +41,8 @@ What this does to the consistency results
   with a good speed sensor. To stay inside the theory, write the state dependence with
   Definition 2.1 terms (``u·δ``, ``Δu·δ`` with a derived state ``Δu``) and keep derived
   inputs to functions of the inputs; :meth:`DerivedSignal.uses` and
-  :func:`state_dependent` say which derived inputs use states.
+  :func:`state_dependent` say which derived inputs use states, and ``identify`` warns
+  (:class:`~vesselid.errors.DerivedInputWarning`) when a spec has one.
 """
 
 from __future__ import annotations
