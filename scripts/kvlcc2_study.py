@@ -116,8 +116,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\n{label} ({res.method}): converged {res.converged} after {res.iterations} "
               f"iteration(s) ({res.stop_reason}); spectral radius at the approach "
               f"equilibrium {rho:.5f}")
+        diag = res.diagnostics if isinstance(res.diagnostics, dict) else {}
+        choice = str(diag.get("noise_model") or diag.get("instruments") or "")
+        if diag.get("instrument_choice"):
+            print(f"  instrument choice: {diag['instrument_choice']}")
         base = {"estimator": label, "method": str(res.method), "converged": bool(res.converged),
-                "spectral_radius": rho}
+                "spectral_radius": rho, "choice": choice}
         for (eq, term), v, se in zip(spec.param_index, theta, np.asarray(res.std_errors),
                                      strict=True):
             rows.append({**base, "kind": "parameter", "experiment": "", "state": eq,
@@ -186,11 +190,14 @@ def _markdown(table: pd.DataFrame, spec, dt: float) -> str:
                             f"{v.iloc[0]:.1f} ({v.iloc[0] - meas:+.1f})")
             which = "1st" if fig.startswith("first") else "2nd"
             lines.append(f"| {exp} | {which} | {meas:.1f} | " + " | ".join(sims) + " |")
-    st = table.drop_duplicates("estimator")[["estimator", "method", "converged",
+    st = table.drop_duplicates("estimator")[["estimator", "method", "choice", "converged",
                                              "spectral_radius"]]
-    lines += ["", "| estimator | method | converged | spectral radius at U0 |", "|---|---|---|---|"]
+    lines += ["", "| estimator | method | instruments / noise model | converged | "
+                  "spectral radius at U0 |", "|---|---|---|---|---|"]
     for _, r in st.iterrows():
-        lines.append(f"| {r.estimator} | {r.method} | {r.converged} | {r.spectral_radius:.5f} |")
+        choice = "" if pd.isna(r.choice) else r.choice
+        lines.append(f"| {r.estimator} | {r.method} | {choice} | {r.converged} | "
+                     f"{r.spectral_radius:.5f} |")
     return "\n".join(lines) + "\n"
 
 
