@@ -143,6 +143,22 @@ def test_csv_with_header_row_body_frame_radians(tmp_path):
     np.testing.assert_allclose(log.data["r"], np.deg2rad(r), atol=1e-12)
 
 
+def test_quantised_time_refused_then_rebuilt_from_the_stated_sample_time(tmp_path):
+    t, psi, r, u_b, v_b, delta = _kinematics()
+    frame = pd.DataFrame({"t": np.round(t, 1), "psi": np.deg2rad(psi), "r": np.deg2rad(r),
+                          "u": u_b, "v": v_b, "delta": np.deg2rad(delta)})
+    frame.to_csv(tmp_path / "run1.csv", index=False)
+    tank = {"delimiter": "comma", "columns": {c: c for c in ("psi", "r", "u", "v", "delta")}}
+    tank["columns"]["time"] = "t"
+    (tmp_path / "ingest.toml").write_text(_toml(tank))
+    with pytest.raises(IngestError, match=r"not strictly increasing at data row \d+ .*sample_time"):
+        ingest(tmp_path, DT)
+    (tmp_path / "ingest.toml").write_text(_toml({**tank, "sample_time": DT}))
+    log = ingest(tmp_path, DT)
+    assert len(log) == len(frame)   # no row dropped
+    np.testing.assert_allclose(log.data["time"], t, atol=1e-12)
+
+
 @pytest.mark.parametrize("tank, match", [
     ({**TANK, "full_scale": True}, "needs scale"),
     ({**TANK, "bogus": 1}, "unknown \\[tank\\] keys"),

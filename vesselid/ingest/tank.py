@@ -19,6 +19,8 @@ ingest configuration (:mod:`vesselid.ingest.config`) says how to read them::
     scale = 45.7                      # model scale λ (optional)
     full_scale = true                 # Froude-scale every channel to full scale (needs scale)
     yaw_rate_tolerance = 0.25         # max ‖r − dψ/dt‖ / ‖dψ/dt‖ before ingest refuses
+    sample_time = 0.05                # optional: rebuild the time axis as k·sample_time
+                                      # (a quantised or missing time column)
 
     [tank.columns]                    # channel = column name (or {column, scale, offset, kind})
     time = "time"
@@ -123,6 +125,9 @@ class TankFormat:
         Froude-scale the channels to full scale.
     yaw_rate_tolerance : float
         Largest accepted ``‖r − dψ/dt‖ / ‖dψ/dt‖``.
+    sample_time : float or None
+        When given, the time axis is rebuilt as ``k · sample_time`` (s, model scale) and a
+        mapped time column is only checked for order, never used.
     base : Path
         Directory the globs are relative to.
     """
@@ -139,6 +144,7 @@ class TankFormat:
     scale: float | None = None
     full_scale: bool = False
     yaw_rate_tolerance: float = 0.25
+    sample_time: float | None = None
     base: Path = field(default=Path("."))
 
     def angle_channels(self) -> tuple[str, ...]:
@@ -181,7 +187,8 @@ def tank_format_from_dict(data: dict[str, Any], base: Path = Path(".")) -> TankF
     if not isinstance(data, dict):
         raise IngestError("[tank] must be a table")
     known = {"files", "delimiter", "header_lines", "encoding", "names", "angle_unit", "angles",
-             "velocity_frame", "scale", "full_scale", "yaw_rate_tolerance", "columns"}
+             "velocity_frame", "scale", "full_scale", "yaw_rate_tolerance", "sample_time",
+             "columns"}
     unknown = sorted(set(data) - known)
     if unknown:
         raise IngestError(f"unknown [tank] keys {unknown}; known: {sorted(known)}")
@@ -208,8 +215,14 @@ def tank_format_from_dict(data: dict[str, Any], base: Path = Path(".")) -> TankF
             raise IngestError(f"[tank.columns] {name} must be a column name or "
                               f"{{column = ..., scale = ..., offset = ..., kind = ...}}, "
                               f"got {raw!r}")
-    if "time" not in columns:
-        raise IngestError("[tank.columns] must map 'time' (the time column)")
+    st = data.get("sample_time")
+    if st is not None:
+        st = _num(st, "sample_time")
+        if st <= 0:
+            raise IngestError(f"[tank] sample_time must be positive, got {st}")
+    if "time" not in columns and st is None:
+        raise IngestError("[tank.columns] must map 'time' (the time column), or give "
+                          "[tank] sample_time = seconds to build the time axis")
     delimiter = str(data.get("delimiter", "whitespace"))
     if delimiter not in _DELIMITERS:
         raise IngestError(f"[tank] delimiter must be one of {sorted(_DELIMITERS)}, "
@@ -244,7 +257,8 @@ def tank_format_from_dict(data: dict[str, Any], base: Path = Path(".")) -> TankF
         names=_names(data["names"], "names") if "names" in data else None,
         angle_unit=unit,
         angles=_names(data["angles"], "angles") if "angles" in data else None,
-        velocity_frame=frame, scale=scale, full_scale=full, yaw_rate_tolerance=tol, base=base)
+        velocity_frame=frame, scale=scale, full_scale=full, yaw_rate_tolerance=tol,
+        sample_time=st, base=base)
     if frame == "earth" and not {"u", "v", "psi"} <= set(columns):
         raise IngestError("[tank] velocity_frame = 'earth' needs u, v and psi mapped (the "
                           "heading rotates the velocities into the body frame)")
@@ -373,12 +387,21 @@ def read_tank_file(path: str | Path, fmt: TankFormat, dt: float | None = None
     for name, col in fmt.columns.items():
         x = _numeric(frame, col.column, path) * col.scale + col.offset
         values[name] = np.deg2rad(x) if name in angles else x
-    t = values.pop("time")
+    t = values.pop("time", None)
+    if fmt.sample_time is not None:
+        if t is not None and np.any(np.diff(t) < 0):
+            k = int(np.flatnonzero(np.diff(t) < 0)[0])
+            raise IngestError(f"{path.name}: time column {fmt.columns['time'].column!r} goes "
+                              f"backwards at data row {k + 2}: rows out of order")
+        t = np.arange(len(frame)) * fmt.sample_time
     d = np.diff(t)
     if np.any(d <= 0):
         k = int(np.flatnonzero(d <= 0)[0])
-        raise IngestError(f"{path.name}: time column {fmt.columns['time'].column!r} is not "
-                          f"strictly increasing at data row {k + 2} ({t[k]!r} then {t[k + 1]!r})")
+        raise IngestError(
+            f"{path.name}: time column {fmt.columns['time'].column!r} is not strictly "
+            f"increasing at data row {k + 2} ({t[k]!r} then {t[k + 1]!r}); if the table is "
+            f"sampled at a fixed rate, state it with [tank] sample_time = seconds to rebuild "
+            f"the time axis (no row is dropped)")
     t = t - t[0]
     q: dict[str, Any] = {"file": str(path), "type": "tank", "rows": int(t.size),
                          "dt_file": float(np.median(d)), "conversions": []}
