@@ -131,3 +131,20 @@ def test_cli_strict_json_plot_and_exit_2(spec, log, tmp_path):
     run = subprocess.run([*cmd, "--experiments", "zz30"], capture_output=True, text=True)
     assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1
     assert "zz30" in run.stderr
+
+
+def test_one_step_prediction_equals_the_regressor_prediction(spec, log):
+    """k = 1: Φᵀ(y(k), u(k)) θ from the measured signals (derived columns included)."""
+    from vesselid.derived import add_derived
+    from vesselid.freerun import Plant
+    from vesselid.regressors import predict
+
+    theta = spec.theta0_vector() * 1.01
+    g = log[log["experiment"] == "zz10"].reset_index(drop=True)
+    plant = Plant(spec, theta)
+    pred = plant.k_step(g, 1)
+    full = add_derived(g, spec)
+    s = full[list(spec.signals)].to_numpy(float)
+    np.testing.assert_allclose(pred[1:], predict(spec.codes, theta, s)[:-1], rtol=1e-12,
+                               atol=1e-15)
+    assert np.all(np.isnan(pred[0]))
