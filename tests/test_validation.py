@@ -85,6 +85,13 @@ def test_hand_computed_zigzag_overshoots():
     assert fig["first_overshoot_time_s"] == pytest.approx(35.0)
 
 
+def test_an_autopilot_rudder_is_not_a_manoeuvre():
+    rng = np.random.default_rng(0)
+    delta = np.radians(np.cumsum(rng.normal(0, 0.5, 2000)).clip(-20, 20))
+    psi = np.cumsum(-0.01 * delta)
+    assert detect(delta, psi, 0.1) is None
+
+
 def test_turning_circle_figures_of_a_circle():
     """Constant speed U and yaw rate r from the execute: a circle of radius R = U/r, so
     advance = transfer = R, tactical diameter 2R, steady turn rate r."""

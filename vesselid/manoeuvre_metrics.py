@@ -16,7 +16,8 @@ Manoeuvrability* (MSC.137(76)):
 
 :func:`detect` classifies a run from its rudder signal alone: a rudder that reverses
 between plateaus of one amplitude at least twice is a zig-zag; a rudder put over once and
-held while the heading turns by at least 90° is a turning circle. Angles are in radians
+held while the heading turns by at least 90° is a turning circle; either holds the rudder
+at ``±δ₀`` for at least 60 % of the samples after the execute. Angles are in radians
 in and degrees out (the figures are reported as naval architects quote them).
 """
 
@@ -144,6 +145,11 @@ def detect(delta: np.ndarray, psi: np.ndarray, dt: float, *,
     revs, segs = _reversals(delta, sign)
     first = float(segs[0]) if segs else 1.0
     h = psi - psi[execute]
+    # a standard manoeuvre holds the rudder at ±δ₀ most of the time after the execute (an
+    # autopilot's or a random rudder does not)
+    held = float(np.mean(np.abs(delta[execute:]) >= 0.9 * delta0))
+    if held < 0.6:
+        return None
     if len(revs) >= 2:
         sw = [abs(h[k]) for k in revs[:2]]
         gain = float(np.sign(h[revs[0]]) * first) or 1.0
