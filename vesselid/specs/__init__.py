@@ -5,6 +5,9 @@
     about the approach speed, sway, yaw; rudder forces linear in δ with a speed correction;
     the constant-rpm propeller balance absorbed in the surge equilibrium). Documented in
     the file itself and in the user guide ("Your real vessel").
+``kvlcc2_u2delta.toml``
+    The same with the rudder forces in ``u²δ`` and ``u²δ²`` as derived inputs computed from
+    the measured speed (outside the IV consistency results: :mod:`vesselid.derived`).
 ``kvlcc2_hsva_ingest.toml``
     The ``[tank]`` table (:mod:`vesselid.ingest.tank`) that reads the HSVA free-running
     KVLCC2 zig-zag tables of SIMMAN 2008 (whitespace ``.dat``, four header lines, angles in
