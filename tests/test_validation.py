@@ -135,6 +135,12 @@ def test_cli_strict_json_plot_and_exit_2(spec, log, tmp_path):
     assert out["experiments"][0]["manoeuvre"]["kind"] == "zigzag"
     assert out["stable"] is True
     assert (tmp_path / "v.png").stat().st_size > 1000
+    (tmp_path / "m.toml").write_text(f"[zz20]\npsi_switch_deg = {math.degrees(0.09)!r}\n")
+    run = subprocess.run([*cmd, "--experiments", "zz20", "--manoeuvres", str(tmp_path / "m.toml"),
+                          "--json", "-"], capture_output=True, text=True)
+    m = json.loads(run.stdout)["experiments"][0]["manoeuvre"]
+    assert m["simulated"]["first_overshoot_deg"] == pytest.approx(
+        m["measured"]["first_overshoot_deg"], abs=1e-9)
     run = subprocess.run([*cmd, "--experiments", "zz30"], capture_output=True, text=True)
     assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1
     assert "zz30" in run.stderr

@@ -430,9 +430,29 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--horizon", type=int_at_least(1), default=DEFAULT_HORIZON,
                    help=f"steps of the k-step-ahead prediction (default {DEFAULT_HORIZON})")
     p.add_argument("--rudder", default="delta", help="rudder input column (default delta)")
+    p.add_argument("--manoeuvres", metavar="FILE.toml",
+                   help="nominal test settings per experiment, e.g. [Z_10_05] psi_switch_deg = 5 "
+                        "(default: the log's metadata, else read off the heading)")
     p.add_argument("--plot", metavar="PATH", help="write the measured-vs-simulated figure")
     p.add_argument("--json", metavar="PATH|-", help="write the report as JSON ('-' = stdout)")
     p.set_defaults(func=cmd_validate)
+
+
+def _read_manoeuvres(path: str) -> dict[str, dict[str, float]]:
+    """``--manoeuvres FILE.toml``: ``[experiment] psi_switch_deg = ...`` tables."""
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # pragma: no cover - Python 3.10
+        import tomli as tomllib
+    try:
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ValidationError(f"--manoeuvres {path}: invalid TOML: {exc}") from exc
+    for key, entry in data.items():
+        if not isinstance(entry, dict) or set(entry) - {"psi_switch_deg", "delta0_deg"}:
+            raise ValidationError(f"--manoeuvres {path}: [{key}] must hold psi_switch_deg "
+                                  f"(and optionally delta0_deg), got {entry!r}")
+    return data
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
@@ -452,8 +472,9 @@ def cmd_validate(args: argparse.Namespace) -> int:
         raise ValidationError(f"{args.model} has no [theta0]")
     experiments = ([e.strip() for e in args.experiments.split(",") if e.strip()]
                    if args.experiments else None)
+    nominal = _read_manoeuvres(args.manoeuvres) if args.manoeuvres else None
     report = validate(args.log, spec, experiments=experiments, horizon=args.horizon,
-                      rudder=args.rudder)
+                      rudder=args.rudder, manoeuvres=nominal)
     out = sys.stderr if args.json == "-" else sys.stdout
     print(report.summary(), file=out)
     if args.json:
