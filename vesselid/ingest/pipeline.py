@@ -4,9 +4,6 @@
 one stream per channel (NMEA: GGA before RMC for position, RMC before VTG for velocity,
 HDT before THS; bags: IMU gyro before odometry twist for yaw rate), and then
 
-Model-test tables (a ``[tank]`` table in the configuration) take the one-clock path of
-:mod:`vesselid.ingest.tank` instead: one experiment per file. For the other sources it
-
 1. converts latitude/longitude to local NED (``pymap3d.geodetic2ned``) around the
    configured origin or the first fix,
 2. lays the grid ``t_k = k·dt`` (UNIX seconds, so 10 Hz GNSS epochs fall on grid points),
@@ -21,6 +18,9 @@ Model-test tables (a ``[tank]`` table in the configuration) take the one-clock p
    from the rate-of-turn sensor/gyro, or differentiates the unwrapped heading when there
    is none,
 5. writes a quality report (per source and per column) into ``metadata["quality"]``.
+
+Model-test tables (a ``[tank]`` table in the configuration) take the one-clock path of
+:mod:`vesselid.ingest.tank` instead: one experiment per file, no grid alignment.
 """
 
 from __future__ import annotations

@@ -488,6 +488,11 @@ def ingest_tank(paths: Sequence[str | Path], dt: float, fmt: TankFormat,
     files = _files([Path(p) for p in paths], fmt)
     if not files:
         raise IngestError("no model-test table among the inputs")
+    from vesselid import limits
+
+    check = getattr(limits, "check_file_size", None)
+    for f in files if check is not None else ():
+        check(f)  # a file too large for this machine is refused before it is read
     parts, sources = [], []
     stems = [f.stem for f in files]
     dupes = sorted({s for s in stems if stems.count(s) > 1})
