@@ -62,6 +62,12 @@ LAZY_COMMANDS = {
         "Read NMEA 0183 logs, ROS 2 bags and mapped multi-rate CSV files, align the clocks, "
         "resample onto a uniform grid, convert to local NED and body-frame velocities, split "
         "experiments at gaps, and write a trial log with a quality report in its metadata."),
+    "validate": (
+        "vesselid.validation", "validate an identified model on held-out experiments",
+        "Simulate an identified model on (held-out) experiments with their measured inputs: "
+        "free-run and k-step-ahead fit per state, and for zig-zags and turning circles "
+        "(detected from the rudder) the overshoot angles, advance, tactical diameter and "
+        "steady turn rate, measured vs simulated; optional compare-style figure and JSON."),
 }
 
 

@@ -27,6 +27,7 @@ __all__ = [
     "ControlError",
     "ConvergenceWarning",
     "CovarianceError",
+    "DerivedInputWarning",
     "ExperimentDesignWarning",
     "IdentificationError",
     "InvalidActionError",
@@ -96,6 +97,10 @@ class ConvergenceWarning(UserWarning):
 
 class ExperimentDesignWarning(UserWarning):
     """A state comes too close to zero for the modulus to be treated as smooth (A10/A15)."""
+
+
+class DerivedInputWarning(UserWarning):
+    """A derived input is computed from measured states: not exogenous (vesselid.derived)."""
 
 
 class ResourceLimitError(VesselidError):

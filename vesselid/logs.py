@@ -313,10 +313,8 @@ class TrialLog:
             spec = self.spec
         data = self.data
         required: list[str] = []
-        if spec is not None:
-            required.extend(spec.states)
-            required.extend(spec.inputs)
-            required.extend(spec.sensors)
+        if spec is not None:  # derived signals: the measured columns they are built from
+            required.extend(spec.measured_columns)
         if columns is not None:
             if isinstance(columns, str):
                 columns = [columns]

@@ -40,6 +40,7 @@ import numpy as np
 import pandas as pd
 
 from vesselid._io import atomic_write_text
+from vesselid.derived import DerivedSignal
 from vesselid.errors import ModelSpecError
 from vesselid.terms import Term
 
@@ -144,6 +145,10 @@ class ModelSpec:
         Aggregated-state relations (``"w - w_c"``).
     dt : float, optional
         Sample time in seconds.
+    derived : mapping name -> str or :class:`~vesselid.derived.DerivedSignal`, optional
+        States and inputs computed from measured columns (``du = "u - 1.177"``,
+        ``uud = "u*u*delta"``); see :mod:`vesselid.derived` for the grammar and what
+        they do to the consistency results.
 
     Raises
     ------
@@ -158,6 +163,7 @@ class ModelSpec:
     theta0: Mapping[str, tuple[float, ...]] | None = None
     aggregate: Mapping[str, Aggregate] = field(default_factory=dict)
     dt: float | None = None
+    derived: Mapping[str, DerivedSignal] = field(default_factory=dict)
 
     def __init__(
         self,
@@ -168,6 +174,7 @@ class ModelSpec:
         theta0: Mapping[str, Sequence[float]] | None = None,
         aggregate: Mapping[str, str | Aggregate] | None = None,
         dt: float | None = None,
+        derived: Mapping[str, str | DerivedSignal] | None = None,
     ) -> None:
         for label, names_ in (("states", states), ("inputs", inputs)):
             if isinstance(names_, (str, Mapping)) or not isinstance(names_, Sequence):
@@ -263,6 +270,29 @@ class ModelSpec:
             dt = float(dt)
             if not (math.isfinite(dt) and dt > 0):
                 raise ModelSpecError(f"dt must be a positive number, got {dt}")
+        der: dict[str, DerivedSignal] = {}
+        if derived is not None and not isinstance(derived, Mapping):
+            raise ModelSpecError(f"derived: expected a table, got {_kind(derived)}")
+        for dname, expr in (derived or {}).items():
+            d = expr if isinstance(expr, DerivedSignal) else DerivedSignal.parse(dname, expr)
+            if dname not in names:
+                raise ModelSpecError(
+                    f"[derived] {dname} is neither a state nor an input of the spec; list it "
+                    f"in states or inputs")
+            der[dname] = d
+        for dname, d in der.items():
+            inner = sorted(set(d.uses) & set(der))
+            if inner:
+                raise ModelSpecError(f"[derived] {dname}: uses derived signal(s) {inner}; "
+                                     f"write it over measured columns")
+            if dname in states_t and d.affine() is None:
+                raise ModelSpecError(
+                    f"[derived] {dname} is a state, so it must be affine in one measured "
+                    f"column (a*col + c), got {d.expression!r}")
+            if dname in states_t and d.affine()[0] in names:  # type: ignore[index]
+                raise ModelSpecError(
+                    f"[derived] state {dname} is defined from {d.affine()[0]!r}, which is "
+                    f"itself a signal of the spec")
         object.__setattr__(self, "name", str(name))
         object.__setattr__(self, "states", states_t)
         object.__setattr__(self, "inputs", inputs_t)
@@ -270,6 +300,7 @@ class ModelSpec:
         object.__setattr__(self, "theta0", th)
         object.__setattr__(self, "aggregate", agg)
         object.__setattr__(self, "dt", dt)
+        object.__setattr__(self, "derived", der)
 
     # ------------------------------------------------------------------ derived
     @property
@@ -304,6 +335,17 @@ class ModelSpec:
         """``(equation, term)`` labels of the stacked parameter vector θ."""
         tuples = tuple((s, str(t)) for s in self.states for t in self.equations[s])
         return _param_index(tuples).copy()  # a copy: its names may be set in place
+
+    @property
+    def measured_columns(self) -> tuple[str, ...]:
+        """Log columns a trial log needs for this spec: states, inputs and sensors, with
+        every derived signal replaced by the measured columns it is computed from."""
+        out: list[str] = []
+        for name in (*self.states, *self.inputs, *self.sensors):
+            for c in (self.derived[name].uses if name in self.derived else (name,)):
+                if c not in out:
+                    out.append(c)
+        return tuple(out)
 
     @property
     def sensors(self) -> tuple[str, ...]:
@@ -348,7 +390,8 @@ class ModelSpec:
             per_state[s] = vec[start : start + n].tolist()
             start += n
         return ModelSpec(
-            self.name, self.states, self.inputs, self.equations, per_state, self.aggregate, self.dt
+            self.name, self.states, self.inputs, self.equations, per_state, self.aggregate, self.dt,
+            self.derived,
         )
 
     def merge_terms(self, keep: str, drop: str, factor: float) -> ModelSpec:
@@ -376,12 +419,13 @@ class ModelSpec:
             if theta is not None:
                 theta[s] = values
         return ModelSpec(self.name, self.states, self.inputs, equations, theta, self.aggregate,
-                         self.dt)
+                         self.dt, self.derived)
 
     def with_aggregate(self, aggregate: Mapping[str, str | Aggregate] | None) -> ModelSpec:
         """A copy with other aggregate relations (``None`` or ``{}`` removes them)."""
         return ModelSpec(
-            self.name, self.states, self.inputs, self.equations, self.theta0, aggregate, self.dt
+            self.name, self.states, self.inputs, self.equations, self.theta0, aggregate, self.dt,
+            self.derived,
         )
 
     # ---------------------------------------------------------------------- I/O
@@ -399,6 +443,8 @@ class ModelSpec:
             out["theta0"] = {s: list(self.theta0[s]) for s in self.states}
         if self.aggregate:
             out["aggregate"] = {s: str(a) for s, a in self.aggregate.items()}
+        if self.derived:
+            out["derived"] = {n: d.expression for n, d in self.derived.items()}
         return out
 
     @classmethod
@@ -410,7 +456,8 @@ class ModelSpec:
         """
         if not isinstance(data, Mapping):
             raise ModelSpecError(f"a model spec must be a table/mapping, got {_kind(data)}")
-        allowed = {"name", "states", "inputs", "dt", "equations", "theta0", "aggregate"}
+        allowed = {"name", "states", "inputs", "dt", "equations", "theta0", "aggregate",
+                   "derived"}
         # "estimate": uncertainty of an exported identified model (vesselid.modelio)
         unknown = sorted(map(str, set(data) - allowed - {"estimate"}))
         if unknown:
@@ -427,7 +474,7 @@ class ModelSpec:
         dt = data.get("dt")
         if dt is not None:
             _expect_number(dt, "dt")
-        for table in ("equations", "theta0", "aggregate"):
+        for table in ("equations", "theta0", "aggregate", "derived"):
             value = data.get(table)
             if value is None and table != "equations":
                 continue
@@ -442,8 +489,10 @@ class ModelSpec:
                     _expect(entry, list, where, "a list of numbers")
                     for i, x in enumerate(entry):
                         _expect_number(x, f"{where}[{i}]")
-                else:
+                elif table == "aggregate":
                     _expect(entry, str, where, "a relation such as 'w - w_c'")
+                else:
+                    _expect(entry, str, where, "an expression such as 'u*u*delta'")
         return cls(
             name=data.get("name", "model"),
             states=data["states"],
@@ -452,6 +501,7 @@ class ModelSpec:
             theta0=data.get("theta0"),
             aggregate=data.get("aggregate"),
             dt=data.get("dt"),
+            derived=data.get("derived"),
         )
 
     def to_toml(self) -> str:
@@ -508,6 +558,8 @@ class ModelSpec:
             terms = ", ".join(str(t) for t in self.equations[s])
             agg = f"   (regressors use {self.aggregate[s]})" if s in self.aggregate else ""
             lines.append(f"  {s}(k+1) = [{terms}] θ_{s}{agg}")
+        for d in self.derived.values():
+            lines.append(f"  derived: {d}")
         return "\n".join(lines)
 
 

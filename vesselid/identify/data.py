@@ -128,6 +128,21 @@ def from_log(log, spec: ModelSpec | None = None, *, min_samples: int | None = No
     spec = spec or log.spec
     if spec is None:
         raise IdentificationError("no model spec given and the log carries none")
+    if spec.derived:  # states/inputs computed from measured columns (vesselid.derived)
+        from vesselid.derived import add_derived, state_dependent
+
+        log = TrialLog(add_derived(log.data, spec), log.metadata)
+        dep = state_dependent(spec)
+        if dep:
+            import warnings
+
+            from vesselid.errors import DerivedInputWarning
+
+            uses = "; ".join(f"{k} uses {list(v)}" for k, v in dep.items())
+            warnings.warn(f"derived input(s) computed from measured states ({uses}) are not "
+                          f"exogenous: the consistency results of the instrumental-variable "
+                          f"estimators do not cover their parameters (see vesselid.derived)",
+                          DerivedInputWarning, stacklevel=2)
     # validated; the rows of each experiment (TrialLog.experiments() order) as the
     # validation split them, taken from the columns directly: no sub-frame copies, and
     # column by column (selecting a list of columns builds a new frame, ~50x slower)

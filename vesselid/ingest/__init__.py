@@ -1,8 +1,9 @@
 """Raw sensor data → trial logs: ``vesselid ingest RAW_DIR_OR_FILES --dt 0.1 --out trial.csv``.
 
 One module per source: :mod:`~vesselid.ingest.nmea` (NMEA 0183), :mod:`~vesselid.ingest.tables`
-(mapped multi-rate CSV), :mod:`~vesselid.ingest.rosbag` (ROS 1 and ROS 2 bags, optional
-extra ``ros``); :mod:`~vesselid.ingest.streams` resamples, :mod:`~vesselid.ingest.pipeline`
+(mapped multi-rate CSV), :mod:`~vesselid.ingest.tank` (model-test tables, one experiment per
+file), :mod:`~vesselid.ingest.rosbag` (ROS 1 and ROS 2 bags, optional extra ``ros``);
+:mod:`~vesselid.ingest.streams` resamples, :mod:`~vesselid.ingest.pipeline`
 assembles the log and its quality report, :mod:`~vesselid.ingest.config` reads the small
 configuration TOML (origin, latencies, column mappings).
 """
@@ -104,6 +105,13 @@ def summary(log: Any) -> str:
                          f"({tr['duplicate_times']} duplicated stamps, max shift "
                          f"{tr['max_shift_s']:.3g} s)")
             lines.append(line)
+        elif s.get("type") == "tank":
+            yc = s.get("yaw_rate_check", {})
+            check = (f"r vs dψ/dt misfit {yc['relative_misfit']:.3f}" if yc.get("checked")
+                     else f"yaw rate not checked ({yc.get('why')})")
+            lines.append(f"{s['file']}: {s['rows']} rows at {s['dt_file']:g} s, {check}; "
+                         f"{'; '.join(s['conversions']) or 'no conversion'}; resampling "
+                         f"{s.get('resampling', 'none')}")
         else:
             lines.append(f"{s.get('file', s.get('bag'))}: {s.get('type')}"
                          + (f", topics {s['topics']}" if s.get("topics") else ""))

@@ -32,6 +32,10 @@
     channels = { rudder = "delta", shaft_rpm = { name = "n", scale = 0.0166667 } }
     xdr = { RUDDER = "delta", ENGINE0 = { name = "n", scale = 0.0166667 } }
 
+    [tank]                             # model-test tables, one experiment per file
+    files = "raw_data/*.dat"           # (vesselid.ingest.tank: layout, units, frames, scale)
+    columns = { time = "time", psi = "psi", u = "u", v = "v", r = "r", delta = "delta" }
+
     [ros]                              # ROS 1 / ROS 2 bags (optional extra "ros")
     odometry = "/odom"                 # nav_msgs/msg/Odometry topic (default: by type)
     imu = "/imu"                       # sensor_msgs/msg/Imu
@@ -61,8 +65,6 @@ __all__ = ["ChannelMap", "CsvMapping", "IngestConfig", "IngestError", "NmeaOptio
 
 ANGLE_CHANNELS = ("psi", "wind_angle")
 
-#: Top-level configuration tables owned by other readers (kept in ``IngestConfig.extra``).
-EXTRA_TABLES: set[str] = {"tank"}
 
 
 class IngestError(VesselidError):
@@ -131,7 +133,7 @@ class IngestConfig:
     heading_offset: float = 0.0
     lever_arm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     nmea: NmeaOptions = field(default_factory=NmeaOptions)
-    extra: dict[str, Any] = field(default_factory=dict)
+    tank: dict[str, Any] | None = None  # the [tank] table (vesselid.ingest.tank)
 
 
 def _num(value: Any, what: str) -> float:
@@ -191,13 +193,10 @@ def _nmea_options(raw: Any) -> NmeaOptions:
 
 
 def config_from_dict(data: dict[str, Any], base: Path = Path(".")) -> IngestConfig:
-    """Validate a parsed configuration.
-
-    Top-level tables of other readers (e.g. a tank-test table reader) are kept in
-    ``IngestConfig.extra`` when their names are registered in :data:`EXTRA_TABLES`.
-    """
+    """Validate a parsed configuration (a ``[tank]`` table is checked by
+    :func:`vesselid.ingest.tank.tank_format_from_dict` where it is used)."""
     known = {"origin", "max_gap", "min_duration", "epoch_tolerance", "relative_latency", "csv",
-             "ros", "heading_offset", "lever_arm", "nmea", *EXTRA_TABLES}
+             "ros", "heading_offset", "lever_arm", "nmea", "tank"}
     unknown = sorted(set(data) - known)
     if unknown:
         raise IngestError(f"unknown ingest configuration keys {unknown}; known: {sorted(known)}")
@@ -260,12 +259,15 @@ def config_from_dict(data: dict[str, Any], base: Path = Path(".")) -> IngestConf
     if max(abs(x) for x in arm_v) > 1000:
         raise IngestError(f"lever_arm components must be within ±1000 m, got {arm!r}")
     lever = (arm_v[0], arm_v[1], arm_v[2] if len(arm_v) == 3 else 0.0)
+    tank = data.get("tank")
+    if tank is not None and not isinstance(tank, dict):
+        raise IngestError("[tank] must be a table")
     return IngestConfig(origin=origin, max_gap=max_gap, min_duration=min_duration,
                         epoch_tolerance=epoch_tolerance,
                         relative_latency=rel, csv=tuple(csv), ros=dict(ros), base=base,
                         heading_offset=heading_offset, lever_arm=lever,
                         nmea=_nmea_options(data.get("nmea", {})),
-                        extra={k: data[k] for k in EXTRA_TABLES if k in data})
+                        tank=tank)
 
 
 def load_config(path: str | Path) -> IngestConfig:

@@ -22,6 +22,9 @@ HDT before THS; bags: IMU gyro before odometry twist for yaw rate), and then
    (``lever_arm = [x, y]``, body axes): ``n_ref = n − (cos ψ x − sin ψ y)``,
    ``e_ref = e − (sin ψ x + cos ψ y)``, ``u_ref = u + r y``, ``v_ref = v − r x``,
 6. writes a quality report (per source and per column) into ``metadata["quality"]``.
+
+Model-test tables (a ``[tank]`` table in the configuration) take the one-clock path of
+:mod:`vesselid.ingest.tank` instead: one experiment per file, no grid alignment.
 """
 
 from __future__ import annotations
@@ -239,6 +242,13 @@ def ingest(
     if not (math.isfinite(dt) and dt > 0):
         raise IngestError(f"--dt must be a positive number of seconds, got {dt}")
     cfg, cfg_file, nmea_files, bags, csv_files, tomls, other = _collect(paths, config)
+    if cfg.tank is not None:  # model-test tables: one clock per file, one experiment each
+        from vesselid.ingest.tank import ingest_tank, tank_format_from_dict
+
+        fmt = tank_format_from_dict(cfg.tank, base=cfg.base)
+        log = ingest_tank([*nmea_files, *csv_files, *other], dt, fmt, cfg_file)
+        _attach_spec(log, tomls)
+        return log
     if origin is not None or max_gap is not None or min_duration is not None:
         from dataclasses import replace
 
@@ -297,10 +307,6 @@ def ingest(
         s, q = read_bag(b, cfg.ros)
         streams += s
         sources.append({"type": q.get("format", "ros2bag"), **q})
-    for reader in _extra_readers():
-        s, srcs = reader(paths, cfg, sample_rate)
-        streams += s
-        sources += srcs
     if not streams:
         what = "no NMEA 0183 file, ROS bag or mapped CSV file"
         extra = f" (unmapped CSV files: {unmapped}; add a [[csv]] table)" if unmapped else ""
@@ -432,37 +438,18 @@ def ingest(
         "quality": quality,
         "vesselid_version": __version__,
     }
+    log = TrialLog(frame, _jsonable(meta))
+    _attach_spec(log, tomls)
+    return log
+
+
+def _attach_spec(log: Any, tomls: list[Path]) -> None:
+    """Attach the first spec TOML among the inputs whose columns the log has."""
     spec, spec_path = _find_spec(tomls)
     if spec is not None:
-        need = [*spec.states, *spec.inputs, *spec.sensors]
-        if all(c in frame.columns for c in need):
-            meta["spec"] = spec.to_dict()
-            meta["spec_file"] = str(spec_path)
-    return TrialLog(frame, _jsonable(meta))
-
-
-#: Further readers ``f(paths, config, sample_rate) -> (streams, sources)`` (e.g. model-test
-#: tables); each returns nothing for inputs that are not its own.
-EXTRA_READERS: list[Any] = []
-#: Reader modules looked up when ingest runs: their ``read_inputs`` function (same
-#: signature) joins :data:`EXTRA_READERS`; a module that is not installed is skipped.
-READER_MODULES: tuple[str, ...] = ("vesselid.ingest.tank",)
-
-
-def _extra_readers() -> list[Any]:
-    import importlib
-
-    for name in READER_MODULES:
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name == name:
-                continue
-            raise
-        fn = getattr(module, "read_inputs", None)
-        if fn is not None and fn not in EXTRA_READERS:
-            EXTRA_READERS.append(fn)
-    return list(EXTRA_READERS)
+        if all(c in log.data.columns for c in spec.measured_columns):
+            log.metadata["spec"] = spec.to_dict()
+            log.metadata["spec_file"] = str(spec_path)
 
 
 def _why_missing(kinds: tuple[str, ...], sources: list[dict[str, Any]],
