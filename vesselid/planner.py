@@ -129,9 +129,10 @@ class DisturbanceLevels:
         Clipping of the sensor noise in stds (variance factor of a clipped normal).
     force_noise_std, force_noise_time_constant
         Unmodelled Gauss–Markov forces ``[X, Y, N]`` and their time constant (s).
-    wind_speed, wind_direction, gust_std, gust_time_constant, wind_direction_std,
-    wind_direction_time_constant
-        Mean wind (m/s, going-to rad) and its Gauss–Markov variations.
+    wind_speed, wind_direction, gust_std, gust_time_constant
+        Mean wind (m/s, going-to rad) and its Gauss–Markov gusts.
+    wind_direction_std, wind_direction_time_constant
+        Gauss–Markov variations of the wind direction (rad) and their time constant (s).
     waves : vesselid.waves.WaveConditions, optional
         Sea state (first-order wave-induced motion on the measurements).
     wind_input : {"anemometer", "none"}
