@@ -68,3 +68,5 @@ autodoc_inherit_docstrings = False
 # Re-exports (``vesselid.ModelSpec`` is ``vesselid.model.ModelSpec``) make two targets for
 # one name; either is the same object.
 suppress_warnings = ["ref.python"]
+# Each page's cells run in a fresh temporary directory: files they write stay out of docs/.
+nb_execution_in_temp = True
