@@ -20,7 +20,7 @@ import vesselid  # noqa: E402
 
 project = "vesselid"
 author = "vesselid developers"
-copyright = "vesselid developers, MIT licence"  # noqa: A001
+copyright = "vesselid developers, MIT licence"
 version = release = vesselid.__version__
 
 extensions = [

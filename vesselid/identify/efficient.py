@@ -160,7 +160,7 @@ class InstrumentalGMM(Estimator):
         powerful at the same level (Gauss–Markov sensor noise, random pulses, 1000 runs:
         98.3 against 96.7 % rejected at 5 %; white designs 4.9–5.2 against 3.8–4.0 %)
         but computed on explicit rows (batched, not fused): ~4× the cost of ``auto`` on the
-        Monte Carlo path (README "Choosing the estimator").
+        Monte Carlo path (docs/guide/choosing-an-estimator.md).
     refine : int
         Refinement steps after the converged IV_{E{ζ}=0} iteration (each re-simulates
         the instruments from the latest estimate and re-estimates the noise model).
@@ -176,7 +176,7 @@ class InstrumentalGMM(Estimator):
         sensor noise as a Gauss–Markov state (:mod:`vesselid.identify.pem`) instead of
         SRIV where its likelihood maximisation converges (SRIV elsewhere). Under a
         Gauss–Markov current it is unbiased where every instrument built from the input
-        is not, and 12× more precise on the damping (README "Choosing the estimator").
+        is not, and 12× more precise on the damping (``scripts/estimator_study.py``).
     """
 
     multi_experiment: ClassVar[tuple[str, ...]] = ("pooled",)
