@@ -9,11 +9,11 @@ example fails the build.
 from __future__ import annotations
 
 import os
-import sys
 from pathlib import Path
 
+# The package is documented as installed (``pip install ".[docs]"`` or ``-e``): its
+# ``vesselid.envs`` subpackage lives in the folder ``envs/`` and exists only once installed.
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 import vesselid  # noqa: E402
