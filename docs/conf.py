@@ -35,8 +35,6 @@ extensions = [
 source_suffix = {".rst": "restructuredtext", ".md": "myst-nb"}
 root_doc = "index"
 exclude_patterns = ["_build", "**.ipynb_checkpoints", "Thumbs.db", ".DS_Store"]
-templates_path = ["_templates"]
-html_static_path = ["_static"]
 
 # MyST / MyST-NB: every code cell runs when the docs build; an error fails the build.
 myst_enable_extensions = ["dollarmath", "colon_fence", "deflist"]
