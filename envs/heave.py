@@ -340,6 +340,7 @@ class HeaveEnv(_HeaveBase, gym.Env[np.ndarray, np.ndarray]):
     (with ``current_sensor``), ``w_ref``; ``w_a(k+1)`` follows from ``info(k)`` and ``τ(k)``.
 
     ## Arguments
+
     {arguments}
 
     :attr:`model_spec`, :meth:`log_row`, :meth:`log_inputs` and :meth:`log_metadata`

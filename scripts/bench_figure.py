@@ -5,11 +5,11 @@ and saves it at 90 dpi (the first figure of a process pays font loading), report
 
     python scripts/bench_figure.py --results results/results_table1.csv --repeat 7
     PYTHONPATH=/path/to/old/checkout python scripts/bench_figure.py --results ... \
-        --compress-level 6          # the code before, as reproduce saved it then
+        --compress-level 6          # another checkout, zlib level 6
 
 Without ``--results`` it first runs ``vesselid reproduce --table 1`` (1000 × 10⁴) into a
-temporary directory. ``PYTHONPATH`` chooses the code measured (e.g. an older checkout's
-source tree for a before/after comparison, alternated by the caller).
+temporary directory. ``PYTHONPATH`` chooses the code measured (e.g. another checkout's
+source tree for a paired comparison, alternated by the caller).
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ ill-conditioned; together the experiments are informative (A8). The script
 compares, for LS, IV and IV with zero-mean instruments:
 
 * ``stacked`` — the ``p·N_E`` equations (6) solved in the least-squares sense,
-  each instrument's rows weighted to lose their units (README);
+  each instrument's rows weighted to lose their units (docs/method-notes.md);
 * ``pooled``  — the per-experiment normal equations summed,
   ``(Σ_E Σ_k Z_E Φᵀ) θ = Σ_E Σ_k Z_E y``;
 

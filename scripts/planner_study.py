@@ -1,4 +1,4 @@
-"""Sea-trial acceptance study and planner-vs-Monte-Carlo check (issue 12).
+"""Sea-trial acceptance study and planner-vs-Monte-Carlo check.
 
 The default (planned) sea-trial design is computed once; for every seed the trial is
 simulated with the default disturbances (and optionally a moderate model-scaled sea

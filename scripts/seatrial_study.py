@@ -1,6 +1,6 @@
 """Sea-trial evidence for CyberShip II: consistency, Monte Carlo, validation, control.
 
-Prints markdown tables (for the README) and writes ``docs/seatrial_estimates.png`` and
+Prints markdown tables and writes ``docs/seatrial_estimates.png`` and
 ``docs/control_tracking.png``:
 
 (i)   normalized errors for N = 10⁴, 10⁵, 10⁶ samples per experiment (6 experiments) for

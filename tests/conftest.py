@@ -1,10 +1,9 @@
 """Known failures recorded in one place, so that they stay visible in every test report.
 
-Each entry was red in a clean-checkout run of the whole suite after the estimator objects
-(issue 10) were merged with the plant, sea-trial, hostile-input and fast-start work at the end
-of the session. They are marked ``xfail`` (not strict: some pass on some machines) with the
-reason, never skipped, and are listed in the closing note as open work. Remove an entry when
-its test passes again.
+Each entry is a test that fails in a clean-checkout run of the whole suite, for the reason
+given. They are marked ``xfail`` (not strict: some pass on some machines) with the reason,
+never skipped, so that they stay open work in plain sight. Remove an entry when its test
+passes again.
 """
 
 from __future__ import annotations
@@ -49,7 +48,7 @@ os.environ.setdefault("VESSELID_KERNELS", "compiled")
 
 KNOWN_FAILURES: dict[str, str] = {
     "tests/test_reproduce.py::test_paper_size_matches_published_tables":
-        "sd band now derived from Monte Carlo SEs (issue 9): the f sd of Table 2 IV and "
+        "sd band derived from Monte Carlo SEs: the f sd of Table 2 IV and "
         "IV_E{zeta}=0 is ~12 % below the published sd, z = -4.1 and -4.15 against the "
         "Bonferroni 4.03 (the unpublished pulse widths); the NaN default-estimator row is "
         "excluded",

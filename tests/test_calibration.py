@@ -65,7 +65,7 @@ def test_default_estimator_not_fooled_by_coloured_sensor_noise():
     coverage must not be significantly below 93 % (the lower edge of the acceptance band;
     one-sided exact binomial test at α = 0.001). Not tested against 95 %: the HAC SEs of
     every simulated-instrument estimator are 0.8–0.9× the Monte Carlo spread here
-    (IV_{E{ζ}=0} and SRIV cover 89–97 % on these runs; README "Calibration")."""
+    (IV_{E{ζ}=0} and SRIV cover 89–97 % on these runs; docs/guide/uncertainty.md)."""
     from vesselid.calibration import coverage_study
 
     runs = 150
@@ -85,7 +85,7 @@ def test_default_covariance_matches_the_spread_on_the_default_sea_trial():
     (κ the sample kurtosis of the errors, at least 3) and a Bonferroni ``z`` over the 25
     parameters (α = 0.001; ratio band ≈ [0.5, 1.9] at κ = 3). It can fail: the old
     calibration trial (static offsets, wind load not measured) gave ratios 1.2–3.6 (median
-    1.65 on 30 runs; README "Calibration")."""
+    1.65 on 30 runs; docs/guide/uncertainty.md)."""
     from vesselid.calibration import seatrial_coverage
 
     runs = 20

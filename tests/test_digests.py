@@ -2,8 +2,7 @@
 
 Each digest is ``sha256`` over, per named array in order, the name and the bytes of
 ``np.ascontiguousarray(x, dtype=np.float64)`` (never file bytes, so CSV formatting or
-pandas dtypes cannot move them). The literals were computed on ``main`` before the
-plant/kernel refactor (issue 9); a refactor must leave them unchanged. A change that
+pandas dtypes cannot move them). A refactor must leave them unchanged. A change that
 legitimately moves a pinned output (a new default) adds a pin for the old behaviour,
 selected by an explicit option, instead of editing or deleting a pin.
 
@@ -70,8 +69,8 @@ def simulate_cybership2() -> str:
 def sea_trial() -> str:
     """(c) a sea-trial log from the current default design.
 
-    Issue 12 changes the default sea-trial design; the design used here must then stay
-    available under an explicit name and this pin must select it by that name.
+    A change of the default sea-trial design keeps the design used here available under an
+    explicit name, and this pin then selects it by that name.
     """
     from vesselid.seatrial import simulate_sea_trial
 

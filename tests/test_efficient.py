@@ -401,6 +401,7 @@ def test_fused_colour_test_equals_the_explicit_one(scenario):
     np.testing.assert_allclose(fused.colour[ok], stat[ok], rtol=1e-9, atol=0)
 
 
+@pytest.mark.slow
 def test_auto_decision_and_estimates_do_not_depend_on_the_fused_colour_test(monkeypatch):
     """``auto`` batched with the fused colour test and with the explicit one (generic
     kernels) makes the same choice and the same estimates, bit for bit; the statistics

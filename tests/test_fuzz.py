@@ -1,6 +1,6 @@
 """Fuzz the command line with malformed logs, specs, sidecars and option values.
 
-Property (issue 11): every run ends with exit 2 and a one-line reason, or exit 0 with a
+Property: every run ends with exit 2 and a one-line reason, or exit 0 with a
 valid result (strict JSON) — never a traceback (an exception escaping
 ``vesselid.cli.main``), never ``NaN``/``Infinity`` in JSON. The CLI runs in-process on a
 small log; examples are bounded so the whole module takes a few seconds.

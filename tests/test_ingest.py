@@ -130,6 +130,7 @@ def _copy(raw: Path, dst: Path) -> Path:
     return dst
 
 
+@pytest.mark.slow
 def test_bad_sentences_are_counted(trial, tmp_path):
     _log, raw, _ = trial
     d = _copy(raw, tmp_path / "bad")

@@ -1,4 +1,4 @@
-"""Import hygiene (issue 14): a command loads only what it uses.
+"""Import hygiene: a command loads only what it uses.
 
 Each check runs a fresh interpreter and lists which heavy modules it left in
 ``sys.modules``; no timing is asserted here (timings live in ``scripts/bench.py``).

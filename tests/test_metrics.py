@@ -1,4 +1,4 @@
-"""One normalised-error and one NRMSE definition (issue 9), used the same way everywhere."""
+"""One normalised-error and one NRMSE definition, used the same way everywhere."""
 
 from __future__ import annotations
 

@@ -324,6 +324,7 @@ def _badly_scaled(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarra
             * 10.0 ** rng.integers(-5, 5, size=(*ones, n, 1)))
 
 
+@pytest.mark.slow
 def test_single_system_equilibration_bit_identical():
     """``linalg._equilibrate_one`` (the checked fit's one system) returns the scales of
     the vectorised ``equilibrate`` bit for bit: badly scaled, nearly singular, with zero,

@@ -39,6 +39,7 @@ def test_pem_is_exact_on_noise_free_data_without_warnings():
     assert res.converged and res.diagnostics["disturbance_model"] == "none"
 
 
+@pytest.mark.slow
 def test_pem_consistent_under_gauss_markov_current_where_iv_is_not_precise():
     """GM current inside the modulus (time constant 25 samples): PEM's mean error is
     within 4 of its Monte Carlo standard errors, shrinks with N, and its median error on
@@ -60,6 +61,7 @@ def test_pem_consistent_under_gauss_markov_current_where_iv_is_not_precise():
     assert np.abs(_z((ls - THETA0) / THETA0)).max() > 6.0
 
 
+@pytest.mark.slow
 def test_pem_chooses_the_sensor_noise_model_under_coloured_sensor_noise():
     data, spec = _batch("gm-sensor-alternating", 8000, 12, seed=22)
     it = get_estimator("pem").estimate_parameters(data, spec)

@@ -199,7 +199,7 @@ def test_paper_size_matches_published_tables():
     """1000 runs × 10⁴ samples, every row with published numbers: all claims hold; every
     mean within 1.5 published sd of the published mean (a reproduction-fidelity tolerance:
     the paper does not give its pulse widths, so means differ by more than Monte Carlo
-    error, README "Reproducing the paper"); every sd equal to the published sd within
+    error, docs/guide/reproduce.md); every sd equal to the published sd within
     Monte Carlo error — ``|log(sd / published sd)|`` below the Bonferroni critical value
     (family-wise level 10⁻³) times its standard error, from the kurtosis of this run's
     estimates and the two run counts (the paper's: 1000)."""

@@ -1,4 +1,4 @@
-"""Issue 13 acceptance: simulate --raw -> ingest -> identify against θ0 and the ideal log."""
+"""Round-trip acceptance: simulate --raw -> ingest -> identify against θ0 and the ideal log."""
 
 from __future__ import annotations
 

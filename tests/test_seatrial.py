@@ -87,6 +87,7 @@ def test_noise_free_recovers_theta0():
             assert np.all(np.isfinite(err))
 
 
+@pytest.mark.slow
 def test_wind_load_from_the_anemometer_is_a_known_input():
     """With wind (no gusts, noise-free sensors, no force noise) the regression is exact
     once the anemometer's wind load is added to the forces; without it it is not."""
@@ -146,6 +147,7 @@ def _z_scores(n: int, seed: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     return out
 
 
+@pytest.mark.slow
 def test_consistency_trend_fixed_seeds():
     """IV_{E{ζ}=0} stays within its standard errors while they shrink with N; LS stays
     biased by many of its own standard errors (tolerances from the SEs of the same fit)."""

@@ -71,6 +71,7 @@ def test_filters_per_experiment_and_keeps_raw_columns() -> None:
         wave_filter_log(TrialLog(data), WaveFilter(0.5, 0.1))
 
 
+@pytest.mark.slow
 def test_wave_filtered_trial_is_consistent_and_more_precise() -> None:
     """Moderate sea on the planned trial: the wave-filtered log identified with
     zero-mean simulated instruments is within the family-wise normal bound on every

@@ -3,7 +3,7 @@
 The registries (:data:`vesselid.identify.registry.ESTIMATORS`,
 :data:`vesselid.identify.covariance.COVARIANCE_ESTIMATORS`) load the compiled
 kernels; the command line checks ``--method``/``--cov`` against these plain tuples
-instead, so that an argument error never loads numba (issue 14).
+instead, so that an argument error never loads numba.
 ``tests/test_lazy_imports.py`` checks that they equal the registries.
 """
 

@@ -8,7 +8,7 @@ the order in which :func:`vesselid.reproduce.warm_up` first calls them — into 
 ``NUMBA_CACHE_DIR``, while the main process compiles the simulation and the generated
 GMM kernels (≈ 5 s of CPU). A kernel the helper has cached by the time the main process
 first calls it is loaded, not compiled; one it has not is compiled by the main process
-as before (the helper is stopped at the end of the warm-up). Results are unaffected:
+itself (the helper is stopped at the end of the warm-up). Results are unaffected:
 the same code is compiled with the same signatures either way.
 
 ``VESSELID_PRECOMPILE=1`` starts the helper whatever the load, ``0`` never.

@@ -492,7 +492,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     the heap is frozen at the end (:func:`gc.freeze`): the interpreter's shutdown then
     does not walk every object of numpy, pandas, numba and matplotlib with its cyclic
     collections — ≈ 0.3–0.4 s of CPU after ``reproduce`` (measured with the imports of
-    ``reproduce`` and the figure; the process exits as before, atexit handlers and stream
+    ``reproduce`` and the figure; the process exits normally, atexit handlers and stream
     flushing included, and the operating system reclaims the memory). In-process callers
     (tests) pass ``argv`` and keep their collector.
     """

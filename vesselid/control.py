@@ -190,8 +190,8 @@ class ControlExperiment:
     Attributes
     ----------
     table : DataFrame
-        Per controller: RMS surge-speed error (m/s), RMS heading error (deg), mean |X|,
-        mean |N| (after ``settle`` seconds).
+        Per controller: RMS surge-speed error (m/s), RMS heading error (deg), mean ``|X|``,
+        mean ``|N|`` (after ``settle`` seconds).
     traces : dict name -> DataFrame
         Time series ``t, u, u_ref, psi, psi_ref, X, N, r`` (true states; the forces
         applied at ``t``).

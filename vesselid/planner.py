@@ -17,10 +17,9 @@ the regressors of the vessel's *disturbed* path, averaged over a few realisation
 unmodelled forces, gusts and wind-direction changes (:data:`DISTURBED_PATHS`, fixed
 seed): the instruments are simulated open loop from the logged inputs and do not follow
 the random departures of the vessel from its noise-free path. Where the motion is weakly
-damped (full-ahead thruster squares) those departures reach 0.1–0.15 m/s and weaken the
-instruments; with the noise-free path as regressors (``paths=0``, the planner before)
-the predicted SE of ``r: v`` on the planned 6 × 2·10⁴ trial was 4.1 % against a Monte
-Carlo 4.9 %; with the disturbed paths it is 4.9 %.
+damped (full-ahead thruster squares) those departures are large and weaken the
+instruments, which the noise-free path as regressors (``paths=0``) does not see
+(``scripts/planner_study.py`` compares the predictions with Monte Carlo).
 
 * white sensor noise ``e`` (std ``σ``) enters the target and, through the regressors,
   the prediction: ``ε_i(k) = e_i(k) − Σ_j J_ij(k−1) e_j(k−1)`` with the Jacobian
@@ -34,7 +33,7 @@ Carlo 4.9 %; with the disturbed paths it is 4.9 %.
 ``identify``'s default estimator ``auto`` rejects the delayed measured instruments on a
 sea trial (the Gauss–Markov forces colour the equation error; its C and colour tests)
 and falls back to SRIV: the same simulated, per-experiment centred instruments with
-target, regressors and instruments prefiltered by the Yule–Walker AR(4) model ``C(q)``
+target, regressors and instruments prefiltered by the Yule–Walker AR model ``C(q)``
 of the equation error (Young 1976; Söderström & Stoica 1989, ch. 8). Its prediction
 (``estimator="auto"``, the default) pools the equation-error autocovariance above over
 the experiments (lags 0–4), fits ``C`` as :func:`vesselid.identify.gmm.ar_coefficients`
@@ -129,9 +128,10 @@ class DisturbanceLevels:
         Clipping of the sensor noise in stds (variance factor of a clipped normal).
     force_noise_std, force_noise_time_constant
         Unmodelled Gauss–Markov forces ``[X, Y, N]`` and their time constant (s).
-    wind_speed, wind_direction, gust_std, gust_time_constant, wind_direction_std,
-    wind_direction_time_constant
-        Mean wind (m/s, going-to rad) and its Gauss–Markov variations.
+    wind_speed, wind_direction, gust_std, gust_time_constant
+        Mean wind (m/s, going-to rad) and its Gauss–Markov gusts.
+    wind_direction_std, wind_direction_time_constant
+        Gauss–Markov variations of the wind direction (rad) and their time constant (s).
     waves : vesselid.waves.WaveConditions, optional
         Sea state (first-order wave-induced motion on the measurements).
     wind_input : {"anemometer", "none"}
@@ -845,9 +845,10 @@ class TrialPlan:
         t = self.table().copy()
         t.index = [f"{eq}: {term}" for eq, term in t.index]
         model = {"iv-zero-mean": "asymptotic IV, zero-mean instruments",
-                 "sriv": "asymptotic SRIV: zero-mean simulated instruments, AR(4) prefilter",
+                 "sriv": "asymptotic SRIV: zero-mean simulated instruments, "
+                         f"AR({SRIV_ORDER}) prefilter",
                  "auto": "estimator auto = SRIV here: zero-mean simulated instruments, "
-                         "AR(4) prefilter"}[self.estimator]
+                         f"AR({SRIV_ORDER}) prefilter"}[self.estimator]
         if self.paths:
             model += (f"; instruments against the regressors of {self.paths} disturbed "
                       "paths")
@@ -1019,7 +1020,7 @@ def plan_trial(
     paths : int, optional
         Disturbed path realisations per design evaluation for the instrument–regressor
         cross moment (default :data:`DISTURBED_PATHS`; 0: instruments assumed to track
-        the vessel exactly, the planner before issue 12's acceptance).
+        the vessel exactly).
     seed : int
         Seed of those realisations.
 
@@ -1179,9 +1180,8 @@ PREDICTED_ESTIMATORS = ("auto", "sriv", "iv-zero-mean")
 #: the log (``metadata["noise_order"]``), and ``auto``'s fallback and ``sriv`` use it
 #: instead of their default 4. The equation error is the differenced white sensor noise
 #: (an MA(1) whose root is near the unit circle: lag-1 correlation −0.5) plus 2-s
-#: Gauss–Markov forces; AR(4) whitens it poorly. Measured on the planned trial (seeds
-#: 0–49, the same logs): AR(4) 45/50 within 10 % and 3.5 SE, worst Monte Carlo relative
-#: sd 4.6 %; AR(16) 50/50, 4.2 % (README, Planning a sea trial).
+#: Gauss–Markov forces, which a low-order AR model whitens poorly
+#: (``scripts/planner_study.py`` compares the orders on simulated trials).
 SRIV_ORDER = 16
 #: Disturbed path realisations per design evaluation (:func:`_disturbed_paths`): the
 #: instrument–regressor cross moment is averaged over them.

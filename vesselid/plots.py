@@ -77,7 +77,7 @@ class _UnhintedTextFigure(Figure):
 
     Agg (matplotlib >= 3.11) renders text glyph by glyph, and hinting each glyph makes
     text most of the cost of saving a figure; unhinted glyphs are a little softer but
-    as legible at these sizes and cost ~40 % less (README, Figure 1).
+    as legible at these sizes and cost less (``scripts/bench_figure.py``).
     """
 
     def draw(self, renderer: Any) -> None:
@@ -149,7 +149,8 @@ def error_histograms(
         each histogram states mean ± sd and the non-finite or out-of-range runs, the
         number of finite estimates per histogram is stated once in the bottom-left
         corner (and in the note of any histogram with another count). Text is drawn
-        unhinted (see ``_UnhintedTextFigure``); saving takes well under 0.1 s (README).
+        unhinted (see ``_UnhintedTextFigure``); saving takes well under 0.1 s
+        (``scripts/bench_figure.py``).
     """
     if df.empty:
         raise VesselidError("no results to plot")
@@ -167,7 +168,7 @@ def error_histograms(
     # collection per panel, one single-line note per histogram in a strip above its bars
     # (no text boxes), the common run count stated once: ~40 short text lines in all.
     # Agg renders text glyph by glyph, so text dominates the cost of saving; this keeps
-    # drawing and saving well under 0.1 s (README, Figure 1).
+    # drawing and saving well under 0.1 s (``scripts/bench_figure.py``).
     fig = _UnhintedTextFigure(figsize=(width, height))
     FigureCanvasAgg(fig)
     fig.subplots_adjust(left=0.95 / width, right=1.0 - 0.12 / width, bottom=0.32 / height,

@@ -12,7 +12,7 @@ tidy results and a JSON summary.
   measurement ``ỹ = y₁ − y₂`` and the predictor ``ŷ(k) = a ỹ(k−1) + n ỹ|ỹ| + f τ``.
 
 Settings the paper leaves open, decided from evidence
-----------------------------------------------------
+-----------------------------------------------------
 All numbers: 1000 runs × 10⁴ samples, normalized errors mean ± sd, scored
 against the 18 published numbers of a table as the rms of (mean − published
 mean)/published sd ("rms bias") and the rms of log(sd/published sd) ("rms

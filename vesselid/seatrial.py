@@ -20,7 +20,7 @@ sea trial (paper eq. (6)/(10), ``N_E`` experiments):
 Identification structure
 ------------------------
 In every steady turn of this vessel ``v`` and ``r`` have opposite signs (checked over the
-whole force envelope, see the README), so ``v·|r| = −r·|v|`` on all such data and only
+whole force envelope, see docs/guide/sea-trials.md), so ``v·|r| = −r·|v|`` on all such data and only
 the combination is identifiable. The spec used here folds ``v·|r|`` into ``r·|v|``
 (:meth:`ModelSpec.merge_terms`; θ0 of ``r·|v|`` becomes ``θ_r|v| − θ_v|r|``); the plant
 keeps the full physics.
@@ -560,9 +560,8 @@ def simulate_sea_trial(
         ``X_cmd, Y_cmd, N_cmd``, the load to ``X_wind, Y_wind, N_wind``). The mean wind
         load depends on the heading, which the manoeuvres correlate with the
         instruments; left in the equation error it biases every instrumental-variable
-        estimate (measured: 4–8 SE on the sway/yaw couplings of the planned design).
-        ``"none"``/``None``: ``X, Y, N`` are the commands only (the wind load is an
-        unmodelled disturbance, the behaviour before).
+        estimate. ``"none"``/``None``: ``X, Y, N`` are the commands only (the wind load is
+        an unmodelled disturbance).
 
     Returns
     -------

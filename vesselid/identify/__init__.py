@@ -55,7 +55,7 @@ __all__ = [
     "register",
 ]
 
-#: Default way to combine experiments (see README "Multi-experiment equations").
+#: Default way to combine experiments (see docs/method-notes.md).
 DEFAULT_COMBINE = "pooled"
 
 #: Registered method names (kept for backwards compatibility; see :data:`ESTIMATORS`).
@@ -86,7 +86,7 @@ def identify(
     combine : {"pooled", "stacked"}
         Multi-experiment form: ``"stacked"`` solves the ``p N_E`` equations (6)/(10)
         in the least-squares sense as the paper writes them; ``"pooled"`` sums the
-        per-experiment normal equations (the default; see README for the evidence).
+        per-experiment normal equations (the default; see docs/method-notes.md).
     target : {"measured", "aggregated"}
         Regression target with an ``[aggregate]`` relation: the measured state
         ``y₁(k)`` as in (10) (default) or the aggregated signal ``ỹ(k)`` (the reading

@@ -52,7 +52,7 @@ enters ``y(k)`` and, through the regressors, ``φ(k+1)`` (an MA(1) with a negati
 lag-1 correlation around ``−(a + 2n|x|)``), and slowly varying currents are
 coloured. A white-noise formula overstates the standard errors on the paper's
 white designs and understates them under coloured currents; the calibration study
-(``scripts/calibration.py``, README) measures it.
+(``scripts/calibration.py``) measures it.
 """
 
 from __future__ import annotations
@@ -106,7 +106,7 @@ _KERNEL_LABELS = {"bartlett": "Bartlett", "parzen": "Parzen", "qs": "quadratic-s
 #: Automatic bandwidth rules.
 BANDWIDTH_RULES = ("andrews", "newey-west")
 
-#: The package's default covariance (chosen from the calibration study; see README).
+#: The package's default covariance (chosen from the calibration study, ``scripts/calibration.py``).
 DEFAULT_COV_TYPE = "hac"
 
 
@@ -833,7 +833,7 @@ class KernelCovariance(CovarianceEstimator):
         Fixed bandwidth (:func:`kernel_weights` convention) or an automatic rule
         (default ``"newey-west"``: the Andrews AR(1) plug-in misses the slow part of
         scores that mix the white MA(1) sensor-noise error with a coloured current,
-        see README "Calibration")
+        see docs/guide/uncertainty.md)
         (:func:`automatic_bandwidth`), computed from the scores of all experiments
         (after pre-whitening if on).
     prewhiten : bool

@@ -157,16 +157,14 @@ class InstrumentalGMM(Estimator):
         :func:`vesselid.identify.gmm.colour_test` (noise lags
         :func:`vesselid.identify.gmm.whitened_colour_window`; ``p = 2``,
         :data:`vesselid.identify.gmm.WHITENED_COLOUR_ORDER`, is the studied one), more
-        powerful at the same level (Gauss–Markov sensor noise, random pulses, 1000 runs:
-        98.3 against 96.7 % rejected at 5 %; white designs 4.9–5.2 against 3.8–4.0 %)
-        but computed on explicit rows (batched, not fused): ~4× the cost of ``auto`` on the
-        Monte Carlo path (README "Choosing the estimator").
+        powerful at the same level (``scripts/colour_study.py`` measures size and power)
+        but computed on explicit rows (batched, not fused), several times the cost of
+        ``auto`` on the Monte Carlo path.
     refine : int
         Refinement steps after the converged IV_{E{ζ}=0} iteration (each re-simulates
         the instruments from the latest estimate and re-estimates the noise model).
         The start is consistent, so one step is already asymptotically efficient for
-        the chosen instruments (measured: 1 and 3 steps give the same spread to 1 %);
-        ``converged`` reports the IV_{E{ζ}=0} iteration.
+        the chosen instruments; ``converged`` reports the IV_{E{ζ}=0} iteration.
     fallback_refine : int
         Refinement steps of the simulated-instrument fallback of ``auto`` (the AR noise
         model needs a few: one step had heavier tails under a coloured current).
@@ -176,7 +174,7 @@ class InstrumentalGMM(Estimator):
         sensor noise as a Gauss–Markov state (:mod:`vesselid.identify.pem`) instead of
         SRIV where its likelihood maximisation converges (SRIV elsewhere). Under a
         Gauss–Markov current it is unbiased where every instrument built from the input
-        is not, and 12× more precise on the damping (README "Choosing the estimator").
+        is not, and more precise on the damping (``scripts/estimator_study.py``).
     """
 
     multi_experiment: ClassVar[tuple[str, ...]] = ("pooled",)

@@ -322,8 +322,8 @@ def _cond_below(a: np.ndarray, cond_max: float) -> bool:
     those scales and ``‖S‖_F ‖S⁻¹‖_F ≥ κ₂(S)`` of the scaled matrix (Gauss–Jordan, no
     SVD; 4 µs instead of 23 µs a call). So a compiled bound below the margin proves the
     system regular (every refined-IV and GMM solve of a fit: ``κ`` ~ 1e2–1e4); otherwise
-    — singular or ill-conditioned systems, the numpy path — :func:`_cond_one` decides,
-    as before. The decision is the exact one's; only its cost changes."""
+    — singular or ill-conditioned systems, the numpy path — :func:`_cond_one` decides.
+    The decision is the exact one's; only its cost changes."""
     if _bound_proves_regular(a, 50, cond_max):
         return True
     cond = _cond_one(a)
@@ -443,7 +443,7 @@ def _regular_sym(x: np.ndarray) -> bool:
     of :func:`_inv_sym_one`: proved by the compiled bound ``‖x‖_F ‖x⁻¹‖_F ≥ κ₂(x)``
     (:func:`vesselid.identify._ivkernels.cond_bound` without equilibration sweeps, a
     uniform scale only) when it is below :data:`COND_CLEAR` of the threshold, as in
-    :func:`_cond_below`; otherwise (and on the numpy path) by the SVD, as before."""
+    :func:`_cond_below`; otherwise (and on the numpy path) by the SVD."""
     if _bound_proves_regular(x[0], 0, COND_MAX):
         return True
     cond = np.linalg.cond(x)

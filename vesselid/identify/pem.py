@@ -3,7 +3,7 @@
 The instrumental-variable estimators of the paper are consistent when the current ``v``
 is white (Lemma 3.1) and lose most of their precision when it is coloured: a slowly
 varying current inside the modulus leaves no instrument built from the input alone
-exactly valid (README "Choosing the estimator"). This estimator models the disturbance
+exactly valid (``scripts/estimator_study.py``). This estimator models the disturbance
 instead. For one state equation of Definition 2.1 it runs the Gaussian filter of
 :mod:`vesselid.identify._pemkernels` on the state ``[x, v, c]`` — ``v`` a Gauss–Markov
 current inside the modulus, ``c`` Gauss–Markov sensor noise, plus white process noise

@@ -57,7 +57,7 @@ for _est in (
 PAPER_METHODS: tuple[str, ...] = ("ls", "iv", "iv-zero-mean")
 
 #: The package default (``identify`` and ``vesselid identify`` without ``--method``),
-#: chosen from ``scripts/estimator_study.py`` (README "Choosing the estimator"): on
+#: chosen from ``scripts/estimator_study.py`` (docs/guide/choosing-an-estimator.md): on
 #: white disturbances it matches 2SLS with delayed instruments, under a coloured
 #: current it falls back to the simulated instruments the paper proves valid.
 DEFAULT_METHOD = "auto"
