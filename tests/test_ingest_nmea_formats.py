@@ -14,7 +14,7 @@ from vesselid.cli import main
 from vesselid.ingest import IngestError, ingest, summary
 from vesselid.nmea import KNOT, sentence_lines
 
-T0 = 1_780_308_000.0  # 2026-06-01 10:00:00 UTC
+T0 = 1_780_308_000.0  # the synthetic log starts on 1 June 2026 at ten o'clock
 LAT0, LON0 = 63.43, 10.39
 M_PER_DEG = 111_320.0
 
