@@ -62,6 +62,16 @@ LAZY_COMMANDS = {
         "Read NMEA 0183 logs, ROS 2 bags and mapped multi-rate CSV files, align the clocks, "
         "resample onto a uniform grid, convert to local NED and body-frame velocities, split "
         "experiments at gaps, and write a trial log with a quality report in its metadata."),
+    "closed-loop": (
+        "vesselid.closedloop_cli", "simulate a closed-loop trial log (PI loop, reference, dither)",
+        "Simulate the heave system under a PI(D) controller with a random-step reference and a "
+        "white dither; the log has the reference and dither columns and names the controller "
+        "in its metadata, for `vesselid identify LOG --method cl-iv`."),
+    "recursive": (
+        "vesselid.recursive_cli", "recursive (online) LS / IV with a forgetting factor",
+        "Run recursive least squares or recursive IV with forgetting factor λ over a trial "
+        "log in one compiled pass; print the final estimate and optionally write the "
+        "estimate's trajectory."),
 }
 
 
