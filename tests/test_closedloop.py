@@ -56,7 +56,7 @@ def test_policy_equals_compiled_loop() -> None:
 
 
 def test_log_columns_metadata_and_round_trip(tmp_path) -> None:
-    spec, log = _closed(1, 500)
+    _, log = _closed(1, 500)
     assert {"w_ref", "tau_dither"} <= set(log.data.columns)
     cl = log.metadata["closed_loop"]
     assert cl["reference"] == {"w": "w_ref"} and cl["dither"] == {"tau": "tau_dither"}

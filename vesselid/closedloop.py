@@ -46,8 +46,8 @@ from vesselid.regressors import advance, kernel
 from vesselid.systems import Simulation, System
 
 __all__ = [
-    "ClosedLoopSimulation",
     "PID",
+    "ClosedLoopSimulation",
     "closed_loop_info",
     "closed_loop_metadata",
     "closed_loop_states",
@@ -274,7 +274,8 @@ def _batch(a: Any, n_runs: int, n_samples: int, width: int, name: str) -> np.nda
 def closed_loop_states(spec: ModelSpec, controller: PID, reference: Any, *,
                        dither: Any = None, theta: Any = None, x0: Any = None, v: Any = None,
                        w: Any = None, e: Any = None, limit: Any = 1e8,
-                       raise_on_divergence: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                       raise_on_divergence: bool = True
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Simulate (1a) under ``controller``: ``x(k+1) = Φᵀ([x + v; u])θ + w``, ``u(k)`` the
     PID of ``y(k) = x(k) + e(k)`` and the reference, plus the dither.
 
