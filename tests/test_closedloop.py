@@ -183,3 +183,37 @@ def test_closed_loop_monte_carlo() -> None:
     false = sum(feedback_test(system.simulate(5000, seed=2000 + s).to_log(aggregate=False),
                               spec).rejects for s in range(runs))
     assert stats.binomtest(false, runs, 0.05, alternative="greater").pvalue > 1e-3
+
+
+def test_recorder_logs_a_closed_loop_environment_run() -> None:
+    """The heave environment under the PI loop (the policy of the same PID, thrust limits
+    equal to the environment's), dither annotated: the recorded log names its loop and
+    cl-iv identifies from it."""
+    import gymnasium as gym
+
+    import vesselid.envs  # noqa: F401
+    from vesselid.envs.recorder import TrialRecorder
+
+    env = gym.make("vesselid/Heave-v0", max_episode_steps=3000)
+    rec = TrialRecorder(env)
+    lo, hi = env.unwrapped._cfg.thrust_range
+    pid = PID(loops={"tau": "w"}, kp={"tau": 0.3}, ki={"tau": 0.05}, offset={"tau": 0.2},
+              limits={"tau": (lo, hi)})
+    spec = rec.model_spec
+    policy = pid.policy(spec)
+    rec.declare_closed_loop(pid, reference={"w": "w_ref"}, dither={"tau": "tau_dither"})
+    rng = np.random.default_rng(0)
+    _, info = rec.reset(seed=0)
+    for _ in range(3000):
+        d = 0.03 * rng.standard_normal()
+        tau = policy([info["y1"]], [info["w_ref"]], [d])[0]
+        rec.annotate(tau_dither=d)
+        _, _, term, trunc, info = rec.step(np.array([2 * (tau - lo) / (hi - lo) - 1],
+                                                    dtype=np.float32))
+        if term or trunc:
+            break
+    log = rec.to_log()
+    assert log.metadata["closed_loop"]["dither"] == {"tau": "tau_dither"}
+    assert np.isfinite(log.data["tau_dither"]).all()
+    res = identify(log, spec, "auto")
+    assert res.method == "cl-iv" and res.converged
