@@ -387,6 +387,12 @@ class ClosedLoopSimulation(Simulation):
         return log
 
 
+def _per_experiment(design: Any, experiment: int) -> Any:
+    if isinstance(design, Sequence) and not isinstance(design, str):
+        return design[experiment % len(design)]
+    return design
+
+
 def simulate_closed_loop(system: System, controller: PID, reference: Mapping[str, Any], *,
                          dither: Mapping[str, Any] | None = None, n_samples: int = 1000,
                          n_runs: int = 1, seed: Any = None) -> ClosedLoopSimulation:
@@ -402,9 +408,11 @@ def simulate_closed_loop(system: System, controller: PID, reference: Mapping[str
     system : System
     controller : PID
         ``controller.loops`` names the inputs that are controlled and their states.
-    reference : mapping state -> InputSignal or float
-        Reference of every controlled state (a signal drawn per run, or a constant).
-    dither : mapping input -> Process or InputSignal, optional
+    reference : mapping state -> InputSignal or float, or a sequence of them
+        Reference of every controlled state (a signal drawn per run, or a constant); a
+        sequence gives one design per experiment, cycled by the run's spawn index (as
+        :class:`~vesselid.systems.System` input designs), e.g. turns to both sides.
+    dither : mapping input -> Process or InputSignal (or a sequence), optional
         External excitation per input (e.g. ``Gaussian(0, 0.02)``); missing: none.
     n_samples, n_runs, seed
         As :meth:`System.simulate`.
@@ -434,13 +442,14 @@ def simulate_closed_loop(system: System, controller: PID, reference: Mapping[str
     for r, ss in enumerate(run_seeds):
         rng = np.random.default_rng(np.random.SeedSequence(
             ss.entropy, spawn_key=(*ss.spawn_key, 0x434C)))
+        exp = int(ss.spawn_key[-1]) if ss.spawn_key else 0
         for i, s in enumerate(ref_states):
-            sig = reference[s]
+            sig = _per_experiment(reference[s], exp)
             r_arr[r, :, i] = (sig.sample(rng, n_samples) if hasattr(sig, "sample")
                               else float(sig))
         for j, name in enumerate(spec.inputs):
             if dither and name in dither:
-                d_arr[r, :, j] = dither[name].sample(rng, n_samples)
+                d_arr[r, :, j] = _per_experiment(dither[name], exp).sample(rng, n_samples)
     ref_in = np.zeros((n_runs, n_samples, spec.n_inputs))
     for j, name in enumerate(spec.inputs):
         if name in controller.loops:
