@@ -30,73 +30,23 @@ from __future__ import annotations
 import argparse
 import time
 import warnings
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from vesselid.closedloop import PID, simulate_closed_loop
-from vesselid.disturbances import Gaussian
+from vesselid.closedloop import DESIGNS, ClosedLoopDesign
 from vesselid.identify import identify
 from vesselid.identify.closedloop import feedback_test
 from vesselid.identify.data import from_log
 from vesselid.identify.estimators import estimate
-from vesselid.model import ModelSpec
-from vesselid.signals import RandomPulses
-from vesselid.systems import System, heave
 
-__all__ = ["DESIGNS", "run_design"]
+__all__ = ["run_design"]
 
-
-@dataclass(frozen=True)
-class Design:
-    name: str
-    system: System
-    spec: ModelSpec
-    controller: PID
-    reference: dict[str, Any]
-    dither: dict[str, Any]
-    samples: int
-    experiments: int
-
-
-def heave_design() -> Design:
-    system = heave()
-    return Design(
-        name="heave", system=system, spec=system.identification_spec(aggregate=False),
-        controller=PID(loops={"tau": "w"}, kp={"tau": 0.3}, ki={"tau": 0.05},
-                       offset={"tau": 0.2}),
-        reference={"w": RandomPulses(1.0, 2.0, 50, 200)},
-        dither={"tau": Gaussian(0.0, 0.05)}, samples=5000, experiments=1)
-
-
-def dof3_design() -> Design:
-    from vesselid.catalogue import get_system
-
-    system = get_system("cybership2")
-    hold = (50, 300)
-    pos, neg = RandomPulses(0.05, 0.15, *hold), RandomPulses(-0.15, -0.05, *hold)
-    return Design(
-        name="3dof", system=system, spec=system.spec.with_aggregate(None),
-        controller=PID(loops={"X": "u", "Y": "v", "N": "r"},
-                       kp={"X": 30.0, "Y": 30.0, "N": 3.0}, ki={"X": 6.0, "Y": 6.0, "N": 0.6},
-                       offset={"X": 1.4}, dt=system.spec.dt),
-        reference={"u": RandomPulses(0.5, 1.0, *hold), "v": [pos, pos, neg, neg],
-                   "r": [pos, neg, pos, neg]},
-        dither={"X": Gaussian(0.0, 0.3), "Y": Gaussian(0.0, 0.3), "N": Gaussian(0.0, 0.03)},
-        samples=3000, experiments=4)
-
-
-DESIGNS = {"heave": heave_design, "3dof": dof3_design}
-
-
-def _one_run(d: Design, ss: np.random.SeedSequence) -> dict[str, Any]:
+def _one_run(d: ClosedLoopDesign, ss: np.random.SeedSequence) -> dict[str, Any]:
     cl_seed, ol_seed = ss.spawn(2)
-    sim = simulate_closed_loop(d.system, d.controller, d.reference, dither=d.dither,
-                               n_samples=d.samples, n_runs=d.experiments, seed=cl_seed)
-    log = sim.to_log(aggregate=False)
+    log = d.simulate(seed=cl_seed).to_log(aggregate=False)
     data, spec = from_log(log, d.spec, sensor_noise=False)
     out: dict[str, Any] = {}
     for m in ("ls", "iv-zero-mean"):

@@ -1,8 +1,9 @@
 """Command line of closed-loop logs and online estimation.
 
 ``vesselid closed-loop``
-    Simulate the heave system under a PI(D) loop with a reference and a dither and write a
-    closed-loop trial log (``w_ref``, ``tau_dither``, ``metadata["closed_loop"]``) for
+    Simulate the heave system under a PI(D) loop, or CyberShip II under PI velocity loops
+    (:mod:`vesselid.closedloop` designs), with references and dithers, and write a
+    closed-loop trial log (reference and dither columns, ``metadata["closed_loop"]``) for
     ``vesselid identify LOG --method cl-iv``.
 ``vesselid recursive``
     Run recursive LS / IV with a forgetting factor over a trial log; print the final
@@ -26,8 +27,15 @@ def add_parser(subparsers: Any) -> None:
     from vesselid.cli import finite_float, int_at_least, plugin_parser
 
     p = plugin_parser(subparsers, "closed-loop")
-    p.add_argument("--samples", type=int_at_least(10), default=5000)
-    p.add_argument("--experiments", type=int_at_least(1), default=1)
+    p.add_argument("--system", choices=["heave", "cybership2"], default="heave",
+                   help="heave: PI(D) loop on the heave velocity (the options below); "
+                        "cybership2: three PI velocity loops X->u, Y->v, N->r (DP-like) with "
+                        "references of both signs and force dithers")
+    p.add_argument("--samples", type=int_at_least(10), default=None,
+                   help="samples per experiment (default 5000 heave, 3000 cybership2)")
+    p.add_argument("--experiments", type=int_at_least(1), default=None,
+                   help="experiments (default 1 heave, 4 cybership2: the four sign "
+                        "combinations of the sway and yaw references)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--kp", type=finite_float, default=0.3, help="proportional gain")
     p.add_argument("--ki", type=finite_float, default=0.05, help="integral gain (1/s)")
@@ -65,31 +73,36 @@ def add_recursive_parser(subparsers: Any) -> None:
 
 def cmd_closed_loop(args: argparse.Namespace) -> int:
     """``vesselid closed-loop``: write a closed-loop heave log."""
-    from vesselid.closedloop import PID, simulate_closed_loop
-    from vesselid.disturbances import Gaussian
-    from vesselid.signals import RandomPulses
-    from vesselid.systems import heave
+    from vesselid.closedloop import cybership2_velocity_design, heave_pi_design
 
     out = Path(args.out)
     if out.suffix.lower() not in (".csv", ".parquet", ".pq"):
         raise CLIError(f"--out must end in .csv or .parquet, got {out.name!r}")
     if not args.dither_std >= 0:
         raise CLIError(f"--dither-std must be non-negative, got {args.dither_std}")
-    lo, hi = args.reference
-    wmin, wmax = args.reference_width
-    system = heave()
-    pid = PID(loops={"tau": "w"}, kp={"tau": args.kp}, ki={"tau": args.ki},
-              kd={"tau": args.kd}, offset={"tau": args.offset}, dt=system.spec.dt or 1.0)
-    sim = simulate_closed_loop(system, pid, {"w": RandomPulses(lo, hi, wmin, wmax)},
-                               dither={"tau": Gaussian(0.0, args.dither_std)},
-                               n_samples=args.samples, n_runs=args.experiments,
-                               seed=args.seed)
+    if args.system == "cybership2":
+        design = cybership2_velocity_design()
+        what = "PI loops X->u, Y->v, N->r, references u_ref/v_ref/r_ref, force dithers"
+    else:
+        lo, hi = args.reference
+        if not lo <= hi:
+            raise CLIError(f"--reference needs LOW <= HIGH, got {lo} {hi}")
+        wmin, wmax = args.reference_width
+        if wmin > wmax:
+            raise CLIError(f"--reference-width needs MIN <= MAX, got {wmin} {wmax}")
+        design = heave_pi_design(kp=args.kp, ki=args.ki, kd=args.kd, offset=args.offset,
+                                 reference=(lo, hi), hold=(wmin, wmax),
+                                 dither_std=args.dither_std)
+        what = "PI on w, reference w_ref, dither tau_dither"
+    sim = design.simulate(samples=args.samples, experiments=args.experiments, seed=args.seed)
     log = sim.to_log(aggregate=False)
+    log.metadata["spec"] = design.spec.to_dict()  # the structure these loops identify
     log.metadata["command"] = "vesselid " + " ".join(sys.argv[1:]) if sys.argv else ""
     spec_path = out.with_name(out.stem + "_spec.toml")
     log.save(out, extra={spec_path: log.spec.to_toml()})
-    print(f"wrote {out} ({len(log.data)} rows, {args.experiments} experiment(s), closed "
-          f"loop: PI on w, reference w_ref, dither tau_dither) and model spec {spec_path}")
+    n_exp = int(log.data["experiment"].nunique())
+    print(f"wrote {out} ({len(log.data)} rows, {n_exp} experiment(s), closed loop: {what}) "
+          f"and model spec {spec_path}")
     print(f"next: vesselid identify {out} --method cl-iv")
     return 0
 
@@ -105,7 +118,7 @@ def cmd_recursive(args: argparse.Namespace) -> int:
     from vesselid.model import ModelSpec
 
     log = TrialLog.load(args.log)
-    spec = ModelSpec.from_toml(args.model) if args.model else log.spec
+    spec = ModelSpec.load(args.model) if args.model else log.spec
     if spec is None:
         raise CLIError("the log carries no model spec; pass --model SPEC.toml")
     opts: dict[str, Any] = {"instruments": args.instruments, "delay": args.delay}

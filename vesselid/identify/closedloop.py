@@ -69,6 +69,9 @@ __all__ = ["ClosedLoopIV", "ClosedLoopSignals", "FeedbackTest", "closed_loop_sig
 FEEDBACK_ALPHA = 0.01
 #: Lags ``τ = 0 … FEEDBACK_LAGS − 1`` of the feedback test.
 FEEDBACK_LAGS = 3
+#: Refined-IV evaluations of the test's reference IV_E{ζ}=0 fit (its best iterate is used;
+#: the test needs a consistent estimate, not the fixed point to the last digit).
+REFERENCE_MAX_ITER = 20
 
 
 @dataclass(frozen=True)
@@ -376,7 +379,7 @@ def feedback_test(log: Any, spec: ModelSpec | None = None, *, lags: int = FEEDBA
 
     data, spec = from_log(log, spec, sensor_noise=False)
     est = RefinedIV(zero_mean=True)
-    it = est.estimate_parameters(data, spec)
+    it = est.estimate_parameters(data, spec, max_iter=REFERENCE_MAX_ITER)
     if not np.all(np.isfinite(it.theta[0])):
         raise IdentificationError(f"feedback test: the reference fit failed ({it.reason[0]})")
     phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
@@ -404,7 +407,7 @@ def feedback_check(estimator: Estimator, log: Any, data: RegressionData, spec: M
             ref_designs = designs
         else:
             ref = RefinedIV(zero_mean=True)
-            it_ref = ref.estimate_parameters(data, spec)
+            it_ref = ref.estimate_parameters(data, spec, max_iter=REFERENCE_MAX_ITER)
             if not np.all(np.isfinite(it_ref.theta[0])):
                 raise IdentificationError(str(it_ref.reason[0]))
             ref_designs = ref.equation_designs(data, spec, it_ref, phi, "pooled")
