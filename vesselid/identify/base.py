@@ -300,7 +300,9 @@ class Estimator:
             from vesselid.identify.loop import feedback_check
 
             own = designs if self.name == "iv-zero-mean" and instruments is None else None
-            feedback, fb_msg = feedback_check(self.name, log, data, spec, own)
+            first = it.info.get("base") if it.info else None  # IV_E{ζ}=0 first step
+            feedback, fb_msg = feedback_check(self.name, log, data, spec, own,
+                                              first if own is None else None)
             if fb_msg:
                 _warn(fb_msg, ClosedLoopWarning)
 

@@ -198,6 +198,12 @@ def feedback_test_data(data: RegressionData, spec: ModelSpec, designs: list, *,
 
     from vesselid.identify.gmm import hac_lags
 
+    scale = np.sqrt(np.mean(data.target**2, axis=0))
+    tiny = [float(np.sqrt(np.mean(d.resid**2))) <= 1e-9 * max(float(scale[i]), 1e-300)
+            for i, d in enumerate(designs)]
+    if all(tiny):
+        raise IdentificationError("the fit leaves only rounding-level residuals (noise-free "
+                                  "data): no equation error to test")
     rows = np.flatnonzero(_equation_rows(data))
     n_rows = rows.size
     seg_of_row = np.searchsorted(data.starts, rows, side="right") - 1
@@ -256,10 +262,13 @@ def _equation_rows(data: RegressionData) -> np.ndarray:
     return rows
 
 
-def reference_designs(data: RegressionData, spec: ModelSpec) -> list[_Design]:
+def reference_designs(data: RegressionData, spec: ModelSpec, it: Any = None) -> list[_Design]:
     """Instruments (centred per experiment), regressors and residuals of the open-loop
-    IV_E{ζ}=0 fit (the paper's simulated instruments), per state equation."""
-    it = estimate(data, spec, "iv-zero-mean", max_iter=REFERENCE_MAX_ITER)
+    IV_E{ζ}=0 fit (the paper's simulated instruments), per state equation; ``it`` an
+    IV_E{ζ}=0 result of ``data`` already at hand (the first step of ``auto``, GMM, SRIV
+    and PEM), else it is estimated."""
+    if it is None or not np.all(np.isfinite(it.theta[0])):
+        it = estimate(data, spec, "iv-zero-mean", max_iter=REFERENCE_MAX_ITER)
     theta = it.theta[0]
     if not np.all(np.isfinite(theta)):
         raise IdentificationError(f"the reference IV fit failed ({it.reason[0]})")
@@ -297,12 +306,14 @@ def feedback_test(log: Any, spec: ModelSpec | None = None, *, lags: int = FEEDBA
 
 
 def feedback_check(name: str, log: Any, data: RegressionData, spec: ModelSpec,
-                   designs: list | None = None) -> tuple[dict[str, Any], str | None]:
+                   designs: list | None = None, reference: Any = None
+                   ) -> tuple[dict[str, Any], str | None]:
     """The closed-loop check of an open-loop estimator's fit: ``(diagnostics, warning)``.
 
     Declared closed loop (``metadata["closed_loop"]``) always warns; otherwise the feedback
-    test runs on ``designs`` (the fit's own, when it is IV_E{ζ}=0) or on a reference
-    IV_E{ζ}=0 fit, and warns when it rejects.
+    test runs on ``designs`` (the fit's own, when it is IV_E{ζ}=0) or on the IV_E{ζ}=0
+    fit ``reference`` (an IterationResult of ``data``; estimated when None), and warns
+    when it rejects.
     """
     from vesselid.closedloop import closed_loop_info
 
@@ -311,7 +322,7 @@ def feedback_check(name: str, log: Any, data: RegressionData, spec: ModelSpec,
     test = None
     try:
         test = feedback_test_data(data, spec, designs if designs is not None
-                                  else reference_designs(data, spec))
+                                  else reference_designs(data, spec, reference))
         out.update(test.to_dict())
     except (IdentificationError, np.linalg.LinAlgError, ValueError) as exc:
         out["not_computed"] = str(exc)
