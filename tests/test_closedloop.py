@@ -196,7 +196,7 @@ def test_recorder_logs_a_closed_loop_environment_run() -> None:
 
     env = gym.make("vesselid/Heave-v0", max_episode_steps=3000)
     rec = TrialRecorder(env)
-    lo, hi = env.unwrapped._cfg.thrust_range
+    lo, hi = env.unwrapped.log_metadata()["settings"]["thrust_range"]
     pid = PID(loops={"tau": "w"}, kp={"tau": 0.3}, ki={"tau": 0.05}, offset={"tau": 0.2},
               limits={"tau": (lo, hi)})
     spec = rec.model_spec
