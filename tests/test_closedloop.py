@@ -217,3 +217,17 @@ def test_recorder_logs_a_closed_loop_environment_run() -> None:
     assert np.isfinite(log.data["tau_dither"]).all()
     res = identify(log, spec, "auto")
     assert res.method == "cl-iv" and res.converged
+
+
+def test_cli_closed_loop_cybership2_velocity_loops(tmp_path, capsys) -> None:
+    out = tmp_path / "dp.csv"
+    assert main(["closed-loop", "--system", "cybership2", "--samples", "300", "--out",
+                 str(out)]) == 0
+    log = TrialLog.load(out)
+    assert log.data["experiment"].nunique() == 4
+    assert {"u_ref", "v_ref", "r_ref", "X_dither", "Y_dither", "N_dither"} <= set(log.data)
+    assert log.spec.n_params == 25  # the full structure: v, r of both relative signs
+    cl = log.metadata["closed_loop"]
+    assert PID.from_dict(cl["controller"]).loops == {"X": "u", "Y": "v", "N": "r"}
+    assert main(["closed-loop", "--reference", "2", "1", "--out", str(out)]) == 2
+    assert "LOW <= HIGH" in capsys.readouterr().err
