@@ -44,7 +44,8 @@ from vesselid.identify.estimators import estimate
 
 __all__ = ["run_design"]
 
-def _one_run(d: ClosedLoopDesign, ss: np.random.SeedSequence) -> dict[str, Any]:
+def _one_run(d: ClosedLoopDesign, ss: np.random.SeedSequence,
+             cov_config: dict[str, Any] | None = None) -> dict[str, Any]:
     cl_seed, ol_seed = ss.spawn(2)
     log = d.simulate(seed=cl_seed).to_log(aggregate=False)
     data, spec = from_log(log, d.spec, sensor_noise=False)
@@ -53,7 +54,7 @@ def _one_run(d: ClosedLoopDesign, ss: np.random.SeedSequence) -> dict[str, Any]:
         out[m] = estimate(data, spec, m).theta[0]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = identify(log, d.spec, "cl-iv")
+        res = identify(log, d.spec, "cl-iv", cov_config=cov_config)
     out["cl-iv"] = res.params.to_numpy()
     out["cl-iv se"] = res.std_errors.to_numpy()
     out["fired closed"] = feedback_test(log, d.spec).rejects
@@ -70,7 +71,8 @@ def _wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
     return c - h, c + h
 
 
-def run_design(name: str, runs: int, seed: int, progress: bool = True
+def run_design(name: str, runs: int, seed: int, progress: bool = True,
+               cov_config: dict[str, Any] | None = None
                ) -> tuple[pd.DataFrame, dict[str, float]]:
     d = DESIGNS[name]()
     theta0 = d.spec.theta0_vector()
@@ -80,7 +82,7 @@ def run_design(name: str, runs: int, seed: int, progress: bool = True
     ses, fired_c, fired_o = [], 0, 0
     t0 = time.perf_counter()
     for r, ss in enumerate(seeds):
-        out = _one_run(d, ss)
+        out = _one_run(d, ss, cov_config)
         for m in est:
             est[m].append(out[m])
         ses.append(out["cl-iv se"])
@@ -120,6 +122,9 @@ def main() -> None:
     ap.add_argument("--design", choices=[*DESIGNS, "both"], default="both")
     ap.add_argument("--runs", type=int, default=200)
     ap.add_argument("--seed", type=int, default=2024)
+    ap.add_argument("--bandwidth", default=None,
+                    help="HAC bandwidth of cl-iv's intervals: a number of lags or a rule "
+                         "('andrews', 'newey-west'); default the package's")
     ap.add_argument("--out", default="docs/closed_loop_study.csv",
                     help="table of every estimator and parameter (CSV); the warning "
                          "rates go to the same name with _warnings.csv")
@@ -127,7 +132,10 @@ def main() -> None:
     names = list(DESIGNS) if args.design == "both" else [args.design]
     tables, rates = [], []
     for name in names:
-        table, rate = run_design(name, args.runs, args.seed)
+        bw = args.bandwidth
+        cov_config = None if bw is None else {
+            "bandwidth": bw if bw in ("andrews", "newey-west") else float(bw)}
+        table, rate = run_design(name, args.runs, args.seed, cov_config=cov_config)
         tables.append(table)
         rates.append(rate)
     table = pd.concat(tables, ignore_index=True)
