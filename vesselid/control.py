@@ -248,7 +248,7 @@ class AdaptiveFeedbackLinearizingController(FeedbackLinearizingController):
     def _bias(self) -> np.ndarray:
         if not hasattr(self, "_rec") or not self._rec.ready:
             return np.zeros(3)
-        c = self._rec._cint
+        c = self._rec.intercepts
         return np.array([c[0], 0.0, c[1]])
 
     def forces(self, u: float, nu_r: Sequence[float], psi: float, t: float) -> np.ndarray:

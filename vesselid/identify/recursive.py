@@ -415,6 +415,12 @@ class RecursiveEstimator:
         return out
 
     @property
+    def intercepts(self) -> np.ndarray:
+        """The estimated constant of each equation (``intercept=True``; else zeros; NaN in
+        an equation still warming up)."""
+        return np.where(self._phase == _PH_RUN, self._cint, np.nan)
+
+    @property
     def ready(self) -> bool:
         """Every equation has finished its warm-up."""
         return bool(np.all(self._phase == _PH_RUN))
