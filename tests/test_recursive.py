@@ -17,7 +17,7 @@ from vesselid.systems import heave
 def stationary():
     system = heave()
     spec = system.identification_spec(aggregate=False)
-    sim = system.simulate(20_000, seed=11)
+    sim = system.simulate(100_000, seed=11)
     return spec, sim, sim.to_log(aggregate=False)
 
 
