@@ -62,6 +62,25 @@ episode of a sub-environment ends where the vector environment autoresets it.
 Episodes still running when :meth:`~TrialRecorder.to_log` is called are included
 (their completed rows) unless ``include_unfinished=False``.
 
+Closed-loop logs
+----------------
+A controller in the loop makes the input depend on the noise; closed-loop estimators
+(``vesselid identify --method cl-iv``) need the external signals and the controller.
+:meth:`TrialRecorder.annotate` records external signals of the row about to be completed
+(call it before ``step``: e.g. the dither added to the controller's output) as extra
+columns, and :meth:`TrialRecorder.declare_closed_loop` names the controller and the
+reference/dither columns in ``metadata["closed_loop"]``
+(:func:`vesselid.closedloop.closed_loop_metadata`)::
+
+    rec = TrialRecorder(gym.make("vesselid/Heave-v0"))
+    rec.declare_closed_loop(pid, reference={"w": "w_ref"}, dither={"tau": "tau_dither"})
+    obs, info = rec.reset(seed=0)
+    for k in range(n):
+        d = dither[k]
+        tau = policy([info["y1"]], [info["w_ref"]], [d])[0]
+        rec.annotate(tau_dither=d)
+        obs, _, term, trunc, info = rec.step(action_of(tau))
+
 Wrappers between the recorder and the base environment must not change actions or
 ``info`` (``TimeLimit``, ``OrderEnforcing`` and ``PassiveEnvChecker`` do not); put
 action-rescaling wrappers outside the recorder.
@@ -218,6 +237,7 @@ class TrialRecorder(gym.Wrapper):
         self._spec = _contract(env.unwrapped)
         self._measured: tuple[str, ...] | None = None
         self._inputs: tuple[str, ...] | None = None
+        self._closed_loop: dict[str, Any] | None = None
         self.clear()
 
     # ------------------------------------------------------------------ state
@@ -229,6 +249,8 @@ class TrialRecorder(gym.Wrapper):
         self._seeds: list = []
         self._ep_meta: dict[str, Any] = {}
         self._open = False
+        self._ann: list[dict[str, float]] = []
+        self._pending: dict[str, float] = {}
 
     @property
     def model_spec(self) -> ModelSpec:
@@ -250,9 +272,32 @@ class TrialRecorder(gym.Wrapper):
         if self._open:
             self._ep_meta["steps"] = len(self._inp)
             self._episodes.append(
-                {"meas": self._meas[: len(self._inp)], "inp": self._inp, **self._ep_meta}
+                {"meas": self._meas[: len(self._inp)], "inp": self._inp, "ann": self._ann,
+                 **self._ep_meta}
             )
-        self._meas, self._inp, self._open = [], [], False
+        self._meas, self._inp, self._ann, self._open = [], [], [], False
+
+    # ---------------------------------------------------------- closed loop
+    def annotate(self, **values: float) -> None:
+        """External signals (reference, dither, ...) of the row the next :meth:`step`
+        completes, logged as extra columns (rows without a value get NaN)."""
+        reserved = {"experiment", "time", *self._spec.inputs, *self._spec.states,
+                    *self._spec.sensors}
+        clash = sorted(set(values) & reserved)
+        if clash:
+            raise VesselidError(f"annotate: reserved column names {clash}")
+        self._pending = {k: float(v) for k, v in values.items()}
+
+    def declare_closed_loop(self, controller: Any = None, *,
+                            reference: dict[str, str] | None = None,
+                            dither: dict[str, str] | None = None) -> None:
+        """Record that the episodes run in closed loop: ``metadata["closed_loop"]`` names
+        the controller (a :class:`vesselid.closedloop.PID`, a JSON description, or None
+        when it cannot be described) and the log columns of the reference (state ->
+        column) and of the dither (input -> column)."""
+        from vesselid.closedloop import closed_loop_metadata
+
+        self._closed_loop = closed_loop_metadata(controller, reference or {}, dither or {})
 
     # -------------------------------------------------------------------- API
     def reset(
@@ -276,6 +321,8 @@ class TrialRecorder(gym.Wrapper):
             _check_columns(self._spec, self._measured or (), self._inputs)
         obs, reward, terminated, truncated, info = self.env.step(action)
         self._inp.append(tuple(inputs.values()))
+        self._ann.append(self._pending)
+        self._pending = {}
         self._meas.append(self._row(info))
         self._ep_meta["terminated"] = bool(terminated)
         self._ep_meta["truncated"] = bool(truncated)
@@ -312,8 +359,8 @@ class TrialRecorder(gym.Wrapper):
         if include_unfinished and self._open:
             n = len(self._inp)
             finished = self._ep_meta["terminated"] or self._ep_meta["truncated"]
-            episodes.append({"meas": self._meas[:n], "inp": self._inp, **self._ep_meta,
-                             "steps": n, "finished": bool(finished)})
+            episodes.append({"meas": self._meas[:n], "inp": self._inp, "ann": self._ann,
+                             **self._ep_meta, "steps": n, "finished": bool(finished)})
         episodes = [e for e in episodes if len(e["inp"]) >= max(1, int(min_rows))]
         if not episodes or self._measured is None or self._inputs is None:
             raise VesselidError("no episode with enough recorded steps to build a trial log")
@@ -324,11 +371,21 @@ class TrialRecorder(gym.Wrapper):
         k = np.concatenate([np.arange(len(e["inp"])) for e in episodes])
         dt = _sample_time(self.env.unwrapped, self._spec)
         data = _frame(self._spec, dt, self._measured, self._inputs, exp, k, meas, inp)
+        keys = list(dict.fromkeys(key for e in episodes for a in e["ann"] for key in a))
+        clash = [c for c in keys if c in data.columns]
+        if clash:
+            raise VesselidError(f"annotated columns {clash} clash with the log's columns")
+        for key in keys:
+            data[key] = np.array([a.get(key, np.nan) for e in episodes for a in e["ann"]],
+                                 dtype=np.float64)
         ep_meta = [
-            {"experiment": i, **{key: v for key, v in e.items() if key not in ("meas", "inp")}}
+            {"experiment": i,
+             **{key: v for key, v in e.items() if key not in ("meas", "inp", "ann")}}
             for i, e in enumerate(episodes)
         ]
         meta = _metadata(self.env, self.env.unwrapped, self._spec, self._seeds, ep_meta)
+        if self._closed_loop is not None:
+            meta["closed_loop"] = self._closed_loop
         return TrialLog(data, meta)
 
     def save(self, path: str | Path, **kwargs: Any) -> Path:

@@ -14,7 +14,7 @@ __all__ = ["COV_TYPES", "DEFAULT_COV_TYPE", "DEFAULT_METHOD", "DEFAULT_STREAM_ME
 
 #: ``--method`` names, in the registry's order (:data:`~vesselid.identify.ESTIMATORS`).
 METHODS: tuple[str, ...] = ("ls", "iv", "iv-zero-mean", "lagged-2sls", "sriv", "gmm", "auto",
-                            "pem")
+                            "pem", "cl-iv")
 #: The package default estimator (:data:`~vesselid.identify.DEFAULT_METHOD`).
 DEFAULT_METHOD = "auto"
 #: ``identify --stream`` methods (:data:`vesselid.streaming.STREAM_METHODS`) and default.

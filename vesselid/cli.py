@@ -68,6 +68,16 @@ LAZY_COMMANDS = {
         "free-run and k-step-ahead fit per state, and for zig-zags and turning circles "
         "(detected from the rudder) the overshoot angles, advance, tactical diameter and "
         "steady turn rate, measured vs simulated; optional compare-style figure and JSON."),
+    "closed-loop": (
+        "vesselid.closedloop_cli", "simulate a closed-loop trial log (PI loop, reference, dither)",
+        "Simulate the heave system under a PI(D) controller with a random-step reference and a "
+        "white dither; the log has the reference and dither columns and names the controller "
+        "in its metadata, for `vesselid identify LOG --method cl-iv`."),
+    "recursive": (
+        "vesselid.recursive_cli", "recursive (online) LS / IV with a forgetting factor",
+        "Run recursive least squares or recursive IV with forgetting factor λ over a trial "
+        "log in one compiled pass; print the final estimate and optionally write the "
+        "estimate's trajectory."),
 }
 
 

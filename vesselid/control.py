@@ -40,6 +40,7 @@ from vesselid.errors import ControlError
 from vesselid.model import ModelSpec
 
 __all__ = [
+    "AdaptiveFeedbackLinearizingController",
     "ControlError",
     "ControlExperiment",
     "FeedbackLinearizingController",
@@ -137,6 +138,11 @@ class FeedbackLinearizingController:
         """Clear the integrators and the clock."""
         self._state = {"iu": 0.0, "ipsi": 0.0, "k": 0}
 
+    def _bias(self) -> np.ndarray:
+        """Constant added to the model's free response (zero here; the adaptive
+        controller's estimated offsets)."""
+        return np.zeros(3)
+
     def _free_response(self, nu_r: np.ndarray) -> np.ndarray:
         """Model prediction of ``ν_r(k+1)`` with zero input, per state."""
         from vesselid.regressors import predict
@@ -157,7 +163,7 @@ class FeedbackLinearizingController:
         r_ref = min(max(r_ref, -self.r_max), self.r_max)
         u_des = nu_r[0] + dt / self.t_u * e_u + self.ki_u * dt * st["iu"]
         r_des = nu_r[2] + dt / self.t_r * (r_ref - nu_r[2])
-        free = self._free_response(nu_r)
+        free = self._free_response(nu_r) + self._bias()
         x = (u_des - free[0]) / self._gain[("u", "X")]
         n = (r_des - free[2]) / self._gain[("r", "N")]
         tau = np.clip(np.array([x, 0.0, n]), -self.fmax, self.fmax)
@@ -181,6 +187,88 @@ class FeedbackLinearizingController:
             raise ControlError(f"the controller needs the sensor {exc} in info") from exc
         tt = self._state["k"] * self.dt if t is None else float(t)
         return (self.forces(u, [u_r, v_r, r], psi, tt) / self.fmax).astype(np.float32)
+
+
+@dataclass
+class AdaptiveFeedbackLinearizingController(FeedbackLinearizingController):
+    """:class:`FeedbackLinearizingController` whose model is updated online by recursive IV.
+
+    The parameters a changing vessel moves most — the input gains ``θ_u,X`` and
+    ``θ_r,N`` (actuator efficiency, mass and inertia with load) — and a constant offset per
+    equation (current, wind, model bias) are estimated at every sample from the equation
+    errors of the surge and yaw equations with the rest of the model fixed:
+    ``u_r(k+1) − f_u(ν_r(k)) = θ_u,X X(k) + c_u`` (``f_u`` the model's free response),
+    likewise for ``r`` with ``N``. The recursion is
+    :class:`vesselid.identify.recursive.RecursiveEstimator` (recursive IV with forgetting,
+    delayed-input instruments ``[X(k − delay), 1]``: in the loop ``X(k)`` reacts to the
+    sensor noise at ``k``, which the equation error contains, while the delayed input does
+    not). The control law uses the latest gains (bounded to ``gain_bounds`` times the
+    initial ones) and subtracts the estimated offsets.
+
+    Parameters (besides those of :class:`FeedbackLinearizingController`)
+    ----------
+    forgetting : float
+        λ of the recursion (memory ``1/(1 − λ)`` samples).
+    delay : int
+        Delay of the input instruments (samples).
+    warmup : int
+        Samples before the first update is used.
+    gain_bounds : (float, float)
+        Limits of the adapted gains relative to the initial ones.
+    """
+
+    forgetting: float = 0.995
+    delay: int = 2
+    warmup: int = 100
+    gain_bounds: tuple[float, float] = (0.25, 4.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        from vesselid.identify.recursive import RecursiveEstimator, check_forgetting
+
+        self.forgetting = check_forgetting(self.forgetting)
+        lo, hi = self.gain_bounds
+        if not (0 < lo < 1 < hi):
+            raise ControlError(f"gain_bounds need 0 < low < 1 < high, got {self.gain_bounds}")
+        self._g0 = (self._gain[("u", "X")], self._gain[("r", "N")])
+        aux = ModelSpec(name="adaptive", states=["u", "r"], inputs=["X", "N"],
+                        equations={"u": ["X"], "r": ["N"]}, dt=self.dt)
+        self._rec = RecursiveEstimator(aux, "iv", forgetting=self.forgetting,
+                                       instruments="delayed", delay=int(self.delay),
+                                       warmup=int(self.warmup))
+        self._prev: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self.trace: list[tuple[float, float, float, float]] = []
+
+    def reset(self) -> None:
+        super().reset()
+        if hasattr(self, "_rec"):
+            self._prev = None
+            self._rec.new_experiment()
+
+    def _bias(self) -> np.ndarray:
+        if not hasattr(self, "_rec") or not self._rec.ready:
+            return np.zeros(3)
+        c = self._rec.intercepts
+        return np.array([c[0], 0.0, c[1]])
+
+    def forces(self, u: float, nu_r: Sequence[float], psi: float, t: float) -> np.ndarray:
+        nu = np.asarray(nu_r, dtype=float)
+        if self._prev is not None:
+            nu_p, free_p, tau_p = self._prev
+            target = np.array([nu[0] - free_p[0], nu[2] - free_p[2]])
+            self._rec.update([nu_p[0], nu_p[2]], [tau_p[0], tau_p[2]], target)
+            if self._rec.ready:
+                th = self._rec.theta
+                lo, hi = self.gain_bounds
+                for k, (key, g0) in enumerate(zip((("u", "X"), ("r", "N")), self._g0,
+                                                  strict=True)):
+                    if np.isfinite(th[k]):
+                        self._gain[key] = float(np.clip(th[k] / g0, lo, hi) * g0)
+        tau = super().forces(u, nu, psi, t)
+        self._prev = (nu, self._free_response(nu), tau)
+        self.trace.append((float(t), self._gain[("u", "X")], self._gain[("r", "N")],
+                           float(self._bias()[0])))
+        return tau
 
 
 @dataclass

@@ -95,6 +95,10 @@ class ConvergenceWarning(UserWarning):
     """The refined instrumental-variable iteration did not converge."""
 
 
+class ClosedLoopWarning(UserWarning):
+    """An open-loop estimator was used on a log recorded in (or looking like) closed loop."""
+
+
 class ExperimentDesignWarning(UserWarning):
     """A state comes too close to zero for the modulus to be treated as smooth (A10/A15)."""
 

@@ -55,7 +55,11 @@ from vesselid.identify.estimators import (
 from vesselid.identify.results import IdentificationResult
 from vesselid.model import ModelSpec
 
-__all__ = ["TARGETS", "EquationDesign", "Estimator", "equation_rows"]
+__all__ = ["CLOSED_LOOP_ESTIMATOR", "TARGETS", "EquationDesign", "Estimator", "equation_rows"]
+
+#: The estimator ``auto`` hands a log that declares a simulable closed loop to (``cl-iv``,
+#: registered by :mod:`vesselid.identify.closedloop`, which subclasses :class:`Estimator`).
+CLOSED_LOOP_ESTIMATOR: dict[str, Any] = {}
 
 
 @dataclass
@@ -205,6 +209,24 @@ class Estimator:
         """Identify θ from a trial log (see :func:`vesselid.identify.identify`)."""
         from vesselid.identify import covariance_api
 
+        if self.name == "auto" and instruments is None and CLOSED_LOOP_ESTIMATOR:
+            # closed-loop hook: a log that declares its loop (controller, reference) is
+            # identified by the closed-loop estimator (vesselid.identify.closedloop)
+            from vesselid.identify.loop import closed_loop_route
+
+            signals = closed_loop_route(log, spec)
+            if signals is not None:
+                opts = dict(combine=combine, target=target, cov_type=cov_type,
+                            cov_config=cov_config, theta_start=theta_start, max_iter=max_iter,
+                            tol=tol, eta=eta, design_threshold=design_threshold,
+                            weak_instrument_cond=weak_instrument_cond, min_samples=min_samples,
+                            sensor_noise=sensor_noise, noise_order=noise_order)
+                cl = CLOSED_LOOP_ESTIMATOR["cl-iv"].with_signals(signals)
+                res = cl.fit(log, spec, **opts)
+                res.diagnostics["auto_choice"] = ("cl-iv: the log declares closed loop "
+                                                  "(metadata['closed_loop'])")
+                return res
+
         self.check_options(combine=combine)
         self.check_covariance(cov_type)
         cov_name, cov_fn = covariance_api.resolve(cov_type, cov_config)
@@ -272,6 +294,17 @@ class Estimator:
                 )
             designs = self.equation_designs(data, spec, it, phi, combine)
         theta = it.theta[0]
+        feedback: dict[str, Any] = {}
+        if getattr(self, "open_loop", True):  # closed-loop check of open-loop estimators
+            from vesselid.errors import ClosedLoopWarning
+            from vesselid.identify.loop import feedback_check
+
+            own = designs if self.name == "iv-zero-mean" and instruments is None else None
+            first = it.info.get("base") if it.info else None  # IV_E{ζ}=0 first step
+            feedback, fb_msg = feedback_check(self.name, log, data, spec, own,
+                                              first if own is None else None)
+            if fb_msg:
+                _warn(fb_msg, ClosedLoopWarning)
 
         weights = np.zeros((spec.n_params, spec.n_states))
         weights[np.arange(spec.n_params), codes.equation] = theta
@@ -366,6 +399,7 @@ class Estimator:
             "design_eta_source": eta_source,
             "modulus_states": modulus_signals(spec),
             **residual_checks,
+            **({"feedback": feedback} if feedback else {}),
             "warnings": warn_msgs,
         }
         results: dict[str, Any] = {

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from vesselid.errors import IdentificationError
 from vesselid.identify.base import Estimator
+from vesselid.identify.closedloop import ClosedLoopIV
 from vesselid.identify.efficient import InstrumentalGMM, LaggedIV
 from vesselid.identify.methods import LeastSquares, RefinedIV
 from vesselid.identify.pem import PredictionError
@@ -50,6 +51,7 @@ for _est in (
                           "logs, else SRIV)",
                     short="auto"),
     PredictionError(),
+    ClosedLoopIV(),
 ):
     register(_est)
 
