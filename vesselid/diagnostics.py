@@ -273,14 +273,16 @@ def nrmse_fit(y: np.ndarray, y_hat: np.ndarray) -> float:
     return float(100.0 * (1.0 - nrmse_ratio(y, y_hat)))
 
 
-def free_run_ratio(data: RegressionData, spec: ModelSpec,
-                   theta: np.ndarray) -> tuple[np.ndarray, bool]:
+def free_run_ratio(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
+                   sims: list[np.ndarray] | None = None) -> tuple[np.ndarray, bool]:
     """Free-run (simulation) NRMSE ratio per state, pooled over the experiments of ``data``.
 
     Each experiment is simulated from its measured inputs and initial state (with the
     measured current inside the nonlinearity when the spec has an aggregate relation);
     ``r = sqrt(Σ_E ‖y − ŷ‖² / Σ_E ‖y − ȳ_E‖²)``, each experiment about its own mean.
-    Experiments whose simulation diverges are left out of the sums.
+    Experiments whose simulation diverges are left out of the sums. ``sims``: those
+    simulations when the caller has them already
+    (:func:`vesselid.identify.stability.free_run_states`).
 
     Returns
     -------
@@ -289,22 +291,15 @@ def free_run_ratio(data: RegressionData, spec: ModelSpec,
     all_ok : bool
         False if some experiment diverged.
     """
-    from vesselid.identify.backend import numpy_active
+    if sims is None:
+        from vesselid.identify.stability import free_run_states
 
-    if numpy_active():  # a small log estimated without compiled kernels
-        from vesselid.identify._npkernels import simulate_states
-    else:
-        from vesselid.simulate import simulate_states
-
+        sims = free_run_states(data, spec, theta)
     num = np.zeros(spec.n_states)
     den = np.zeros(spec.n_states)
     all_ok = True
-    for s in range(data.n_segments):
-        sl = data.segment(s)
-        y = data.target[sl]
-        v = data.sensor[sl] if data.sensor is not None else None
-        x = simulate_states(spec, data.u[sl], theta=np.asarray(theta, float), x0=y[0], v=v,
-                            raise_on_divergence=False)
+    for s, x in enumerate(sims):
+        y = data.target[data.segment(s)]
         if not np.all(np.isfinite(x)):
             all_ok = False
             continue

@@ -37,9 +37,11 @@ from vesselid.diagnostics import (
 )
 from vesselid.errors import (
     ConvergenceWarning,
+    EstimationFailedError,
     ExperimentDesignWarning,
     IdentificationError,
     RankDeficientError,
+    UnstableModelWarning,
     WeakInstrumentWarning,
 )
 from vesselid.identify import backend, linalg
@@ -48,14 +50,26 @@ from vesselid.identify.data import RegressionData, block_starts, from_log
 from vesselid.identify.estimators import (
     COMBINE_MODES,
     STOP_FIXED,
+    STOP_MAX_ITER,
+    STOP_STALLED,
     IterationResult,
     moments_from_matrices,
     solve_moments,
 )
 from vesselid.identify.results import IdentificationResult
+from vesselid.identify.stability import free_run_states, stability_report
 from vesselid.model import ModelSpec
 
 __all__ = ["TARGETS", "EquationDesign", "Estimator", "equation_rows"]
+
+
+#: The standard-error stopping rule of the refined iteration: where the relative residual
+#: rule (``tol``) is not reached because the iteration ran out of evaluations or stalled,
+#: it has converged when its last fixed-point step ``|T(θ) − θ|`` is below ``SE_TOL``
+#: standard errors of every parameter (the estimate no longer moves on the scale of its
+#: own uncertainty). A diverging auxiliary model or a singular system stays a failure.
+SE_TOL = 0.1
+SE_RULE_REASONS = (STOP_MAX_ITER, STOP_STALLED)
 
 
 @dataclass
@@ -256,7 +270,7 @@ class Estimator:
             it = self.estimate_parameters(data, spec, combine=combine, theta_start=start,
                                           max_iter=max_iter, tol=tol, keep_history=True)
             if not np.all(np.isfinite(it.theta[0])) and not self.uses_instruments:
-                raise IdentificationError(
+                raise EstimationFailedError(
                     f"{self.name}: {it.reason[0]}; the likelihood could not be maximised "
                     "from the IV_E{ζ}=0 start — use longer or better-excited experiments, "
                     "or method 'auto'")
@@ -265,7 +279,7 @@ class Estimator:
                          if it.start is not None and it.start[0] == "lagged-iv"
                          else "the given start" if theta_start is not None
                          else "the LS estimate")
-                raise IdentificationError(
+                raise EstimationFailedError(
                     f"{self.name}: {it.reason[0]} (starts tried: {tried}); no instrument could "
                     "be formed — supply theta_start (a stable model) or instruments, or use "
                     "longer or better-excited experiments"
@@ -297,11 +311,20 @@ class Estimator:
         # iteration that supplied their instruments)
         src = it.info.get("base", it)
         step_se = _fixed_point_step_in_se((src.theta - src.theta_aux)[0], cov)
+        converged, stop_reason = bool(it.converged[0]), str(it.reason[0])
+        if (self.uses_instruments and not converged
+                and stop_reason in SE_RULE_REASONS and step_se < SE_TOL):
+            # stopped moving within SE_TOL standard errors: converged in the units that
+            # matter for the estimate (module docstring, "Convergence")
+            converged = True
+            stop_reason = (f"converged in standard-error units: the last fixed-point step is "
+                           f"{step_se:.2g} standard errors (< {SE_TOL:g}); relative residual "
+                           f"{it.residual[0]:.3g} above tol {tol:g} ({stop_reason})")
         if self.reports_convergence and not bool(it.converged[0]):
             _warn(f"{self.name}: the likelihood maximisation did not converge "
                   f"({it.reason[0]}, {int(it.iterations[0])} iterations); returning the last "
                   "iterate", ConvergenceWarning)
-        elif self.uses_instruments and not bool(it.converged[0]):
+        elif self.uses_instruments and not converged:
             size = ("" if not np.isfinite(step_se) else
                     f"; its last fixed-point step is at most {step_se:.2g} standard errors "
                     "of any parameter")
@@ -321,9 +344,13 @@ class Estimator:
 
         fit_one = {s: nrmse_fit(data.target[rows, i], pred[rows, i])
                    for i, s in enumerate(spec.states)}
-        fit_free, free_ok = _free_run_fit(data, spec, theta)
+        sims = free_run_states(data, spec, theta)
+        fit_free, free_ok = _free_run_fit(data, spec, theta, sims)
         if not free_ok:
             _warn("free-run simulation of the estimated model diverged", ConvergenceWarning)
+        stability = stability_report(data, spec, theta, sims)
+        if not stability["stable"]:
+            _warn(f"the identified model is {stability['sentence']}", UnstableModelWarning)
 
         if eta is None:
             resid_std = np.sqrt(np.nanmean(resid**2, axis=0))
@@ -356,6 +383,14 @@ class Estimator:
             "fit_one_step": fit_one,
             "fit_free_run": fit_free,
             "fixed_point_residual": float(it.residual[0]),
+            "convergence_rule": (f"relative fixed-point residual < tol ({tol:g}); or, "
+                                 f"where that is not reached, the last fixed-point step "
+                                 f"< {SE_TOL:g} standard errors"
+                                 if self.uses_instruments and instruments is None
+                                 else "closed form"
+                                 if it.reason[0] in ("closed form", STOP_FIXED)
+                                 else "the estimator's own"),
+            "stability": stability,
             "fixed_point_step_se": step_se,
             "oscillation": bool(it.oscillation[0]),
             "start": None if it.start is None else str(it.start[0]),
@@ -374,9 +409,9 @@ class Estimator:
             "params": pd.Series(theta, index=index, name="estimate"),
             "cov": pd.DataFrame(cov, index=index, columns=index),
             "residuals": pd.DataFrame(resid, columns=list(spec.states)),
-            "converged": bool(it.converged[0]),
+            "converged": converged,
             "iterations": int(it.iterations[0]),
-            "stop_reason": str(it.reason[0]),
+            "stop_reason": stop_reason,
             "n_samples": int(data.starts[-1]),
             "n_experiments": data.n_segments,
             "diagnostics": diagnostics,
@@ -533,9 +568,10 @@ def _check_rank(phi: np.ndarray, spec: ModelSpec, blocks: np.ndarray, names: lis
         raise RankDeficientError("collinear regressors — " + "; ".join(problems) + hint)
 
 
-def _free_run_fit(data: RegressionData, spec: ModelSpec, theta: np.ndarray):
+def _free_run_fit(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
+                  sims: list[np.ndarray] | None = None):
     """Free-run (simulation) fit per state, ``100 (1 − r)`` (:func:`free_run_ratio`)."""
-    ratio, all_ok = free_run_ratio(data, spec, theta)
+    ratio, all_ok = free_run_ratio(data, spec, theta, sims)
     fit = 100.0 * (1.0 - ratio)
     return {st: float(fit[i]) for i, st in enumerate(spec.states)}, all_ok
 

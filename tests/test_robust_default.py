@@ -1,0 +1,168 @@
+"""The default estimator's safety net: fallback chain, stability check, the standard-error
+stopping rule, the status of a result and ``vesselid identify``'s exit code 3."""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from vesselid.errors import EstimationFailedError, FallbackWarning, NoUsableModelError
+from vesselid.identify import identify
+from vesselid.identify.data import from_log
+from vesselid.identify.fallback import CHAIN, identify_with_fallback
+from vesselid.identify.methods import LeastSquares
+from vesselid.identify.stability import jacobians, stability_report
+from vesselid.systems import get_system
+
+pytestmark = pytest.mark.filterwarnings("ignore::vesselid.errors.ExperimentDesignWarning")
+
+
+@pytest.fixture(scope="module")
+def log():
+    return get_system("heave").simulate(4000, n_runs=1, seed=5).to_log()
+
+
+class _NoEstimate(LeastSquares):
+    """An estimator that runs but never finds a finite estimate."""
+
+    name = "no-estimate"
+
+    def estimate_parameters(self, data, spec, **kw):
+        it = super().estimate_parameters(data, spec, **kw)
+        it.theta[:] = np.nan
+        it.reason[:] = "instrument matrix singular"
+        return it
+
+
+def test_default_accepted_is_the_estimator_itself(log):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        chained = identify(log)
+        direct = identify(log, fallback=False)
+    assert np.array_equal(chained.params.to_numpy(), direct.params.to_numpy())
+    assert np.array_equal(chained.cov.to_numpy(), direct.cov.to_numpy())
+    assert chained.diagnostics["fallback_chain"] == [
+        {"method": "auto", "outcome": "accepted",
+         "reason": chained.diagnostics["fallback_chain"][0]["reason"]}]
+    assert "fallback_chain" not in direct.diagnostics
+    assert chained.status == "ok"
+    payload = json.loads(chained.to_json())
+    assert payload["status"] == "ok" and payload["stability"]["stable"] is True
+    assert payload["fallback_chain"][0]["outcome"] == "accepted"
+
+
+def test_failed_default_falls_back_and_says_so(log):
+    with pytest.raises(EstimationFailedError):
+        identify(log, method=_NoEstimate())
+    with pytest.warns(FallbackWarning, match="no-estimate"):
+        res = identify(log, method=_NoEstimate(), fallback=True)
+    chain = res.diagnostics["fallback_chain"]
+    assert [c["method"] for c in chain] == ["no-estimate", "auto"]
+    assert chain[0]["outcome"] == "raised" and "singular" in chain[0]["reason"]
+    assert res.method == "auto" and res.status == "ok"
+    text = res.summary()
+    assert "fallback chain: no-estimate (raised) → auto (accepted)" in text
+    assert json.loads(res.to_json())["fallback_chain"][1]["method"] == "auto"
+
+
+def test_no_finite_estimate_anywhere_raises_with_the_chain(log):
+    with pytest.raises(NoUsableModelError, match="no estimator gave a finite") as exc:
+        identify_with_fallback(log, None, (_NoEstimate(), _NoEstimate()))
+    assert [c["outcome"] for c in exc.value.chain] == ["raised", "raised"]
+
+
+def test_bad_input_is_raised_by_the_first_member(log):
+    from vesselid.errors import IdentificationError
+
+    with pytest.raises(IdentificationError, match="combine"):
+        identify(log, combine="nonsense")
+
+
+def test_chain_order_is_documented():
+    assert CHAIN[0] == "auto" and CHAIN[-1] == "ls"
+    from vesselid import _names
+
+    assert set(CHAIN) <= set(_names.METHODS)
+
+
+def test_jacobian_of_the_heave_model_by_hand():
+    spec = get_system("heave").identification_spec(aggregate=False)
+    theta = np.array([0.99, -0.1, 1.0])
+    w = np.array([[-0.5], [0.0], [0.7]])
+    jac = jacobians(spec, theta, w, np.ones((3, 1)))
+    np.testing.assert_allclose(jac[:, 0, 0], 0.99 - 0.2 * np.abs(w[:, 0]))
+
+
+def test_stability_report_flags_an_unstable_model(log):
+    data, spec = from_log(log, None)
+    good = stability_report(data, spec, np.array([0.99, -0.1, 1.0]))
+    assert good["stable"] and good["spectral_radius"]["operating_point"] < 1
+    bad = stability_report(data, spec, np.array([1.2, 0.05, 1.0]))
+    assert not bad["stable"] and bad["unbounded_experiments"] == [0]
+    assert bad["sentence"].startswith("UNSTABLE") and bad["spectral_radius"]["median"] > 1
+
+
+def test_standard_error_rule_only_where_the_residual_rule_fails(log):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        full = identify(log, method="iv-zero-mean")
+        short = identify(log, method="iv-zero-mean", max_iter=2)
+    assert full.converged and full.stop_reason == "converged"
+    step = short.diagnostics["fixed_point_step_se"]
+    assert short.converged == (step < 0.1)
+    if short.converged:
+        assert short.stop_reason.startswith("converged in standard-error units")
+        assert f"{step:.2g}" in short.stop_reason
+    else:
+        assert short.stop_reason == "maximum iterations reached"
+
+
+def test_status_of_an_unstable_result(log):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = identify(log, method="ls")
+    data, spec = from_log(log, None)
+    res.diagnostics["stability"] = stability_report(data, spec, np.array([1.2, 0.05, 1.0]))
+    assert res.status == "unstable" and "UNSTABLE" in res.status_reason
+    res.diagnostics["stability"]["stable"] = True
+    res.diagnostics["fit_free_run"] = {"w": float("nan")}
+    assert res.status == "non-finite" and "free-run fit of w" in res.status_reason
+
+
+def test_cli_exit_code_3_without_a_usable_model(tmp_path, log, monkeypatch, capsys):
+    from vesselid import identify as ident_pkg
+    from vesselid.cli import main
+
+    path = tmp_path / "trial.csv"
+    log.save(path)
+
+    def no_model(*a, **k):
+        raise NoUsableModelError("no estimator gave a finite estimate — auto: singular")
+
+    monkeypatch.setattr(ident_pkg, "identify", no_model)
+    code = main(["identify", str(path)])
+    err = capsys.readouterr().err
+    assert code == 3 and len(err.strip().splitlines()) == 1
+    assert "no usable model" in err
+
+    monkeypatch.undo()
+    real = ident_pkg.identify
+
+    def unstable(*a, **k):
+        res = real(*a, **{**k, "method": "ls"})
+        data, spec = from_log(log, None)
+        res.diagnostics["stability"] = stability_report(data, spec,
+                                                        np.array([1.2, 0.05, 1.0]))
+        return res
+
+    monkeypatch.setattr(ident_pkg, "identify", unstable)
+    out_json = tmp_path / "r.json"
+    export = tmp_path / "m.toml"
+    code = main(["identify", str(path), "--json", str(out_json), "--export", str(export)])
+    err = capsys.readouterr().err
+    assert code == 3 and "UNSTABLE" in err.strip().splitlines()[-1]
+    assert json.loads(out_json.read_text())["status"] == "unstable"
+    assert not export.exists()
