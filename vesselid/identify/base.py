@@ -56,6 +56,7 @@ from vesselid.identify.estimators import (
     moments_from_matrices,
     solve_moments,
 )
+from vesselid.identify.excitation import excitation_report
 from vesselid.identify.results import IdentificationResult
 from vesselid.identify.stability import free_run_states, stability_report
 from vesselid.model import ModelSpec
@@ -143,6 +144,13 @@ class Estimator:
 
     def __init__(self, **options: Any) -> None:
         self.options = dict(options)
+
+    @property
+    def experiment_constants(self) -> bool:
+        """The estimator carries a constant per experiment (zero-mean instruments, or a
+        constant among the instruments): terms constant within every experiment are
+        then not identifiable (:mod:`vesselid.identify.excitation`)."""
+        return bool(self.uses_instruments and getattr(self, "zero_mean", True))
 
     def __repr__(self) -> str:
         opts = ", ".join(f"{k}={v!r}" for k, v in self.options.items())
@@ -248,6 +256,17 @@ class Estimator:
         rows = equation_rows(data)
         # one experiment: every row but the first, as a view (no gathered copy)
         _check_rank(phi[1:] if data.n_segments == 1 else phi[rows], spec, blocks, names)
+        excitation = excitation_report(data, spec, phi, rows)
+        if excitation["unidentifiable"] and self.experiment_constants:
+            lost = "; ".join(f"equation {st!r}: {', '.join(g)}"
+                             for st, groups in excitation["unidentifiable"].items()
+                             for g in groups)
+            why = (f" (input(s) {', '.join(map(repr, excitation['not_excited']))} constant "
+                   "within every experiment)" if excitation["not_excited"] else "")
+            raise EstimationFailedError(
+                f"{self.name}: not identifiable with a constant per experiment — {lost}"
+                f"{why}; drop the term(s) from the spec or vary the input within the "
+                "experiments")
 
         warn_msgs: list[str] = []
 
@@ -312,21 +331,27 @@ class Estimator:
         src = it.info.get("base", it)
         step_se = _fixed_point_step_in_se((src.theta - src.theta_aux)[0], cov)
         converged, stop_reason = bool(it.converged[0]), str(it.reason[0])
-        if (self.uses_instruments and not converged
-                and stop_reason in SE_RULE_REASONS and step_se < SE_TOL):
-            # stopped moving within SE_TOL standard errors: converged in the units that
-            # matter for the estimate (module docstring, "Convergence")
-            converged = True
-            stop_reason = (f"converged in standard-error units: the last fixed-point step is "
-                           f"{step_se:.2g} standard errors (< {SE_TOL:g}); relative residual "
-                           f"{it.residual[0]:.3g} above tol {tol:g} ({stop_reason})")
+        own_step_se = step_se
+        if self.uses_instruments and not converged and stop_reason in SE_RULE_REASONS:
+            # the iteration's step in its own estimator's standard errors (for GMM/SRIV/auto
+            # the IV_E{ζ}=0 iteration that supplied their instruments)
+            if src is not it:
+                own_step_se = _base_step_in_se(data, spec, src, combine, cov_fn)
+            if own_step_se < SE_TOL:
+                # stopped moving within SE_TOL standard errors: converged in the units that
+                # matter for the estimate (SE_TOL)
+                converged = True
+                stop_reason = (f"converged in standard-error units: the last fixed-point step "
+                               f"is {own_step_se:.2g} standard errors (< {SE_TOL:g}); "
+                               f"relative residual {it.residual[0]:.3g} above tol {tol:g} "
+                               f"({stop_reason})")
         if self.reports_convergence and not bool(it.converged[0]):
             _warn(f"{self.name}: the likelihood maximisation did not converge "
                   f"({it.reason[0]}, {int(it.iterations[0])} iterations); returning the last "
                   "iterate", ConvergenceWarning)
         elif self.uses_instruments and not converged:
-            size = ("" if not np.isfinite(step_se) else
-                    f"; its last fixed-point step is at most {step_se:.2g} standard errors "
+            size = ("" if not np.isfinite(own_step_se) else
+                    f"; its last fixed-point step is at most {own_step_se:.2g} standard errors "
                     "of any parameter")
             _warn(f"refined IV did not converge ({it.reason[0]}, {int(it.iterations[0])} "
                   f"iterations, fixed-point residual {it.residual[0]:.3g}); returning the IV "
@@ -391,7 +416,9 @@ class Estimator:
                                  if it.reason[0] in ("closed form", STOP_FIXED)
                                  else "the estimator's own"),
             "stability": stability,
+            "excitation": excitation,
             "fixed_point_step_se": step_se,
+            "fixed_point_step_own_se": own_step_se,
             "oscillation": bool(it.oscillation[0]),
             "start": None if it.start is None else str(it.start[0]),
             **self.describe(it),
@@ -574,6 +601,24 @@ def _free_run_fit(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
     ratio, all_ok = free_run_ratio(data, spec, theta, sims)
     fit = 100.0 * (1.0 - ratio)
     return {st: float(fit[i]) for i, st in enumerate(spec.states)}, all_ok
+
+
+def _base_step_in_se(data: RegressionData, spec: ModelSpec, base: IterationResult,
+                     combine: str, cov_fn: Any) -> float:
+    """The last fixed-point step of the IV_E{ζ}=0 iteration ``base`` in its own standard
+    errors (its designs: instruments simulated from its auxiliary model, centred)."""
+    from vesselid.identify.methods import RefinedIV
+
+    if not np.all(np.isfinite(base.theta[0])):
+        return float("inf")
+    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
+    designs = RefinedIV(zero_mean=True).equation_designs(data, spec, base, phi, "pooled")
+    blocks = block_starts(spec)
+    cov = np.zeros((spec.n_params, spec.n_params))
+    for i, d in enumerate(designs):
+        sl = slice(int(blocks[i]), int(blocks[i + 1]))
+        cov[sl, sl] = cov_fn(d, combine="pooled")[0]
+    return _fixed_point_step_in_se((base.theta - base.theta_aux)[0], cov)
 
 
 def _fixed_point_step_in_se(step: np.ndarray, cov: np.ndarray) -> float:

@@ -27,11 +27,15 @@ raised by the first member at once: no estimator can do better.
 
 The order: the default ``auto``; then the estimators consistent under the broadest
 conditions — simulated instruments with zero-mean per experiment (the paper's
-IV_E{ζ}=0, Lemma 3.1/4.1), SRIV (the same instruments with an AR noise model), GMM with
-delayed measurements added; then the prediction-error estimator (efficient when its
-Gauss–Markov disturbance model holds; one-state logs); then 2SLS with delayed measured
-regressors (consistent on white disturbances only); finally least squares, which always
-exists and is biased under sensor noise — the chain's entry says so.
+IV_E{ζ}=0, Lemma 3.1/4.1), SRIV (the same instruments with an AR noise model), the
+prediction-error estimator (efficient when its Gauss–Markov disturbance model holds;
+one-state logs); then the members of :data:`CONDITIONAL`: GMM with delayed measurements
+added and 2SLS with delayed measured regressors (consistent on white disturbances only),
+finally least squares, which always exists and is biased under sensor noise — the chain's
+entry says so. The conditional members are reached only when no earlier member gave a
+finite, stable result: a result of valid instruments that did not converge (``status``
+``"not converged"``, its last step in standard errors in the stop reason) is returned
+before an estimate whose instruments may be invalid.
 """
 
 from __future__ import annotations
@@ -54,11 +58,18 @@ if TYPE_CHECKING:
 __all__ = ["CHAIN", "assess", "identify_with_fallback"]
 
 #: The fallback order of the default estimator (module docstring).
-CHAIN: tuple[str, ...] = ("auto", "iv-zero-mean", "sriv", "gmm", "pem", "lagged-2sls", "ls")
+CHAIN: tuple[str, ...] = ("auto", "iv-zero-mean", "sriv", "pem", "gmm", "lagged-2sls", "ls")
+
+#: Members whose consistency needs white disturbances (delayed measurements among the
+#: instruments) or no sensor noise (LS): a finite, stable but not converged result of an
+#: earlier member is preferred to them — its instruments are valid, theirs may not be.
+CONDITIONAL = ("gmm", "lagged-2sls", "ls")
 
 #: What the chain's entry adds for the estimators whose validity is conditional.
 CAVEATS = {
     "lagged-2sls": "consistent only when every disturbance is white",
+    "gmm": "its delayed-measurement instruments are valid only when every disturbance "
+           "is white",
     "ls": "biased under sensor noise (errors in variables); intervals ignore that bias",
     "pem": "assumes a Gauss–Markov disturbance",
 }
@@ -109,6 +120,8 @@ def identify_with_fallback(log: Any, spec: Any, chain: tuple[Any, ...] = CHAIN,
     for k, item in enumerate(chain):
         est = get_estimator(item)
         name = est.name
+        if k and name in CONDITIONAL and any(c[0] == "not converged" for c in candidates):
+            break  # a valid-instrument result that did not converge beats these
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:

@@ -189,6 +189,8 @@ class IdentificationResult:
         stab = self.diagnostics.get("stability")
         if stab:
             lines.append(f"stability: {stab.get('sentence', '')}")
+        for sentence in (self.diagnostics.get("excitation") or {}).get("sentences", []):
+            lines.append(f"excitation: {sentence}")
         design = self.diagnostics.get("design")
         if isinstance(design, pd.DataFrame) and not design.empty:
             bad = design[~design["ok"]]
