@@ -166,3 +166,58 @@ def test_cli_exit_code_3_without_a_usable_model(tmp_path, log, monkeypatch, caps
     assert code == 3 and "UNSTABLE" in err.strip().splitlines()[-1]
     assert json.loads(out_json.read_text())["status"] == "unstable"
     assert not export.exists()
+
+
+def _hovering(amp: float):
+    """A state that hovers around zero, its pulses of ±amp small against the sensor noise."""
+    from vesselid.disturbances import Gaussian
+    from vesselid.model import ModelSpec
+    from vesselid.signals import RandomPulses
+    from vesselid.systems import System
+
+    return System(spec=ModelSpec("s", ["x"], ["u"], {"x": ["x", "x*|x|", "u"]},
+                                 theta0={"x": [0.9, -0.5, 1.0]}),
+                  inputs={"u": RandomPulses(-amp, amp, 5, 30)},
+                  sensor_noise={"x": Gaussian(0, 0.1)},
+                  process_noise={"x": Gaussian(0, 0.02)}, x0={"x": 0.0})
+
+
+def test_smoothness_warning_once_where_the_bias_matters():
+    from vesselid.diagnostics import SMOOTHNESS_BIAS_SE
+    from vesselid.errors import ExperimentDesignWarning
+
+    log = _hovering(0.05).simulate(20000, seed=1).to_log()
+    with pytest.warns(ExperimentDesignWarning) as rec:
+        res = identify(log, method="iv-zero-mean")
+    lines = [str(w.message) for w in rec if issubclass(w.category, ExperimentDesignWarning)]
+    assert len(lines) == 1 and "A10/A15" in lines[0] and "standard errors" in lines[0]
+    rep = res.diagnostics["smoothness"]["x"]
+    assert rep["matters"] and rep["bias_se"] >= SMOOTHNESS_BIAS_SE
+    # the predicted bias is real: some parameter is off by more than 1.5 of its SEs
+    assert res.compare()["error_in_std_errors"].abs().max() > 1.5
+    assert json.loads(res.to_json())["smoothness"]["x"]["share_within_eta"] > 0.5
+    assert res.summary().count("smoothness (A10/A15)") == 1
+
+
+def test_excitation_names_a_constant_input_and_the_lost_terms():
+    from vesselid.disturbances import Gaussian
+    from vesselid.model import ModelSpec
+    from vesselid.signals import RandomPulses, StaticOffset
+    from vesselid.systems import System
+
+    # a two-input vessel-like model whose second input (rpm) is held constant in every run
+    system = System(spec=ModelSpec("s", ["x"], ["u", "n"], {"x": ["x", "x*|x|", "u", "n*|n|"]},
+                                   theta0={"x": [0.9, -0.1, 1.0, 0.01]}),
+                    inputs={"u": RandomPulses(0.1, 0.3, 10, 50), "n": StaticOffset(2.0)},
+                    sensor_noise={"x": Gaussian(0, 0.02)}, x0={"x": 1.0})
+    log = system.simulate(3000, seed=2).to_log()
+    with pytest.raises(EstimationFailedError, match=r"n\*\|n\|.*'n' constant"):
+        identify(log, method="iv-zero-mean")
+    with pytest.warns(FallbackWarning):
+        res = identify(log)
+    exc = res.diagnostics["excitation"]
+    assert exc["not_excited"] == ["n"] and exc["unidentifiable"] == {"x": [["n*|n|"]]}
+    assert res.method == "ls"
+    outcomes = {c["method"]: c["outcome"] for c in res.diagnostics["fallback_chain"]}
+    assert outcomes["auto"] == "raised" and outcomes["ls"] == "accepted"
+    assert "input 'n' is not excited" in res.summary()

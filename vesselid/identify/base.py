@@ -34,6 +34,7 @@ from vesselid.diagnostics import (
     free_run_ratio,
     modulus_signals,
     nrmse_fit,
+    smoothness_report,
 )
 from vesselid.errors import (
     ConvergenceWarning,
@@ -387,11 +388,11 @@ class Estimator:
         design_checks = design_rows(data.regsig, data.starts, spec, eta_used,
                                     data.experiment_ids, threshold=design_threshold)
         design = design_frame(design_checks)  # design_margins(...), worded from its rows
-        for r in (r for r in design_checks if not r["ok"]):
-            _warn(f"state {r['state']!r} in experiment {r['experiment']} is within "
-                  f"η={r['eta']:.3g} of zero in {100 * r['share_within_eta']:.1f} % of samples "
-                  f"({r['sign_changes']} sign changes): the modulus cannot be treated as "
-                  "smooth (A10/A15)", ExperimentDesignWarning)
+        smoothness = smoothness_report(data, spec, theta, sims, design_checks, eta_used,
+                                       eta is None, cov)
+        for rep in smoothness.values():
+            if rep["matters"]:
+                _warn(rep["sentence"], ExperimentDesignWarning)
 
         index = spec.param_index
         history = None
@@ -426,6 +427,7 @@ class Estimator:
             "design": design,
             "design_eta": eta_used,
             "design_eta_source": eta_source,
+            "smoothness": smoothness,
             "modulus_states": modulus_signals(spec),
             **residual_checks,
             "warnings": warn_msgs,

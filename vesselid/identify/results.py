@@ -191,19 +191,8 @@ class IdentificationResult:
             lines.append(f"stability: {stab.get('sentence', '')}")
         for sentence in (self.diagnostics.get("excitation") or {}).get("sentences", []):
             lines.append(f"excitation: {sentence}")
-        design = self.diagnostics.get("design")
-        if isinstance(design, pd.DataFrame) and not design.empty:
-            bad = design[~design["ok"]]
-            if bad.empty:
-                lines.append("experiment design (A10/A15): every state under a modulus keeps "
-                             "its margin in every experiment")
-            else:
-                for _, r in bad.iterrows():
-                    lines.append(
-                        f"experiment design (A10/A15): state {r['state']} in experiment "
-                        f"{r['experiment']} is within η={r['eta']:.3g} of zero in "
-                        f"{100 * r['share_within_eta']:.1f} % of samples "
-                        f"({r['sign_changes']} sign changes)")
+        for rep in (self.diagnostics.get("smoothness") or {}).values():
+            lines.append(f"smoothness (A10/A15): {rep['sentence']}")
         from vesselid.identify.specification import summary_lines
 
         lines.extend(summary_lines(self.diagnostics.get("specification", {})))
