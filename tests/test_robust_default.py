@@ -221,3 +221,55 @@ def test_excitation_names_a_constant_input_and_the_lost_terms():
     outcomes = {c["method"]: c["outcome"] for c in res.diagnostics["fallback_chain"]}
     assert outcomes["auto"] == "raised" and outcomes["ls"] == "accepted"
     assert "input 'n' is not excited" in res.summary()
+
+
+def _noisy_map_refinement(monkeypatch, noise: float, average: bool):
+    """:func:`refined_iv` on a heave log with ``T(θ) = θ0 + (θ − θ0)/2 + noise·N(0, 1)``
+    (a stall: the residual cannot fall below the noise)."""
+    from vesselid.identify import estimators
+    from vesselid.identify.data import from_arrays
+    from vesselid.systems import heave
+
+    system = heave()
+    spec = system.identification_spec()
+    sim = system.simulate(500, n_runs=1, seed=0)
+    data = from_arrays(spec, sim.y, sim.u)
+    target = spec.theta0_vector()
+    jitter = np.random.default_rng(5)
+    seen = {}
+    real_compute = estimators.compute_moments
+
+    def fake_compute(data_, spec_, theta=None, **kw):
+        seen["theta"] = np.array(theta, copy=True)
+        return real_compute(data_, spec_, theta, **kw)
+
+    def fake_solve(mom, data_, spec_, *, active=None, **kw):
+        th = seen["theta"]
+        ok = np.ones(th.shape[0], dtype=bool) if active is None else active.copy()
+        t = target + 0.5 * (th - target) + noise * jitter.standard_normal(th.shape)
+        return np.where(ok[:, None], t, np.nan), ok
+
+    monkeypatch.setattr(estimators, "compute_moments", fake_compute)
+    monkeypatch.setattr(estimators, "solve_moments", fake_solve)
+    if average:
+        with estimators.stall_averaging():
+            return estimators.refined_iv(data, spec, target[None] + 0.01, max_iter=500), target
+    return estimators.refined_iv(data, spec, target[None] + 0.01, max_iter=500), target
+
+
+def test_stall_averaging_locates_the_fixed_point(monkeypatch):
+    from vesselid.identify import estimators
+
+    plain, target = _noisy_map_refinement(monkeypatch, 1e-6, average=False)
+    assert "stall_average" not in plain.info  # the batched path: untouched
+    avg, _ = _noisy_map_refinement(monkeypatch, 1e-6, average=True)
+    assert avg.reason[0] == estimators.STOP_STALLED and not avg.converged[0]
+    info = avg.info["stall_average"]
+    assert info["groups"][0] and info["evaluations"] == estimators.STALL_AVERAGE
+    # undamped, the iterates form an AR(1) with coefficient 1/2 and innovation sd 1e-6
+    # about θ0: their mean has sd 1e-6/(1 − 1/2)/√32 (long-run variance); the reported
+    # precision says so and the mean is that close
+    sd_mean = 1e-6 / 0.5 / np.sqrt(32)
+    np.testing.assert_allclose(info["sd_of_mean"][0], sd_mean, rtol=0.6)
+    assert np.all(np.abs(avg.theta[0] - target) < 4 * sd_mean)
+    assert np.all(np.abs(info["mean_step"][0]) < 4 * sd_mean)

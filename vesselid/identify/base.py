@@ -56,6 +56,7 @@ from vesselid.identify.estimators import (
     IterationResult,
     moments_from_matrices,
     solve_moments,
+    stall_averaging,
 )
 from vesselid.identify.excitation import excitation_report
 from vesselid.identify.results import IdentificationResult
@@ -287,8 +288,9 @@ class Estimator:
             it, designs = self._fit_user_instruments(data, spec, phi, instruments, combine)
         else:
             start = None if theta_start is None else spec.vector_from(theta_start)
-            it = self.estimate_parameters(data, spec, combine=combine, theta_start=start,
-                                          max_iter=max_iter, tol=tol, keep_history=True)
+            with stall_averaging():  # a stall locates its fixed point by averaging
+                it = self.estimate_parameters(data, spec, combine=combine, theta_start=start,
+                                              max_iter=max_iter, tol=tol, keep_history=True)
             if not np.all(np.isfinite(it.theta[0])) and not self.uses_instruments:
                 raise EstimationFailedError(
                     f"{self.name}: {it.reason[0]}; the likelihood could not be maximised "
@@ -333,17 +335,28 @@ class Estimator:
         step_se = _fixed_point_step_in_se((src.theta - src.theta_aux)[0], cov)
         converged, stop_reason = bool(it.converged[0]), str(it.reason[0])
         own_step_se = step_se
+        stall_info: dict[str, Any] | None = None
         if self.uses_instruments and not converged and stop_reason in SE_RULE_REASONS:
             # the iteration's step in its own estimator's standard errors (for GMM/SRIV/auto
             # the IV_E{ζ}=0 iteration that supplied their instruments)
-            if src is not it:
-                own_step_se = _base_step_in_se(data, spec, src, combine, cov_fn)
+            cov_own = cov if src is it else _base_covariance(data, spec, src, cov_fn)
+            own_step_se = _fixed_point_step_in_se((src.theta - src.theta_aux)[0], cov_own)
+            what = f"the last fixed-point step is {own_step_se:.2g} standard errors"
+            avg = src.info.get("stall_average")
+            if avg is not None and bool(avg["groups"][0]):
+                mean_se = _fixed_point_step_in_se(avg["mean_step"][0], cov_own)
+                sd_se = _fixed_point_step_in_se(avg["sd_of_mean"][0], cov_own)
+                own_step_se = max(mean_se, sd_se)
+                what = (f"averaged over {avg['evaluations']} further steps of the stalled "
+                        f"iteration, its mean step is {mean_se:.2g} and the fixed point is "
+                        f"located to {sd_se:.2g} standard errors")
+                stall_info = {"evaluations": int(avg["evaluations"]),
+                              "mean_step_se": mean_se, "location_se": sd_se}
             if own_step_se < SE_TOL:
                 # stopped moving within SE_TOL standard errors: converged in the units that
                 # matter for the estimate (SE_TOL)
                 converged = True
-                stop_reason = (f"converged in standard-error units: the last fixed-point step "
-                               f"is {own_step_se:.2g} standard errors (< {SE_TOL:g}); "
+                stop_reason = (f"converged in standard-error units: {what} (< {SE_TOL:g}); "
                                f"relative residual {it.residual[0]:.3g} above tol {tol:g} "
                                f"({stop_reason})")
         if self.reports_convergence and not bool(it.converged[0]):
@@ -420,6 +433,7 @@ class Estimator:
             "excitation": excitation,
             "fixed_point_step_se": step_se,
             "fixed_point_step_own_se": own_step_se,
+            **({"stall_average": stall_info} if stall_info else {}),
             "oscillation": bool(it.oscillation[0]),
             "start": None if it.start is None else str(it.start[0]),
             **self.describe(it),
@@ -605,14 +619,14 @@ def _free_run_fit(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
     return {st: float(fit[i]) for i, st in enumerate(spec.states)}, all_ok
 
 
-def _base_step_in_se(data: RegressionData, spec: ModelSpec, base: IterationResult,
-                     combine: str, cov_fn: Any) -> float:
-    """The last fixed-point step of the IV_E{ζ}=0 iteration ``base`` in its own standard
-    errors (its designs: instruments simulated from its auxiliary model, centred)."""
+def _base_covariance(data: RegressionData, spec: ModelSpec, base: IterationResult,
+                     cov_fn: Any) -> np.ndarray:
+    """The covariance of the IV_E{ζ}=0 iteration ``base``'s own estimate (its designs:
+    instruments simulated from its auxiliary model, centred; pooled)."""
     from vesselid.identify.methods import RefinedIV
 
     if not np.all(np.isfinite(base.theta[0])):
-        return float("inf")
+        return np.full((spec.n_params, spec.n_params), np.nan)
     phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
     designs = RefinedIV(zero_mean=True).equation_designs(data, spec, base, phi, "pooled")
     blocks = block_starts(spec)
@@ -620,7 +634,7 @@ def _base_step_in_se(data: RegressionData, spec: ModelSpec, base: IterationResul
     for i, d in enumerate(designs):
         sl = slice(int(blocks[i]), int(blocks[i + 1]))
         cov[sl, sl] = cov_fn(d, combine="pooled")[0]
-    return _fixed_point_step_in_se((base.theta - base.theta_aux)[0], cov)
+    return cov
 
 
 def _fixed_point_step_in_se(step: np.ndarray, cov: np.ndarray) -> float:
