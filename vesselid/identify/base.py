@@ -623,12 +623,14 @@ def _base_covariance(data: RegressionData, spec: ModelSpec, base: IterationResul
                      cov_fn: Any) -> np.ndarray:
     """The covariance of the IV_E{ζ}=0 iteration ``base``'s own estimate (its designs:
     instruments simulated from its auxiliary model, centred; pooled)."""
-    from vesselid.identify.methods import RefinedIV
-
     if not np.all(np.isfinite(base.theta[0])):
         return np.full((spec.n_params, spec.n_params), np.nan)
-    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
-    designs = RefinedIV(zero_mean=True).equation_designs(data, spec, base, phi, "pooled")
+    codes = spec.codes
+    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, codes.factors)
+    # the designs of methods.RefinedIV(zero_mean=True) for this iteration
+    z, _ = kernels.instrument_matrix(data.target, data.u, data.starts, base.theta_aux[0],
+                                     codes.factors, codes.equation, spec.n_states)
+    designs = square_designs(data, spec, z, phi, base.theta[0], zero_mean=True)
     blocks = block_starts(spec)
     cov = np.zeros((spec.n_params, spec.n_params))
     for i, d in enumerate(designs):

@@ -67,7 +67,7 @@ STALL_PATIENCE = 20
 STALL_TOL = 1e-4
 
 #: Evaluations of ``T`` averaged after a stall by the checked path (:func:`stall_averaging`).
-STALL_AVERAGE = 32
+STALL_AVERAGE = 96
 
 _STALL_AVERAGE: ContextVar[int] = ContextVar("stall_average", default=0)
 
