@@ -320,23 +320,28 @@ def free_run_ratio(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
 #: coverage band the package calibrates to.
 SMOOTHNESS_BIAS_SE = 0.4155
 
-#: Gauss–Hermite nodes of the expectation over the sensor noise.
-_GH_NODES = 24
-
-
-def _expected_factor(f_idx: int, n_s: int, mu: np.ndarray, sig: np.ndarray,
-                     nodes: np.ndarray) -> np.ndarray:
-    """``E[F_idx(μ + e)]`` at every node (T, Q): the factor at the noisy signal."""
+def _mean_factor(f_idx: int, n_s: int, mu: np.ndarray, sig: np.ndarray,
+                 erf_t: dict[int, np.ndarray]) -> np.ndarray:
+    """``E[F_idx(μ + e)]``, ``e ~ N(0, σ²)`` per signal (closed form; inputs: σ = 0)."""
     if f_idx >= 2 * n_s:
-        return np.ones((mu.shape[0], nodes.size))
+        return np.ones(mu.shape[0])
     j = f_idx % n_s
-    x = mu[:, j:j + 1] + sig[j] * nodes[None, :]
-    return np.abs(x) if f_idx >= n_s else x
+    m = mu[:, j]
+    if f_idx < n_s or sig[j] <= 0:
+        return m if f_idx < n_s else np.abs(m)
+    s = sig[j]
+    return s * math.sqrt(2 / math.pi) * np.exp(-0.5 * (m / s) ** 2) + m * erf_t[j]
+
+
+def _mean_square_modulus(mu: np.ndarray, s: float, erf_t: np.ndarray) -> np.ndarray:
+    """``E[Y|Y|]``, ``Y ~ N(μ, s²)``: ``(μ² + s²) erf(μ/(s√2)) + μ s √(2/π) e^{−μ²/2s²}``."""
+    return ((mu**2 + s**2) * erf_t
+            + mu * s * math.sqrt(2 / math.pi) * np.exp(-0.5 * (mu / s) ** 2))
 
 
 def smoothness_bias(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
                     sims: list[np.ndarray], sigma: Mapping[str, float],
-                    cov: np.ndarray) -> dict[str, float] | None:
+                    cov: np.ndarray, phi: np.ndarray | None = None) -> dict[str, float] | None:
     """Bias of the zero-mean IV estimate caused by the modulus's non-smoothness, per state,
     in standard errors (the largest over the parameters).
 
@@ -346,9 +351,10 @@ def smoothness_bias(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
     (``x|x|``: ``h = (x² + σ²)(2Φ(x/σ) − 1) + 2xσ ϕ(x/σ) − x|x|``, which moves from
     ``−σ²`` to ``+σ²`` within a few σ of zero). A constant ``h`` per experiment is absorbed
     by zero-mean instruments; its variation enters the equation error as ``Σ_p θ_p h_p(x)``
-    and biases the estimate by ``δθ = (Z_cᵀ Φ)⁻¹ Z_cᵀ Σ θ_p h_p``. This evaluates ``h`` by
-    Gauss–Hermite quadrature at the measured signals (the operating points; their spread
-    near zero also holds the process noise and currents), with instruments ``Z = Φ(x̂)``
+    and biases the estimate by ``δθ = (Z_cᵀ Φ)⁻¹ Z_cᵀ Σ θ_p h_p``. This evaluates ``h`` in
+    closed form (Gaussian moments of ``|y|`` and ``y|y|``) at the measured signals (the
+    operating points; their spread near zero also holds the process noise and currents),
+    with instruments ``Z = Φ(x̂)``
     from the noise-free free run ``sims``, centred per experiment (the refined IV's), and
     returns ``max_j |δθ_j| / SE_j`` for the terms under each state's modulus.
 
@@ -371,13 +377,15 @@ def smoothness_bias(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
     mu = np.concatenate([data.regsig, data.u], axis=1)
     sig = np.zeros(n_s)
     sig[:n] = [float(sigma.get(s, 0.0)) for s in spec.states]
-    nodes, weights = np.polynomial.hermite_e.hermegauss(_GH_NODES)
-    weights = weights / weights.sum()
+    from scipy.special import erf
+
+    erf_t = {j: erf(mu[:, j] / (sig[j] * math.sqrt(2))) for j in range(n) if sig[j] > 0}
     rows = np.ones(int(data.starts[-1]), dtype=bool)
     rows[data.starts[:-1]] = False
     z = kernels.regressor_matrix(np.ascontiguousarray(x_free), data.u, data.starts,
                                  codes.factors)
-    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, codes.factors)
+    if phi is None:
+        phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, codes.factors)
     se = np.sqrt(np.abs(np.diag(cov)))
     blocks = np.concatenate([[0], np.cumsum([len(spec.equations[s]) for s in spec.states])])
     out: dict[str, float] = {}
@@ -392,15 +400,13 @@ def smoothness_bias(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
             a, b = int(codes.factors[p, 0]), int(codes.factors[p, 1])
             if n_s + j not in (a, b):  # only the terms with |st| carry its non-smoothness
                 continue
-            fa = _expected_factor(a, n_s, mu, sig, nodes)
-            fb = _expected_factor(b, n_s, mu, sig, nodes)
-            same = (a % n_s == b % n_s) and a < 2 * n_s and b < 2 * n_s
-            if same:
-                expected = (fa * fb) @ weights
-            else:
-                expected = (fa @ weights) * (fb @ weights)
-            exact = _expected_factor(a, n_s, mu, np.zeros(n_s), nodes[:1])[:, 0] * \
-                _expected_factor(b, n_s, mu, np.zeros(n_s), nodes[:1])[:, 0]
+            if a < 2 * n_s and b < 2 * n_s and a % n_s == b % n_s:  # s|s|: one noise
+                expected = _mean_square_modulus(mu[:, j], sig[j], erf_t[j])
+            else:  # independent noises (or a noise-free factor): a product of means
+                expected = (_mean_factor(a, n_s, mu, sig, erf_t)
+                            * _mean_factor(b, n_s, mu, sig, erf_t))
+            exact = (_mean_factor(a, n_s, mu, np.zeros(n_s), erf_t)
+                     * _mean_factor(b, n_s, mu, np.zeros(n_s), erf_t))
             d[:, int(codes.equation[p])] += theta[p] * (expected - exact)
         # the regressor row k uses the signals at k − 1 (the first row of each experiment
         # holds no equation)
@@ -433,7 +439,8 @@ def smoothness_bias(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
 def smoothness_report(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
                       sims: list[np.ndarray], design_rows_: list[dict[str, Any]],
                       eta: Mapping[str, float], eta_default: bool,
-                      cov: np.ndarray) -> dict[str, dict[str, Any]]:
+                      cov: np.ndarray, phi: np.ndarray | None = None
+                      ) -> dict[str, dict[str, Any]]:
     """The A10/A15 smoothness check per state under a modulus (JSON-ready).
 
     Always reports the share of samples within ``η`` of zero (pooled, and the worst
@@ -454,7 +461,7 @@ def smoothness_report(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
         source = ("the one-step residual std (an upper bound of the sensor noise)"
                   if eta_default else "eta / 3")
     try:
-        bias = smoothness_bias(data, spec, np.asarray(theta, float), sims, sigma, cov)
+        bias = smoothness_bias(data, spec, np.asarray(theta, float), sims, sigma, cov, phi)
     except (np.linalg.LinAlgError, FloatingPointError, ValueError):
         bias = None
     lengths = np.diff(data.starts)

@@ -402,7 +402,7 @@ class Estimator:
                                     data.experiment_ids, threshold=design_threshold)
         design = design_frame(design_checks)  # design_margins(...), worded from its rows
         smoothness = smoothness_report(data, spec, theta, sims, design_checks, eta_used,
-                                       eta is None, cov)
+                                       eta is None, cov, phi)
         for rep in smoothness.values():
             if rep["matters"]:
                 _warn(rep["sentence"], ExperimentDesignWarning)

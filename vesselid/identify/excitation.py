@@ -67,25 +67,48 @@ def excitation_report(data: RegressionData, spec: ModelSpec, phi: np.ndarray,
                         "magnitude": mag}
         if not excited:
             not_excited.append(name)
-    centred = phi.copy()
+    # the centred Gram matrix from per-experiment sums (no centred copy of Φ unless some
+    # equation fails the full-rank screen)
+    p_all = phi.shape[1]
+    gram = np.zeros((p_all, p_all))
+    raw_sq = np.zeros(p_all)
     for s in range(data.n_segments):
         sl = data.segment(s)
-        sub = rows[sl]
-        if sub.any():
-            block = centred[sl]
-            block[sub] -= block[sub].mean(axis=0)
-    raw_norm = np.sqrt(np.einsum("ij,ij->j", phi[rows], phi[rows]))
-    centred = centred[rows]
+        block = phi[sl][rows[sl]]
+        if block.shape[0]:
+            m = block.sum(axis=0)
+            g = block.T @ block
+            raw_sq += np.diag(g)
+            gram += g - np.outer(m, m) / block.shape[0]
     # a constant column leaves rounding noise after centring: zero it relative to its size
-    lost = np.sqrt(np.einsum("ij,ij->j", centred, centred)) <= 1e-9 * raw_norm
-    centred[:, lost] = 0.0
+    lost = np.diag(gram) <= (1e-9) ** 2 * raw_sq
+    gram[lost, :] = 0.0
+    gram[:, lost] = 0.0
     unident: dict[str, list[list[str]]] = {}
     pos = 0
+    centred = None
     for st in spec.states:
         terms = [str(t) for t in spec.equations[st]]
-        block = centred[:, pos:pos + len(terms)]
+        sl = slice(pos, pos + len(terms))
         pos += len(terms)
-        groups = collinear_terms(block, terms)
+        g = gram[sl, sl]
+        norms = np.sqrt(np.maximum(np.diag(g), 0.0))
+        keep = norms > 0
+        if keep.all():
+            eig = np.linalg.eigvalsh(g / np.outer(norms, norms))
+            if eig[0] > 1e-10 * eig[-1]:  # surely full rank (collinear_terms' own screen)
+                continue
+        if centred is None:
+            centred = phi.copy()
+            for s in range(data.n_segments):
+                seg = data.segment(s)
+                sub = rows[seg]
+                if sub.any():
+                    blk = centred[seg]
+                    blk[sub] -= blk[sub].mean(axis=0)
+            centred = centred[rows]
+            centred[:, lost] = 0.0
+        groups = collinear_terms(centred[:, sl], terms)
         if groups:
             unident[st] = groups
     sentences = []
