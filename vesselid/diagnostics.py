@@ -388,6 +388,12 @@ def smoothness_bias(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
         phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, codes.factors)
     se = np.sqrt(np.abs(np.diag(cov)))
     blocks = np.concatenate([[0], np.cumsum([len(spec.equations[s]) for s in spec.states])])
+    zr, pr = (z[1:], phi[1:]) if data.n_segments == 1 else (z[rows], phi[rows])
+    counts = np.diff(data.starts) - 1
+    seg_starts = np.concatenate([[0], np.cumsum(counts)])[:-1][counts > 0]
+    cnt = counts[counts > 0].astype(float)[:, None]
+    z_sums = np.add.reduceat(zr, seg_starts, axis=0)
+    p_sums = np.add.reduceat(pr, seg_starts, axis=0)
     out: dict[str, float] = {}
     mod = modulus_signals(spec)
     for st in mod:
@@ -412,19 +418,16 @@ def smoothness_bias(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
         # holds no equation)
         d_rows = np.zeros_like(d)
         d_rows[1:] = d[:-1]
+        dr = d_rows[1:] if data.n_segments == 1 else d_rows[rows]
+        d_sums = np.add.reduceat(dr, seg_starts, axis=0)
         worst = 0.0
         for i in range(n):
             sl = slice(int(blocks[i]), int(blocks[i + 1]))
-            zc = z[:, sl].copy()
-            dc = d_rows[:, i].copy()
-            for sidx in range(data.n_segments):
-                seg = data.segment(sidx)
-                r = rows[seg]
-                if r.any():
-                    zc[seg][r] -= zc[seg][r].mean(axis=0)
-            zc, dc, ph = zc[rows], dc[rows], phi[rows][:, sl]
+            # Σ_E (Z_Eᵀ Φ_E − z̄-sums): the instruments centred per experiment, from sums
+            a_mat = zr[:, sl].T @ pr[:, sl] - z_sums[:, sl].T @ (p_sums[:, sl] / cnt)
+            b_vec = zr[:, sl].T @ dr[:, i] - z_sums[:, sl].T @ (d_sums[:, i] / cnt[:, 0])
             try:
-                delta = np.linalg.solve(zc.T @ ph, zc.T @ dc)
+                delta = np.linalg.solve(a_mat, b_vec)
             except np.linalg.LinAlgError:
                 continue
             with np.errstate(divide="ignore", invalid="ignore"):

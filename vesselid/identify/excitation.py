@@ -69,17 +69,14 @@ def excitation_report(data: RegressionData, spec: ModelSpec, phi: np.ndarray,
             not_excited.append(name)
     # the centred Gram matrix from per-experiment sums (no centred copy of Φ unless some
     # equation fails the full-rank screen)
-    p_all = phi.shape[1]
-    gram = np.zeros((p_all, p_all))
-    raw_sq = np.zeros(p_all)
-    for s in range(data.n_segments):
-        sl = data.segment(s)
-        block = phi[sl][rows[sl]]
-        if block.shape[0]:
-            m = block.sum(axis=0)
-            g = block.T @ block
-            raw_sq += np.diag(g)
-            gram += g - np.outer(m, m) / block.shape[0]
+    pr = phi[rows]
+    counts = np.array([int(rows[data.segment(s)].sum()) for s in range(data.n_segments)])
+    keep_seg = counts > 0
+    starts_r = np.concatenate([[0], np.cumsum(counts)])[:-1][keep_seg]
+    sums = np.add.reduceat(pr, starts_r, axis=0) if pr.shape[0] else np.zeros((0, pr.shape[1]))
+    gram = pr.T @ pr
+    raw_sq = np.diag(gram).copy()
+    gram -= sums.T @ (sums / counts[keep_seg][:, None])
     # a constant column leaves rounding noise after centring: zero it relative to its size
     lost = np.diag(gram) <= (1e-9) ** 2 * raw_sq
     gram[lost, :] = 0.0

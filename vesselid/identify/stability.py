@@ -31,6 +31,9 @@ if TYPE_CHECKING:
 
 __all__ = ["BOUND_FACTOR", "free_run_states", "jacobians", "stability_report"]
 
+#: The per-sample spectral radii are computed on at most this many evenly spaced samples.
+MAX_SAMPLES = 2048
+
 #: A free-run state farther than this many measured excursions from the experiment's mean
 #: counts as unbounded (the model is then called unstable on the log).
 BOUND_FACTOR = 10.0
@@ -117,7 +120,8 @@ def stability_report(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
         ``worst_excursion`` (largest ``max |x̂ − ȳ_E| / max |y − ȳ_E|`` over states and
         experiments; ``inf`` where the simulation diverged), ``spectral_radius``
         (``operating_point``: largest over experiments at the mean operating point;
-        ``median``, ``max`` and ``share_above_one`` over the measured samples) and
+        ``median``, ``max`` and ``share_above_one`` over the measured samples, at most
+        :data:`MAX_SAMPLES` of them, evenly spaced) and
         ``sentence`` (plain words for ``summary()``).
     """
     theta = np.asarray(theta, float)
@@ -149,7 +153,10 @@ def stability_report(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
         j_op = jacobians(spec, theta, data.regsig[sl].mean(axis=0)[None],
                          data.u[sl].mean(axis=0)[None])
         op_rho.append(float(_radius(j_op)[0]))
-    rho = _radius(jacobians(spec, theta, data.regsig, data.u))
+    # per-sample radii on at most MAX_SAMPLES evenly spaced samples (the summary figures
+    # of a long log do not need every sample)
+    step = max(1, -(-data.regsig.shape[0] // MAX_SAMPLES))
+    rho = _radius(jacobians(spec, theta, data.regsig[::step], data.u[::step]))
     rho = rho[np.isfinite(rho)]
     spectral = {
         "operating_point": float(max(op_rho)) if op_rho else float("nan"),
