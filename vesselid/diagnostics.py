@@ -341,7 +341,8 @@ def _mean_square_modulus(mu: np.ndarray, s: float, erf_t: np.ndarray) -> np.ndar
 
 def smoothness_bias(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
                     sims: list[np.ndarray], sigma: Mapping[str, float],
-                    cov: np.ndarray, phi: np.ndarray | None = None) -> dict[str, float] | None:
+                    cov: np.ndarray, phi: np.ndarray | None = None,
+                    corrected: bool = False) -> dict[str, float] | None:
     """Bias of the zero-mean IV estimate caused by the modulus's non-smoothness, per state,
     in standard errors (the largest over the parameters).
 
@@ -357,6 +358,8 @@ def smoothness_bias(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
     with instruments ``Z = Φ(x̂)``
     from the noise-free free run ``sims``, centred per experiment (the refined IV's), and
     returns ``max_j |δθ_j| / SE_j`` for the terms under each state's modulus.
+    ``corrected``: the estimator's ``s|s|`` regressors carry the errors-in-variables
+    correction ``− σ² sign(y)`` (:mod:`vesselid.identify.eiv`), whose mean is subtracted.
 
     Returns
     -------
@@ -408,6 +411,8 @@ def smoothness_bias(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
                 continue
             if a < 2 * n_s and b < 2 * n_s and a % n_s == b % n_s:  # s|s|: one noise
                 expected = _mean_square_modulus(mu[:, j], sig[j], erf_t[j])
+                if corrected:  # the regressor is y|y| − σ² sign(y) (identify.eiv)
+                    expected = expected - sig[j] ** 2 * erf_t[j]
             else:  # independent noises (or a noise-free factor): a product of means
                 expected = (_mean_factor(a, n_s, mu, sig, erf_t)
                             * _mean_factor(b, n_s, mu, sig, erf_t))
@@ -442,8 +447,8 @@ def smoothness_bias(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
 def smoothness_report(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
                       sims: list[np.ndarray], design_rows_: list[dict[str, Any]],
                       eta: Mapping[str, float], eta_default: bool,
-                      cov: np.ndarray, phi: np.ndarray | None = None
-                      ) -> dict[str, dict[str, Any]]:
+                      cov: np.ndarray, phi: np.ndarray | None = None,
+                      corrected: bool = False) -> dict[str, dict[str, Any]]:
     """The A10/A15 smoothness check per state under a modulus (JSON-ready).
 
     Always reports the share of samples within ``η`` of zero (pooled, and the worst
@@ -464,7 +469,8 @@ def smoothness_report(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
         source = ("the one-step residual std (an upper bound of the sensor noise)"
                   if eta_default else "eta / 3")
     try:
-        bias = smoothness_bias(data, spec, np.asarray(theta, float), sims, sigma, cov, phi)
+        bias = smoothness_bias(data, spec, np.asarray(theta, float), sims, sigma, cov, phi,
+                               corrected)
     except (np.linalg.LinAlgError, FloatingPointError, ValueError):
         bias = None
     lengths = np.diff(data.starts)

@@ -402,7 +402,9 @@ class Estimator:
                                     data.experiment_ids, threshold=design_threshold)
         design = design_frame(design_checks)  # design_margins(...), worded from its rows
         smoothness = smoothness_report(data, spec, theta, sims, design_checks, eta_used,
-                                       eta is None, cov, phi)
+                                       eta is None, cov, phi,
+                                       corrected=(self.corrects_sensor_noise
+                                                  and data.regressor_noise is not None))
         for rep in smoothness.values():
             if rep["matters"]:
                 _warn(rep["sentence"], ExperimentDesignWarning)
