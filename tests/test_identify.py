@@ -334,9 +334,10 @@ def test_results_object():
 
 def test_design_check_warns_on_sign_changes_and_passes_static_offset():
     log = heave().simulate(5000, seed=0).to_log()  # Gaussian noise: w crosses zero
-    with pytest.warns(ExperimentDesignWarning, match="A10/A15"):
-        res = identify(log, method="ls")
+    res = identify(log, method="ls")
     assert not res.diagnostics["design"]["ok"].all()
+    smooth = res.diagnostics["smoothness"]["w"]  # ... but too rarely to bias the estimate
+    assert smooth["share_within_eta"] > 0.01 and not smooth["matters"]
     siso = System(
         spec=ModelSpec("s", ["x"], ["u"], {"x": ["x", "x*|x|", "u"]},
                        theta0={"x": [0.5, -0.1, 1.0]}),

@@ -9,7 +9,9 @@
     vesselid sea-trial --vessel cybership2 --experiments 6 --samples 20000 --seed 0 --out DIR
 
 Exit code 0 on success, 2 on bad input (:class:`~vesselid.errors.VesselidError`, ``OSError``)
-with a one-line reason on stderr; anything else is a bug (traceback, exit code 1).
+with a one-line reason on stderr; 3 from ``identify`` when the input is valid but no usable
+model came out (no finite estimate, or one that is unstable on the log or has non-finite fit
+figures; one line on stderr); anything else is a bug (traceback, exit code 1).
 Subcommands living in other modules register themselves through an
 ``add_parser(subparsers)`` function that sets ``func`` (returning an exit code).
 """
@@ -269,12 +271,20 @@ def cmd_identify(args: argparse.Namespace) -> int:
     from vesselid.sampling import check_sampling
 
     check_sampling(log, (spec or log.spec).dt, tolerance=args.dt_tolerance)
+    from vesselid.errors import EstimationFailedError
+
+
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        result = identify(log, spec, method=args.method, combine=args.combine,
-                          target=args.target, cov_type=args.cov, max_iter=args.max_iter,
-                          sensor_noise=_sensor_noise(getattr(args, "sensor_noise", None)),
-                          noise_order=getattr(args, "noise_order", None))
+        try:
+            result = identify(log, spec, method=args.method, combine=args.combine,
+                              target=args.target, cov_type=args.cov, max_iter=args.max_iter,
+                              sensor_noise=_sensor_noise(getattr(args, "sensor_noise", None)),
+                              noise_order=getattr(args, "noise_order", None))
+        except EstimationFailedError as exc:  # valid input, no finite estimate: exit 3
+            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            print(f"vesselid identify: error: no usable model: {msg}", file=sys.stderr)
+            return EXIT_NO_MODEL
     return _report_identify(args, result, caught)
 
 
@@ -361,14 +371,33 @@ def _report_identify(args: argparse.Namespace, result: Any, caught: list) -> int
             print(f"\nwrote {args.json}")
     else:
         print(result.summary())
+    status = getattr(result, "status", "ok")
+    unusable = status in UNUSABLE_STATUS
     if getattr(args, "export", None):
-        path = result.export(args.export, source=str(args.log))
-        print(f"wrote {path} (spec with the estimate as theta0, its standard errors and "
-              "covariance)", file=sys.stderr if args.json == "-" else sys.stdout)
+        if unusable:
+            print(f"not written: {args.export} (the model is not usable: {status})",
+                  file=sys.stderr)
+        else:
+            path = result.export(args.export, source=str(args.log))
+            print(f"wrote {path} (spec with the estimate as theta0, its standard errors and "
+                  "covariance)", file=sys.stderr if args.json == "-" else sys.stdout)
     if args.json == "-":  # otherwise the summary already lists the warnings
         for w in caught:
             print(f"warning: {w.message}", file=sys.stderr)
+    if unusable:
+        print(f"vesselid identify: error: no usable model: {result.status_reason}",
+              file=sys.stderr)
+        return EXIT_NO_MODEL
     return 0
+
+
+#: ``vesselid identify``'s exit code when the input is valid but no usable model came out:
+#: no finite estimate from any estimator tried, or an estimate that is unstable on the log
+#: or has non-finite fit figures (the result is still printed / written with ``--json``,
+#: ``status`` says which; ``--export`` is refused). 2 stays bad input.
+EXIT_NO_MODEL = 3
+#: result statuses that are not a usable model
+UNUSABLE_STATUS = ("non-finite", "unstable")
 
 
 def _command_word(argv: Sequence[str] | None) -> str | None:

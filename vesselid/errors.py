@@ -10,7 +10,10 @@ so callers can catch bad input uniformly, following python-control's convention:
     │   └── SimulationDivergedError
     ├── IdentificationError      identification cannot proceed
     │   ├── RankDeficientError   collinear regressors (names the terms)
-    │   └── CovarianceError      unknown covariance estimator / bad configuration
+    │   ├── CovarianceError      unknown covariance estimator / bad configuration
+    │   └── EstimationFailedError the estimator ran but gave no finite estimate
+    │       └── NoUsableModelError no estimator of the fallback chain gave a usable
+    │                            model (the chain tried is attached)
     ├── SeaTrialError            bad sea-trial settings
     ├── ControlError             bad controller settings
     └── CLIError                 bad command-line input
@@ -28,16 +31,20 @@ __all__ = [
     "ConvergenceWarning",
     "CovarianceError",
     "DerivedInputWarning",
+    "EstimationFailedError",
     "ExperimentDesignWarning",
+    "FallbackWarning",
     "IdentificationError",
     "InvalidActionError",
     "LogValidationError",
     "ModelSpecError",
+    "NoUsableModelError",
     "RankDeficientError",
     "ResourceLimitError",
     "SeaTrialError",
     "SimulationDivergedError",
     "SimulationError",
+    "UnstableModelWarning",
     "VesselidError",
     "WeakInstrumentWarning",
 ]
@@ -75,6 +82,27 @@ class CovarianceError(IdentificationError):
     """Unknown covariance estimator or invalid configuration of one."""
 
 
+class EstimationFailedError(IdentificationError):
+    """The estimator ran on valid input but gave no finite estimate (singular instrument
+    equations, an auxiliary model that diverges from every start, a likelihood that could
+    not be maximised). The default estimator's fallback chain catches this one; input
+    errors (other :class:`IdentificationError` subclasses) are raised at once."""
+
+
+class NoUsableModelError(EstimationFailedError):
+    """No estimator of the fallback chain gave a finite estimate.
+
+    Attributes
+    ----------
+    chain : list of dict
+        One entry per estimator tried: ``method``, ``outcome``, ``reason``.
+    """
+
+    def __init__(self, message: str, chain: list | None = None) -> None:
+        super().__init__(message)
+        self.chain = list(chain or [])
+
+
 class SeaTrialError(VesselidError):
     """Bad sea-trial settings (unknown aggregate, too few samples, violated margins...)."""
 
@@ -97,6 +125,16 @@ class ConvergenceWarning(UserWarning):
 
 class ClosedLoopWarning(UserWarning):
     """An open-loop estimator was used on a log recorded in (or looking like) closed loop."""
+
+
+class UnstableModelWarning(UserWarning):
+    """The identified model is unstable on the log: its free-run simulation on the log's
+    own inputs diverges or leaves the measured range by far."""
+
+
+class FallbackWarning(UserWarning):
+    """The default estimator failed on this log; the result is a fallback estimator's
+    (``diagnostics["fallback_chain"]`` says which were tried and why)."""
 
 
 class ExperimentDesignWarning(UserWarning):

@@ -122,6 +122,13 @@ def identify(
         AR order of the noise-model prefilter of the estimators that use one (``sriv``,
         ``auto``'s fallback) instead of their default 4; default the log's
         ``metadata["noise_order"]`` (``vesselid sea-trial`` writes 16).
+    fallback : bool, optional
+        Run the fallback chain (:mod:`vesselid.identify.fallback`): when ``method`` fails
+        on this log (no finite estimate, an unstable model, non-finite fit figures, no
+        convergence), the next estimator of :data:`~vesselid.identify.fallback.CHAIN` is
+        tried, and the result records every estimator tried
+        (``diagnostics["fallback_chain"]``). Default: on for the default method (by
+        name), off for an explicitly chosen one; never with ``instruments``.
 
     Returns
     -------
@@ -134,9 +141,28 @@ def identify(
     RankDeficientError
         Collinear regressors; the message names the terms.
     IdentificationError
-        Too few samples, unknown method or option, an auxiliary model that diverges
-        from the start, singular instrument equations.
+        Too few samples, unknown method or option.
+    EstimationFailedError
+        No finite estimate (an explicitly chosen method: singular instrument equations,
+        an auxiliary model that diverges from every start); with the fallback chain
+        :class:`~vesselid.errors.NoUsableModelError`, only when no estimator of the chain
+        gave a finite one (``exc.chain`` lists them).
+
+    Notes
+    -----
+    Check ``result.status`` (``"ok"``, ``"not converged"``, ``"unstable"``,
+    ``"non-finite"``) before using an estimate: the last three are returned for
+    inspection, never as a usable model (``vesselid identify`` exits 3 on them).
     """
+    fallback = options.pop("fallback", None)
+    if fallback is None:
+        fallback = isinstance(method, str) and method == DEFAULT_METHOD
+    if fallback and options.get("instruments") is None:
+        from vesselid.identify.fallback import CHAIN, identify_with_fallback
+
+        first = get_estimator(method)
+        return identify_with_fallback(
+            log, spec, (first, *(m for m in CHAIN if m != first.name)), **options)
     return get_estimator(method).fit(log, spec, **options)
 
 

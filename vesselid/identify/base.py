@@ -34,12 +34,15 @@ from vesselid.diagnostics import (
     free_run_ratio,
     modulus_signals,
     nrmse_fit,
+    smoothness_report,
 )
 from vesselid.errors import (
     ConvergenceWarning,
+    EstimationFailedError,
     ExperimentDesignWarning,
     IdentificationError,
     RankDeficientError,
+    UnstableModelWarning,
     WeakInstrumentWarning,
 )
 from vesselid.identify import backend, linalg
@@ -48,11 +51,16 @@ from vesselid.identify.data import RegressionData, block_starts, from_log
 from vesselid.identify.estimators import (
     COMBINE_MODES,
     STOP_FIXED,
+    STOP_MAX_ITER,
+    STOP_STALLED,
     IterationResult,
     moments_from_matrices,
     solve_moments,
+    stall_averaging,
 )
+from vesselid.identify.excitation import excitation_report
 from vesselid.identify.results import IdentificationResult
+from vesselid.identify.stability import free_run_states, stability_report
 from vesselid.model import ModelSpec
 
 __all__ = ["CLOSED_LOOP_ESTIMATOR", "TARGETS", "EquationDesign", "Estimator", "equation_rows"]
@@ -60,6 +68,15 @@ __all__ = ["CLOSED_LOOP_ESTIMATOR", "TARGETS", "EquationDesign", "Estimator", "e
 #: The estimator ``auto`` hands a log that declares a simulable closed loop to (``cl-iv``,
 #: registered by :mod:`vesselid.identify.closedloop`, which subclasses :class:`Estimator`).
 CLOSED_LOOP_ESTIMATOR: dict[str, Any] = {}
+
+
+#: The standard-error stopping rule of the refined iteration: where the relative residual
+#: rule (``tol``) is not reached because the iteration ran out of evaluations or stalled,
+#: it has converged when its last fixed-point step ``|T(θ) − θ|`` is below ``SE_TOL``
+#: standard errors of every parameter (the estimate no longer moves on the scale of its
+#: own uncertainty). A diverging auxiliary model or a singular system stays a failure.
+SE_TOL = 0.1
+SE_RULE_REASONS = (STOP_MAX_ITER, STOP_STALLED)
 
 
 @dataclass
@@ -133,6 +150,13 @@ class Estimator:
 
     def __init__(self, **options: Any) -> None:
         self.options = dict(options)
+
+    @property
+    def experiment_constants(self) -> bool:
+        """The estimator carries a constant per experiment (zero-mean instruments, or a
+        constant among the instruments): terms constant within every experiment are
+        then not identifiable (:mod:`vesselid.identify.excitation`)."""
+        return bool(self.uses_instruments and getattr(self, "zero_mean", True))
 
     def __repr__(self) -> str:
         opts = ", ".join(f"{k}={v!r}" for k, v in self.options.items())
@@ -256,6 +280,17 @@ class Estimator:
         rows = equation_rows(data)
         # one experiment: every row but the first, as a view (no gathered copy)
         _check_rank(phi[1:] if data.n_segments == 1 else phi[rows], spec, blocks, names)
+        excitation = excitation_report(data, spec, phi, rows)
+        if excitation["unidentifiable"] and self.experiment_constants:
+            lost = "; ".join(f"equation {st!r}: {', '.join(g)}"
+                             for st, groups in excitation["unidentifiable"].items()
+                             for g in groups)
+            why = (f" (input(s) {', '.join(map(repr, excitation['not_excited']))} constant "
+                   "within every experiment)" if excitation["not_excited"] else "")
+            raise EstimationFailedError(
+                f"{self.name}: not identifiable with a constant per experiment — {lost}"
+                f"{why}; drop the term(s) from the spec or vary the input within the "
+                "experiments")
 
         warn_msgs: list[str] = []
 
@@ -275,10 +310,11 @@ class Estimator:
             it, designs = self._fit_user_instruments(data, spec, phi, instruments, combine)
         else:
             start = None if theta_start is None else spec.vector_from(theta_start)
-            it = self.estimate_parameters(data, spec, combine=combine, theta_start=start,
-                                          max_iter=max_iter, tol=tol, keep_history=True)
+            with stall_averaging():  # a stall locates its fixed point by averaging
+                it = self.estimate_parameters(data, spec, combine=combine, theta_start=start,
+                                              max_iter=max_iter, tol=tol, keep_history=True)
             if not np.all(np.isfinite(it.theta[0])) and not self.uses_instruments:
-                raise IdentificationError(
+                raise EstimationFailedError(
                     f"{self.name}: {it.reason[0]}; the likelihood could not be maximised "
                     "from the IV_E{ζ}=0 start — use longer or better-excited experiments, "
                     "or method 'auto'")
@@ -287,7 +323,7 @@ class Estimator:
                          if it.start is not None and it.start[0] == "lagged-iv"
                          else "the given start" if theta_start is not None
                          else "the LS estimate")
-                raise IdentificationError(
+                raise EstimationFailedError(
                     f"{self.name}: {it.reason[0]} (starts tried: {tried}); no instrument could "
                     "be formed — supply theta_start (a stable model) or instruments, or use "
                     "longer or better-excited experiments"
@@ -330,13 +366,39 @@ class Estimator:
         # iteration that supplied their instruments)
         src = it.info.get("base", it)
         step_se = _fixed_point_step_in_se((src.theta - src.theta_aux)[0], cov)
+        converged, stop_reason = bool(it.converged[0]), str(it.reason[0])
+        own_step_se = step_se
+        stall_info: dict[str, Any] | None = None
+        if self.uses_instruments and not converged and stop_reason in SE_RULE_REASONS:
+            # the iteration's step in its own estimator's standard errors (for GMM/SRIV/auto
+            # the IV_E{ζ}=0 iteration that supplied their instruments)
+            cov_own = cov if src is it else _base_covariance(data, spec, src, cov_fn)
+            own_step_se = _fixed_point_step_in_se((src.theta - src.theta_aux)[0], cov_own)
+            what = f"the last fixed-point step is {own_step_se:.2g} standard errors"
+            avg = src.info.get("stall_average")
+            if avg is not None and bool(avg["groups"][0]):
+                mean_se = _fixed_point_step_in_se(avg["mean_step"][0], cov_own)
+                sd_se = _fixed_point_step_in_se(avg["sd_of_mean"][0], cov_own)
+                own_step_se = max(mean_se, sd_se)
+                what = (f"averaged over {avg['evaluations']} further steps of the stalled "
+                        f"iteration, its mean step is {mean_se:.2g} and the fixed point is "
+                        f"located to {sd_se:.2g} standard errors")
+                stall_info = {"evaluations": int(avg["evaluations"]),
+                              "mean_step_se": mean_se, "location_se": sd_se}
+            if own_step_se < SE_TOL:
+                # stopped moving within SE_TOL standard errors: converged in the units that
+                # matter for the estimate (SE_TOL)
+                converged = True
+                stop_reason = (f"converged in standard-error units: {what} (< {SE_TOL:g}); "
+                               f"relative residual {it.residual[0]:.3g} above tol {tol:g} "
+                               f"({stop_reason})")
         if self.reports_convergence and not bool(it.converged[0]):
             _warn(f"{self.name}: the likelihood maximisation did not converge "
                   f"({it.reason[0]}, {int(it.iterations[0])} iterations); returning the last "
                   "iterate", ConvergenceWarning)
-        elif self.uses_instruments and not bool(it.converged[0]):
-            size = ("" if not np.isfinite(step_se) else
-                    f"; its last fixed-point step is at most {step_se:.2g} standard errors "
+        elif self.uses_instruments and not converged:
+            size = ("" if not np.isfinite(own_step_se) else
+                    f"; its last fixed-point step is at most {own_step_se:.2g} standard errors "
                     "of any parameter")
             _warn(f"refined IV did not converge ({it.reason[0]}, {int(it.iterations[0])} "
                   f"iterations, fixed-point residual {it.residual[0]:.3g}); returning the IV "
@@ -354,9 +416,13 @@ class Estimator:
 
         fit_one = {s: nrmse_fit(data.target[rows, i], pred[rows, i])
                    for i, s in enumerate(spec.states)}
-        fit_free, free_ok = _free_run_fit(data, spec, theta)
+        sims = free_run_states(data, spec, theta)
+        fit_free, free_ok = _free_run_fit(data, spec, theta, sims)
         if not free_ok:
             _warn("free-run simulation of the estimated model diverged", ConvergenceWarning)
+        stability = stability_report(data, spec, theta, sims)
+        if not stability["stable"]:
+            _warn(f"the identified model is {stability['sentence']}", UnstableModelWarning)
 
         if eta is None:
             resid_std = np.sqrt(np.nanmean(resid**2, axis=0))
@@ -368,11 +434,13 @@ class Estimator:
         design_checks = design_rows(data.regsig, data.starts, spec, eta_used,
                                     data.experiment_ids, threshold=design_threshold)
         design = design_frame(design_checks)  # design_margins(...), worded from its rows
-        for r in (r for r in design_checks if not r["ok"]):
-            _warn(f"state {r['state']!r} in experiment {r['experiment']} is within "
-                  f"η={r['eta']:.3g} of zero in {100 * r['share_within_eta']:.1f} % of samples "
-                  f"({r['sign_changes']} sign changes): the modulus cannot be treated as "
-                  "smooth (A10/A15)", ExperimentDesignWarning)
+        smoothness = smoothness_report(data, spec, theta, sims, design_checks, eta_used,
+                                       eta is None, cov, phi,
+                                       corrected=(self.corrects_sensor_noise
+                                                  and data.regressor_noise is not None))
+        for rep in smoothness.values():
+            if rep["matters"]:
+                _warn(rep["sentence"], ExperimentDesignWarning)
 
         index = spec.param_index
         history = None
@@ -389,7 +457,18 @@ class Estimator:
             "fit_one_step": fit_one,
             "fit_free_run": fit_free,
             "fixed_point_residual": float(it.residual[0]),
+            "convergence_rule": (f"relative fixed-point residual < tol ({tol:g}); or, "
+                                 f"where that is not reached, the last fixed-point step "
+                                 f"< {SE_TOL:g} standard errors"
+                                 if self.uses_instruments and instruments is None
+                                 else "closed form"
+                                 if it.reason[0] in ("closed form", STOP_FIXED)
+                                 else "the estimator's own"),
+            "stability": stability,
+            "excitation": excitation,
             "fixed_point_step_se": step_se,
+            "fixed_point_step_own_se": own_step_se,
+            **({"stall_average": stall_info} if stall_info else {}),
             "oscillation": bool(it.oscillation[0]),
             "start": None if it.start is None else str(it.start[0]),
             **self.describe(it),
@@ -397,6 +476,7 @@ class Estimator:
             "design": design,
             "design_eta": eta_used,
             "design_eta_source": eta_source,
+            "smoothness": smoothness,
             "modulus_states": modulus_signals(spec),
             **residual_checks,
             **({"feedback": feedback} if feedback else {}),
@@ -408,9 +488,9 @@ class Estimator:
             "params": pd.Series(theta, index=index, name="estimate"),
             "cov": pd.DataFrame(cov, index=index, columns=index),
             "residuals": pd.DataFrame(resid, columns=list(spec.states)),
-            "converged": bool(it.converged[0]),
+            "converged": converged,
             "iterations": int(it.iterations[0]),
-            "stop_reason": str(it.reason[0]),
+            "stop_reason": stop_reason,
             "n_samples": int(data.starts[-1]),
             "n_experiments": data.n_segments,
             "diagnostics": diagnostics,
@@ -567,11 +647,32 @@ def _check_rank(phi: np.ndarray, spec: ModelSpec, blocks: np.ndarray, names: lis
         raise RankDeficientError("collinear regressors — " + "; ".join(problems) + hint)
 
 
-def _free_run_fit(data: RegressionData, spec: ModelSpec, theta: np.ndarray):
+def _free_run_fit(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
+                  sims: list[np.ndarray] | None = None):
     """Free-run (simulation) fit per state, ``100 (1 − r)`` (:func:`free_run_ratio`)."""
-    ratio, all_ok = free_run_ratio(data, spec, theta)
+    ratio, all_ok = free_run_ratio(data, spec, theta, sims)
     fit = 100.0 * (1.0 - ratio)
     return {st: float(fit[i]) for i, st in enumerate(spec.states)}, all_ok
+
+
+def _base_covariance(data: RegressionData, spec: ModelSpec, base: IterationResult,
+                     cov_fn: Any) -> np.ndarray:
+    """The covariance of the IV_E{ζ}=0 iteration ``base``'s own estimate (its designs:
+    instruments simulated from its auxiliary model, centred; pooled)."""
+    if not np.all(np.isfinite(base.theta[0])):
+        return np.full((spec.n_params, spec.n_params), np.nan)
+    codes = spec.codes
+    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, codes.factors)
+    # the designs of methods.RefinedIV(zero_mean=True) for this iteration
+    z, _ = kernels.instrument_matrix(data.target, data.u, data.starts, base.theta_aux[0],
+                                     codes.factors, codes.equation, spec.n_states)
+    designs = square_designs(data, spec, z, phi, base.theta[0], zero_mean=True)
+    blocks = block_starts(spec)
+    cov = np.zeros((spec.n_params, spec.n_params))
+    for i, d in enumerate(designs):
+        sl = slice(int(blocks[i]), int(blocks[i + 1]))
+        cov[sl, sl] = cov_fn(d, combine="pooled")[0]
+    return cov
 
 
 def _fixed_point_step_in_se(step: np.ndarray, cov: np.ndarray) -> float:

@@ -21,7 +21,9 @@ Equations (paper):
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -63,6 +65,31 @@ STOP_STALLED = ("stalled: the fixed-point residual stopped decreasing (the auxil
 #: improved for ``STALL_PATIENCE`` evaluations of ``T`` while it is below ``STALL_TOL``.
 STALL_PATIENCE = 20
 STALL_TOL = 1e-4
+
+#: Evaluations of ``T`` averaged after a stall by the checked path (:func:`stall_averaging`).
+STALL_AVERAGE = 96
+
+_STALL_AVERAGE: ContextVar[int] = ContextVar("stall_average", default=0)
+
+
+@contextmanager
+def stall_averaging(evaluations: int = STALL_AVERAGE) -> Iterator[None]:
+    """Inside this block a stalled refined iteration locates its fixed point by averaging.
+
+    A stall is a fixed-point map whose value jumps at the level of the auxiliary
+    simulation's numerical sensitivity (``T(θ) = θ* + noise``): its residual cannot fall
+    below that noise, but the mean of ``evaluations`` further evaluations
+    ``θ ← T(θ)`` locates ``θ*`` to ``sd / √evaluations``. The averaged estimate
+    and that precision are returned (``info["stall_average"]``), so that the caller can
+    judge convergence in standard errors. Only groups that stalled are touched: converged
+    iterations are bit-identical with or without it. ``identify`` uses it; the batched
+    Monte Carlo path does not.
+    """
+    token = _STALL_AVERAGE.set(int(evaluations))
+    try:
+        yield
+    finally:
+        _STALL_AVERAGE.reset(token)
 
 
 @dataclass
@@ -437,6 +464,12 @@ def refined_iv(
     converged |= done
     reason[done] = STOP_CONVERGED
     est = best_t.copy()
+    info: dict = {}
+    n_avg = _STALL_AVERAGE.get()
+    stalled = reason == STOP_STALLED
+    if n_avg and stalled.any():
+        info["stall_average"] = _average_stall(evaluate, stalled, best_aux, best_t, n_avg,
+                                               iterations, est, best_aux)
     est[failed | ~start_ok] = np.nan
     return IterationResult(
         theta=est,
@@ -447,7 +480,47 @@ def refined_iv(
         residual=best_res,
         oscillation=oscillation,
         history=history,
+        info=info,
     )
+
+
+def _average_stall(evaluate: Callable, stalled: np.ndarray, theta: np.ndarray,
+                   t_theta: np.ndarray, n_avg: int,
+                   iterations: np.ndarray, est: np.ndarray, aux: np.ndarray) -> dict:
+    """``n_avg`` undamped steps ``θ ← T(θ)`` from the best iterate of each stalled group;
+    the means of the points and of their ``T`` replace the estimate and the auxiliary
+    model in place (:func:`stall_averaging`). Returns per group ``evaluations``,
+    ``mean_step`` (mean of ``T(θ) − θ`` over the window: the averaged fixed-point
+    residual) and ``sd_of_mean`` (the standard error of the mean ``T``, with the AR(1)
+    inflation for successive values: how well the window locates the fixed point), NaN
+    where an evaluation failed (the group then keeps its best iterate)."""
+    th = theta.copy()
+    t_th = t_theta.copy()
+    seq_t = np.zeros((n_avg, *th.shape))
+    seq_x = np.zeros((n_avg, *th.shape))
+    alive = stalled.copy()
+    for m in range(n_avg):
+        cand = np.where(alive[:, None], t_th, th)  # undamped: θ ← T(θ)
+        t_c, ok_c = evaluate(cand, alive)
+        iterations += alive
+        alive &= ok_c
+        seq_t[m], seq_x[m] = np.nan_to_num(t_c), cand
+        th[alive], t_th[alive] = cand[alive], t_c[alive]
+    n = float(n_avg)
+    mean_t, mean_x = seq_t.mean(axis=0), seq_x.mean(axis=0)
+    dev = seq_t - mean_t
+    var = np.sum(dev**2, axis=0) / max(n - 1.0, 1.0)
+    # successive T values are correlated (the iteration carries θ): inflate the variance
+    # of their mean by (1 + ρ₁)/(1 − ρ₁), ρ₁ their lag-1 autocorrelation (AR(1) rule)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho = np.sum(dev[1:] * dev[:-1], axis=0) / np.sum(dev**2, axis=0)
+    rho = np.clip(np.nan_to_num(rho), 0.0, 0.95)
+    sd_mean = np.sqrt(var / n * (1.0 + rho) / (1.0 - rho))
+    est[alive], aux[alive] = mean_t[alive], mean_x[alive]
+    out_step = np.where(alive[:, None], mean_t - mean_x, np.nan)
+    out_sd = np.where(alive[:, None], sd_mean, np.nan)
+    return {"groups": alive, "evaluations": n_avg, "mean_step": out_step,
+            "sd_of_mean": out_sd}
 
 
 def _rel(diff: np.ndarray, ref: np.ndarray) -> np.ndarray:

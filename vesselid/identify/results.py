@@ -110,6 +110,34 @@ class IdentificationResult:
         return out
 
     @property
+    def status(self) -> str:
+        """``"ok"``, ``"not converged"``, ``"unstable"`` or ``"non-finite"`` (NaN/inf
+        parameters or fit figures): only ``"ok"`` is a usable model; :attr:`status_reason`
+        says why in one line (``vesselid identify`` exits 3 on the last two)."""
+        return self._status()[0]
+
+    @property
+    def status_reason(self) -> str:
+        """One line: why :attr:`status` is what it is."""
+        return self._status()[1]
+
+    def _status(self) -> tuple[str, str]:
+        bad = [f"{eq}: {t}" for (eq, t), v in self.params.items() if not np.isfinite(v)]
+        if bad:
+            return "non-finite", "non-finite parameters (" + ", ".join(bad[:4]) + ")"
+        figs = [f"{kind} fit of {st}"
+                for kind, key in (("one-step", "fit_one_step"), ("free-run", "fit_free_run"))
+                for st, v in self.diagnostics.get(key, {}).items() if not np.isfinite(v)]
+        stab = self.diagnostics.get("stability") or {}
+        if stab and not stab.get("stable", True):
+            return "unstable", "the identified model is " + str(stab.get("sentence"))
+        if figs:
+            return "non-finite", "non-finite fit figures (" + ", ".join(figs) + ")"
+        if not self.converged:
+            return "not converged", f"the estimator did not converge ({self.stop_reason})"
+        return "ok", "converged, finite and stable on the log"
+
+    @property
     def instrument_condition(self) -> dict[str, float]:
         return dict(self.diagnostics.get("instrument_condition", {}))
 
@@ -134,7 +162,13 @@ class IdentificationResult:
             f"covariance: {self.diagnostics.get('cov_label', 'unadjusted')}",
             f"converged: {self.converged}   iterations: {self.iterations}   "
             f"stop: {self.stop_reason}",
+            f"status: {self.status} — {self.status_reason}",
         ]
+        chain = self.diagnostics.get("fallback_chain") or []
+        if len(chain) > 1:
+            lines.append("fallback chain: " + " → ".join(
+                f"{t['method']} ({t['outcome']})" for t in chain))
+            lines.extend(f"  {t['method']}: {t['outcome']} — {t['reason']}" for t in chain)
         for key in ("instruments", "noise_model", "instrument_choice", "sensor_noise_correction"):
             if self.diagnostics.get(key) not in (None, "none"):
                 lines.append(f"{key.replace('_', ' ')}: {self.diagnostics[key]}")
@@ -152,19 +186,13 @@ class IdentificationResult:
             lines.append(f"fit {s}: one-step {fit1.get(s, float('nan')):.2f} %   "
                          f"free-run {fitf.get(s, float('nan')):.2f} %   "
                          f"cond(ZᵀΦ) {self.instrument_condition.get(s, float('nan')):.3g}")
-        design = self.diagnostics.get("design")
-        if isinstance(design, pd.DataFrame) and not design.empty:
-            bad = design[~design["ok"]]
-            if bad.empty:
-                lines.append("experiment design (A10/A15): every state under a modulus keeps "
-                             "its margin in every experiment")
-            else:
-                for _, r in bad.iterrows():
-                    lines.append(
-                        f"experiment design (A10/A15): state {r['state']} in experiment "
-                        f"{r['experiment']} is within η={r['eta']:.3g} of zero in "
-                        f"{100 * r['share_within_eta']:.1f} % of samples "
-                        f"({r['sign_changes']} sign changes)")
+        stab = self.diagnostics.get("stability")
+        if stab:
+            lines.append(f"stability: {stab.get('sentence', '')}")
+        for sentence in (self.diagnostics.get("excitation") or {}).get("sentences", []):
+            lines.append(f"excitation: {sentence}")
+        for rep in (self.diagnostics.get("smoothness") or {}).values():
+            lines.append(f"smoothness (A10/A15): {rep['sentence']}")
         from vesselid.identify.specification import summary_lines
 
         lines.extend(summary_lines(self.diagnostics.get("specification", {})))
@@ -200,8 +228,9 @@ class IdentificationResult:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (docs/architecture.md ``identify --json`` contract)."""
         design = self.diagnostics.get("design")
+        top = ("stability", "fallback_chain", "smoothness", "excitation")
         diag: dict[str, Any] = {
-            k: v for k, v in self.diagnostics.items() if k not in ("design",)
+            k: v for k, v in self.diagnostics.items() if k not in ("design", *top)
         }
         if isinstance(design, pd.DataFrame):
             diag["design"] = json.loads(design.to_json(orient="records"))
@@ -215,6 +244,9 @@ class IdentificationResult:
             "stop_reason": self.stop_reason,
             "experiments": int(self.n_experiments),
             "samples": int(self.n_samples),
+            "status": self.status,
+            "status_reason": self.status_reason,
+            **{k: self.diagnostics[k] for k in top if k in self.diagnostics},
             "diagnostics": diag,
         })
 
