@@ -37,6 +37,7 @@ from vesselid.envs._validate import check_action, require_reset
 from vesselid.errors import VesselidError
 from vesselid.model import ModelSpec
 from vesselid.vessels import (
+    LAYOUT,
     VesselBatch,
     VesselDisturbances,
     VesselModel,
@@ -44,6 +45,7 @@ from vesselid.vessels import (
     log_columns,
     wrap,
 )
+from vesselid.vessels.kernel import STATUS_OK
 
 __all__ = ["Manoeuvring3DOFEnv", "Manoeuvring3DOFVectorEnv", "reward"]
 
@@ -152,6 +154,9 @@ class _Core:
                                  sensors=VesselSensors() if sensors is None else sensors,
                                  limit=vlim)
         self.force_max = np.asarray(fmax)
+        self.fmax = tuple(float(f) for f in fmax)
+        self.i_u, self.i_psi = LAYOUT.slice("nu").start, LAYOUT.slice("eta").start + 2
+        self.i_status = LAYOUT.slice("status").start
         self.u_ref, self.psi_ref, self.reward_weights = float(u_ref), float(psi_ref), rw
         self.velocity_limit = vlim
         self.random_current_direction = current_direction is None
@@ -230,6 +235,22 @@ class _Core:
         self.rewards = reward(nu[:, 0], eta[:, 2], a, self.u_ref, self.psi_ref,
                               self.reward_weights)
         self.rewards[skip] = 0.0
+
+    def step_single(self, a: list[float]) -> tuple[float, bool]:
+        """:meth:`step` for one vessel on Python floats (the single environment): the
+        same operations in the same order, so bit-identical; returns the reward and
+        whether the vessel diverged."""
+        a0, a1, a2 = (-1.0 if x < -1.0 else 1.0 if x > 1.0 else x for x in a)
+        f0, f1, f2 = self.fmax
+        self.batch.step(((a0 * f0, a1 * f1, a2 * f2),), self.no_skip)
+        st = self.batch.st
+        w_u, w_psi, w_a = self.reward_weights
+        du = st.item(0, self.i_u) - self.u_ref
+        d = st.item(0, self.i_psi) - self.psi_ref
+        dpsi = d - 2.0 * math.pi * float(math.floor((d + math.pi) / (2.0 * math.pi)))
+        asq = a0 * a0 + a1 * a1 + a2 * a2
+        return (-(w_u * du * du + w_psi * dpsi * dpsi + w_a * asq),
+                st.item(0, self.i_status) != STATUS_OK)
 
     @property
     def terminated(self) -> np.ndarray:
@@ -488,15 +509,21 @@ class Manoeuvring3DOFEnv(_ManoeuvringBase, gym.Env[np.ndarray, np.ndarray]):
         self, action: Any
     ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
         core = self._core
-        require_reset(core.rng is not None)
-        core.step(check_action(action, self.action_space.shape).reshape(1, 3), self._skip)
+        if core.batch.rng is None:
+            require_reset(False)
+        # an ndarray of the action space's shape (what agents pass) is read directly;
+        # anything else goes through the full check, which also words the refusal
+        a = action.tolist() if (action.__class__ is np.ndarray and action.shape == (3,)
+                                and action.dtype.kind == "f") else None
+        if a is None or not all(map(math.isfinite, a)):
+            a = check_action(action, self.action_space.shape).tolist()
+        reward, terminated = core.step_single(a)
         self._t += 1
         if self._hist is not None:
             self._record()
             if self.render_mode == "human":
                 self.render()
-        terminated = bool(core.terminated[0])
-        return core.obs[0].copy(), float(core.rewards[0]), terminated, False, core.info(0)
+        return core.batch.obs[0].copy(), reward, terminated, False, core.info(0)
 
     def _record(self) -> None:
         self._append(self._t)
