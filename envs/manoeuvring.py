@@ -50,6 +50,7 @@ from vesselid.vessels.kernel import STATUS_OK
 __all__ = ["Manoeuvring3DOFEnv", "Manoeuvring3DOFVectorEnv", "reward"]
 
 _ANGLE_CHANNELS = {"psi", "wind_angle"}
+_NDARRAY, _THREE = np.ndarray, (3,)
 SINGLE_BLOCK = 1024  # disturbance rows drawn at once by a single env
 VECTOR_BLOCK_SAMPLES = 1 << 16  # rows x envs drawn at once by a vector env
 
@@ -240,9 +241,12 @@ class _Core:
         """:meth:`step` for one vessel on Python floats (the single environment): the
         same operations in the same order, so bit-identical; returns the reward and
         whether the vessel diverged."""
-        a0, a1, a2 = (-1.0 if x < -1.0 else 1.0 if x > 1.0 else x for x in a)
+        a0, a1, a2 = a
+        a0 = -1.0 if a0 < -1.0 else 1.0 if a0 > 1.0 else a0
+        a1 = -1.0 if a1 < -1.0 else 1.0 if a1 > 1.0 else a1
+        a2 = -1.0 if a2 < -1.0 else 1.0 if a2 > 1.0 else a2
         f0, f1, f2 = self.fmax
-        self.batch.step(((a0 * f0, a1 * f1, a2 * f2),), self.no_skip)
+        self.batch.step_one(a0 * f0, a1 * f1, a2 * f2)
         st = self.batch.st
         w_u, w_psi, w_a = self.reward_weights
         du = st.item(0, self.i_u) - self.u_ref
@@ -509,21 +513,27 @@ class Manoeuvring3DOFEnv(_ManoeuvringBase, gym.Env[np.ndarray, np.ndarray]):
         self, action: Any
     ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
         core = self._core
+        # an ndarray of the action space's shape (what agents pass) is read directly
+        # (``x - x`` is 0 for finite x, NaN otherwise); anything else goes through the
+        # full check, which also words the refusal
+        if (action.__class__ is _NDARRAY and action.shape == _THREE
+                and action.dtype.kind == "f"):
+            a = action.tolist()
+            if not (a[0] - a[0]) + (a[1] - a[1]) + (a[2] - a[2]) == 0.0:
+                require_reset(core.batch.rng is not None)
+                a = check_action(action, self.action_space.shape).tolist()
+        else:
+            require_reset(core.batch.rng is not None)
+            a = check_action(action, self.action_space.shape).tolist()
         if core.batch.rng is None:
             require_reset(False)
-        # an ndarray of the action space's shape (what agents pass) is read directly;
-        # anything else goes through the full check, which also words the refusal
-        a = action.tolist() if (action.__class__ is np.ndarray and action.shape == (3,)
-                                and action.dtype.kind == "f") else None
-        if a is None or not all(map(math.isfinite, a)):
-            a = check_action(action, self.action_space.shape).tolist()
         reward, terminated = core.step_single(a)
         self._t += 1
         if self._hist is not None:
             self._record()
             if self.render_mode == "human":
                 self.render()
-        return core.batch.obs[0].copy(), reward, terminated, False, core.info(0)
+        return core.batch.obs[0].copy(), reward, terminated, False, core.batch.info_one()
 
     def _record(self) -> None:
         self._append(self._t)

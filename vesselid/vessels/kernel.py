@@ -741,6 +741,7 @@ class VesselBatch:
         self.obs = np.zeros((self.n, len(self.channels)), dtype=np.float32)
         self.j = 0
         self.rng: np.random.Generator | None = None
+        self.no_skip = np.zeros(self.n, dtype=np.bool_)
         self.info_slices = ([(k, LAYOUT.slice(k)) for k in INFO_BLOCKS]
                             + LAYOUT.sensor_slices(model.sensors))
 
@@ -781,6 +782,25 @@ class VesselBatch:
             _env_step_serial(self.st, self.dist, self.j, m.codes, m.eq, m.theta, m.par,
                              m.obs_idx, self.obs, skip)
         self.j += 1
+
+    def step_one(self, x: float, y: float, n: float) -> None:
+        """:meth:`step` for a batch of one vessel (``B = 1``, not skipped) with the
+        forces as floats: the single environment's step, without the array set-up."""
+        if self.j >= self.block:
+            self.model.continue_block(self.rng, self.dist, self.latent)
+            self.j = 0
+        m, st = self.model, self.st
+        st[0, S_ACT] = x
+        st[0, S_ACT + 1] = y
+        st[0, S_ACT + 2] = n
+        _env_step_serial(st, self.dist, self.j, m.codes, m.eq, m.theta, m.par, m.obs_idx,
+                         self.obs, self.no_skip)
+        self.j += 1
+
+    def info_one(self) -> dict[str, np.ndarray]:
+        """:meth:`info` of vessel 0 of a batch of one (views into one fresh copy)."""
+        buf = self.st[0, :S_INFO].copy()
+        return {k: buf[sl] for k, sl in self.info_slices}
 
     def block_of(self, name: str) -> np.ndarray:
         """View of a named block of every vessel's state row (:data:`LAYOUT`)."""
