@@ -119,6 +119,13 @@ def _start(theta: np.ndarray, y: np.ndarray, u: np.ndarray, starts: np.ndarray,
     return psi, free, scale
 
 
+#: Below this many row-samples a filter pass runs in the calling thread: a pass of the
+#: perturbed rows on a 10⁴-sample log takes about a millisecond, less than waking the
+#: pool's threads and handing them the GIL back costs (each row is filtered on its
+#: own, so the split never changes a number).
+PARALLEL_MIN_ROW_SAMPLES = 1_000_000
+
+
 class _Filter:
     """The filter of one group's log (arrays kept contiguous for the compiled kernel)."""
 
@@ -147,7 +154,8 @@ class _Filter:
         var = np.empty((rows.shape[0], self.n))
         run_ranges(gaussian_filter, rows.shape[0],
                    (rows, self.y, self.u, self.starts, self.p_init, *self.terms, eps, var),
-                   parallel=self.parallel and rows.shape[0] > 1)
+                   parallel=(self.parallel and rows.shape[0] > 1
+                             and rows.shape[0] * self.n >= PARALLEL_MIN_ROW_SAMPLES))
         return eps, var
 
 
