@@ -155,10 +155,9 @@ class _Core:
                                  sensors=VesselSensors() if sensors is None else sensors,
                                  limit=vlim)
         self.force_max = np.asarray(fmax)
-        self.fmax = tuple(float(f) for f in fmax)
-        self.i_u, self.i_psi = LAYOUT.slice("nu").start, LAYOUT.slice("eta").start + 2
         self.i_status = LAYOUT.slice("status").start
         self.u_ref, self.psi_ref, self.reward_weights = float(u_ref), float(psi_ref), rw
+        self.reward_par = np.array([*fmax, self.u_ref, self.psi_ref, *rw], dtype=np.float64)
         self.velocity_limit = vlim
         self.random_current_direction = current_direction is None
         self.random_wind_direction = wind_direction is None
@@ -238,23 +237,11 @@ class _Core:
         self.rewards[skip] = 0.0
 
     def step_single(self, a: list[float]) -> tuple[float, bool]:
-        """:meth:`step` for one vessel on Python floats (the single environment): the
-        same operations in the same order, so bit-identical; returns the reward and
-        whether the vessel diverged."""
-        a0, a1, a2 = a
-        a0 = -1.0 if a0 < -1.0 else 1.0 if a0 > 1.0 else a0
-        a1 = -1.0 if a1 < -1.0 else 1.0 if a1 > 1.0 else a1
-        a2 = -1.0 if a2 < -1.0 else 1.0 if a2 > 1.0 else a2
-        f0, f1, f2 = self.fmax
-        self.batch.step_one(a0 * f0, a1 * f1, a2 * f2)
-        st = self.batch.st
-        w_u, w_psi, w_a = self.reward_weights
-        du = st.item(0, self.i_u) - self.u_ref
-        d = st.item(0, self.i_psi) - self.psi_ref
-        dpsi = d - 2.0 * math.pi * float(math.floor((d + math.pi) / (2.0 * math.pi)))
-        asq = a0 * a0 + a1 * a1 + a2 * a2
-        return (-(w_u * du * du + w_psi * dpsi * dpsi + w_a * asq),
-                st.item(0, self.i_status) != STATUS_OK)
+        """:meth:`step` for one vessel from Python floats (the single environment): the
+        same operations in one compiled call (:meth:`VesselBatch.step_one`), so
+        bit-identical; returns the reward and whether the vessel diverged."""
+        reward = self.batch.step_one(a[0], a[1], a[2], self.reward_par)
+        return reward, self.batch.st.item(0, self.i_status) != STATUS_OK
 
     @property
     def terminated(self) -> np.ndarray:
@@ -533,7 +520,8 @@ class Manoeuvring3DOFEnv(_ManoeuvringBase, gym.Env[np.ndarray, np.ndarray]):
             self._record()
             if self.render_mode == "human":
                 self.render()
-        return core.batch.obs[0].copy(), reward, terminated, False, core.batch.info_one()
+        batch = core.batch
+        return batch.obs0.copy(), reward, terminated, False, batch.info_one()
 
     def _record(self) -> None:
         self._append(self._t)
