@@ -416,6 +416,8 @@ def _fork_context() -> Any:
         return None
     if "fork" not in multiprocessing.get_all_start_methods():
         return None
+    if multiprocessing.current_process().daemon:  # a pool's worker may not have children
+        return None
     return multiprocessing.get_context("fork")
 
 
