@@ -181,17 +181,29 @@ def bench_mc_threads(repeats: int = 3, runs: int = 1000, samples: int = 10_000
 
 
 # ----------------------------------------------------------------- identify's memory
+#: Runs a command and prints its wall, CPU and peak RSS: started from this small process,
+#: so the child's peak resident memory is its own (a child forked straight from the
+#: benchmark process counts the benchmark's pages until it execs).
+_MEASURE = """
+import os, subprocess, sys, time
+t0 = time.perf_counter()
+proc = subprocess.Popen(sys.argv[1:], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+_, status, usage = os.wait4(proc.pid, 0)
+wall = time.perf_counter() - t0
+if os.waitstatus_to_exitcode(status) != 0:
+    sys.exit(proc.stderr.read().decode())
+print(wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss * 1024.0)
+"""
+
+
 def _run_measured(cmd: list[str]) -> tuple[float, float, float]:
-    """(wall s, CPU s, peak RSS bytes) of a child process (``wait4``)."""
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - t0
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    err = proc.stderr.read().decode() if proc.stderr else ""
-    if proc.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed: {err.strip()}")
-    return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss * 1024.0
+    """(wall s, CPU s, peak RSS bytes) of a command run as a child process."""
+    out = subprocess.run([sys.executable, "-c", _MEASURE, *cmd], capture_output=True,
+                         text=True, check=False)
+    if out.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed: {out.stderr.strip()}")
+    wall, cpu, rss = (float(x) for x in out.stdout.split())
+    return wall, cpu, rss
 
 
 def bench_identify_memory(sizes: tuple[int, ...] = (100_000, 1_000_000, 4_000_000),
