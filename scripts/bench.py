@@ -259,7 +259,13 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--json", help="write the figures as JSON")
     parser.add_argument("--docs", action="store_true",
                         help="run the scaling benchmarks and write docs/performance.md")
+    parser.add_argument("--from-json", metavar="PATH",
+                        help="with --docs: write the page from figures saved by --json")
     args = parser.parse_args(argv)
+    if args.docs and args.from_json:
+        results = json.loads(Path(args.from_json).read_text())
+        print(f"wrote {_load('bench_scaling', 'write_docs')(results)}")
+        return results
     results: dict = {}
     names = args.only or (list(DOCS_BENCHES) if args.docs else list(BENCHES))
     for name in names:

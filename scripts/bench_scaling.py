@@ -389,7 +389,8 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
             "## The prediction-error path",
             "",
             "`identify(log)` in-process on a 10⁴-sample heave log with a Gauss–Markov "
-            f"current (the default estimator's choice there: {pem['choice']}): "
+            "current (where both instrument-validity tests reject and the default "
+            f"estimator takes the {pem['choice'].split(': ', 1)[-1]}): "
             f"{pem['identify_ms_wall']:.0f} ms wall, {pem['identify_ms_cpu']:.0f} ms CPU "
             f"(medians; load average {pem['load_average']:.1f}).",
             "",
