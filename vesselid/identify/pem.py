@@ -181,18 +181,25 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
     reason, converged, it = MAX_ITER, False, 0
     fisher = np.full((d, d), np.nan)
     eps0 = var0 = None
+    at = None  # the filter at ψ when the line search has run it (the accepted trial)
     for it in range(1, max_iter + 1):  # noqa: B007 (reported)
         steps = _H * np.maximum(np.abs(psi[idx]), 1.0)
-        grid = np.repeat(psi[None], d + 1, axis=0)
-        grid[1 + np.arange(d), idx] += steps
-        eps, var = filt.run(grid)
-        eps0, var0 = eps[0], var[0]
+        if at is None:
+            grid = np.repeat(psi[None], d + 1, axis=0)
+            grid[1 + np.arange(d), idx] += steps
+            eps, var = filt.run(grid)
+            eps0, var0, eps, var = eps[0], var[0], eps[1:], var[1:]
+        else:  # ψ itself was filtered by the line search: only the perturbed rows
+            grid = np.repeat(psi[None], d, axis=0)
+            grid[np.arange(d), idx] += steps
+            eps, var = filt.run(grid)
+            eps0, var0 = at
         f0 = float(np.sum(_nll_terms(eps0, var0)))
         if not np.isfinite(f0):
             reason = "likelihood not finite"
             break
-        je = (eps[1:] - eps0) / steps[:, None]
-        js = (var[1:] - var0) / steps[:, None]
+        je = (eps - eps0) / steps[:, None]
+        js = (var - var0) / steps[:, None]
         inv_s = 1.0 / var0
         grad = je @ (eps0 * inv_s) + 0.5 * (js @ (inv_s - eps0 * eps0 * inv_s * inv_s))
         fisher = (je * inv_s) @ je.T + 0.5 * ((js * (inv_s * inv_s)) @ js.T)
@@ -217,7 +224,7 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
         else:
             reason = NO_DESCENT
             break
-        psi = trial
+        psi, at = trial, (e1[0], v1[0])
     cov = np.zeros((psi.size, psi.size))
     if np.all(np.isfinite(fisher)):
         cov[np.ix_(idx, idx)] = np.linalg.pinv(fisher, rcond=1e-12, hermitian=True)
