@@ -276,8 +276,8 @@ class _ScalarCore:
     def __init__(self, cfg: _HeaveConfig, block: int) -> None:
         self.cfg, self.block = cfg, block
         fac, eq, theta = cfg.layout
-        if fac.shape[0] and int(eq.max()) != 0:  # pragma: no cover - the heave system
-            raise VesselidError("the scalar heave core needs a one-state system")
+        if fac.shape[0] and (int(eq.max()) != 0 or int(fac.max()) > 4):  # pragma: no cover
+            raise VesselidError("the scalar heave core needs one state and one input")
         self.step = _compile_step(fac, theta).__get__(self)
         self.sensor = cfg.sensor
         lo, hi = cfg.thrust_range
