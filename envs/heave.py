@@ -11,6 +11,7 @@ core with ``n = 1``; :class:`HeaveVectorEnv` steps ``n`` (next-step autoreset).
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar, SupportsFloat
 
 import gymnasium as gym
@@ -29,6 +30,7 @@ from vesselid.systems import System, heave, truth_columns
 
 __all__ = ["HeaveEnv", "HeaveVectorEnv"]
 
+_NDARRAY, _ONE = np.ndarray, (1,)
 #: Noise drawn at once: time instants (single env), env-instants (vector env).
 SINGLE_BLOCK, VECTOR_BLOCK_ELEMENTS = 1024, 1 << 16
 # Per instant and env: 4 standard normals (current, ξ, e1, e2; scaled by the system's
@@ -201,6 +203,171 @@ class _Core:
         return {k: s[k].copy() for k in keys if k != "y2" or self.cfg.sensor}
 
 
+#: Source of :meth:`_ScalarCore.step`; ``{plant}`` becomes ``ξ + Σ θ_p F_a F_b`` written
+#: out in term order (the sums of the compiled :func:`vesselid.regressors.advance`), with
+#: ``F = [s, τ, |s|, |τ|, 1]`` and ``s = w_a + sign·w_c``.
+_SCALAR_STEP = """
+def step(self, a):
+    k = self.k
+    if k >= self.block:
+        self._draw()
+        k = 0
+    else:
+        self.k = k + 1
+    z, i = self.z, _NZ * k  # the normals of this instant are z[i:i + 4]
+    if self.prev_done:  # stepped past the end without reset: next-step autoreset
+        self._start(z[i:i + _NZ], self.u[_NU * k:_NU * k + _NU])
+        self.tau_now = nan
+        self.prev_done = False
+        return self.obs(), 0.0, False, False, self.info()
+    lo, span, sign, cost, limit, q0, q1, x0, x1, e1, e2 = self.constants
+    tau = lo + ((-1.0 if a < -1.0 else 1.0 if a > 1.0 else a) + 1.0) * 0.5 * span
+    s = self.w_a + sign * self.w_c
+    nxt = {plant}
+    w_ref = self.w_ref
+    err = nxt - w_ref
+    self.w_a = nxt
+    self.hold -= 1.0
+    if self.hold <= 0.0:
+        self._new_reference(self.u[_NU * k:_NU * k + _NU])
+        w_ref = self.w_ref
+    self.w_c = w_c = q0 + q1 * z[i]
+    self.xi = xi = x0 + x1 * z[i + 1]
+    self.y1 = y1 = nxt + e1 * z[i + 2]
+    self.y2 = y2 = w_c + e2 * z[i + 3]
+    self.tau_now = tau
+    self.prev_done = term = not (abs(nxt) <= limit)  # also true for NaN
+    o = self.buffer  # filled in place and copied: cheaper than a new array from floats
+    o[0] = y1
+    o[-1] = w_ref
+    if self.sensor:
+        o[1] = y2
+        info = {{"w_a": nxt, "w_r": nxt - w_c, "w_c": w_c, "xi": xi, "y1": y1, "y2": y2,
+                "w_ref": w_ref}}
+    else:
+        info = {{"w_a": nxt, "w_r": nxt - w_c, "w_c": w_c, "xi": xi, "y1": y1,
+                "w_ref": w_ref}}
+    return o.copy(), -(err * err) - cost * tau * tau, term, False, info
+"""
+
+
+def _compile_step(factors: np.ndarray, theta: np.ndarray) -> Any:
+    """:data:`_SCALAR_STEP` for one plant (factor layout and θ of a one-state system)."""
+    names = ("s", "tau", "abs(s)", "abs(tau)", "1.0")
+    plant = "self.xi" + "".join(f" + {float(t)!r} * ({names[i]} * {names[j]})"
+                                for (i, j), t in zip(factors, theta, strict=True))
+    scope: dict[str, Any] = {"nan": math.nan, "_NZ": _NZ, "_NU": _NU}
+    exec(compile(_SCALAR_STEP.format(plant=plant), "<heave scalar step>", "exec"), scope)
+    return scope["step"]
+
+
+class _ScalarCore:
+    """One heave environment on Python floats: the operations of :class:`_Core` with
+    ``n = 1``, in the same order and from the same draws, so bit-identical to it.
+
+    The single environment steps one sample per call, where numpy's per-call overhead
+    on arrays of one element would dominate; the plant's one-step map ``Φᵀ(s)θ + ξ`` is
+    evaluated from the system's factor layout in term order (as the compiled
+    :func:`vesselid.regressors.advance`).
+    """
+
+    n = 1
+
+    def __init__(self, cfg: _HeaveConfig, block: int) -> None:
+        self.cfg, self.block = cfg, block
+        fac, eq, theta = cfg.layout
+        if fac.shape[0] and (int(eq.max()) != 0 or int(fac.max()) > 4):  # pragma: no cover
+            raise VesselidError("the scalar heave core needs one state and one input")
+        self.step = _compile_step(fac, theta).__get__(self)
+        self.sensor = cfg.sensor
+        lo, hi = cfg.thrust_range
+        self.constants = (lo, hi - lo, cfg.sign, cfg.cost, cfg.velocity_limit, *cfg.q, *cfg.xi,
+                          cfg.e1, cfg.e2)
+        self.w_a = self.w_c = self.xi = self.y1 = self.y2 = self.w_ref = self.hold = 0.0
+        self.prev_done = False
+        self.tau_now = math.nan
+        self.rng: np.random.Generator | None = None
+        self.buffer = np.zeros(3 if cfg.sensor else 2, dtype=np.float32)
+        self.k = block
+        self.z: list = []
+        self.u: list = []
+
+    # the plotting and recorder helpers read the state as arrays of one element
+    @property
+    def s(self) -> dict[str, np.ndarray]:
+        return {k: np.array([getattr(self, k)]) for k in
+                ("w_a", "w_c", "xi", "y1", "y2", "w_ref", "hold")}
+
+    @property
+    def tau(self) -> np.ndarray:
+        return np.array([self.tau_now])
+
+    def _draw(self) -> tuple[list[float], list[float]]:
+        if self.k >= self.block:
+            require_reset(self.rng is not None)
+            # drawn as _Core draws them for n = 1; flat lists of floats (lists of rows
+            # would cost the garbage collector more than the step)
+            self.z = self.rng.standard_normal((self.block, 1, _NZ)).ravel().tolist()
+            self.u = self.rng.random((self.block, 1, _NU)).ravel().tolist()
+            self.k = 0
+        k = self.k
+        self.k = k + 1
+        return self.z[_NZ * k:_NZ * k + _NZ], self.u[_NU * k:_NU * k + _NU]
+
+    def _sense(self, z: list[float]) -> None:
+        c = self.cfg
+        self.w_c = c.q[0] + c.q[1] * z[0]
+        self.xi = c.xi[0] + c.xi[1] * z[1]
+        self.y1 = self.w_a + c.e1 * z[2]
+        self.y2 = self.w_c + c.e2 * z[3]
+
+    def _new_reference(self, u: list[float]) -> None:
+        (lo, hi), (h_lo, h_hi) = self.cfg.ref, self.cfg.hold
+        if self.cfg.random_reference:
+            self.w_ref = lo + (hi - lo) * u[0]
+            self.hold = h_lo + float(math.floor(u[1] * (h_hi - h_lo + 1.0)))
+        else:
+            self.w_ref = lo
+            self.hold = math.inf
+
+    def _start(self, z: list[float], u: list[float]) -> None:
+        lo, hi = self.cfg.w0
+        self.w_a = lo + (hi - lo) * u[2]
+        self._new_reference(u)
+        self._sense(z)
+
+    def reset(self, rng: np.random.Generator, w0: float | None = None) -> None:
+        self.rng, self.k = rng, self.block
+        z, u = self._draw()
+        self._start(z, u)
+        self.prev_done = False
+        self.tau_now = math.nan
+        if w0 is not None:
+            self.y1 += w0 - self.w_a
+            self.w_a = w0
+
+    def step(self, a: float) -> tuple[np.ndarray, float, bool, bool, dict[str, float]]:
+        """One sample with the normalised action ``a`` (finite): the single environment's
+        ``(obs, reward, terminated, truncated, info)``. Replaced per instance by the
+        step compiled from :data:`_SCALAR_STEP` with the plant's terms written out."""
+        raise NotImplementedError  # pragma: no cover - bound in __init__
+
+    def obs(self) -> np.ndarray:
+        o = self.buffer
+        o[0] = self.y1
+        if self.cfg.sensor:
+            o[1] = self.y2
+        o[-1] = self.w_ref
+        return o.copy()
+
+    def info(self) -> dict[str, float]:
+        if self.cfg.sensor:
+            return {"w_a": self.w_a, "w_r": self.w_a - self.w_c, "w_c": self.w_c,
+                    "xi": self.xi, "y1": self.y1, "y2": self.y2, "w_ref": self.w_ref}
+        return {"w_a": self.w_a, "w_r": self.w_a - self.w_c, "w_c": self.w_c,
+                "xi": self.xi, "y1": self.y1, "w_ref": self.w_ref}
+
+
 _DOC_ARGS = """
     - ``render_mode``: ``None``, ``"human"`` (matplotlib window; falls back to an
       off-screen Agg figure on headless machines) or ``"rgb_array"`` (the vector
@@ -243,7 +410,8 @@ class _HeaveBase:
                render_window: int, settings: dict[str, Any]) -> None:
         self.render_mode = check_render_mode(render_mode, self.metadata["render_modes"])
         self._cfg = _HeaveConfig(**merged(settings, DEFAULTS))
-        self._core = _Core(self._cfg, n, block, max_steps)
+        self._core: Any = (_ScalarCore(self._cfg, block) if isinstance(self, HeaveEnv)
+                           else _Core(self._cfg, n, block, max_steps))
         #: Identification structure of the recorded data (recorder contract).
         self.model_spec: ModelSpec = self._cfg.model_spec
         #: Sample time.
@@ -365,20 +533,31 @@ class HeaveEnv(_HeaveBase, gym.Env[np.ndarray, np.ndarray]):
         self._restart()
         if self.render_mode == "human":
             self.render()
-        return self._core.obs()[0], self._info()
-
-    def _info(self) -> dict[str, float]:
-        return {k: float(v[0]) for k, v in self._core.info().items()}
+        return self._core.obs(), self._core.info()
 
     def step(self, action: Any) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, float]]:
         """Apply the normalised thrust ``action`` for one sample."""
-        require_reset(self._core.rng is not None)
-        rew, term, _ = self._core.step(check_action(action, self.action_space.shape))
+        core = self._core
+        # an ndarray of the action space's shape (what agents pass) is read directly
+        # (``a - a == 0`` is false for ±inf and NaN); anything else goes through the full
+        # check, which also words the refusal. A step before reset finds no noise block:
+        # the core's first draw raises ResetNeeded.
+        if (action.__class__ is _NDARRAY and action.shape == _ONE
+                and action.dtype.kind == "f"):
+            a = action.item()
+            if not a - a == 0.0:
+                require_reset(core.rng is not None)
+                a = float(check_action(action, self.action_space.shape)[0])
+        else:
+            require_reset(core.rng is not None)
+            a = float(check_action(action, self.action_space.shape)[0])
+        out = core.step(a)
         self._t += 1
-        self._record(self._core.tau)
-        if self.render_mode == "human":
-            self.render()
-        return self._core.obs()[0], float(rew[0]), bool(term[0]), False, self._info()
+        if self._plot is not None:
+            self._record(core.tau)
+            if self.render_mode == "human":
+                self.render()
+        return out
 
     def render(self) -> np.ndarray | None:
         """Plot the recent window (``rgb_array``: an ``(H, W, 3)`` uint8 image)."""

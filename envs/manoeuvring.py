@@ -37,6 +37,7 @@ from vesselid.envs._validate import check_action, require_reset
 from vesselid.errors import VesselidError
 from vesselid.model import ModelSpec
 from vesselid.vessels import (
+    LAYOUT,
     VesselBatch,
     VesselDisturbances,
     VesselModel,
@@ -44,10 +45,12 @@ from vesselid.vessels import (
     log_columns,
     wrap,
 )
+from vesselid.vessels.kernel import STATUS_OK
 
 __all__ = ["Manoeuvring3DOFEnv", "Manoeuvring3DOFVectorEnv", "reward"]
 
 _ANGLE_CHANNELS = {"psi", "wind_angle"}
+_NDARRAY, _THREE = np.ndarray, (3,)
 SINGLE_BLOCK = 1024  # disturbance rows drawn at once by a single env
 VECTOR_BLOCK_SAMPLES = 1 << 16  # rows x envs drawn at once by a vector env
 
@@ -152,7 +155,9 @@ class _Core:
                                  sensors=VesselSensors() if sensors is None else sensors,
                                  limit=vlim)
         self.force_max = np.asarray(fmax)
+        self.i_status = LAYOUT.slice("status").start
         self.u_ref, self.psi_ref, self.reward_weights = float(u_ref), float(psi_ref), rw
+        self.reward_par = np.array([*fmax, self.u_ref, self.psi_ref, *rw], dtype=np.float64)
         self.velocity_limit = vlim
         self.random_current_direction = current_direction is None
         self.random_wind_direction = wind_direction is None
@@ -230,6 +235,13 @@ class _Core:
         self.rewards = reward(nu[:, 0], eta[:, 2], a, self.u_ref, self.psi_ref,
                               self.reward_weights)
         self.rewards[skip] = 0.0
+
+    def step_single(self, a: list[float]) -> tuple[float, bool]:
+        """:meth:`step` for one vessel from Python floats (the single environment): the
+        same operations in one compiled call (:meth:`VesselBatch.step_one`), so
+        bit-identical; returns the reward and whether the vessel diverged."""
+        reward = self.batch.step_one(a[0], a[1], a[2], self.reward_par)
+        return reward, self.batch.st.item(0, self.i_status) != STATUS_OK
 
     @property
     def terminated(self) -> np.ndarray:
@@ -488,15 +500,28 @@ class Manoeuvring3DOFEnv(_ManoeuvringBase, gym.Env[np.ndarray, np.ndarray]):
         self, action: Any
     ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
         core = self._core
-        require_reset(core.rng is not None)
-        core.step(check_action(action, self.action_space.shape).reshape(1, 3), self._skip)
+        # an ndarray of the action space's shape (what agents pass) is read directly
+        # (``x - x`` is 0 for finite x, NaN otherwise); anything else goes through the
+        # full check, which also words the refusal
+        if (action.__class__ is _NDARRAY and action.shape == _THREE
+                and action.dtype.kind == "f"):
+            a = action.tolist()
+            if not (a[0] - a[0]) + (a[1] - a[1]) + (a[2] - a[2]) == 0.0:
+                require_reset(core.batch.rng is not None)
+                a = check_action(action, self.action_space.shape).tolist()
+        else:
+            require_reset(core.batch.rng is not None)
+            a = check_action(action, self.action_space.shape).tolist()
+        if core.batch.rng is None:
+            require_reset(False)
+        reward, terminated = core.step_single(a)
         self._t += 1
         if self._hist is not None:
             self._record()
             if self.render_mode == "human":
                 self.render()
-        terminated = bool(core.terminated[0])
-        return core.obs[0].copy(), float(core.rewards[0]), terminated, False, core.info(0)
+        batch = core.batch
+        return batch.obs0.copy(), reward, terminated, False, batch.info_one()
 
     def _record(self) -> None:
         self._append(self._t)

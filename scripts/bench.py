@@ -19,7 +19,11 @@ Targets (2-core machine):
   ``scripts/bench_ingest.py``).
 
 Run ``python scripts/bench.py`` (all) or ``python scripts/bench.py --only simulate identify``;
-``--json PATH`` writes the figures. Benchmarks live here, never in timed tests.
+``--json PATH`` writes the figures; ``python scripts/bench.py --docs`` runs the scaling
+benchmarks (``scripts/bench_scaling.py``: single environments against CartPole-v1, the
+Monte Carlo on one and two workers, ``identify``'s peak memory per sample, the ``pem``
+path) and writes the generated page ``docs/performance.md``. Benchmarks live here,
+never in timed tests.
 """
 
 from __future__ import annotations
@@ -239,16 +243,32 @@ BENCHES: dict[str, Callable[[], Callable | None]] = {
     "startup": lambda: _load("bench_startup", "bench_startup"),
     "cold_start": lambda: _load("bench_startup", "bench_cold_start"),
     "ingest": lambda: _load("bench_ingest", "bench_ingest"),
+    "single_envs": lambda: _load("bench_scaling", "bench_single_envs"),
+    "mc_threads": lambda: _load("bench_scaling", "bench_mc_threads"),
+    "identify_memory": lambda: _load("bench_scaling", "bench_identify_memory"),
+    "pem_path": lambda: _load("bench_scaling", "bench_pem_path"),
 }
+
+#: The benchmarks of the generated performance page (``--docs``).
+DOCS_BENCHES = ("single_envs", "mc_threads", "identify_memory", "pem_path")
 
 
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description="vesselid benchmarks (medians)")
     parser.add_argument("--only", nargs="*", choices=sorted(BENCHES), help="subset to run")
     parser.add_argument("--json", help="write the figures as JSON")
+    parser.add_argument("--docs", action="store_true",
+                        help="run the scaling benchmarks and write docs/performance.md")
+    parser.add_argument("--from-json", metavar="PATH",
+                        help="with --docs: write the page from figures saved by --json")
     args = parser.parse_args(argv)
+    if args.docs and args.from_json:
+        results = json.loads(Path(args.from_json).read_text())
+        print(f"wrote {_load('bench_scaling', 'write_docs')(results)}")
+        return results
     results: dict = {}
-    for name in args.only or list(BENCHES):
+    names = args.only or (list(DOCS_BENCHES) if args.docs else list(BENCHES))
+    for name in names:
         fn = BENCHES[name]()
         if fn is None:
             print(f"[{name}] not available")
@@ -262,6 +282,8 @@ def main(argv: list[str] | None = None) -> dict:
             print(f"    {key:<55s} {shown}")
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=2, default=str) + "\n")
+    if args.docs:
+        print(f"wrote {_load('bench_scaling', 'write_docs')(results)}")
     return results
 
 

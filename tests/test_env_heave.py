@@ -295,3 +295,31 @@ def test_vector_recorder_splits_autoreset_episodes_exactly(tmp_path) -> None:
     assert len(envs.to_log(include_unfinished=False).experiment_ids) == 12
     path = envs.save(tmp_path / "vec.csv")
     assert TrialLog.load(path).experiment_ids == list(range(16))
+
+
+@pytest.mark.parametrize("settings", [{}, {"current_mean": 0.1, "reference_hold": (1, 3)},
+                                      {"reference": 0.9, "velocity_limit": 1.2,
+                                       "initial_velocity": (0.0, 1.0),
+                                       "thrust_range": (-2.0, 3.0)}])
+def test_single_env_is_the_vector_core_with_one_env(settings) -> None:
+    """The single environment's scalar step reproduces the batched core with ``n = 1``
+    bit for bit: observations, rewards, terminations, info, across noise blocks,
+    reference changes, terminations and stepping on past the end (next-step reset)."""
+    from vesselid.envs.heave import SINGLE_BLOCK, _Core
+
+    env = HeaveEnv(**settings)
+    core = _Core(env._cfg, 1, SINGLE_BLOCK)
+    rng = np.random.default_rng(3)
+    actions = rng.uniform(-1.5, 1.5, size=(2 * SINGLE_BLOCK + 50, 1))
+    obs, info = env.reset(seed=5, options={"w0": 0.4})
+    core.reset(np.random.default_rng(5), 0.4)
+    done = 0
+    for a in actions:
+        assert_array_equal(obs, core.obs()[0])
+        assert info == {k: float(v[0]) for k, v in core.info().items()}
+        obs, r, term, trunc, info = env.step(a)
+        rv, tv, _ = core.step(a)
+        assert (r, term, trunc) == (float(rv[0]), bool(tv[0]), False)
+        done += term
+    if "velocity_limit" in settings:
+        assert done > 3  # terminations and the steps after them were exercised

@@ -191,6 +191,7 @@ def test_auto_shares_the_chunks_iv_zero_mean_result_bit_for_bit(monkeypatch):
 
     calls = []
     real = mc.get_estimator("auto").estimate_parameters
+    monkeypatch.setenv("VESSELID_MC_WORKERS", "threads")  # the spy counts in this process
 
     def spy(*args, **kwargs):
         calls.append("base" in kwargs)
@@ -208,3 +209,18 @@ def test_auto_shares_the_chunks_iv_zero_mean_result_bit_for_bit(monkeypatch):
             alone = run_study(study, progress=False, batch_size=3)
         pd.testing.assert_frame_equal(shared, alone, check_exact=True)
     assert calls == [True, True, False, False]  # handed over when iv-zero-mean came first
+
+
+def test_concurrent_chunks_in_processes_and_threads_agree(reference, monkeypatch):
+    """The concurrent chunks give the same frame bit for bit in forked worker processes
+    (the default where the platform forks) and in threads."""
+    from vesselid import montecarlo as mc
+
+    if mc._fork_context() is None:
+        pytest.skip("no fork on this platform")
+    in_processes = run_study(SMALL, n_jobs=2, batch_size=4, progress=False)
+    monkeypatch.setenv("VESSELID_MC_WORKERS", "threads")
+    assert mc._fork_context() is None
+    in_threads = run_study(SMALL, n_jobs=2, batch_size=4, progress=False)
+    pd.testing.assert_frame_equal(in_processes, reference)
+    pd.testing.assert_frame_equal(in_threads, reference)

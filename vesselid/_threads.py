@@ -26,7 +26,8 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, wait
 from typing import Any
 
-__all__ = ["CHUNKS_PER_THREAD", "n_threads", "run_ranges", "serial", "serial_here"]
+__all__ = ["CHUNKS_PER_THREAD", "n_threads", "run_ranges", "serial", "serial_here",
+           "usable_cores"]
 
 #: Chunks per thread (several, so that uneven items — early divergence, converged groups
 #: skipped — still balance).
@@ -39,10 +40,20 @@ _LOCAL = threading.local()
 
 
 def n_threads() -> int:
-    """Threads a parallel call uses: numba's current setting for the calling thread."""
+    """Threads a parallel call uses: numba's current setting for the calling thread,
+    at most the cores this process may run on (:func:`usable_cores`; numba's default
+    counts every CPU of the machine, also those outside the process's affinity mask)."""
     import numba
 
-    return max(1, int(numba.get_num_threads()))
+    return max(1, min(int(numba.get_num_threads()), usable_cores()))
+
+
+def usable_cores() -> int:
+    """CPUs the process may run on (its affinity mask where the platform has one)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - macOS, Windows
+        return max(1, os.cpu_count() or 1)
 
 
 def _pool(size: int) -> ThreadPoolExecutor:

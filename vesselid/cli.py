@@ -256,7 +256,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
         raise CLIError(f"argument --method: invalid choice {args.method!r} "
                        f"(choose from {', '.join(_names.METHODS)})")
     _check_cov(args.cov)
-    from vesselid import limits
+    from vesselid import _memory, limits
     from vesselid.identify import identify
     from vesselid.logs import TrialLog, estimate_shape
     from vesselid.model import ModelSpec
@@ -264,7 +264,9 @@ def cmd_identify(args: argparse.Namespace) -> int:
     spec = ModelSpec.load(args.model) if args.model else None
     rows, cols = estimate_shape(args.log)
     limits.check("identify", f"{args.log} (~{rows:.3g} rows × {cols} columns)",
-                 memory=limits.read_memory(rows, cols), seconds=limits.read_seconds(rows, cols))
+                 memory=limits.read_memory(rows, cols), seconds=limits.read_seconds(rows, cols),
+                 memory_hint=limits.STREAM_HINT)
+    _memory.unmap_large_blocks()  # freed temporaries leave the resident memory
     log = TrialLog.load(args.log, spec=spec)
     if spec is None and log.spec is None:
         raise CLIError(f"{args.log} carries no model spec; pass --model SPEC.toml")

@@ -45,6 +45,7 @@ __all__ = [
     "BASE_MEMORY",
     "BYTES_PER_VALUE",
     "MEMORY_FRACTION",
+    "STREAM_HINT",
     "available_memory",
     "check",
     "check_file_size",
@@ -222,6 +223,11 @@ def read_seconds(rows: float, columns: float) -> float:
 
 
 # ------------------------------------------------------------------------ guard
+#: The memory refusal's advice for logs beyond memory (``identify``).
+STREAM_HINT = ("for a log beyond memory, `vesselid identify --stream` reads a Parquet log "
+               "(or a directory of them) one experiment at a time")
+
+
 def check(
     command: str,
     what: str,
@@ -230,6 +236,7 @@ def check(
     seconds: float = 0.0,
     disk: float = 0.0,
     disk_path: str | os.PathLike[str] | None = None,
+    memory_hint: str = "",
 ) -> None:
     """Refuse a request whose estimated needs exceed this machine's limits.
 
@@ -243,6 +250,9 @@ def check(
         Estimated peak memory (bytes), run time (seconds) and output size (bytes).
     disk_path : path, optional
         Where the output goes (its file system's free space is the disk limit).
+    memory_hint : str, optional
+        What to do instead when the memory does not suffice (appended to that refusal,
+        e.g. ``identify``'s ``--stream``).
 
     Raises
     ------
@@ -253,7 +263,8 @@ def check(
     if not memory <= mem_limit:  # also catches NaN
         raise ResourceLimitError(
             f"{command}: {what} would need ~{format_bytes(memory)} of memory; the limit is "
-            f"{format_bytes(mem_limit)} ({mem_why})")
+            f"{format_bytes(mem_limit)} ({mem_why})" + (f"; {memory_hint}" if memory_hint
+                                                         else ""))
     if disk and disk_path is not None:
         free = free_disk(disk_path)
         if free is not None and not disk <= 0.99 * free:

@@ -39,6 +39,7 @@ from __future__ import annotations
 import math
 import os
 import sys
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -353,12 +354,20 @@ def _local_batch(runs: int) -> int:
 
 
 def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[pd.DataFrame]:
-    """The chunks' frames, in order: with several threads (numba's thread count) and
-    chunks, the chunks run concurrently, one per thread, each with serial kernels
-    (:func:`vesselid._threads.serial_here`) — so the numpy and Python parts of one chunk
-    (the estimators' glue, ``auto``'s fallback) overlap another chunk's compiled ones;
-    else one after the other with the kernels threaded over the chunk's runs. Each
-    chunk is computed by the same code either way (bit-identical results)."""
+    """The chunks' frames, in order. With several threads (numba's thread count) and
+    chunks, the chunks run concurrently, one per worker, each with serial kernels
+    (:func:`vesselid._threads.serial_here`); else one after the other with the kernels
+    threaded over the chunk's runs. Each chunk is computed by the same code either way
+    (bit-identical results).
+
+    The workers are forked processes where the platform forks (:func:`_fork_context`):
+    a chunk's Python and numpy glue (estimator set-up, ``auto``'s tests, the tidy frame)
+    holds the GIL for about a fifth of its time, so chunks in threads of one process
+    queue behind each other's glue, and more threads add GIL hand-overs until more
+    threads are slower. Processes share nothing but the forked memory (the compiled
+    kernels, loaded once in this process by a one-run warm-up first) and return small
+    frames. Elsewhere the chunks run in threads.
+    """
     from vesselid._threads import n_threads, serial_here
 
     workers = min(n_threads(), len(chunks))
@@ -368,19 +377,48 @@ def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[pd
             frames.append(run_chunk(study, a, b))
             bar.update(b - a)
         return frames
-    from concurrent.futures import ThreadPoolExecutor
+    from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
 
-    def work(a: int, b: int) -> pd.DataFrame:
-        with serial_here():
-            return run_chunk(study, a, b)
-
-    with ThreadPoolExecutor(workers, thread_name_prefix="vesselid-chunk") as pool:
-        futures = [pool.submit(work, a, b) for a, b in chunks]
+    ctx = _fork_context()
+    if ctx is not None:
+        with serial_here():  # load (or compile) every kernel of the study here, once
+            run_chunk(study, chunks[0][0], chunks[0][0] + 1)
+        pool: Executor = ProcessPoolExecutor(workers, mp_context=ctx)
+    else:
+        pool = ThreadPoolExecutor(workers, thread_name_prefix="vesselid-chunk")
+    with pool, warnings.catch_warnings():
+        # Python ≥ 3.12 warns on fork() in a process with threads; the children run one
+        # chunk each in their only thread and start no thread pool (serial kernels)
+        warnings.filterwarnings("ignore", message=".*fork.*", category=DeprecationWarning)
+        futures = [pool.submit(_serial_chunk, study, a, b) for a, b in chunks]
         frames = []
         for fut, (a, b) in zip(futures, chunks, strict=True):
             frames.append(fut.result())
             bar.update(b - a)
     return frames
+
+
+def _serial_chunk(study: Study, start: int, stop: int) -> pd.DataFrame:
+    """:func:`run_chunk` with serial kernels (one of several concurrent workers)."""
+    from vesselid._threads import serial_here
+
+    with serial_here():
+        return run_chunk(study, start, stop)
+
+
+def _fork_context() -> Any:
+    """The ``fork`` multiprocessing context where the platform has it (Linux, macOS:
+    the forked workers inherit the loaded kernels), else None (threads are used).
+    ``VESSELID_MC_WORKERS=threads`` keeps the chunks in threads."""
+    import multiprocessing
+
+    if os.environ.get("VESSELID_MC_WORKERS", "").lower() == "threads":
+        return None
+    if "fork" not in multiprocessing.get_all_start_methods():
+        return None
+    if multiprocessing.current_process().daemon:  # a pool's worker may not have children
+        return None
+    return multiprocessing.get_context("fork")
 
 
 def _order(df: pd.DataFrame, study: Study) -> pd.DataFrame:

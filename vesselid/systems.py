@@ -14,7 +14,6 @@ Vessels live in :mod:`vesselid.vessels`; every entry is listed in :mod:`vesselid
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -224,9 +223,9 @@ class System:
                 self._draw_into(np.random.default_rng(ss), n,
                                 int(ss.spawn_key[-1]) if ss.spawn_key else 0, out, r)
 
-        from vesselid._threads import serial
+        from vesselid._threads import n_threads, serial
 
-        workers = min(os.cpu_count() or 1, n_runs)
+        workers = min(n_threads(), n_runs)
         if workers > 1 and n_runs * n >= 100_000 and not serial():
             bounds = np.linspace(0, n_runs, workers + 1).astype(int)
             with ThreadPoolExecutor(workers) as pool:

@@ -303,6 +303,27 @@ def _env_step_serial(st, dist, j, codes, eq, theta, par, obs_idx, obs, skip):
     _env_chunk(st, dist, j, codes, eq, theta, par, obs_idx, obs, skip, 0, st.shape[0], s)
 
 
+@kernel()
+def _env_step_one(st, dist, j, codes, eq, theta, par, obs_idx, obs, skip, a0, a1, a2, rpar):
+    """One step of vessel 0 of a batch of one from normalised actions (the single
+    environment): clip to ±1, scale by ``force_max = rpar[:3]``, step, and return the
+    reward ``−(w_u (u − u_ref)² + w_ψ wrap(ψ − ψ_ref)² + w_a ‖a‖²)`` with ``rpar[3:8] =
+    [u_ref, ψ_ref, w_u, w_ψ, w_a]`` (the operations of the environments' ``reward``)."""
+    a0 = min(max(a0, -1.0), 1.0)
+    a1 = min(max(a1, -1.0), 1.0)
+    a2 = min(max(a2, -1.0), 1.0)
+    st[0, S_ACT] = a0 * rpar[0]
+    st[0, S_ACT + 1] = a1 * rpar[1]
+    st[0, S_ACT + 2] = a2 * rpar[2]
+    s = np.empty(19 + theta.shape[0])
+    _env_chunk(st, dist, j, codes, eq, theta, par, obs_idx, obs, skip, 0, 1, s)
+    du = st[0, S_NU] - rpar[3]
+    d = st[0, S_ETA + 2] - rpar[4]
+    dpsi = d - 2.0 * np.pi * np.floor((d + np.pi) / (2.0 * np.pi))
+    asq = a0 * a0 + a1 * a1 + a2 * a2
+    return -(rpar[5] * du * du + rpar[6] * dpsi * dpsi + rpar[7] * asq)
+
+
 @kernel(parallel=True)
 def _env_step_parallel(st, dist, j, codes, eq, theta, par, obs_idx, obs, skip, n_chunks):
     """Advance a batch of vessels one step in place, in ``n_chunks`` parallel chunks."""
@@ -739,8 +760,10 @@ class VesselBatch:
         self.dist = np.zeros((self.n, self.block + 1, N_DIST))
         self.latent = np.zeros((self.n, N_GM))
         self.obs = np.zeros((self.n, len(self.channels)), dtype=np.float32)
+        self.obs0 = self.obs[0]  # vessel 0's readings (a view; the single environment's)
         self.j = 0
         self.rng: np.random.Generator | None = None
+        self.no_skip = np.zeros(self.n, dtype=np.bool_)
         self.info_slices = ([(k, LAYOUT.slice(k)) for k in INFO_BLOCKS]
                             + LAYOUT.sensor_slices(model.sensors))
 
@@ -781,6 +804,25 @@ class VesselBatch:
             _env_step_serial(self.st, self.dist, self.j, m.codes, m.eq, m.theta, m.par,
                              m.obs_idx, self.obs, skip)
         self.j += 1
+
+    def step_one(self, a0: float, a1: float, a2: float, rpar: np.ndarray) -> float:
+        """:meth:`step` for a batch of one vessel (``B = 1``, not skipped) from the
+        normalised actions as floats, with the clipping, force scaling and reward of the
+        environments in the same compiled call (:func:`_env_step_one`; ``rpar``:
+        ``force_max``, ``u_ref``, ``ψ_ref`` and the reward weights); returns the reward."""
+        if self.j >= self.block:
+            self.model.continue_block(self.rng, self.dist, self.latent)
+            self.j = 0
+        m = self.model
+        r = _env_step_one(self.st, self.dist, self.j, m.codes, m.eq, m.theta, m.par,
+                          m.obs_idx, self.obs, self.no_skip, a0, a1, a2, rpar)
+        self.j += 1
+        return r
+
+    def info_one(self) -> dict[str, np.ndarray]:
+        """:meth:`info` of vessel 0 of a batch of one (views into one fresh copy)."""
+        view = self.st[0, :S_INFO].copy().__getitem__
+        return {k: view(sl) for k, sl in self.info_slices}
 
     def block_of(self, name: str) -> np.ndarray:
         """View of a named block of every vessel's state row (:data:`LAYOUT`)."""

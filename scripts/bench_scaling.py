@@ -1,0 +1,444 @@
+"""Benchmarks of how vesselid scales: single environments against CartPole-v1, the
+Monte Carlo on one and two workers, the memory of ``vesselid identify`` per sample, the
+``pem`` path; and the generated performance page.
+
+Every comparison is measured in alternation in the same process (A, B, A, B, …), and
+the medians are reported with the wall and the CPU clock and the load average during
+the measurement: on a shared machine the wall clock measures the neighbours too, the
+CPU clock (``time.process_time``, all threads of the process; children's CPU from
+``wait4``) measures the work.
+
+* ``single_envs``: raw ``env.unwrapped.step`` rate of ``Heave-v0``,
+  ``Manoeuvring3DOF-v0`` and ``CartPole-v1`` (random actions drawn beforehand from each
+  action space, reset on termination), and the vector environments' env-steps/s;
+* ``mc_threads``: the Monte Carlo part of ``vesselid reproduce --table 1`` (1000 runs ×
+  10⁴ samples) with one and two workers, and whether the two result CSVs are
+  byte-identical;
+* ``identify_memory``: peak resident memory and time of the whole
+  ``vesselid identify`` process on one-state heave logs of several lengths;
+* ``pem_path``: ``identify`` (default estimator, which takes ``pem`` there) on a
+  10⁴-sample log with a Gauss–Markov current, in-process.
+
+``python scripts/bench_scaling.py`` prints the figures; ``python scripts/bench.py
+--docs`` runs them and writes ``docs/performance.md`` (:func:`write_docs`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+
+__all__ = ["bench_identify_memory", "bench_mc_threads", "bench_pem_path",
+           "bench_single_envs", "machine", "write_docs"]
+
+
+def _load() -> float:
+    return os.getloadavg()[0]
+
+
+# ----------------------------------------------------------------- single environments
+def _single_loop(env_id: str, steps: int) -> Callable[[], tuple[float, float]]:
+    """A timed loop of ``steps`` raw steps of ``env_id``: returns (wall, cpu) seconds."""
+    import gymnasium as gym
+
+    import vesselid  # noqa: F401  (registers the environments)
+
+    env = gym.make(env_id).unwrapped
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    actions = [env.action_space.sample() for _ in range(256)]
+    step, reset = env.step, env.reset
+    for i in range(2000):  # warm-up: compilation, first noise blocks
+        out = step(actions[i & 255])
+        if out[2] or out[3]:
+            reset()
+
+    def run() -> tuple[float, float]:
+        c0, t0 = time.process_time(), time.perf_counter()
+        for i in range(steps):
+            out = step(actions[i & 255])
+            if out[2] or out[3]:
+                reset()
+        return time.perf_counter() - t0, time.process_time() - c0
+
+    return run
+
+
+def _vector_rate(env_id: str, num_envs: int, steps: int, repeats: int) -> dict[str, float]:
+    import gymnasium as gym
+
+    envs = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point")
+    envs.reset(seed=0)
+    width = envs.single_action_space.shape[0]
+    actions = np.random.default_rng(0).uniform(-1, 1, (num_envs, width)).astype(np.float32)
+    for _ in range(50):
+        envs.step(actions)
+    wall, cpu = [], []
+    for _ in range(repeats):
+        c0, t0 = time.process_time(), time.perf_counter()
+        for _ in range(steps):
+            envs.step(actions)
+        wall.append(steps * num_envs / (time.perf_counter() - t0))
+        cpu.append(steps * num_envs / (time.process_time() - c0))
+    envs.close()
+    return {"wall": statistics.median(wall), "cpu": statistics.median(cpu)}
+
+
+def bench_single_envs(repeats: int = 7, steps: int = 20_000, num_envs: int = 1024,
+                      vector_steps: int = 300) -> dict[str, Any]:
+    """Steps/s of the single environments against CartPole-v1 (alternated), and the
+    vector environments' env-steps/s (module docstring)."""
+    warnings.simplefilter("ignore")
+    ids = ("CartPole-v1", "vesselid/Heave-v0", "vesselid/Manoeuvring3DOF-v0")
+    loops = {k: _single_loop(k, steps) for k in ids}
+    wall: dict[str, list[float]] = {k: [] for k in ids}
+    cpu: dict[str, list[float]] = {k: [] for k in ids}
+    loads = []
+    for _ in range(repeats):
+        for k in ids:
+            w, c = loops[k]()
+            wall[k].append(steps / w)
+            cpu[k].append(steps / c)
+        loads.append(_load())
+    out: dict[str, Any] = {"steps": steps, "repeats": repeats,
+                           "load_average": statistics.median(loads)}
+    base_w, base_c = statistics.median(wall[ids[0]]), statistics.median(cpu[ids[0]])
+    for k in ids:
+        name = k.split("/")[-1]
+        out[f"{name}_steps_per_s_wall"] = statistics.median(wall[k])
+        out[f"{name}_steps_per_s_cpu"] = statistics.median(cpu[k])
+        out[f"{name}_ratio_wall"] = statistics.median(wall[k]) / base_w
+        out[f"{name}_ratio_cpu"] = statistics.median(cpu[k]) / base_c
+    for k in ids[1:]:
+        rates = _vector_rate(k, num_envs, vector_steps, max(3, repeats // 2))
+        name = k.split("/")[-1]
+        out[f"{name}_vector_env_steps_per_s_wall"] = rates["wall"]
+        out[f"{name}_vector_env_steps_per_s_cpu"] = rates["cpu"]
+    out["num_envs"] = num_envs
+    out["load_average_end"] = _load()
+    return out
+
+
+# ----------------------------------------------------------------- Monte Carlo workers
+def bench_mc_threads(repeats: int = 3, runs: int = 1000, samples: int = 10_000
+                     ) -> dict[str, Any]:
+    """The Monte Carlo part of Table 1 with one and two workers, alternated: wall and CPU
+    (this process and its worker processes) medians; the result CSVs compared byte for
+    byte."""
+    from vesselid.montecarlo import run_study, save_results
+    from vesselid.reproduce import table_study, warm_up
+
+    warnings.simplefilter("ignore")
+    warm_up()
+    study = table_study(1, runs=runs, samples=samples)
+    wall: dict[int, list[float]] = {1: [], 2: []}
+    cpu: dict[int, list[float]] = {1: [], 2: []}
+    own: dict[int, list[float]] = {1: [], 2: []}
+    loads = []
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = {n: Path(tmp) / f"table1_{n}.csv" for n in (1, 2)}
+        for _ in range(repeats):
+            for n in (1, 2):
+                ch0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+                c0, t0 = time.process_time(), time.perf_counter()
+                df = run_study(study, n_jobs=n, progress=False)
+                wall[n].append(time.perf_counter() - t0)
+                ch1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+                own[n].append(time.process_time() - c0)
+                cpu[n].append(own[n][-1] + (ch1.ru_utime + ch1.ru_stime)
+                              - (ch0.ru_utime + ch0.ru_stime))
+                save_results(df, paths[n])
+                loads.append(_load())
+        identical = paths[1].read_bytes() == paths[2].read_bytes()
+    w1, w2 = statistics.median(wall[1]), statistics.median(wall[2])
+    # the two-worker run's critical path on two free cores: this process's own CPU (the
+    # warm-up run, forking, gathering) plus half the workers' CPU (four equal chunks)
+    c1, c2, p2 = (statistics.median(cpu[1]), statistics.median(cpu[2]),
+                  statistics.median(own[2]))
+    critical = p2 + (c2 - p2) / 2.0
+    return {"critical_path_two_cores_s": critical, "estimated_speedup_two_cores": c1 / critical,
+            "two_workers_parent_cpu_s": p2,"runs": runs, "samples": samples, "repeats": repeats,
+            "one_worker_wall_s": w1, "two_workers_wall_s": w2, "speedup_wall": w1 / w2,
+            "one_worker_cpu_s": statistics.median(cpu[1]),
+            "two_workers_cpu_s": statistics.median(cpu[2]),
+            "csv_byte_identical": identical, "load_average": statistics.median(loads)}
+
+
+# ----------------------------------------------------------------- identify's memory
+#: Runs a command and prints its wall, CPU and peak RSS: started from this small process,
+#: so the child's peak resident memory is its own (a child forked straight from the
+#: benchmark process counts the benchmark's pages until it execs).
+_MEASURE = """
+import os, subprocess, sys, time
+t0 = time.perf_counter()
+proc = subprocess.Popen(sys.argv[1:], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+_, status, usage = os.wait4(proc.pid, 0)
+wall = time.perf_counter() - t0
+if os.waitstatus_to_exitcode(status) != 0:
+    sys.exit(proc.stderr.read().decode())
+print(wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss * 1024.0)
+"""
+
+
+def _run_measured(cmd: list[str]) -> tuple[float, float, float]:
+    """(wall s, CPU s, peak RSS bytes) of a command run as a child process."""
+    out = subprocess.run([sys.executable, "-c", _MEASURE, *cmd], capture_output=True,
+                         text=True, check=False)
+    if out.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed: {out.stderr.strip()}")
+    wall, cpu, rss = (float(x) for x in out.stdout.split())
+    return wall, cpu, rss
+
+
+def bench_identify_memory(sizes: tuple[int, ...] = (100_000, 1_000_000, 4_000_000),
+                          repeats: int = 1) -> dict[str, Any]:
+    """Peak RSS and time of the whole ``vesselid identify LOG`` process (default
+    estimator) on one-state heave logs (CSV) of ``sizes`` samples."""
+    from vesselid.systems import heave
+
+    out: dict[str, Any] = {"sizes": list(sizes)}
+    exe = [sys.executable, "-m", "vesselid", "identify"]
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in sizes:
+            path = Path(tmp) / f"heave_{n}.csv"
+            heave().simulate(n, seed=0).to_log().save(path)
+            runs = [_run_measured([*exe, str(path)]) for _ in range(repeats)]
+            out[f"{n}_wall_s"] = statistics.median(r[0] for r in runs)
+            out[f"{n}_cpu_s"] = statistics.median(r[1] for r in runs)
+            out[f"{n}_peak_rss_mb"] = statistics.median(r[2] for r in runs) / 1e6
+            out[f"{n}_load_average"] = _load()
+            path.unlink()
+    big = [n for n in sizes if n >= 1_000_000]
+    if len(big) >= 2:  # slope per 10⁶ samples between the two largest logs
+        a, b = big[-2], big[-1]
+        out["rss_mb_per_1e6_samples"] = ((out[f"{b}_peak_rss_mb"] - out[f"{a}_peak_rss_mb"])
+                                         / ((b - a) / 1e6))
+    return out
+
+
+# ----------------------------------------------------------------- the pem path
+def bench_pem_path(repeats: int = 11) -> dict[str, Any]:
+    """``identify(log)`` on a 10⁴-sample heave log with a Gauss–Markov current (the
+    default estimator takes ``pem`` there), in-process: median wall and CPU."""
+    from vesselid.calibration import heave_scenario
+    from vesselid.identify import identify
+
+    warnings.simplefilter("ignore")
+    system, _, _ = heave_scenario("gm-current-random")
+    log = system.simulate(10_000, seed=0).to_log(aggregate=False)
+    res = identify(log)
+    wall, cpu = [], []
+    for _ in range(repeats):
+        c0, t0 = time.process_time(), time.perf_counter()
+        identify(log)
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    return {"choice": res.diagnostics.get("instruments", ""),
+            "identify_ms_wall": 1000 * statistics.median(wall),
+            "identify_ms_cpu": 1000 * statistics.median(cpu), "load_average": _load()}
+
+
+# ----------------------------------------------------------------- the page
+def machine() -> dict[str, Any]:
+    """The machine in words: CPU model, cores usable, memory, Python and numpy."""
+    model = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:
+        cores = os.cpu_count() or 1
+    try:
+        mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+    except (ValueError, OSError, AttributeError):
+        mem = float("nan")
+    return {"cpu": model, "cores": cores, "memory_gib": mem,
+            "python": platform.python_version(), "numpy": np.__version__,
+            "system": f"{platform.system()} {platform.release()}"}
+
+
+def _fmt(x: float, digits: int = 3) -> str:
+    return f"{x:,.{digits}g}" if abs(x) < 10 ** digits else f"{x:,.0f}"
+
+
+def render(results: dict[str, Any], info: dict[str, Any]) -> str:
+    """The performance page (MyST Markdown) from the benchmark figures."""
+    lines = [
+        "# Performance",
+        "",
+        "Generated by `python scripts/bench.py --docs` (the benchmarks of "
+        "`scripts/bench_scaling.py`); every figure below comes from one run of that "
+        "command. Comparisons are measured in alternation in one process and reported "
+        "as medians, with the wall clock and the CPU clock (all threads of the process "
+        "and, for the Monte Carlo, its worker processes) and the 1-minute load average "
+        "while they ran: on a shared machine the wall clock also measures the "
+        "neighbours, the CPU clock measures the work.",
+        "",
+        "## Machine",
+        "",
+        "| | |",
+        "|---|---|",
+        f"| CPU | {info['cpu']} |",
+        f"| cores usable | {info['cores']} |",
+        f"| memory | {info['memory_gib']:.1f} GiB |",
+        f"| system | {info['system']}, Python {info['python']}, numpy {info['numpy']} |",
+        "",
+    ]
+    env = results.get("single_envs")
+    if env:
+        lines += [
+            "## Single environments against CartPole-v1",
+            "",
+            f"Raw `env.unwrapped.step` calls per second, {env['steps']:,} steps per "
+            f"timing, median of {env['repeats']} alternated timings; random actions "
+            "drawn beforehand from each action space, reset on termination; load "
+            f"average {env['load_average']:.1f}.",
+            "",
+            "| environment | steps/s (wall) | × CartPole (wall) | steps/s (CPU) "
+            "| × CartPole (CPU) |",
+            "|---|---:|---:|---:|---:|",
+        ]
+        for name in ("CartPole-v1", "Heave-v0", "Manoeuvring3DOF-v0"):
+            lines.append(
+                f"| {name} | {_fmt(env[f'{name}_steps_per_s_wall'])} | "
+                f"{env[f'{name}_ratio_wall']:.2f} | {_fmt(env[f'{name}_steps_per_s_cpu'])} | "
+                f"{env[f'{name}_ratio_cpu']:.2f} |")
+        lines += [
+            "",
+            f"Vector environments ({env['num_envs']} sub-environments, next-step "
+            "autoreset), env-steps per second:",
+            "",
+            "| environment | env-steps/s (wall) | env-steps/s (CPU) |",
+            "|---|---:|---:|",
+        ]
+        for name in ("Heave-v0", "Manoeuvring3DOF-v0"):
+            lines.append(f"| {name} | {_fmt(env[f'{name}_vector_env_steps_per_s_wall'])} | "
+                         f"{_fmt(env[f'{name}_vector_env_steps_per_s_cpu'])} |")
+        lines.append("")
+    mc = results.get("mc_threads")
+    if mc:
+        lines += [
+            "## Monte Carlo workers",
+            "",
+            f"The Monte Carlo part of `vesselid reproduce --table 1` ({mc['runs']:,} runs "
+            f"× {mc['samples']:,} samples), median of {mc['repeats']} alternated runs; "
+            f"load average {mc['load_average']:.1f}. Concurrent chunks run in forked "
+            "worker processes (threads where the platform does not fork); the result "
+            "CSVs of one and two workers are "
+            + ("byte-identical." if mc["csv_byte_identical"] else "**not** identical.")
+            + " CPU: this process and its workers.",
+            "",
+            "| workers | wall (s) | CPU (s) |",
+            "|---:|---:|---:|",
+            f"| 1 | {mc['one_worker_wall_s']:.2f} | {mc['one_worker_cpu_s']:.2f} |",
+            f"| 2 | {mc['two_workers_wall_s']:.2f} | {mc['two_workers_cpu_s']:.2f} |",
+            "",
+            f"Speed-up of two workers (wall): {mc['speedup_wall']:.2f}×. On a machine "
+            "whose other work takes the cores, the wall clock measures the share the "
+            "scheduler gives this process group rather than the work; the CPU clock "
+            "gives the two-worker run's critical path on two free cores: the parent's "
+            f"own CPU ({mc['two_workers_parent_cpu_s']:.2f} s: the one-run warm-up, "
+            "forking, gathering) plus half the workers' CPU = "
+            f"{mc['critical_path_two_cores_s']:.2f} s, an estimated speed-up of "
+            f"{mc['estimated_speedup_two_cores']:.2f}× over one worker's CPU.",
+            "",
+        ]
+    mem = results.get("identify_memory")
+    if mem:
+        lines += [
+            "## Memory of `vesselid identify`",
+            "",
+            "The whole `vesselid identify LOG` process (default estimator, every "
+            "diagnostic) on one-state heave logs (CSV), peak resident memory from "
+            "`wait4`.",
+            "",
+            "| samples | peak RSS (MB) | wall (s) | CPU (s) | load average |",
+            "|---:|---:|---:|---:|---:|",
+        ]
+        for n in mem["sizes"]:
+            lines.append(f"| {n:,} | {mem[f'{n}_peak_rss_mb']:.0f} | {mem[f'{n}_wall_s']:.2f} "
+                         f"| {mem[f'{n}_cpu_s']:.2f} | {mem[f'{n}_load_average']:.1f} |")
+        if "rss_mb_per_1e6_samples" in mem:
+            lines += ["", f"Growth between the two largest logs: "
+                          f"{mem['rss_mb_per_1e6_samples']:.0f} MB per 10⁶ samples."]
+        lines.append("")
+    pem = results.get("pem_path")
+    if pem:
+        lines += [
+            "## The prediction-error path",
+            "",
+            "`identify(log)` in-process on a 10⁴-sample heave log with a Gauss–Markov "
+            "current (where both instrument-validity tests reject and the default "
+            f"estimator takes the {pem['choice'].split(': ', 1)[-1]}): "
+            f"{pem['identify_ms_wall']:.0f} ms wall, {pem['identify_ms_cpu']:.0f} ms CPU "
+            f"(medians; load average {pem['load_average']:.1f}).",
+            "",
+        ]
+    return "\n".join(lines)
+
+
+def write_docs(results: dict[str, Any], path: Path = ROOT / "docs" / "performance.md") -> Path:
+    """Write the performance page atomically."""
+    text = render(results, machine())
+    tmp = path.with_suffix(".md.tmp")
+    tmp.write_text(text + "\n")
+    tmp.replace(path)
+    return path
+
+
+BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
+    "single_envs": bench_single_envs,
+    "mc_threads": bench_mc_threads,
+    "identify_memory": bench_identify_memory,
+    "pem_path": bench_pem_path,
+}
+
+
+def run_all(names: list[str] | None = None, *, memory_sizes: tuple[int, ...] | None = None
+            ) -> dict[str, Any]:
+    """Run the scaling benchmarks (all, or ``names``) and print their figures."""
+    results: dict[str, Any] = {}
+    for name in names or list(BENCHES):
+        print(f"[{name}] running ...", flush=True)
+        kwargs = {"sizes": memory_sizes} if name == "identify_memory" and memory_sizes else {}
+        results[name] = BENCHES[name](**kwargs)
+        for key, value in results[name].items():
+            shown = f"{value:,.4g}" if isinstance(value, float) else value
+            print(f"    {key:<50s} {shown}")
+    return results
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", nargs="*", choices=sorted(BENCHES))
+    parser.add_argument("--memory-sizes", nargs="*", type=int)
+    parser.add_argument("--docs", action="store_true", help="write docs/performance.md")
+    args = parser.parse_args(argv)
+    results = run_all(args.only, memory_sizes=tuple(args.memory_sizes or ()) or None)
+    if args.docs:
+        print(f"wrote {write_docs(results)}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,38 @@
+"""Return freed array memory to the operating system (glibc's allocator).
+
+glibc serves a large block by ``mmap`` and unmaps it on ``free``, but after the first
+such ``free`` it raises its mmap threshold to the freed size (up to 32 MiB), so that
+later arrays of that size come from the heap, whose freed blocks stay mapped. A
+pipeline that makes many temporaries of ``N`` float64 (8 MB at 10⁶ samples) then
+keeps a high-water mark of every stage's temporaries in its resident memory. A fixed
+threshold (:func:`unmap_large_blocks`) switches the adjustment off: blocks from
+``MMAP_THRESHOLD`` up are mapped and returned on ``free``, and the peak resident memory
+follows the arrays alive at once. Results are unchanged (only where memory comes from).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import sys
+
+__all__ = ["MMAP_THRESHOLD", "unmap_large_blocks"]
+
+#: Blocks of at least this many bytes are mapped (and unmapped on free).
+MMAP_THRESHOLD = 1 << 20
+_M_MMAP_THRESHOLD = -3  # mallopt parameter (malloc.h)
+
+
+def unmap_large_blocks(threshold: int = MMAP_THRESHOLD) -> bool:
+    """Fix glibc's mmap threshold at ``threshold`` bytes; False where there is no glibc
+    (other platforms keep their allocator's behaviour)."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):  # pragma: no cover - musl and others
+        return False
+    mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
+    mallopt.restype = ctypes.c_int
+    return bool(mallopt(_M_MMAP_THRESHOLD, int(threshold)))
