@@ -152,8 +152,16 @@ def test_identify_both_paths_agree_to_rounding(monkeypatch):
     """Every method: the numpy path (forced) and the compiled path agree to rounding."""
     from vesselid.identify import ESTIMATORS, identify
 
-    log = get_system("heave").simulate(3000, n_runs=2, seed=9).to_log()
+    from vesselid.closedloop import heave_pi_design, simulate_closed_loop
+
+    system = get_system("heave")
+    open_loop = system.simulate(3000, n_runs=2, seed=9).to_log()
+    design = heave_pi_design()  # the closed-loop estimator needs a closed-loop log
+    closed_loop = simulate_closed_loop(system, design.controller, design.reference,
+                                       dither=design.dither, n_samples=3000, n_runs=2,
+                                       seed=9).to_log()
     for method in ESTIMATORS:
+        log = closed_loop if method == "cl-iv" else open_loop
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             monkeypatch.setenv("VESSELID_KERNELS", "numpy")
