@@ -28,10 +28,12 @@ __all__ = [
     "ConvergenceWarning",
     "CovarianceError",
     "ExperimentDesignWarning",
+    "IdentifiabilityWarning",
     "IdentificationError",
     "InvalidActionError",
     "LogValidationError",
     "ModelSpecError",
+    "ParameterDriftWarning",
     "RankDeficientError",
     "ResourceLimitError",
     "SeaTrialError",
@@ -96,6 +98,15 @@ class ConvergenceWarning(UserWarning):
 
 class ExperimentDesignWarning(UserWarning):
     """A state comes too close to zero for the modulus to be treated as smooth (A10/A15)."""
+
+
+class IdentifiabilityWarning(UserWarning):
+    """The data identify a combination of parameters, not each one (e.g. a current's mean
+    inside the modulus without a disturbance sensor)."""
+
+
+class ParameterDriftWarning(UserWarning):
+    """The parameters differ between parts of the log (split-sample stability test)."""
 
 
 class ResourceLimitError(VesselidError):

@@ -166,6 +166,11 @@ class Estimator:
         ``cov_type`` works on :meth:`equation_designs`."""
         return None
 
+    def result_warnings(self, it: IterationResult) -> list[tuple[str, type[Warning]]]:
+        """Warnings of a one-group result the estimator's own diagnostics raise
+        (``(message, category)``; reported like the design warnings)."""
+        return []
+
     def own_covariance_label(self, it: IterationResult) -> tuple[str, str]:
         """``(cov_type, label)`` of :meth:`own_covariance`."""
         return "fisher", "inverse Fisher information (quasi-ML)"
@@ -345,6 +350,8 @@ class Estimator:
                   f"({r['sign_changes']} sign changes): the modulus cannot be treated as "
                   "smooth (A10/A15)", ExperimentDesignWarning)
 
+        for msg, category in self.result_warnings(it):
+            _warn(msg, category)
         index = spec.param_index
         history = None
         if it.history:

@@ -36,8 +36,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from vesselid.errors import IdentificationError
-from vesselid.identify import gmm, pem
+from vesselid.errors import IdentifiabilityWarning, IdentificationError, ParameterDriftWarning
+from vesselid.identify import gmm, pem, validity
 from vesselid.identify.backend import kernels
 from vesselid.identify.base import EquationDesign, Estimator, square_designs
 from vesselid.identify.data import RegressionData
@@ -394,6 +394,10 @@ class InstrumentalGMM(Estimator):
                     used[reject] = "simulated"
                     if keep:
                         sol = sol_s
+        if self.instruments == "auto" and keep and np.all(np.isfinite(base.theta_aux[0])):
+            info["stability"] = _guarded(validity.parameter_stability, data, spec)
+            info["mean_current"] = _guarded(validity.mean_current, data, spec,
+                                            base.theta_aux[0])
         ok = np.all(np.isfinite(theta), axis=1) & np.all(np.isfinite(base.theta), axis=1)
         theta[~ok] = np.nan
         if sol is not None:
@@ -495,6 +499,19 @@ class InstrumentalGMM(Estimator):
                 out["instrument_choice"] = self._choice_text(info)
                 out["choice"] = self._choice_key(info)
                 out["choice_reason"] = self._choice_sentence(info)
+        for key in ("stability", "mean_current"):
+            if info.get(key) is not None:
+                out["parameter_stability" if key == "stability" else key] = info[key]
+        return out
+
+    def result_warnings(self, it: IterationResult) -> list[tuple[str, type[Warning]]]:
+        out: list[tuple[str, type[Warning]]] = []
+        mc = it.info.get("mean_current")
+        if mc is not None and mc["warned"]:
+            out.append((mc["sentence"], IdentifiabilityWarning))
+        st = it.info.get("stability")
+        if st is not None and st["rejected"]:
+            out.append((st["sentence"], ParameterDriftWarning))
         return out
 
     @staticmethod
@@ -518,6 +535,10 @@ class InstrumentalGMM(Estimator):
         rejected = [n for n, p, a in (("C test", p_c, self.alpha),
                                       ("colour test", p_w, self.colour_alpha)) if p < a]
         why = " and the ".join(rejected) or "a test"
+        st = info.get("stability")
+        if st is not None and st["rejected"]:
+            why += (f" (the split-sample stability test, p = {st['pvalue']:.2g}, says the "
+                    "parameters may drift instead)")
         if used == "pem":
             cov = ("quasi-ML sandwich" if self.pem_cov == "sandwich"
                    else "inverse Fisher")
@@ -544,21 +565,36 @@ class InstrumentalGMM(Estimator):
                  f"p = {p_w:.3g} (level {self.colour_alpha:g})")
         why = [t for t, p, a in ((c_txt, p_c, self.alpha), (w_txt, p_w, self.colour_alpha))
                if p < a]
+        st = info.get("stability")
+        if st is not None and st["rejected"]:  # drift, not (only) colour, may explain it
+            look = ("the equation error remembers its past — coloured disturbances or "
+                    f"drifting parameters (split-sample stability test p = {st['pvalue']:.2g} "
+                    "rejects constant parameters)")
+        else:
+            look = "the disturbances look coloured"
         if info["instrument_set"][0] == "pem":
             return ("prediction-error estimator with the disturbances as Gauss–Markov filter "
                     f"states ({info['pem_model'][0]} model): the delayed measurements are not "
-                    "valid instruments on this log — the disturbances look coloured; "
+                    f"valid instruments on this log — {look}; "
                     "rejected by the " + " and the ".join(why))
         if info["instrument_set"][0] == "simulated":
             how = ("simulated only, no noise-model prefilter (the log is low-pass "
                    "filtered, and a whitening prefilter would weight the removed band)"
                    if info.get("lowpassed") else "simulated only (SRIV)")
             return (how + ": the delayed measurements are not valid "
-                    "instruments on this log — the disturbances look coloured, and using "
+                    f"instruments on this log — {look}, and using "
                     "them would bias the estimate; rejected by the " + " and the ".join(why))
         return ("simulated + delayed measurements: the disturbances look white, so the "
                 "delayed measurements are valid and make the estimate more precise; neither "
                 f"test rejects ({c_txt}; {w_txt})")
+
+
+def _guarded(fn, *args):
+    """A diagnostic that must never stop the estimate: ``None`` where it cannot run."""
+    try:
+        return fn(*args)
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+        return None
 
 
 def _rows(data: RegressionData, groups: np.ndarray) -> np.ndarray:
