@@ -222,8 +222,29 @@ def choices(df: pd.DataFrame) -> pd.DataFrame:
     return tab
 
 
-def markdown(summary: pd.DataFrame, ch: pd.DataFrame, args: argparse.Namespace) -> str:
-    lines = [f"Robustness study: {args.runs} runs × {args.samples} samples per design "
+def warning_shares(df: pd.DataFrame) -> pd.DataFrame:
+    """Per design: share of ``auto``'s runs carrying each diagnostic's warning, and the
+    coverage of the current's mean by the mean-current interval (that design)."""
+    a = df[(df["method"] == "auto") & (df["param"] == PARAMS[0])]
+    out = []
+    for design, g in a.groupby("design", sort=False):
+        row = {"design": design, "runs": len(g)}
+        for cat in ("IdentifiabilityWarning", "ParameterDriftWarning"):
+            row[cat] = float(g["warnings"].str.contains(cat).mean())
+        d = DESIGNS.get(design)
+        if d is not None and d.current_mean and "mc_vbar" in g:
+            ok = g[np.isfinite(g["mc_vbar"].astype(float))]
+            hit = np.abs(ok["mc_vbar"].astype(float) - d.current_mean) <= (
+                1.959964 * ok["mc_vbar_se"].astype(float))
+            row["vbar_coverage"] = float(hit.mean()) if len(ok) else float("nan")
+        out.append(row)
+    return pd.DataFrame(out)
+
+
+def markdown(summary: pd.DataFrame, ch: pd.DataFrame, df: pd.DataFrame,
+             args: argparse.Namespace) -> str:
+    lines = ["---", "orphan: true", "---", "", "# Robustness study table", "",
+             f"Robustness study: {args.runs} runs × {args.samples} samples per design "
              f"(short: 10³), seed {args.seed}; θ0 = (a, n, f) = {THETA0}. "
              "`python scripts/robustness_study.py "
              f"--runs {args.runs} --samples {args.samples} --seed {args.seed}`", "",
@@ -236,6 +257,16 @@ def markdown(summary: pd.DataFrame, ch: pd.DataFrame, args: argparse.Namespace) 
     lines += ["", "`auto`'s choices:", "", "| design | choice | runs |", "|---|---|---|"]
     for _, r in ch.iterrows():
         lines.append(f"| {r.design} | {r.choice} | {r.runs} |")
+    ws = warning_shares(df)
+    lines += ["", "Share of `auto`'s runs with each diagnostic's warning (and, on the mean-"
+              "current design, how often the reported interval of the current's mean "
+              "covers it):", "", "| design | identifiability | parameter drift | "
+              "v̄ covered |", "|---|---|---|---|"]
+    for _, r in ws.iterrows():
+        cov = r.get("vbar_coverage", float("nan"))
+        lines.append(f"| {r.design} | {100 * r.IdentifiabilityWarning:.1f} % | "
+                     f"{100 * r.ParameterDriftWarning:.1f} % | "
+                     + (f"{100 * cov:.1f} % |" if np.isfinite(cov) else "— |"))
     return "\n".join(lines) + "\n"
 
 
@@ -249,6 +280,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="registered estimator names (default: %(default)s)")
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "docs")
     ap.add_argument("--raw", type=Path, default=None, help="also write every run's rows")
+    ap.add_argument("--from-raw", type=Path, default=None,
+                    help="rebuild the tables from a file --raw wrote (no simulation)")
     args = ap.parse_args(argv)
     if args.runs < 2:
         ap.error("--runs must be at least 2 (coverage and sd need several runs)")
@@ -262,6 +295,11 @@ def main(argv: list[str] | None = None) -> int:
     bad = sorted(set(args.methods) - set(registered))
     if bad:
         ap.error(f"unknown methods {bad}; choose from {list(registered)}")
+    if args.from_raw is not None:
+        if not args.from_raw.is_file():
+            ap.error(f"--from-raw: no such file {str(args.from_raw)!r}")
+        return _report(pd.read_csv(args.from_raw, keep_default_na=False,
+                                   na_values=[""]), args)
     rows = []
     root = np.random.SeedSequence(args.seed)
     for j, name in enumerate(args.designs):
@@ -274,20 +312,25 @@ def main(argv: list[str] | None = None) -> int:
         print(f"[{j + 1}/{len(args.designs)}] {name}: {time.perf_counter() - t0:.0f} s",
               file=sys.stderr, flush=True)
     df = pd.DataFrame(rows)
+    if args.raw is not None:
+        atomic_write_text(args.raw, df.to_csv(index=False))
+    return _report(df, args)
+
+
+def _report(df: pd.DataFrame, args: argparse.Namespace) -> int:
+    """Print and write the tables of the per-run rows ``df``."""
+    df = df.assign(choice=df["choice"].fillna("").astype(str),
+                   warnings=df["warnings"].fillna("").astype(str))
     summary = summarise(df)
     ch = choices(df)
     pd.set_option("display.width", 200)
     print(summary.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
     print(ch.to_string(index=False))
-    if "mc_warned" in df:
-        mc = df[(df["method"] == "auto") & (df["param"] == "a")]
-        print(mc.groupby("design")["mc_warned"].mean().rename("mean-current warning share"))
+    print(warning_shares(df).to_string(index=False))
     args.out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(args.out / "robustness.csv", summary.to_csv(index=False,
                                                                   float_format="%.5g"))
-    atomic_write_text(args.out / "robustness.md", markdown(summary, ch, args))
-    if args.raw is not None:
-        atomic_write_text(args.raw, df.to_csv(index=False))
+    atomic_write_text(args.out / "robustness.md", markdown(summary, ch, df, args))
     return 0
 
 
