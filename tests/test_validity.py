@@ -21,18 +21,14 @@ SPEC = ModelSpec(name="heave-test", states=["w"], inputs=["tau"],
 
 
 def _log(seed: int, n: int = 10_000, *, vbar: float = 0.0, drift: float = 0.0,
-         gm_current: float = 0.0) -> pd.DataFrame:
+         gm_current: float = 0.0, gm_sensor: float = 0.0) -> pd.DataFrame:
     """Heave with random pulses of random sign (the robustness study's design)."""
     rng = np.random.default_rng(seed)
     widths = rng.integers(10, 101, size=n // 10 + 2)
     levels = rng.uniform(0.1, 0.4, widths.size) * rng.choice([-1.0, 1.0], widths.size)
     tau = np.repeat(levels, widths)[:n]
     if gm_current:
-        rho = np.exp(-1 / 25)
-        e = rng.normal(0, gm_current * np.sqrt(1 - rho * rho), n)
-        v = np.zeros(n)
-        for k in range(1, n):
-            v[k] = rho * v[k - 1] + e[k]
+        v = _gauss_markov(rng, n, gm_current, 25.0)
     else:
         v = rng.normal(0.0, 0.05, n)
     v += vbar
@@ -44,7 +40,18 @@ def _log(seed: int, n: int = 10_000, *, vbar: float = 0.0, drift: float = 0.0,
         wr = w[k] - v[k]
         w[k + 1] = a * wr + nn * wr * abs(wr) + f[k] * tau[k] + xi[k]
     y = w + rng.normal(0.0, 0.05, n)
+    if gm_sensor:
+        y += _gauss_markov(rng, n, gm_sensor, 20.0)
     return pd.DataFrame({"time": np.arange(n, dtype=float), "w": y, "tau": tau})
+
+
+def _gauss_markov(rng: np.random.Generator, n: int, std: float, tau: float) -> np.ndarray:
+    from scipy.signal import lfilter
+
+    rho = np.exp(-1 / tau)
+    e = rng.normal(0.0, std * np.sqrt(1 - rho * rho), n)
+    e[0] = rng.normal(0.0, std)
+    return lfilter([1.0], [1.0, -rho], e)
 
 
 def _fit(log, method="auto"):
@@ -123,14 +130,15 @@ def test_bad_options_one_line_reasons(make, msg):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("kind", ["gm-current", "mean-current"])
+@pytest.mark.parametrize("kind", ["gm-current", "two-coloured", "mean-current"])
 def test_auto_coverage_on_coloured_and_mean_currents(kind):
     """auto's 95 % intervals cover θ0 in a binomially plausible share of 60 runs (three
     binomial standard errors below 95 %)."""
     runs = 60
     hits = np.zeros(3)
     for seed in range(runs):
-        log = _log(100 + seed, gm_current=0.1 if kind == "gm-current" else 0.0,
+        log = _log(100 + seed, gm_current=0.1 if kind != "mean-current" else 0.0,
+                   gm_sensor=0.05 if kind == "two-coloured" else 0.0,
                    vbar=0.05 if kind == "mean-current" else 0.0)
         res, _ = _fit(log)
         ci = res.conf_int()
