@@ -395,7 +395,8 @@ class InstrumentalGMM(Estimator):
                     if keep:
                         sol = sol_s
         if self.instruments == "auto" and keep and np.all(np.isfinite(base.theta_aux[0])):
-            info["stability"] = _guarded(validity.parameter_stability, data, spec)
+            info["stability"] = _guarded(validity.parameter_stability, data, spec,
+                                         validity.STABILITY_ALPHA, base.theta[0])
             info["mean_current"] = _guarded(validity.mean_current, data, spec,
                                             base.theta_aux[0])
         ok = np.all(np.isfinite(theta), axis=1) & np.all(np.isfinite(base.theta), axis=1)

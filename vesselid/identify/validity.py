@@ -178,12 +178,14 @@ def _halves(data: RegressionData) -> RegressionData | None:
 
 
 def parameter_stability(data: RegressionData, spec: ModelSpec,
-                        alpha: float = STABILITY_ALPHA) -> dict[str, Any] | None:
+                        alpha: float = STABILITY_ALPHA,
+                        theta_start: np.ndarray | None = None) -> dict[str, Any] | None:
     """Split-sample (Chow-type) test of constant parameters (module docstring).
 
     One state equation. ``None`` where the test does not apply: several states, an
     experiment too short to halve (:data:`MIN_HALF` samples a half), an estimate that is
-    not finite.
+    not finite. ``theta_start``: the whole log's estimate, a start of both halves'
+    refined iterations that saves most of their steps.
     """
     from vesselid.identify.estimators import estimate
 
@@ -192,7 +194,7 @@ def parameter_stability(data: RegressionData, spec: ModelSpec,
     halves = _halves(data)
     if halves is None:
         return None
-    it = estimate(halves, spec, "iv-zero-mean", combine="pooled")
+    it = estimate(halves, spec, "iv-zero-mean", combine="pooled", theta_start=theta_start)
     if not np.all(np.isfinite(it.theta)):
         return None
     n_par = spec.n_params
