@@ -21,7 +21,9 @@ constants (zero-mean instruments), and are batched over parameter groups.
     rejects the lagged subset at level ``alpha`` or the colour test
     (:func:`vesselid.identify.gmm.colour_test`: does the equation error correlate with
     the past estimated sensor noise?) rejects at ``colour_alpha``; then the simulated
-    set alone with the AR noise-model prefilter. The C test alone missed coloured
+    set alone with the AR noise-model prefilter, or (``pem_fallback``, one-state logs
+    without a disturbance sensor) the prediction-error estimator with a Gauss–Markov
+    current and Gauss–Markov sensor noise as filter states. The C test alone missed coloured
     sensor noise in most runs (Gauss–Markov, time constant 20 samples, random pulses:
     41 % rejected at 1 %; the colour test 97.5 % at 5 %): its delayed measurements
     carry the signal, which drowns the small noise correlation that biases the GMM
