@@ -150,9 +150,8 @@ def test_matrix_helpers_equal_to_rounding():
 
 def test_identify_both_paths_agree_to_rounding(monkeypatch):
     """Every method: the numpy path (forced) and the compiled path agree to rounding."""
-    from vesselid.identify import ESTIMATORS, identify
-
     from vesselid.closedloop import heave_pi_design, simulate_closed_loop
+    from vesselid.identify import ESTIMATORS, identify
 
     system = get_system("heave")
     open_loop = system.simulate(3000, n_runs=2, seed=9).to_log()

@@ -34,11 +34,13 @@ __all__ = [
     "EstimationFailedError",
     "ExperimentDesignWarning",
     "FallbackWarning",
+    "IdentifiabilityWarning",
     "IdentificationError",
     "InvalidActionError",
     "LogValidationError",
     "ModelSpecError",
     "NoUsableModelError",
+    "ParameterDriftWarning",
     "RankDeficientError",
     "ResourceLimitError",
     "SeaTrialError",
@@ -143,6 +145,15 @@ class ExperimentDesignWarning(UserWarning):
 
 class DerivedInputWarning(UserWarning):
     """A derived input is computed from measured states: not exogenous (vesselid.derived)."""
+
+
+class IdentifiabilityWarning(UserWarning):
+    """The data identify a combination of parameters, not each one (e.g. a current's mean
+    inside the modulus without a disturbance sensor)."""
+
+
+class ParameterDriftWarning(UserWarning):
+    """The parameters differ between parts of the log (split-sample stability test)."""
 
 
 class ResourceLimitError(VesselidError):

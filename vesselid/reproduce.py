@@ -382,8 +382,8 @@ def warm_up(tables: tuple[int, ...] = (1, 2), runs: int | None = None,
             run_study(table_study(table, runs=2, samples=50, seed=0, extra_methods=extras),
                       progress=False)
         if "auto" in extras or "pem" in extras:
-            # auto's prediction-error fallback (both validity tests reject) is taken by
-            # ≈ 0.2 % of Table 1's runs but by none of a tiny study
+            # auto's prediction-error fallback (a validity test rejects) is taken by
+            # ≈ 4 % of Table 1's runs but by none of a tiny study
             from vesselid.identify.pem import load_kernels
 
             load_kernels()

@@ -194,6 +194,15 @@ class Estimator:
         ``cov_type`` works on :meth:`equation_designs`."""
         return None
 
+    def result_warnings(self, it: IterationResult) -> list[tuple[str, type[Warning]]]:
+        """Warnings of a one-group result the estimator's own diagnostics raise
+        (``(message, category)``; reported like the design warnings)."""
+        return []
+
+    def own_covariance_label(self, it: IterationResult) -> tuple[str, str]:
+        """``(cov_type, label)`` of :meth:`own_covariance`."""
+        return "fisher", "inverse Fisher information (quasi-ML)"
+
     def check_covariance(self, cov_type: str | None) -> None:
         """Refuse a ``cov_type`` the estimator cannot honour (one-line reason)."""
 
@@ -352,7 +361,7 @@ class Estimator:
         own_cov = self.own_covariance(it)
         if own_cov is not None:
             cov = np.array(own_cov, dtype=float)
-            cov_name, cov_label = "fisher", "inverse Fisher information (quasi-ML)"
+            cov_name, cov_label = self.own_covariance_label(it)
         for i, s in enumerate(spec.states):
             sl = slice(int(blocks[i]), int(blocks[i + 1]))
             d = designs[i]
@@ -442,6 +451,8 @@ class Estimator:
             if rep["matters"]:
                 _warn(rep["sentence"], ExperimentDesignWarning)
 
+        for msg, category in self.result_warnings(it):
+            _warn(msg, category)
         index = spec.param_index
         history = None
         if it.history:

@@ -21,7 +21,9 @@ constants (zero-mean instruments), and are batched over parameter groups.
     rejects the lagged subset at level ``alpha`` or the colour test
     (:func:`vesselid.identify.gmm.colour_test`: does the equation error correlate with
     the past estimated sensor noise?) rejects at ``colour_alpha``; then the simulated
-    set alone with the AR noise-model prefilter. The C test alone missed coloured
+    set alone with the AR noise-model prefilter, or (``pem_fallback``, one-state logs
+    without a disturbance sensor) the prediction-error estimator with a Gauss–Markov
+    current and Gauss–Markov sensor noise as filter states. The C test alone missed coloured
     sensor noise in most runs (Gauss–Markov, time constant 20 samples, random pulses:
     41 % rejected at 1 %; the colour test 97.5 % at 5 %): its delayed measurements
     carry the signal, which drowns the small noise correlation that biases the GMM
@@ -36,8 +38,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from vesselid.errors import IdentificationError
-from vesselid.identify import gmm, pem
+from vesselid.errors import IdentifiabilityWarning, IdentificationError, ParameterDriftWarning
+from vesselid.identify import gmm, pem, validity
 from vesselid.identify.backend import kernels
 from vesselid.identify.base import EquationDesign, Estimator, square_designs
 from vesselid.identify.data import RegressionData
@@ -169,12 +171,20 @@ class InstrumentalGMM(Estimator):
         Refinement steps of the simulated-instrument fallback of ``auto`` (the AR noise
         model needs a few: one step had heavier tails under a coloured current).
     pem_fallback : bool
-        ``auto`` on a one-state log without a disturbance sensor: when both tests reject
-        the delayed instruments, use the prediction-error estimator with the current or the
-        sensor noise as a Gauss–Markov state (:mod:`vesselid.identify.pem`) instead of
-        SRIV where its likelihood maximisation converges (SRIV elsewhere). Under a
-        Gauss–Markov current it is unbiased where every instrument built from the input
-        is not, and more precise on the damping (``scripts/estimator_study.py``).
+        ``auto`` on a one-state log without a disturbance sensor: when a test rejects
+        the delayed instruments, use the prediction-error estimator with a Gauss–Markov
+        current *and* Gauss–Markov sensor noise as filter states (the joint model of
+        :mod:`vesselid.identify.pem`, which nests either process alone) instead of SRIV
+        where its likelihood maximisation converges (SRIV elsewhere). A coloured current
+        inside the modulus biases every instrument built from the input (its product with
+        the modulus correlates with the input's past); the joint model does not, and it
+        stays unbiased when the current and the sensor noise are coloured at once, where
+        the single-current model is not (``scripts/robustness_study.py``,
+        ``docs/guide/choosing-an-estimator.md``).
+    pem_cov : {"sandwich", "fisher"}
+        Covariance of that fallback: the quasi-ML sandwich (default: valid when the
+        disturbances are not the modelled Gaussian processes) or the inverse Fisher
+        information.
     """
 
     multi_experiment: ClassVar[tuple[str, ...]] = ("pooled",)
@@ -184,12 +194,14 @@ class InstrumentalGMM(Estimator):
                  alpha: float = 0.01, colour_alpha: float = 0.05, refine: int = 3,
                  fallback_refine: int = 3, name: str | None = None, label: str | None = None,
                  short: str | None = None,
-                 colour_order: int = 0, pem_fallback: bool = False) -> None:
+                 colour_order: int = 0, pem_fallback: bool = False,
+                 pem_cov: str = "sandwich") -> None:
         super().__init__(instruments=instruments, noise_order=noise_order, alpha=alpha,
                          colour_alpha=colour_alpha, refine=refine,
                          fallback_refine=fallback_refine, colour_order=colour_order,
-                         pem_fallback=pem_fallback)
+                         pem_fallback=pem_fallback, pem_cov=pem_cov)
         self.pem_fallback = bool(pem_fallback)
+        self.pem_cov = pem_cov
         self.instruments = instruments
         self.noise_order = noise_order
         self.alpha = alpha
@@ -225,6 +237,9 @@ class InstrumentalGMM(Estimator):
             val = getattr(self, key)
             if not (isinstance(val, int | np.integer) and val >= 1):
                 raise IdentificationError(f"{key} must be a positive integer, got {val!r}")
+        if self.pem_cov not in pem.COVARIANCES:
+            raise IdentificationError(
+                f"pem_cov must be one of {list(pem.COVARIANCES)}, got {self.pem_cov!r}")
 
     def check_options(self, *, combine: str) -> None:
         super().check_options(combine=combine)
@@ -360,11 +375,13 @@ class InstrumentalGMM(Estimator):
                 c_rej = c_p < float(self.alpha)
                 w_rej = w_p.min(axis=1) < float(self.colour_alpha)
                 reject = c_rej | w_rej
-                # both tests reject: the disturbance is coloured beyond doubt — model it
-                both = c_rej & w_rej
-                if both.any() and self.pem_fallback and pem.supports(spec, data):
-                    self._pem_fallback(data, spec, theta0, both, theta, iters, used, info)
+                # a test rejects white disturbances: on a one-state log without a
+                # disturbance sensor a coloured current inside the modulus biases every
+                # instrument built from the input — model both processes instead
+                if reject.any() and self.pem_fallback and pem.supports(spec, data):
+                    self._pem_fallback(data, spec, theta0, reject, theta, iters, used, info)
                     reject = reject & (used != "pem")
+                info["pem_applies"] = bool(self.pem_fallback and pem.supports(spec, data))
                 if reject.any():
                     sub = _subset(data, reject)
                     phi_s = (phi[_rows(data, reject)] if phi is not None else
@@ -377,6 +394,11 @@ class InstrumentalGMM(Estimator):
                     used[reject] = "simulated"
                     if keep:
                         sol = sol_s
+        if self.instruments == "auto" and keep and np.all(np.isfinite(base.theta_aux[0])):
+            info["stability"] = _guarded(validity.parameter_stability, data, spec,
+                                         validity.STABILITY_ALPHA, base.theta[0])
+            info["mean_current"] = _guarded(validity.mean_current, data, spec,
+                                            base.theta_aux[0])
         ok = np.all(np.isfinite(theta), axis=1) & np.all(np.isfinite(base.theta), axis=1)
         theta[~ok] = np.nan
         if sol is not None:
@@ -400,11 +422,11 @@ class InstrumentalGMM(Estimator):
         estimates; taken where its likelihood maximisation converged (in place; the
         others fall back to SRIV)."""
         sub = _subset(data, reject)
-        res = pem.fit_groups(sub, spec, theta0[reject])
+        res = pem.fit_groups(sub, spec, theta0[reject], joint=True)
         ok = res["converged"] & np.all(np.isfinite(res["theta"]), axis=1)
         idx = np.flatnonzero(reject)
         n = data.n_groups
-        for key in ("psi", "cov", "loglik", "vuong", "model"):
+        for key in ("psi", "cov", "cov_sandwich", "loglik", "vuong", "model", "lr_joint"):
             arr = res[key]
             full = (np.full(n, "", dtype=object) if arr.dtype == object else
                     np.full((n, *arr.shape[1:]), np.nan))
@@ -423,8 +445,12 @@ class InstrumentalGMM(Estimator):
 
     def own_covariance(self, it: IterationResult) -> np.ndarray | None:
         if it.info["instrument_set"][0] == "pem":
-            return it.info["pem_cov"][0]
+            key = "pem_cov_sandwich" if self.pem_cov == "sandwich" else "pem_cov"
+            return it.info[key][0]
         return None
+
+    def own_covariance_label(self, it: IterationResult) -> tuple[str, str]:
+        return pem.covariance_label(self.pem_cov)
 
     def _fallback_order(self, data: RegressionData) -> int:
         """AR order of ``auto``'s fallback: none on a low-pass-filtered log, where the
@@ -472,7 +498,63 @@ class InstrumentalGMM(Estimator):
                 out["colour_test_prefilter"] = (f"AR({info['colour_order']})"
                                                 if info.get("colour_order") else "none")
                 out["instrument_choice"] = self._choice_text(info)
+                out["choice"] = self._choice_key(info)
+                out["choice_reason"] = self._choice_sentence(info)
+        for key in ("stability", "mean_current"):
+            if info.get(key) is not None:
+                out["parameter_stability" if key == "stability" else key] = info[key]
         return out
+
+    def result_warnings(self, it: IterationResult) -> list[tuple[str, type[Warning]]]:
+        out: list[tuple[str, type[Warning]]] = []
+        mc = it.info.get("mean_current")
+        if mc is not None and mc["warned"]:
+            out.append((mc["sentence"], IdentifiabilityWarning))
+        st = it.info.get("stability")
+        if st is not None and st["rejected"]:
+            out.append((st["sentence"], ParameterDriftWarning))
+        return out
+
+    @staticmethod
+    def _choice_key(info: dict[str, Any]) -> str:
+        """``auto``'s choice as one token: ``combined``, ``sriv`` or ``pem-<model>``."""
+        used = str(info["instrument_set"][0])
+        if used == "pem":
+            return f"pem-{info['pem_model'][0]}"
+        return {"simulated": "sriv"}.get(used, used)
+
+    def _choice_sentence(self, info: dict[str, Any]) -> str:
+        """Why ``auto`` chose what it chose, in one plain sentence."""
+        used = str(info["instrument_set"][0])
+        p_c, p_w = float(info["c_pvalue"][0]), float(info["colour_pvalue"][0])
+        tests = (f"the C test of the delayed instruments (p = {p_c:.2g}) and the colour "
+                 f"test (p = {p_w:.2g})")
+        if used == "combined":
+            return (f"auto used simulated + delayed instruments because neither {tests} "
+                    "rejects white disturbances, and then the delayed measurements make "
+                    "the estimate more precise.")
+        rejected = [n for n, p, a in (("C test", p_c, self.alpha),
+                                      ("colour test", p_w, self.colour_alpha)) if p < a]
+        why = " and the ".join(rejected) or "a test"
+        st = info.get("stability")
+        if st is not None and st["rejected"]:
+            why += (f" (the split-sample stability test, p = {st['pvalue']:.2g}, says the "
+                    "parameters may drift instead)")
+        if used == "pem":
+            cov = ("quasi-ML sandwich" if self.pem_cov == "sandwich"
+                   else "inverse Fisher")
+            return (f"auto used the prediction-error estimator with a Gauss–Markov current "
+                    f"and Gauss–Markov sensor noise as filter states because the {why} "
+                    "rejected white disturbances, and on a one-state log without a "
+                    "disturbance sensor a coloured current biases every instrument built "
+                    f"from the input; its intervals are the {cov} ones.")
+        if info.get("pem_applies"):
+            reason = "the prediction-error fit did not converge"
+        else:
+            reason = ("the prediction-error estimator models one state equation without a "
+                      "disturbance sensor on an unfiltered log only")
+        return (f"auto used simulated instruments with an AR noise-model prefilter (SRIV) "
+                f"because the {why} rejected white disturbances and {reason}.")
 
     def _choice_text(self, info: dict[str, Any]) -> str:
         """The ``auto`` decision in plain words, with both tests' p-values."""
@@ -484,21 +566,36 @@ class InstrumentalGMM(Estimator):
                  f"p = {p_w:.3g} (level {self.colour_alpha:g})")
         why = [t for t, p, a in ((c_txt, p_c, self.alpha), (w_txt, p_w, self.colour_alpha))
                if p < a]
+        st = info.get("stability")
+        if st is not None and st["rejected"]:  # drift, not (only) colour, may explain it
+            look = ("the equation error remembers its past — coloured disturbances or "
+                    f"drifting parameters (split-sample stability test p = {st['pvalue']:.2g} "
+                    "rejects constant parameters)")
+        else:
+            look = "the disturbances look coloured"
         if info["instrument_set"][0] == "pem":
-            return ("prediction-error estimator with the disturbance as a Gauss–Markov filter "
-                    f"state ({info['pem_model'][0]} model): the delayed measurements are not "
-                    "valid instruments on this log — the disturbances look coloured; "
+            return ("prediction-error estimator with the disturbances as Gauss–Markov filter "
+                    f"states ({info['pem_model'][0]} model): the delayed measurements are not "
+                    f"valid instruments on this log — {look}; "
                     "rejected by the " + " and the ".join(why))
         if info["instrument_set"][0] == "simulated":
             how = ("simulated only, no noise-model prefilter (the log is low-pass "
                    "filtered, and a whitening prefilter would weight the removed band)"
                    if info.get("lowpassed") else "simulated only (SRIV)")
             return (how + ": the delayed measurements are not valid "
-                    "instruments on this log — the disturbances look coloured, and using "
+                    f"instruments on this log — {look}, and using "
                     "them would bias the estimate; rejected by the " + " and the ".join(why))
         return ("simulated + delayed measurements: the disturbances look white, so the "
                 "delayed measurements are valid and make the estimate more precise; neither "
                 f"test rejects ({c_txt}; {w_txt})")
+
+
+def _guarded(fn, *args):
+    """A diagnostic that must never stop the estimate: ``None`` where it cannot run."""
+    try:
+        return fn(*args)
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+        return None
 
 
 def _rows(data: RegressionData, groups: np.ndarray) -> np.ndarray:

@@ -28,10 +28,22 @@ apart, the current model won every such run by 48–1890 log-likelihood units an
 sensor model 99 % of the Gauss–Markov-sensor-noise runs. Vuong's (1989) test of the two
 non-nested models (with Schwarz's correction) is reported.
 
+With ``joint=True`` (``auto``'s choice) a third model is fitted from the better of the
+two: ``joint``, a Gauss–Markov current *and* Gauss–Markov sensor noise at once (every
+parameter free), which nests both. Started from a converged single-process fit it does
+not stall on the ridges: on a Gauss–Markov current plus Gauss–Markov sensor noise the
+current model's bias on the damping was 15 Monte Carlo sd while the joint model's was
+within 0.3 sd, and under a single Gauss–Markov current it loses ~13 % in median error on
+the damping (``scripts/robustness_study.py``). The likelihood-ratio statistic of the
+joint model against the better single-process model is reported.
+
 The covariance is the inverse Fisher information of the chosen model (the θ block); with
-a correct model it is efficient. Single state, no disturbance sensor
-(``[aggregate]``), pooled experiments (one set of noise parameters, the filter restarted
-at every experiment).
+a correct model it is efficient. The quasi-ML sandwich ``F⁻¹ Ŝ F⁻¹`` (``Ŝ`` the Bartlett
+HAC long-run variance of the per-sample scores) is computed beside it (``cov_sandwich``):
+it stays valid when the disturbances are not the modelled Gaussian processes.
+
+Single state, no disturbance sensor (``[aggregate]``), pooled experiments (one set of
+noise parameters, the filter restarted at every experiment).
 """
 
 from __future__ import annotations
@@ -47,11 +59,19 @@ from vesselid.identify.data import RegressionData
 from vesselid.identify.estimators import IterationResult, estimate
 from vesselid.model import ModelSpec
 
-__all__ = ["DISTURBANCE_MODELS", "PredictionError", "fit_groups", "load_kernels",
-           "supports"]
+__all__ = ["COVARIANCES", "DISTURBANCE_MODELS", "JOINT", "PredictionError",
+           "assumption_text", "fit_groups", "load_kernels", "supports"]
 
 #: The disturbance models fitted (see module docstring).
 DISTURBANCE_MODELS = ("current", "sensor")
+#: Both processes at once, fitted from the better single-process model (``joint=True``).
+JOINT = "joint"
+#: Scoring steps of the joint model (from a converged fit it converges in 5–20 where a
+#: second process is present; without one it can wander along the ridge σ → 0, and the
+#: single-process fit is kept then).
+JOINT_ITER = 40
+#: Covariances of the likelihood estimate: inverse Fisher information, quasi-ML sandwich.
+COVARIANCES = ("fisher", "sandwich")
 
 CONVERGED = "converged"
 NO_DESCENT = "line search found no descent"
@@ -180,7 +200,7 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
     d = idx.size
     reason, converged, it = MAX_ITER, False, 0
     fisher = np.full((d, d), np.nan)
-    eps0 = var0 = None
+    eps0 = var0 = je = js = None
     at = None  # the filter at ψ when the line search has run it (the accepted trial)
     for it in range(1, max_iter + 1):  # noqa: B007 (reported)
         steps = _H * np.maximum(np.abs(psi[idx]), 1.0)
@@ -226,13 +246,43 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
             break
         psi, at = trial, (e1[0], v1[0])
     cov = np.zeros((psi.size, psi.size))
+    sand = np.zeros((psi.size, psi.size))
     if np.all(np.isfinite(fisher)):
-        cov[np.ix_(idx, idx)] = np.linalg.pinv(fisher, rcond=1e-12, hermitian=True)
+        finv = np.linalg.pinv(fisher, rcond=1e-12, hermitian=True)
+        cov[np.ix_(idx, idx)] = finv
+        meat = _score_hac(je, js, eps0, var0, filt.starts)
+        sand[np.ix_(idx, idx)] = finv @ meat @ finv if meat is not None else np.nan
     else:
         cov[:] = np.nan
+        sand[:] = np.nan
     terms = _nll_terms(eps0, var0) if eps0 is not None else None
-    return {"psi": psi, "cov": cov, "converged": converged, "iterations": it,
-            "reason": reason, "nll_terms": terms, "free": int(d)}
+    return {"psi": psi, "cov": cov, "cov_sandwich": sand, "converged": converged,
+            "iterations": it, "reason": reason, "nll_terms": terms, "free": int(d)}
+
+
+def _score_hac(je: np.ndarray | None, js: np.ndarray | None, eps: np.ndarray,
+               var: np.ndarray, starts: np.ndarray) -> np.ndarray | None:
+    """Bartlett HAC long-run variance of the per-sample scores
+    ``s(k) = ∂ε/∂ψ ε/S + ½ ∂S/∂ψ (1/S − ε²/S²)`` (the meat of the quasi-ML sandwich;
+    Newey–West bandwidth, lags not across experiment boundaries)."""
+    from vesselid.identify.gmm import hac_lags
+
+    if je is None or js is None:
+        return None
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        inv_s = 1.0 / var
+        sc = je * (eps * inv_s) + 0.5 * js * (inv_s - eps * eps * inv_s * inv_s)
+    sc = np.where(np.isfinite(sc), sc, 0.0)
+    out = sc @ sc.T
+    bw = hac_lags(int(sc.shape[1]))
+    seg = np.zeros(sc.shape[1], dtype=np.int64)
+    seg[starts[1:-1]] = 1
+    seg = np.cumsum(seg)
+    for lag in range(1, bw + 1):
+        same = (seg[lag:] == seg[:-lag]).astype(float)
+        c = (sc[:, lag:] * same) @ sc[:, :-lag].T
+        out += (1.0 - lag / (bw + 1.0)) * (c + c.T)
+    return out if np.all(np.isfinite(out)) else None
 
 
 def _unit(x: np.ndarray) -> float:
@@ -258,17 +308,35 @@ def _vuong(a: dict[str, Any], b: dict[str, Any], count: int) -> float:
     return lr / (math.sqrt(count) * sd)
 
 
+def _joint_start(best: dict[str, Any], model: str, n_par: int, scale: float) -> np.ndarray:
+    """Start of the joint model from a converged single-process fit: the other process
+    switched on (ρ = 0.8, σ a quarter of the start's residual std)."""
+    ix = _layout(n_par)
+    psi = best["psi"].copy()
+    log_s = math.log(scale / 4.0) if scale > 0 and np.isfinite(scale) else 0.0
+    if model == "current":
+        psi[ix["rho_c"]] = math.atanh(0.8)
+        psi[ix["sigma_c"]] = log_s
+    else:
+        psi[ix["rho_v"]] = math.atanh(0.8)
+    return psi
+
+
 def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *,
                max_iter: int = 100, tol: float = SCORING_TOL,
                models: tuple[str, ...] = DISTURBANCE_MODELS,
-               parallel: bool = True) -> dict[str, np.ndarray]:
+               parallel: bool = True, joint: bool = False) -> dict[str, np.ndarray]:
     """Fit every group of ``data`` from the rows of ``theta_start`` (G, P), each with
-    every disturbance model; keep the model with the higher likelihood.
+    every disturbance model; keep the model with the higher likelihood. ``joint``: then
+    fit both processes at once from the better model and report that (module docstring)
+    where its scoring converged.
 
     Returns a dict of per-group arrays: ``theta`` (G, P; NaN where not finite),
-    ``cov`` (G, P, P), ``psi`` (G, P + 7), ``model`` (G,), ``converged``, ``iterations``,
-    ``reason``, ``loglik`` (G, len(models)), ``vuong`` (G,; z of ``models[0]`` against
-    ``models[1]``).
+    ``cov`` (G, P, P; inverse Fisher), ``cov_sandwich`` (G, P, P; quasi-ML sandwich),
+    ``psi`` (G, P + 7), ``model`` (G,), ``converged``, ``iterations``, ``reason``,
+    ``loglik`` (G, len(models)), ``vuong`` (G,; z of ``models[0]`` against
+    ``models[1]``), ``lr_joint`` (G,; twice the joint model's log-likelihood gain over the
+    better single-process model, NaN without ``joint``).
     """
     codes = spec.codes
     fac = codes.factors
@@ -284,6 +352,8 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
         "reason": np.full(n_groups, BAD_START, dtype=object),
         "loglik": np.full((n_groups, len(models)), np.nan),
         "vuong": np.full(n_groups, np.nan),
+        "cov_sandwich": np.full((n_groups, n_par, n_par), np.nan),
+        "lr_joint": np.full(n_groups, np.nan),
     }
     for g in range(n_groups):
         th0 = np.asarray(theta_start[g], dtype=float)
@@ -308,6 +378,7 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
         if not fits:
             out["theta"][g] = th0
             out["cov"][g] = 0.0
+            out["cov_sandwich"][g] = 0.0
             out["model"][g] = "none"
             out["converged"][g] = True
             out["reason"][g] = EXACT
@@ -321,8 +392,19 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
         if len(fits) == 2:
             out["vuong"][g] = _vuong(fits[0], fits[1], filt.count)
         out["model"][g] = models[best]
+        iterations = sum(x["iterations"] for x in fits)
+        if joint and np.isfinite(ll[best]) and f["converged"]:
+            fj = _scoring(filt, _joint_start(f, models[best], n_par, scale),
+                          np.ones(n_par + 7, dtype=bool), min(max_iter, JOINT_ITER), tol)
+            iterations += fj["iterations"]
+            if fj["nll_terms"] is not None:
+                gain = float(np.sum(f["nll_terms"]) - np.sum(fj["nll_terms"]))
+                out["lr_joint"][g] = 2.0 * gain
+                if fj["converged"] and np.isfinite(gain) and gain >= 0:
+                    f = fj
+                    out["model"][g] = JOINT
         out["converged"][g] = f["converged"]
-        out["iterations"][g] = sum(x["iterations"] for x in fits)
+        out["iterations"][g] = iterations
         out["reason"][g] = f["reason"]
         if np.isfinite(ll[best]) and np.all(np.isfinite(f["psi"][:n_par])):
             psi = f["psi"].copy()
@@ -334,6 +416,8 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
             out["theta"][g] = psi[:n_par]
             out["psi"][g] = psi
             out["cov"][g] = f["cov"][:n_par, :n_par] / np.outer(tscale, tscale)
+            out["cov_sandwich"][g] = (f["cov_sandwich"][:n_par, :n_par]
+                                      / np.outer(tscale, tscale))
     return out
 
 
@@ -349,6 +433,12 @@ class PredictionError(Estimator):
         Stop when the squared Newton decrement ``gᵀ F⁻¹ g`` (twice the predicted decrease
         of the negative log-likelihood; the squared step in standard errors) falls below
         it (:data:`SCORING_TOL`).
+    joint : bool
+        Also fit both processes at once from the better single-process model and report
+        it where it converges (:func:`fit_groups`; ``auto`` does).
+    covariance : {"fisher", "sandwich"}
+        The reported covariance: the inverse Fisher information (efficient when the
+        disturbance model is right) or the quasi-ML sandwich (valid beyond it).
     """
 
     name: ClassVar[str] = "pem"
@@ -360,18 +450,24 @@ class PredictionError(Estimator):
     multi_experiment: ClassVar[tuple[str, ...]] = ("pooled",)
     reports_convergence: ClassVar[bool] = True
 
-    def __init__(self, scoring_iter: int = 100, scoring_tol: float = SCORING_TOL) -> None:
-        super().__init__(scoring_iter=scoring_iter, scoring_tol=scoring_tol)
+    def __init__(self, scoring_iter: int = 100, scoring_tol: float = SCORING_TOL,
+                 joint: bool = False, covariance: str = "fisher") -> None:
+        super().__init__(scoring_iter=scoring_iter, scoring_tol=scoring_tol, joint=joint,
+                         covariance=covariance)
         self.scoring_iter = scoring_iter
         self.scoring_tol = scoring_tol
+        self.joint = joint
+        self.covariance = covariance
 
     def _validate(self, spec: ModelSpec) -> None:
         if not (isinstance(self.scoring_iter, int | np.integer) and self.scoring_iter >= 1):
             raise IdentificationError(
                 f"scoring_iter must be a positive integer, got {self.scoring_iter!r}")
-        if not (np.isfinite(self.scoring_tol) and self.scoring_tol > 0):
+        if not (isinstance(self.scoring_tol, float | int | np.floating | np.integer)
+                and np.isfinite(self.scoring_tol) and self.scoring_tol > 0):
             raise IdentificationError(
                 f"scoring_tol must be a positive number, got {self.scoring_tol!r}")
+        check_pem_options(self.joint, self.covariance)
         if not supports(spec):
             has = ([f"{spec.n_states} state equations"] if spec.n_states != 1 else []) + (
                 ["an [aggregate] relation (a disturbance sensor)"] if spec.aggregate else [])
@@ -396,7 +492,7 @@ class PredictionError(Estimator):
             base = estimate(data, spec, "iv-zero-mean", combine="pooled",
                             theta_start=theta_start, max_iter=max_iter, tol=tol)
         res = fit_groups(data, spec, base.theta, max_iter=int(self.scoring_iter),
-                         tol=float(self.scoring_tol))
+                         tol=float(self.scoring_tol), joint=bool(self.joint))
         theta = res.pop("theta")
         n = data.n_groups
         reason = np.where(np.isfinite(base.theta).all(axis=1), res["reason"], base.reason)
@@ -415,10 +511,46 @@ class PredictionError(Estimator):
                               combine=combine)
 
     def own_covariance(self, it: IterationResult) -> np.ndarray | None:
-        return it.info["pem_cov"][0]
+        return it.info["pem_cov_sandwich" if self.covariance == "sandwich" else "pem_cov"][0]
+
+    def own_covariance_label(self, it: IterationResult) -> tuple[str, str]:
+        return covariance_label(self.covariance)
 
     def describe(self, it: IterationResult) -> dict[str, Any]:
-        return describe_fit(it.info, 0, it.theta.shape[1])
+        out = describe_fit(it.info, 0, it.theta.shape[1])
+        out["assumption"] = assumption_text(str(it.info["pem_model"][0]))
+        return out
+
+
+def covariance_label(kind: str) -> tuple[str, str]:
+    """``(cov_type, label)`` of the likelihood estimate's covariance ``kind``."""
+    if kind == "sandwich":
+        return "sandwich", ("quasi-ML sandwich F⁻¹ S F⁻¹ (HAC scores; valid when the "
+                            "disturbances are not the modelled Gaussian processes)")
+    return "fisher", "inverse Fisher information (quasi-ML)"
+
+
+def check_pem_options(joint: Any, covariance: Any) -> None:
+    """One-line reasons for bad ``joint`` / ``covariance`` options."""
+    if not isinstance(joint, bool | np.bool_):
+        raise IdentificationError(f"joint must be True or False, got {joint!r}")
+    if covariance not in COVARIANCES:
+        raise IdentificationError(
+            f"covariance must be one of {list(COVARIANCES)}, got {covariance!r}")
+
+
+def assumption_text(model: str) -> str:
+    """The disturbance model the estimate rests on, in one sentence."""
+    what = {"current": "a Gauss–Markov current inside the modulus and white sensor noise",
+            "sensor": "a white current inside the modulus and Gauss–Markov sensor noise",
+            JOINT: "a Gauss–Markov current inside the modulus and Gauss–Markov sensor "
+                   "noise",
+            }.get(model)
+    if what is None:
+        return "none: the log is noise-free and the estimate is exact"
+    return ("this estimate assumes the disturbances are " + what + " (zero-mean "
+            "Gaussian processes); on other disturbances it can be biased — compare "
+            "'auto' and 'iv-zero-mean'")
 
 
 def describe_fit(info: dict[str, Any], g: int, n_par: int) -> dict[str, Any]:
@@ -442,6 +574,11 @@ def describe_fit(info: dict[str, Any], g: int, n_par: int) -> dict[str, Any]:
     if model == "current":
         txt = (f"Gauss–Markov current inside the modulus (ρ_v = {est['rho_v']:.3g}, "
                f"σ_v = {est['sigma_v']:.3g}), white sensor noise σ_e = {est['sigma_e']:.3g}")
+    elif model == JOINT:
+        txt = (f"Gauss–Markov current inside the modulus (ρ_v = {est['rho_v']:.3g}, "
+               f"σ_v = {est['sigma_v']:.3g}) and Gauss–Markov sensor noise "
+               f"(ρ_c = {est['rho_c']:.3g}, σ_c = {est['sigma_c']:.3g}) plus white "
+               f"σ_e = {est['sigma_e']:.3g}")
     else:
         txt = (f"white current inside the modulus (σ_v = {est['sigma_v']:.3g}), "
                f"Gauss–Markov sensor noise (ρ_c = {est['rho_c']:.3g}, "
@@ -450,7 +587,7 @@ def describe_fit(info: dict[str, Any], g: int, n_par: int) -> dict[str, Any]:
     z = float(info["pem_vuong"][g])
     p = math.erfc(abs(z) / math.sqrt(2.0)) if np.isfinite(z) else float("nan")
     ll = info["pem_loglik"][g]
-    return {
+    out = {
         "disturbance_model": model,
         "noise_model": txt,
         "noise_parameters": est,
@@ -459,3 +596,10 @@ def describe_fit(info: dict[str, Any], g: int, n_par: int) -> dict[str, Any]:
                          f"{float(np.min(ll)):.6g}; Vuong z (current vs sensor noise) = "
                          f"{z:.3g}, p = {p:.3g}"),
     }
+    lr = info.get("pem_lr_joint")
+    if lr is not None and np.isfinite(lr[g]):
+        out["model_choice"] = (
+            f"{model} model: both processes at once fitted from the better single-process "
+            f"model; likelihood-ratio statistic {float(lr[g]):.3g} against it ("
+            + out["model_choice"] + ")")
+    return out

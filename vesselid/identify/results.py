@@ -169,7 +169,10 @@ class IdentificationResult:
             lines.append("fallback chain: " + " → ".join(
                 f"{t['method']} ({t['outcome']})" for t in chain))
             lines.extend(f"  {t['method']}: {t['outcome']} — {t['reason']}" for t in chain)
-        for key in ("instruments", "noise_model", "instrument_choice", "sensor_noise_correction"):
+        # auto's plain sentence of its choice stands in for the instrument-choice detail
+        choice = "choice_reason" if self.diagnostics.get("choice_reason") else "instrument_choice"
+        for key in ("instruments", "noise_model", choice, "assumption",
+                    "sensor_noise_correction"):
             if self.diagnostics.get(key) not in (None, "none"):
                 lines.append(f"{key.replace('_', ' ')}: {self.diagnostics[key]}")
         if self.spec.aggregate:

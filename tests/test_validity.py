@@ -1,0 +1,147 @@
+"""Parameter-stability and mean-current diagnostics, pem's sandwich covariance and
+``auto``'s choice sentence (:mod:`vesselid.identify.validity`)."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from vesselid.errors import IdentifiabilityWarning, IdentificationError, ParameterDriftWarning
+from vesselid.identify import identify
+from vesselid.identify.efficient import InstrumentalGMM
+from vesselid.identify.pem import PredictionError
+from vesselid.model import ModelSpec
+
+THETA0 = (0.9, -0.2, 0.8)
+SPEC = ModelSpec(name="heave-test", states=["w"], inputs=["tau"],
+                 equations={"w": ["w", "w*|w|", "tau"]}, theta0={"w": list(THETA0)}, dt=1.0)
+
+
+def _log(seed: int, n: int = 10_000, *, vbar: float = 0.0, drift: float = 0.0,
+         gm_current: float = 0.0, gm_sensor: float = 0.0) -> pd.DataFrame:
+    """Heave with random pulses of random sign (the robustness study's design)."""
+    rng = np.random.default_rng(seed)
+    widths = rng.integers(10, 101, size=n // 10 + 2)
+    levels = rng.uniform(0.1, 0.4, widths.size) * rng.choice([-1.0, 1.0], widths.size)
+    tau = np.repeat(levels, widths)[:n]
+    if gm_current:
+        v = _gauss_markov(rng, n, gm_current, 25.0)
+    else:
+        v = rng.normal(0.0, 0.05, n)
+    v += vbar
+    xi = rng.normal(0.0, 0.05, n)
+    f = THETA0[2] * (1 + drift * (np.arange(n) / (n - 1) - 0.5))
+    w = np.zeros(n)
+    a, nn, _ = THETA0
+    for k in range(n - 1):
+        wr = w[k] - v[k]
+        w[k + 1] = a * wr + nn * wr * abs(wr) + f[k] * tau[k] + xi[k]
+    y = w + rng.normal(0.0, 0.05, n)
+    if gm_sensor:
+        y += _gauss_markov(rng, n, gm_sensor, 20.0)
+    return pd.DataFrame({"time": np.arange(n, dtype=float), "w": y, "tau": tau})
+
+
+def _gauss_markov(rng: np.random.Generator, n: int, std: float, tau: float) -> np.ndarray:
+    from scipy.signal import lfilter
+
+    rho = np.exp(-1 / tau)
+    e = rng.normal(0.0, std * np.sqrt(1 - rho * rho), n)
+    e[0] = rng.normal(0.0, std)
+    return lfilter([1.0], [1.0, -rho], e)
+
+
+def _fit(log, method="auto"):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = identify(log, SPEC, method)
+    return res, {type(w.message) for w in caught}
+
+
+def test_mean_current_is_detected_and_its_mean_reported():
+    res, cats = _fit(_log(1, vbar=0.05))
+    mc = res.diagnostics["mean_current"]
+    assert mc["warned"] and IdentifiabilityWarning in cats
+    # the reported mean of the current: within 4 of its own standard errors of the truth
+    assert abs(mc["estimate"] - 0.05) < 4 * mc["std_error"]
+    assert mc["std_error"] < 0.05 / 3  # and distinguishable from zero
+    assert "v̄ =" in mc["sentence"]
+
+
+def test_no_mean_current_warning_on_a_zero_mean_current():
+    res, cats = _fit(_log(2))
+    assert not res.diagnostics["mean_current"]["warned"]
+    assert IdentifiabilityWarning not in cats
+
+
+def test_stability_test_names_a_drifting_gain_and_not_a_constant_one():
+    res, cats = _fit(_log(3, drift=0.3))
+    st = res.diagnostics["parameter_stability"]
+    assert st["rejected"] and ParameterDriftWarning in cats
+    assert st["second_half"]["w: tau"] > st["first_half"]["w: tau"]
+    res, cats = _fit(_log(4))
+    assert not res.diagnostics["parameter_stability"]["rejected"]
+    assert ParameterDriftWarning not in cats
+
+
+def test_choice_text_does_not_blame_colour_when_the_parameters_drift():
+    est = InstrumentalGMM("auto", noise_order=4, pem_fallback=True)
+    info = {"c_pvalue": np.array([1e-5]), "colour_pvalue": np.array([1e-4]),
+            "instrument_set": np.array(["simulated"], dtype=object), "pem_applies": False,
+            "stability": {"rejected": True, "pvalue": 1e-4}}
+    text = est._choice_text(info)
+    assert "look coloured" not in text and "drifting parameters" in text
+    assert "may drift" in est._choice_sentence(info)
+    info["stability"] = {"rejected": False, "pvalue": 0.5}
+    assert "look coloured" in est._choice_text(info)
+
+
+def test_auto_models_a_gm_current_and_says_why_in_one_sentence():
+    res, _ = _fit(_log(5, gm_current=0.1))
+    assert res.diagnostics["choice"].startswith("pem-")
+    reason = res.diagnostics["choice_reason"]
+    assert reason.startswith("auto used the prediction-error estimator") and reason.count(". ") == 0
+    assert res.diagnostics["cov_type"] == "sandwich"
+    assert "quasi-ML sandwich" in res.summary()
+
+
+def test_pem_sandwich_and_fisher_agree_on_its_own_model():
+    log = _log(6, gm_current=0.1)
+    fisher, _ = _fit(log, PredictionError())
+    sand, _ = _fit(log, PredictionError(covariance="sandwich"))
+    np.testing.assert_array_equal(fisher.params, sand.params)
+    ratio = sand.std_errors / fisher.std_errors
+    assert ((ratio > 0.7) & (ratio < 1.4)).all(), ratio
+    assert "assumes the disturbances are" in fisher.diagnostics["assumption"]
+
+
+@pytest.mark.parametrize("make,msg", [
+    (lambda: PredictionError(covariance="hc0"), "covariance must be one of"),
+    (lambda: PredictionError(joint="yes"), "joint must be True or False"),
+    (lambda: InstrumentalGMM("auto", pem_cov="robust"), "pem_cov must be one of"),
+])
+def test_bad_options_one_line_reasons(make, msg):
+    with pytest.raises(IdentificationError, match=msg) as err:
+        identify(_log(7, n=500), SPEC, make())
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["gm-current", "two-coloured", "mean-current"])
+def test_auto_coverage_on_coloured_and_mean_currents(kind):
+    """auto's 95 % intervals cover θ0 in a binomially plausible share of 60 runs (three
+    binomial standard errors below 95 %)."""
+    runs = 60
+    hits = np.zeros(3)
+    for seed in range(runs):
+        log = _log(100 + seed, gm_current=0.1 if kind != "mean-current" else 0.0,
+                   gm_sensor=0.05 if kind == "two-coloured" else 0.0,
+                   vbar=0.05 if kind == "mean-current" else 0.0)
+        res, _ = _fit(log)
+        ci = res.conf_int()
+        hits += (ci["lower"].to_numpy() <= THETA0) & (np.asarray(THETA0) <= ci["upper"])
+    floor = 0.95 - 3 * np.sqrt(0.95 * 0.05 / runs)
+    assert (hits / runs >= floor).all(), hits / runs

@@ -1,0 +1,246 @@
+"""Diagnostics that name causes: parameter stability and a current's mean.
+
+Both tests run on the fit path of ``auto`` (one log) and are reported with the result
+(``diagnostics["parameter_stability"]``, ``diagnostics["mean_current"]``).
+
+* :func:`parameter_stability` — a split-sample (Chow-type) test: the IV_{E{ζ}=0}
+  estimate (4) of the first and of the second half of every experiment, and the Wald
+  statistic of their difference with the two halves' HAC covariances,
+  ``W = dᵀ (V₁ + V₂)⁻¹ d ~ χ²(P)`` under constant parameters. A drifting parameter makes
+  the equation error remember its past like a coloured disturbance does; ``auto``'s
+  colour test then rejects, and the choice sentence must not blame colour.
+* :func:`mean_current` — a current with mean ``v̄`` inside the modulus and no
+  disturbance sensor. Expanding the modulus about the measured state,
+  ``(w − v̄)|w − v̄| = w|w| − 2 v̄ |w| + v̄² sign(w)`` (``|w| ≥ |v̄|``), so the equation
+  error carries ``−2 n v̄ |w|``: the data identify the coefficient ``b = −2 n v̄`` of
+  ``|w|`` (hence ``v̄ = −b / (2n)``), and the offset becomes ``μ_w − a v̄ − …`` — the
+  process-noise mean and the current's mean can no longer be read from it alone. The
+  test adds ``|w|`` to the equation with the simulated ``|x̂|`` as its instrument (the
+  other instruments simulated as usual; everything centred per experiment) and tests
+  ``b = 0`` with a Bartlett HAC covariance. Where the motion keeps one sign ``|w| = ±w``
+  and only ``a ∓ 2 n v̄`` is identified; the test then has no power and says so through
+  its wide interval.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from vesselid.identify import kernels
+from vesselid.identify.data import RegressionData
+from vesselid.identify.gmm import hac_lags
+from vesselid.model import ModelSpec
+
+__all__ = ["MEAN_CURRENT_ALPHA", "STABILITY_ALPHA", "mean_current", "parameter_stability"]
+
+#: Level of the split-sample stability test.
+STABILITY_ALPHA = 0.01
+#: Level of the mean-current (``|w|`` term) test.
+MEAN_CURRENT_ALPHA = 0.01
+#: Fewest samples per half-experiment for the stability test.
+MIN_HALF = 100
+
+
+def _hac_iv(z: np.ndarray, phi: np.ndarray, y: np.ndarray, seg: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Just-identified IV ``θ = (ZᵀΦ)⁻¹ Zᵀy`` on centred rows and its Bartlett HAC
+    sandwich covariance (lags not across segments ``seg``)."""
+    a = z.T @ phi
+    try:
+        theta = np.linalg.solve(a, z.T @ y)
+        a_inv = np.linalg.inv(a)
+    except np.linalg.LinAlgError:
+        return None
+    m = z * (y - phi @ theta)[:, None]
+    s = m.T @ m
+    bw = hac_lags(m.shape[0])
+    for lag in range(1, bw + 1):
+        same = (seg[lag:] == seg[:-lag]).astype(float)[:, None]
+        c = (m[lag:] * same).T @ m[:-lag]
+        s += (1.0 - lag / (bw + 1.0)) * (c + c.T)
+    return theta, a_inv @ s @ a_inv.T
+
+
+def _rows(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray, extra: bool):
+    """Centred regressors, instruments and targets of group 0 (one state), with the
+    ``|w|`` column and its simulated instrument appended when ``extra``."""
+    codes = spec.codes
+    sl, starts = data.group_rows(0)
+    phi = kernels.regressor_matrix(data.regsig[sl], data.u[sl], starts, codes.factors)
+    z, xhat = kernels.instrument_matrix(data.target[sl], data.u[sl], starts, theta_aux,
+                                        codes.factors, codes.equation, spec.n_states)
+    y = data.target[sl, 0].astype(float)
+    if extra:
+        prev = np.full((y.size, 2), np.nan)
+        for s in range(starts.size - 1):
+            a, b = int(starts[s]), int(starts[s + 1])
+            prev[a + 1:b, 0] = np.abs(data.regsig[sl][a:b - 1, 0])
+            prev[a + 1:b, 1] = np.abs(xhat[a:b - 1, 0])
+        phi = np.column_stack([phi, prev[:, 0]])
+        z = np.column_stack([z, prev[:, 1]])
+    keep = np.all(np.isfinite(phi), axis=1) & np.all(np.isfinite(z), axis=1)
+    seg = np.repeat(np.arange(starts.size - 1), np.diff(starts))
+    for s in range(starts.size - 1):  # a constant per experiment: centre
+        r = keep & (seg == s)
+        for arr in (phi, z):
+            arr[r] -= arr[r].mean(axis=0)
+        y[r] -= y[r].mean()
+    return phi[keep], z[keep], y[keep], seg[keep]
+
+
+def _chi2_sf(x: float, df: int) -> float:
+    from vesselid.identify._special import chi2_sf
+
+    return float(chi2_sf(np.array([max(x, 0.0)]), df)[0])
+
+
+def mean_current(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray,
+                 alpha: float = MEAN_CURRENT_ALPHA) -> dict[str, Any] | None:
+    """Test for a current with non-zero mean inside the modulus (module docstring).
+
+    ``theta_aux``: the consistent estimate the instruments are simulated from (P,).
+    ``None`` where the test does not apply: several states, a disturbance sensor (its
+    mean is then measured), or no ``w*|w|`` term of the state.
+    """
+    if spec.n_states != 1 or spec.aggregate or data.n_groups != 1:
+        return None
+    state = spec.states[0]
+    names = [str(t) for t in spec.equations[state]]
+    key = f"{state}*|{state}|"
+    if key not in names or state not in names:
+        return None
+    phi, z, y, seg = _rows(data, spec, np.asarray(theta_aux, dtype=float), extra=True)
+    if y.size < 4 * phi.shape[1]:
+        return None
+    fit = _hac_iv(z, phi, y, seg)
+    if fit is None:
+        return None
+    theta, cov = fit
+    p = phi.shape[1] - 1
+    i_n = names.index(key)
+    b, se_b = float(theta[p]), float(math.sqrt(max(cov[p, p], 0.0)))
+    n_hat = float(theta[i_n])
+    if not (np.isfinite(b) and se_b > 0 and n_hat != 0):
+        return None
+    zstat = b / se_b
+    pval = math.erfc(abs(zstat) / math.sqrt(2.0))
+    vbar = -b / (2.0 * n_hat)
+    grad = np.zeros(p + 1)  # delta method for v̄ = −b / (2n)
+    grad[p] = -1.0 / (2.0 * n_hat)
+    grad[i_n] = b / (2.0 * n_hat ** 2)
+    se_v = float(math.sqrt(max(grad @ cov @ grad, 0.0)))
+    warned = pval < alpha
+    sentence = (
+        f"the equation error carries a |{state}| term (coefficient {b:.3g} ± {se_b:.2g}, "
+        f"p = {pval:.2g}): a current with non-zero mean acts inside the modulus and no "
+        f"sensor measures it; the data identify that coefficient, −2·n·v̄, so the "
+        f"current's mean is v̄ = {vbar:.3g} ± {se_v:.2g} (95 % interval "
+        f"{vbar - 1.96 * se_v:.3g} … {vbar + 1.96 * se_v:.3g}), and the offset then mixes "
+        f"the process-noise mean with −a·v̄: read neither from it alone"
+        if warned else
+        f"no sign of a current with non-zero mean inside the modulus (|{state}| term "
+        f"{b:.3g} ± {se_b:.2g}, p = {pval:.2g})")
+    return {"statistic": zstat, "pvalue": pval, "level": alpha, "warned": bool(warned),
+            "abs_coefficient": b, "abs_coefficient_se": se_b,
+            "identified": f"coefficient of |{state}| = -2*n*v_mean",
+            "estimate": vbar, "std_error": se_v, "sentence": sentence}
+
+
+def _halves(data: RegressionData) -> RegressionData | None:
+    """Group 0's rows rearranged as two groups: the first half of every experiment,
+    then the second half."""
+    sl, starts = data.group_rows(0)
+    firsts, seconds = [], []
+    for s in range(starts.size - 1):
+        a, b = sl.start + int(starts[s]), sl.start + int(starts[s + 1])
+        mid = (a + b) // 2
+        if mid - a < MIN_HALF or b - mid < MIN_HALF:
+            return None
+        firsts.append(slice(a, mid))
+        seconds.append(slice(mid, b))
+    pieces = firsts + seconds
+    lengths = [p.stop - p.start for p in pieces]
+
+    def take(arr):
+        return None if arr is None else np.ascontiguousarray(
+            np.concatenate([arr[p] for p in pieces]))
+
+    n_exp = len(firsts)
+    return replace(data, target=take(data.target), regsig=take(data.regsig),
+                   u=take(data.u), sensor=take(data.sensor),
+                   starts=np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64),
+                   group=np.repeat([0, 1], n_exp).astype(np.int64), n_groups=2,
+                   experiment_ids=tuple(range(2 * n_exp)))
+
+
+def parameter_stability(data: RegressionData, spec: ModelSpec,
+                        alpha: float = STABILITY_ALPHA,
+                        theta_start: np.ndarray | None = None) -> dict[str, Any] | None:
+    """Split-sample (Chow-type) test of constant parameters (module docstring).
+
+    One state equation. ``None`` where the test does not apply: several states, an
+    experiment too short to halve (:data:`MIN_HALF` samples a half), an estimate that is
+    not finite. ``theta_start``: the whole log's estimate, a start of both halves'
+    refined iterations that saves most of their steps.
+    """
+    from vesselid.identify.estimators import estimate
+
+    if data.n_groups != 1 or spec.n_states != 1:
+        return None
+    halves = _halves(data)
+    if halves is None:
+        return None
+    it = estimate(halves, spec, "iv-zero-mean", combine="pooled", theta_start=theta_start)
+    if not np.all(np.isfinite(it.theta)):
+        return None
+    n_par = spec.n_params
+    covs = []
+    for g in (0, 1):
+        sub = _group(halves, g)
+        phi, z, y, seg = _rows(sub, spec, it.theta_aux[g], extra=False)
+        fit = _hac_iv(z, phi, y, seg)
+        if fit is None:
+            return None
+        covs.append(fit[1])
+    d = it.theta[1] - it.theta[0]
+    v = covs[0] + covs[1]
+    try:
+        stat = float(d @ np.linalg.solve(v, d))
+    except np.linalg.LinAlgError:
+        return None
+    pval = _chi2_sf(stat, n_par)
+    se = np.sqrt(np.clip(np.diag(v), 0, None))
+    zs = d / np.where(se > 0, se, np.nan)
+    names = [f"{e}: {t}" for e, t in spec.param_index]
+    worst = int(np.nanargmax(np.abs(zs)))
+    rejected = pval < alpha
+    sentence = (
+        f"the parameters differ between the first and second half of the log (split-"
+        f"sample Wald {stat:.3g}, {n_par} df, p = {pval:.2g}; largest change "
+        f"{names[worst]} {d[worst]:+.3g}, {zs[worst]:+.2g} SE): the model drifts, and a "
+        f"drifting parameter also makes the equation error look coloured"
+        if rejected else
+        f"no sign of drifting parameters (split-sample Wald {stat:.3g}, {n_par} df, "
+        f"p = {pval:.2g})")
+    return {"statistic": stat, "df": n_par, "pvalue": pval, "level": alpha,
+            "rejected": bool(rejected),
+            "first_half": dict(zip(names, map(float, it.theta[0]), strict=True)),
+            "second_half": dict(zip(names, map(float, it.theta[1]), strict=True)),
+            "sentence": sentence}
+
+
+def _group(data: RegressionData, g: int) -> RegressionData:
+    sl, starts = data.group_rows(g)
+    segs = np.flatnonzero(data.group == g)
+
+    def cut(arr):
+        return None if arr is None else arr[sl]
+
+    return replace(data, target=cut(data.target), regsig=cut(data.regsig), u=cut(data.u),
+                   sensor=cut(data.sensor), starts=starts.astype(np.int64),
+                   group=np.zeros(segs.size, dtype=np.int64), n_groups=1,
+                   experiment_ids=tuple(range(segs.size)))
