@@ -57,9 +57,10 @@ def _all_estimators() -> list[tuple[str, str]]:
     from vesselid.identify import ESTIMATORS
 
     # the log of this module has a current sensor ([aggregate]), which pem does not model:
-    # its units test is below, on a log without one
-    out = [(m, "pooled") for m in ESTIMATORS if m != "pem"]
-    out += [(m, "stacked") for m, est in ESTIMATORS.items() if "stacked" in est.multi_experiment]
+    # its units test is below, on a log without one; cl-iv needs a closed-loop log
+    open_loop = [m for m in ESTIMATORS if m not in ("pem", "cl-iv")]
+    out = [(m, "pooled") for m in open_loop]
+    out += [(m, "stacked") for m in open_loop if "stacked" in ESTIMATORS[m].multi_experiment]
     return out
 
 
@@ -160,10 +161,12 @@ def test_pem_is_unit_invariant(s):
         warnings.simplefilter("ignore")
         for method in ("pem", "auto"):
             ref, res = identify(base, method=method), identify(_scaled(base, s), method=method)
-            np.testing.assert_allclose(res.params.to_numpy() * unit, ref.params.to_numpy(),
-                                       rtol=1e-8)
-            np.testing.assert_allclose(res.std_errors.to_numpy() * unit,
-                                       ref.std_errors.to_numpy(), rtol=1e-6)
+            # Fisher scoring stops where its step is below pem.SCORING_TOL standard errors:
+            # logs in other units agree to that accuracy
+            se = ref.std_errors.to_numpy()
+            assert np.all(np.abs(res.params.to_numpy() * unit - ref.params.to_numpy())
+                          <= 0.01 * se), method
+            np.testing.assert_allclose(res.std_errors.to_numpy() * unit, se, rtol=1e-3)
             assert res.diagnostics["disturbance_model"] == ref.diagnostics["disturbance_model"]
     np.testing.assert_allclose(res.diagnostics["noise_parameters"]["sigma_w"] / s,
-                               ref.diagnostics["noise_parameters"]["sigma_w"], rtol=1e-6)
+                               ref.diagnostics["noise_parameters"]["sigma_w"], rtol=1e-3)

@@ -18,6 +18,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -305,6 +306,13 @@ def feedback_test(log: Any, spec: ModelSpec | None = None, *, lags: int = FEEDBA
                               alpha=alpha)
 
 
+def _declares_closed_loop(log: Any) -> bool:
+    """Whether the log's metadata names a closed loop (read without importing the
+    compiled closed-loop simulation, :func:`vesselid.closedloop.closed_loop_info`)."""
+    meta = getattr(log, "metadata", None) or {}
+    return isinstance(meta.get("closed_loop"), Mapping)
+
+
 def feedback_check(name: str, log: Any, data: RegressionData, spec: ModelSpec,
                    designs: list | None = None, reference: Any = None
                    ) -> tuple[dict[str, Any], str | None]:
@@ -315,9 +323,7 @@ def feedback_check(name: str, log: Any, data: RegressionData, spec: ModelSpec,
     fit ``reference`` (an IterationResult of ``data``; estimated when None), and warns
     when it rejects.
     """
-    from vesselid.closedloop import closed_loop_info
-
-    declared = closed_loop_info(log) is not None
+    declared = _declares_closed_loop(log)
     out: dict[str, Any] = {"declared_closed_loop": declared}
     test = None
     try:
@@ -340,9 +346,7 @@ def feedback_check(name: str, log: Any, data: RegressionData, spec: ModelSpec,
 def closed_loop_route(log: Any, spec: ModelSpec | None) -> ClosedLoopSignals | None:
     """The external signals when ``log`` declares closed loop *and* names a simulable
     controller and its reference (``auto`` then uses ``cl-iv``), else None."""
-    from vesselid.closedloop import closed_loop_info
-
-    if closed_loop_info(log) is None:
+    if not _declares_closed_loop(log):
         return None
     try:
         return closed_loop_signals(log, spec or getattr(log, "spec", None))

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from vesselid.identify import kernels
+from vesselid.identify.backend import kernels
 from vesselid.identify.data import RegressionData
 from vesselid.identify.gmm import hac_lags
 from vesselid.model import ModelSpec
