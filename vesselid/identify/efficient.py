@@ -527,12 +527,11 @@ class InstrumentalGMM(Estimator):
         """Why ``auto`` chose what it chose, in one plain sentence."""
         used = str(info["instrument_set"][0])
         p_c, p_w = float(info["c_pvalue"][0]), float(info["colour_pvalue"][0])
-        tests = (f"the C test of the delayed instruments (p = {p_c:.2g}) and the colour "
-                 f"test (p = {p_w:.2g})")
         if used == "combined":
-            return (f"auto used simulated + delayed instruments because neither {tests} "
-                    "rejects white disturbances, and then the delayed measurements make "
-                    "the estimate more precise.")
+            return (f"auto used simulated + delayed instruments because neither the C test "
+                    f"of the delayed instruments (p = {p_c:.2g}) nor the colour test "
+                    f"(p = {p_w:.2g}) rejects white disturbances, and then the delayed "
+                    "measurements make the estimate more precise.")
         rejected = [n for n, p, a in (("C test", p_c, self.alpha),
                                       ("colour test", p_w, self.colour_alpha)) if p < a]
         why = " and the ".join(rejected) or "a test"
