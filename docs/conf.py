@@ -15,6 +15,9 @@ from pathlib import Path
 # ``vesselid.envs`` subpackage lives in the folder ``envs/`` and exists only once installed.
 ROOT = Path(__file__).resolve().parent.parent
 os.environ.setdefault("MPLBACKEND", "Agg")
+# the executed pages run in a temporary folder: this tells them where the repository is
+# (the study scripts and the tables they generate)
+os.environ["VESSELID_REPO"] = str(ROOT)
 
 import vesselid  # noqa: E402
 

@@ -203,9 +203,10 @@ class AdaptiveFeedbackLinearizingController(FeedbackLinearizingController):
     delayed-input instruments ``[X(k − delay), 1]``: in the loop ``X(k)`` reacts to the
     sensor noise at ``k``, which the equation error contains, while the delayed input does
     not). The control law uses the latest gains (bounded to ``gain_bounds`` times the
-    initial ones) and subtracts the estimated offsets.
+    initial ones) and subtracts the estimated offsets. The parameters below come besides
+    those of :class:`FeedbackLinearizingController`.
 
-    Parameters (besides those of :class:`FeedbackLinearizingController`)
+    Parameters
     ----------
     forgetting : float
         λ of the recursion (memory ``1/(1 − λ)`` samples).
