@@ -62,6 +62,12 @@ LAZY_COMMANDS = {
         "Read NMEA 0183 logs, ROS 2 bags and mapped multi-rate CSV files, align the clocks, "
         "resample onto a uniform grid, convert to local NED and body-frame velocities, split "
         "experiments at gaps, and write a trial log with a quality report in its metadata."),
+    "select": (
+        "vesselid.selection.command", "select the modulus terms of each equation from a log",
+        "Choose the terms of every state equation from a candidate library (Definition 2.1 "
+        "forms): IV backward elimination with instruments simulated from the inputs, HAC "
+        "Wald tests and block-bootstrap selection probabilities; writes a spec for "
+        "`vesselid identify`."),
 }
 
 

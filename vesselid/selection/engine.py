@@ -303,7 +303,11 @@ def eliminate(m_mat: np.ndarray, m_vec: np.ndarray, counts: np.ndarray, crit: fl
         dof = max(n_eff - active.size, 1.0)
         omega = (g * c[:, None]).T @ g * (n_eff / dof)
         cov = a_inv @ omega @ a_inv.T
-        se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        # floor: 1e-8 of the coefficient that would explain the target by the candidate
+        # alone (noise-free logs: a zero term's ``0/0`` must read as 0, not as chance)
+        diag_a = np.abs(np.diag(a))
+        floor = 1e-8 * np.abs(b_full[active]) / np.where(diag_a > 0, diag_a, 1.0)
+        se = np.maximum(np.sqrt(np.maximum(np.diag(cov), 0.0)), floor)
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.where(se > 0, theta / se, 0.0)
         t = np.nan_to_num(t, nan=0.0, posinf=np.inf, neginf=-np.inf)

@@ -172,12 +172,11 @@ def select_terms(
         groups[s] = g
     max_terms = max(min(n_rows // 10, (blocks.n - 1) // 2), 0)
     for s in spec.states:
-        if keep_idx[s].size > max_terms:
+        if len(lib[s]) > max_terms:
             raise SelectionError(
-                f"the library of equation {s!r} has {keep_idx[s].size} identifiable "
-                f"candidates, more than this log supports ({max_terms}: {n_rows} samples in "
-                f"{blocks.n} blocks of {blocks.length}); use a smaller library or a longer "
-                "log")
+                f"the library of equation {s!r} has {len(lib[s])} candidates, more than this "
+                f"log supports ({max_terms}: {n_rows} samples in {blocks.n} blocks of "
+                f"{blocks.length}); use a smaller library or a longer log")
     m_total = sum(int(k.size) for k in keep_idx.values())
     crit = engine.critical_value(alpha, m_total, n_rows)
 
