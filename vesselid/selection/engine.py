@@ -40,9 +40,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import numpy as np
-from scipy.stats import norm
 
 from vesselid.identify.backend import kernels
 from vesselid.identify.data import RegressionData
@@ -114,7 +114,7 @@ def make_blocks(data: RegressionData, block_length: int | None = None) -> Blocks
 
 def critical_value(alpha: float, n_candidates: int, n_rows: int) -> float:
     """``max(z_{1−α/(2M)}, √log n)``: Bonferroni over ``M`` candidates and the BIC rate."""
-    bonf = float(norm.isf(alpha / (2.0 * max(n_candidates, 1))))
+    bonf = float(NormalDist().inv_cdf(1.0 - alpha / (2.0 * max(n_candidates, 1))))
     return max(bonf, math.sqrt(math.log(max(n_rows, 3))))
 
 
@@ -333,3 +333,88 @@ def bootstrap_counts(blocks: Blocks, n_boot: int, rng: np.random.Generator) -> n
         for r in range(n_boot):
             out[r, idx] = np.bincount(draws[r], minlength=idx.size)
     return out
+
+
+def _iv_fit(a_full, b_full, mm, mv, c, n_eff, idx):
+    """IV estimate, batch-means HAC covariance and ``|t|`` of the candidates ``idx``."""
+    a = a_full[np.ix_(idx, idx)]
+    try:
+        theta = np.linalg.solve(a, b_full[idx])
+        a_inv = np.linalg.inv(a)
+    except np.linalg.LinAlgError:
+        return None
+    if not (np.all(np.isfinite(theta)) and np.all(np.isfinite(a_inv))):
+        return None
+    cur = mm[:, idx][:, :, idx]
+    g = mv[:, idx] - cur @ theta
+    dof = max(n_eff - len(idx), 1.0)
+    omega = (g * c[:, None]).T @ g * (n_eff / dof)
+    cov = a_inv @ omega @ a_inv.T
+    cov = 0.5 * (cov + cov.T)
+    diag_a = np.abs(np.diag(a))
+    floor = 1e-8 * np.abs(b_full[idx]) / np.where(diag_a > 0, diag_a, 1.0)
+    se = np.maximum(np.sqrt(np.maximum(np.diag(cov), 0.0)), floor)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(se > 0, theta / se, 0.0)
+    return theta, cov, np.nan_to_num(t, nan=0.0)
+
+
+def stepwise(m_mat: np.ndarray, m_vec: np.ndarray, counts: np.ndarray, crit: float,
+             start: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Forward–backward IV selection on block moments of one equation.
+
+    From ``start`` (default empty), add the candidate with the largest HAC ``|t|`` when
+    added to the current model while that ``|t|`` reaches ``crit``; after every addition
+    drop the term with the smallest ``|t|`` while it is below ``crit`` (a dropped term is
+    not added again). Only small models are ever fitted, so a large library with nearly
+    collinear candidates never enters one ill-conditioned fit.
+
+    Returns the same as :func:`eliminate`: ``keep``, ``theta``, ``t`` (kept: in the final
+    model; others: when tried last against the final model) and ``cov``.
+    """
+    used = np.flatnonzero(counts > 0)
+    c = counts[used].astype(float)
+    mm = np.ascontiguousarray(m_mat[used])
+    mv = np.ascontiguousarray(m_vec[used])
+    p = mm.shape[1]
+    a_full = np.tensordot(c, mm, axes=1)
+    b_full = c @ mv
+    n_eff = float(c.sum())
+    model: list[int] = [] if start is None else [int(j) for j in start]
+    banned: set[int] = set()
+    t_try = np.zeros(p)
+    for _ in range(4 * p + 4):
+        best, best_t = -1, 0.0
+        for j in range(p):
+            if j in model or j in banned:
+                continue
+            fit = _iv_fit(a_full, b_full, mm, mv, c, n_eff, [*model, j])
+            tj = 0.0 if fit is None else abs(float(fit[2][-1]))
+            t_try[j] = tj
+            if tj > best_t:
+                best, best_t = j, tj
+        if best < 0 or best_t < crit:
+            break
+        model.append(best)
+        while len(model) > 1:
+            fit = _iv_fit(a_full, b_full, mm, mv, c, n_eff, model)
+            if fit is None:
+                banned.add(model.pop())
+                continue
+            k = int(np.argmin(np.abs(fit[2])))
+            if abs(fit[2][k]) >= crit:
+                break
+            banned.add(model.pop(k))
+    keep = np.zeros(p, dtype=bool)
+    theta_out = np.zeros(p)
+    cov_out = np.zeros((p, p))
+    t_out = t_try.copy()
+    if model:
+        fit = _iv_fit(a_full, b_full, mm, mv, c, n_eff, model)
+        if fit is not None:
+            keep[model] = True
+            theta_out[model] = fit[0]
+            cov_out[np.ix_(model, model)] = fit[1]
+            t_out[model] = fit[2]
+    return keep, theta_out, t_out, cov_out

@@ -29,7 +29,9 @@ class SelectionResult:
     library : dict
         The candidates per equation.
     table : DataFrame
-        One row per candidate: ``equation, term, selected, probability`` (block-bootstrap
+        One row per candidate: ``equation, term, represented_by`` (the candidate that
+        stands for it in this log: itself, the earlier candidate it is the same as, or
+        empty for a linear combination of several), ``selected, probability`` (block-bootstrap
         share of replicates keeping it, or its group's representative), ``estimate``,
         ``stderr`` (IV with the final instruments, batch-means HAC), ``t`` (in the final
         model, or in the model it was dropped from), ``same_as`` (why it is not a

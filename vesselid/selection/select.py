@@ -180,22 +180,28 @@ def select_terms(
     m_total = sum(int(k.size) for k in keep_idx.values())
     crit = engine.critical_value(alpha, m_total, n_rows)
 
-    aux_spec = spec
-    theta_aux = _refined_iv(data, spec)
-    aux_source = "base model (refined IV, zero-mean instruments)"
-    if theta_aux is None:
-        theta_aux = _least_squares(data, spec)
-        aux_source = "base model (least squares)"
-    if theta_aux is None:
-        raise SelectionError("the base model cannot be fitted to this log (singular "
-                             "equations); give a base model whose terms vary in the log")
+    z = None
+    for fitter, label in ((_refined_iv, "refined IV, zero-mean instruments"),
+                          (_least_squares, "least squares")):
+        theta_aux = fitter(data, spec)
+        if theta_aux is None:
+            continue
+        try:
+            z = engine.instruments(data, union, spec, theta_aux)
+        except SelectionError:
+            continue
+        aux_source = f"base model ({label})"
+        break
+    if z is None:
+        raise SelectionError("the base model cannot be fitted to this log or its simulation "
+                             "diverges, so no instruments can be formed; give a stable base "
+                             "model (--model) whose equations hold the dominant terms")
 
     history: list[dict[str, list[str]]] = []
     fits: dict[str, tuple] = {}
     moments = None
     converged = False
     for _ in range(int(passes)):
-        z = engine.instruments(data, union, aux_spec, theta_aux)
         z_c = engine.centred(z, segs)
         m_mat, m_vec = engine.block_moments(z_c, phi_c, y_c, blocks, offset)
         moments = (m_mat, m_vec)
@@ -203,7 +209,7 @@ def select_terms(
         chosen: dict[str, list[Term]] = {}
         for i, s in enumerate(spec.states):
             sub = keep_idx[s]
-            fits[s] = engine.eliminate(m_mat[:, sub][:, :, sub], m_vec[:, sub, i], ones, crit)
+            fits[s] = engine.stepwise(m_mat[:, sub][:, :, sub], m_vec[:, sub, i], ones, crit)
             chosen[s] = [union[sub[j]] for j in np.flatnonzero(fits[s][0])]
         key = {s: [str(t) for t in chosen[s]] for s in spec.states}
         if history and key == history[-1]:
@@ -215,7 +221,10 @@ def select_terms(
         new_theta = _refined_iv(data, new_aux)
         if new_theta is None:
             break
-        aux_spec, theta_aux = new_aux, new_theta
+        try:
+            z = engine.instruments(data, union, new_aux, new_theta)
+        except SelectionError:  # keep the last instruments that could be simulated
+            break
         aux_source = "selected model (refined IV, zero-mean instruments)"
     if not converged and len(history) >= 2 and history[-1] == history[-2]:
         converged = True
@@ -236,7 +245,7 @@ def select_terms(
             mv = m_vec[:, sub, i]
             acc = np.zeros(sub.size)
             for r in range(int(n_boot)):
-                acc += engine.eliminate(mm, mv, counts[r], crit)[0]
+                acc += engine.stepwise(mm, mv, counts[r], crit)[0]
             prob[s] = acc / n_boot
     theta_final = _refined_iv(data, out_spec)
 
@@ -281,7 +290,8 @@ def _table(spec, lib, names, cols, keep_idx, groups, fits, prob, phi_c, near, bo
             if name in where:
                 k = where[name]
                 rows.append({
-                    "equation": s, "term": name, "selected": bool(keep[k]),
+                    "equation": s, "term": name, "represented_by": name,
+                    "selected": bool(keep[k]),
                     "probability": float(prob[s][k]) if boot else math.nan,
                     "estimate": float(theta[k]) if keep[k] else math.nan,
                     "stderr": float(se[k]) if keep[k] else math.nan,
@@ -297,7 +307,8 @@ def _table(spec, lib, names, cols, keep_idx, groups, fits, prob, phi_c, near, bo
                 p = (float(prob[s][where[rep]]) if (boot and rep is not None)
                      else (0.0 if boot else math.nan))
                 rows.append({
-                    "equation": s, "term": name, "selected": False, "probability": p,
+                    "equation": s, "term": name, "represented_by": rep or "",
+                    "selected": False, "probability": p,
                     "estimate": math.nan, "stderr": math.nan, "t": math.nan,
                     "same_as": g.get("reason", ""), "alternatives": "",
                 })
