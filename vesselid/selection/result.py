@@ -79,7 +79,7 @@ class SelectionResult:
         lines = [
             f"Term selection for {self.base.name!r}: {self.n_samples} samples, "
             f"{self.n_experiments} experiment(s)",
-            f"IV backward elimination, instruments from the {self.aux_source}; "
+            f"IV stepwise selection, instruments from the {self.aux_source}; "
             f"|t| >= {self.critical_value:.3g} (alpha {self.alpha:g} over "
             f"{self.n_candidates} candidates, or sqrt(log n)); batch-means HAC, "
             f"{self.n_blocks} blocks of {self.block_length} samples",
@@ -139,7 +139,7 @@ class SelectionResult:
     def to_toml(self) -> str:
         """The selected spec (TOML contract) followed by the selection report as comments."""
         lines = [self.spec.to_toml().rstrip(), "",
-                 "# Selected by `vesselid select` (IV backward elimination, HAC Wald tests, "
+                 "# Selected by `vesselid select` (IV stepwise selection, HAC Wald tests, "
                  f"|t| >= {self.critical_value:.3g}).",
                  f"# Selection probability over {self.n_boot} block-bootstrap replicates "
                  f"(blocks of {self.block_length} samples):"]

@@ -162,9 +162,13 @@ def select_terms(
 
     keep_idx: dict[str, np.ndarray] = {}
     groups: dict[str, list[dict]] = {}
+    screened: dict[tuple[int, ...], tuple] = {}  # equations with the same candidates
     for s in spec.states:
         sub_names = [names[j] for j in cols[s]]
-        k, g = engine.same_in_data_groups(phi_c[:, cols[s]], sub_names, tol)
+        key = tuple(int(j) for j in cols[s])
+        if key not in screened:
+            screened[key] = engine.same_in_data_groups(phi_c[:, cols[s]], sub_names, tol)
+        k, g = screened[key]
         if k.size == 0:
             raise SelectionError(f"no candidate of equation {s!r} varies within an experiment "
                                  "of this log")
