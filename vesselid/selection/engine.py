@@ -453,3 +453,29 @@ def stepwise(m_mat: np.ndarray, m_vec: np.ndarray, counts: np.ndarray, crit: flo
             cov_out[np.ix_(model, model)] = fit[1]
             t_out[model] = fit[2]
     return keep, theta_out, t_out, cov_out
+
+
+def equilibrated_condition(m_mat: np.ndarray) -> float:
+    """Condition number of ``Σ_b M_b`` after row and column equilibration (how well the
+    model with every candidate is determined by its instruments)."""
+    a = m_mat.sum(axis=0)
+    r = np.abs(a).max(axis=1)
+    r = np.where(r > 0, r, 1.0)
+    a = a / r[:, None]
+    c = np.abs(a).max(axis=0)
+    a = a / np.where(c > 0, c, 1.0)[None, :]
+    try:
+        return float(np.linalg.cond(a))
+    except np.linalg.LinAlgError:
+        return math.inf
+
+
+def select_equation(m_mat: np.ndarray, m_vec: np.ndarray, counts: np.ndarray, crit: float,
+                    max_condition: float = 1e6):
+    """Backward elimination (:func:`eliminate`) when the model with every candidate is
+    well determined (equilibrated condition number at most ``max_condition``): each
+    test then conditions on every other candidate, the consistent classical rule; else
+    forward–backward :func:`stepwise`, which never fits the ill-conditioned full model."""
+    if equilibrated_condition(m_mat) <= max_condition:
+        return eliminate(m_mat, m_vec, counts, crit)
+    return stepwise(m_mat, m_vec, counts, crit)

@@ -213,7 +213,7 @@ def select_terms(
         chosen: dict[str, list[Term]] = {}
         for i, s in enumerate(spec.states):
             sub = keep_idx[s]
-            fits[s] = engine.stepwise(m_mat[:, sub][:, :, sub], m_vec[:, sub, i], ones, crit)
+            fits[s] = engine.select_equation(m_mat[:, sub][:, :, sub], m_vec[:, sub, i], ones, crit)
             chosen[s] = [union[sub[j]] for j in np.flatnonzero(fits[s][0])]
         key = {s: [str(t) for t in chosen[s]] for s in spec.states}
         if history and key == history[-1]:
@@ -249,7 +249,7 @@ def select_terms(
             mv = m_vec[:, sub, i]
             acc = np.zeros(sub.size)
             for r in range(int(n_boot)):
-                acc += engine.stepwise(mm, mv, counts[r], crit)[0]
+                acc += engine.select_equation(mm, mv, counts[r], crit)[0]
             prob[s] = acc / n_boot
     theta_final = _refined_iv(data, out_spec)
 
