@@ -16,7 +16,7 @@ from vesselid.selection.library import (
     resolve_library,
 )
 from vesselid.selection.result import SelectionResult
-from vesselid.selection.select import select_terms
+from vesselid.selection.select import fit_structure, select_terms
 
-__all__ = ["SelectionError", "SelectionResult", "full_library", "parse_library",
-           "resolve_library", "select_terms"]
+__all__ = ["SelectionError", "SelectionResult", "fit_structure", "full_library",
+           "parse_library", "resolve_library", "select_terms"]

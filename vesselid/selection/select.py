@@ -7,13 +7,12 @@ input, runs the passes and the bootstrap, and builds the :class:`SelectionResult
 from __future__ import annotations
 
 import math
-import warnings
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from vesselid.errors import VesselidError
+from vesselid.identify.backend import kernels
 from vesselid.identify.data import from_log
 from vesselid.model import ModelSpec
 from vesselid.selection import engine
@@ -21,35 +20,62 @@ from vesselid.selection.library import Library, SelectionError, resolve_library
 from vesselid.selection.result import SelectionResult
 from vesselid.terms import Term
 
-__all__ = ["select_terms"]
-
-
-def _refined_iv(data, spec: ModelSpec) -> np.ndarray | None:
-    """Refined IV with zero-mean instruments (``iv-zero-mean``) of ``spec``; None if it
-    fails (then the caller keeps its previous auxiliary model)."""
-    from vesselid.identify.registry import get_estimator
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        try:
-            it = get_estimator("iv-zero-mean").estimate_parameters(data, spec)
-        except (VesselidError, np.linalg.LinAlgError, FloatingPointError):
-            return None
-    theta = np.asarray(it.theta[0], dtype=float)
-    return theta if np.all(np.isfinite(theta)) else None
+__all__ = ["fit_structure", "select_terms"]
 
 
 def _least_squares(data, spec: ModelSpec) -> np.ndarray | None:
-    from vesselid.identify.registry import get_estimator
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        try:
-            it = get_estimator("ls").estimate_parameters(data, spec)
-        except (VesselidError, np.linalg.LinAlgError):
-            return None
-    theta = np.asarray(it.theta[0], dtype=float)
+    """Least squares of ``spec`` on the centred equation rows (per equation)."""
+    segs = engine.equation_rows_per_segment(data)
+    codes = spec.codes
+    phi_c = engine.centred(kernels.regressor_matrix(data.regsig, data.u, data.starts,
+                                                    codes.factors), segs)
+    y_c = engine.centred(data.target, segs)
+    theta = np.zeros(spec.n_params)
+    for i in range(spec.n_states):
+        cols = np.flatnonzero(codes.equation == i)
+        theta[cols] = np.linalg.lstsq(phi_c[:, cols], y_c[:, i], rcond=None)[0]
     return theta if np.all(np.isfinite(theta)) else None
+
+
+def _refined_iv(data, spec: ModelSpec, *, max_iter: int = 30, tol: float = 1e-8
+                ) -> np.ndarray | None:
+    """Refined IV with zero-mean instruments (the paper's ``IV_E{ζ}=0``, (4)/(6) pooled)
+    from the least-squares start, on the generic kernels (no kernel compiled per
+    structure: selection visits many structures). ``None`` when no auxiliary simulation
+    stays bounded; else the last iterate whose instruments could be simulated."""
+    theta = _least_squares(data, spec)
+    if theta is None:
+        return None
+    segs = engine.equation_rows_per_segment(data)
+    codes = spec.codes
+    phi_c = engine.centred(kernels.regressor_matrix(data.regsig, data.u, data.starts,
+                                                    codes.factors), segs)
+    y_c = engine.centred(data.target, segs)
+    bound = 1e3 * max(float(np.abs(data.target).max()), 1.0)
+    good = None
+    for _ in range(max_iter):
+        with np.errstate(all="ignore"):
+            z, xhat = kernels.instrument_matrix(data.target, data.u, data.starts, theta,
+                                                codes.factors, codes.equation, spec.n_states)
+        if not np.all(np.isfinite(xhat)) or float(np.abs(xhat).max()) > bound:
+            return good
+        good = theta
+        z_c = engine.centred(z, segs)
+        new = np.zeros_like(theta)
+        for i in range(spec.n_states):
+            cols = np.flatnonzero(codes.equation == i)
+            try:
+                new[cols] = np.linalg.solve(z_c[:, cols].T @ phi_c[:, cols],
+                                            z_c[:, cols].T @ y_c[:, i])
+            except np.linalg.LinAlgError:
+                return good
+        if not np.all(np.isfinite(new)):
+            return good
+        step = np.max(np.abs(new - theta)) / max(float(np.max(np.abs(new))), 1e-300)
+        theta = new
+        if step < tol:
+            break
+    return theta
 
 
 def _spec_with(spec: ModelSpec, equations: dict[str, list[Term]], name: str | None = None
@@ -317,3 +343,23 @@ def _table(spec, lib, names, cols, keep_idx, groups, fits, prob, phi_c, near, bo
                     "same_as": g.get("reason", ""), "alternatives": "",
                 })
     return pd.DataFrame(rows)
+
+
+def fit_structure(log: Any, spec: ModelSpec) -> pd.Series:
+    """Refined IV with zero-mean instruments of ``spec`` on ``log`` (the estimator the
+    selection uses for its auxiliary models), on the generic kernels: no kernel is
+    compiled per structure, so trying many candidate structures stays cheap. For the
+    reported identification (covariance, diagnostics) use ``identify`` on the written
+    spec.
+
+    Raises
+    ------
+    SelectionError
+        If no auxiliary simulation of the structure stays bounded on the log.
+    """
+    data, spec = from_log(log, spec)
+    theta = _refined_iv(data, spec)
+    if theta is None:
+        raise SelectionError(f"the structure {spec.name!r} cannot be fitted to this log "
+                             "(its auxiliary simulation diverges)")
+    return pd.Series(theta, index=spec.param_index, name="estimate")
