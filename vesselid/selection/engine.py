@@ -405,7 +405,8 @@ def stepwise(m_mat: np.ndarray, m_vec: np.ndarray, counts: np.ndarray, crit: flo
     added to the current model while that ``|t|`` reaches ``crit``; after every addition
     drop the term with the smallest ``|t|`` while it is below ``crit`` (a dropped term is
     not added again). Only small models are ever fitted, so a large library with nearly
-    collinear candidates never enters one ill-conditioned fit.
+    collinear candidates never enters one ill-conditioned fit. An equation keeps at least
+    one term (its strongest candidate), as in :func:`eliminate`.
 
     Returns the same as :func:`eliminate`: ``keep``, ``theta``, ``t`` (kept: in the final
     model; others: when tried last against the final model) and ``cov``.
@@ -441,6 +442,8 @@ def stepwise(m_mat: np.ndarray, m_vec: np.ndarray, counts: np.ndarray, crit: flo
             if abs(fit[2][k]) >= crit:
                 break
             banned.add(model.pop(k))
+    if not model:  # an equation needs a term: its strongest candidate, as elimination keeps
+        model = [int(np.argmax(t_try))]
     keep = np.zeros(p, dtype=bool)
     theta_out = np.zeros(p)
     cov_out = np.zeros((p, p))
