@@ -266,6 +266,9 @@ def main(argv=None) -> int:
             for row in one_run(system, n, k, library, ss, oracle=r < args.oracle_runs):
                 row.update(design=name, run=r)
                 rows.append(row)
+            if (r + 1) % 10 == 0:
+                print(f"  {name}: {r + 1} runs, {time.perf_counter() - t0:.0f} s",
+                      file=sys.stderr, flush=True)
         df = pd.DataFrame(rows)
         lib = resolve_library(library, linear_base(truth))
         for s in truth.states:  # which candidates are true (by representative, per run)
