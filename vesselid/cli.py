@@ -80,6 +80,12 @@ LAZY_COMMANDS = {
         "Run recursive least squares or recursive IV with forgetting factor λ over a trial "
         "log in one compiled pass; print the final estimate and optionally write the "
         "estimate's trajectory."),
+    "select": (
+        "vesselid.selection.command", "select the modulus terms of each equation from a log",
+        "Choose the terms of every state equation from a candidate library (Definition 2.1 "
+        "forms): IV backward elimination with instruments simulated from the inputs, HAC "
+        "Wald tests and block-bootstrap selection probabilities; writes a spec for "
+        "`vesselid identify`."),
 }
 
 
