@@ -49,7 +49,7 @@ class SamplingReport:
     checked : bool
         Whether a time column was there to check.
     worst_step_deviation : float
-        Largest |step − median| / median over the experiments (0 when unchecked).
+        Largest ``|step − median| / median`` over the experiments (0 when unchecked).
     """
 
     interval: float | None

@@ -1,7 +1,7 @@
 """Identification in closed loop: the closed-loop refined IV and the feedback test.
 
 Closed-loop refined IV (``--method cl-iv``)
-------------------------------------------
+-------------------------------------------
 Under feedback the logged input carries the noise (``u(k)`` reacts to ``y(k) = x(k) +
 e(k)``), so instruments simulated from it (the paper's auxiliary model, Lemma 3.1) violate
 A6. Following the refined IV for closed loops of Gilson & Van den Hof (2005), the
