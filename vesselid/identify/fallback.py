@@ -117,6 +117,7 @@ def identify_with_fallback(log: Any, spec: Any, chain: tuple[Any, ...] = CHAIN,
     tried: list[dict[str, str]] = []
     candidates: list[tuple[str, IdentificationResult, list]] = []
     chosen = None
+    first = None  # the first member's own result
     for k, item in enumerate(chain):
         est = get_estimator(item)
         name = est.name
@@ -135,6 +136,8 @@ def identify_with_fallback(log: Any, spec: Any, chain: tuple[Any, ...] = CHAIN,
                 tried.append(_entry(name, "raised" if k == 0 else "not applicable",
                                     _one_line(exc)))
                 continue
+        if k == 0:
+            first = res
         outcome, reason = assess(res)
         if name in CAVEATS and outcome == "accepted":
             reason = f"{reason}; {CAVEATS[name]}"
@@ -156,7 +159,7 @@ def identify_with_fallback(log: Any, spec: Any, chain: tuple[Any, ...] = CHAIN,
     for w in caught:  # the chosen fit's warnings reach the caller, as without the chain
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     res.diagnostics["fallback_chain"] = tried
-    if res.method != tried[0]["method"]:
+    if res is not first:  # a later member's result (auto handing a log to cl-iv is not one)
         note = (f"the estimator {tried[0]['method']!r} failed ({tried[0]['outcome']}: "
                 f"{tried[0]['reason']}); the result is {res.method!r}'s "
                 f"(fallback chain: {' → '.join(t['method'] for t in tried)})")
