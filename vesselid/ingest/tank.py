@@ -66,6 +66,7 @@ import numpy as np
 import pandas as pd
 
 from vesselid.ingest.config import IngestError
+from vesselid.ingest.config import _num as config_number
 
 __all__ = ["FROUDE_EXPONENTS", "TankColumn", "TankFormat", "ingest_tank", "load_tank_format",
            "read_tank_file", "tank_format_from_dict"]
@@ -165,13 +166,7 @@ class TankFormat:
 def _num(value: Any, what: str) -> float:
     if isinstance(value, bool):
         raise IngestError(f"[tank] {what} must be a number, got {value!r}")
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise IngestError(f"[tank] {what} must be a number, got {value!r}") from None
-    if not math.isfinite(out):
-        raise IngestError(f"[tank] {what} must be finite, got {value!r}")
-    return out
+    return config_number(value, f"[tank] {what}")
 
 
 def _names(value: Any, what: str) -> tuple[str, ...]:
