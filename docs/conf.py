@@ -66,7 +66,7 @@ html_theme_options = {
     "show_toc_level": 2,
 }
 autodoc_inherit_docstrings = False
-# Re-exports (``vesselid.ModelSpec`` is ``vesselid.model.ModelSpec``) make two targets for
+# Re-exports (``vesselid.ModelSpec`` is ``vesselid.model.spec.ModelSpec``) make two targets for
 # one name; either is the same object.
 suppress_warnings = ["ref.python"]
 # Each page's cells run in a fresh temporary directory: files they write stay out of docs/.

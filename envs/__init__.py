@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from vesselid._lazy import lazy_attributes
+from vesselid.core.lazy import lazy_attributes
 
 __all__ = [
     "ENV_IDS",

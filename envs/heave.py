@@ -1,10 +1,10 @@
 """``vesselid/Heave-v0``: heave velocity control of an underwater vehicle (paper §6).
 
-The plant is the :class:`~vesselid.systems.System` of :func:`vesselid.systems.heave`:
+The plant is the :class:`~vesselid.plant.systems.System` of :func:`vesselid.plant.systems.heave`:
 ``w_a(k+1) = a0 w_r(k) + n0 w_r(k)|w_r(k)| + f0 τ(k) + ξ(k)``, ``w_r = w_a − w_c``,
 θ0 = [0.99, −0.1, 1], ``y1 = w_a + e1``, optionally ``y2 = w_c + e2``. Spec, θ0,
 coupling sign and (white Gaussian) disturbances come from that system, and the step is
-its own one-step kernel (:func:`vesselid.simulate.step_states`); the environment adds
+its own one-step kernel (:func:`vesselid.plant.simulate.step_states`); the environment adds
 action scaling, the reference, the reward and episodes. :class:`HeaveEnv` is the shared
 core with ``n = 1``; :class:`HeaveVectorEnv` steps ``n`` (next-step autoreset).
 """
@@ -24,9 +24,9 @@ from vesselid.envs._render import HeavePlot, check_render_mode, warn_no_render_m
 from vesselid.envs._settings import document, finite, merged, pair
 from vesselid.envs._validate import check_action, require_reset
 from vesselid.errors import VesselidError
-from vesselid.model import ModelSpec
-from vesselid.simulate import step_states
-from vesselid.systems import System, heave, truth_columns
+from vesselid.model.spec import ModelSpec
+from vesselid.plant.simulate import step_states
+from vesselid.plant.systems import System, heave, truth_columns
 
 __all__ = ["HeaveEnv", "HeaveVectorEnv"]
 
@@ -204,7 +204,7 @@ class _Core:
 
 
 #: Source of :meth:`_ScalarCore.step`; ``{plant}`` becomes ``ξ + Σ θ_p F_a F_b`` written
-#: out in term order (the sums of the compiled :func:`vesselid.regressors.advance`), with
+#: out in term order (the sums of the compiled :func:`vesselid.model.regressors.advance`), with
 #: ``F = [s, τ, |s|, |τ|, 1]`` and ``s = w_a + sign·w_c``.
 _SCALAR_STEP = """
 def step(self, a):
@@ -268,7 +268,7 @@ class _ScalarCore:
     The single environment steps one sample per call, where numpy's per-call overhead
     on arrays of one element would dominate; the plant's one-step map ``Φᵀ(s)θ + ξ`` is
     evaluated from the system's factor layout in term order (as the compiled
-    :func:`vesselid.regressors.advance`).
+    :func:`vesselid.model.regressors.advance`).
     """
 
     n = 1
@@ -378,7 +378,7 @@ _DOC_ARGS = """
       defaults to ``current_mean − 0.05`` (§6).
     - ``sensor_std``: std of the velocity sensor noise ``e1`` (0.1).
     - ``current_sensor``: add the current meter ``y2 = w_c + e2`` to the observation;
-      default on iff ``current_mean != 0`` (as :func:`vesselid.systems.heave`).
+      default on iff ``current_mean != 0`` (as :func:`vesselid.plant.systems.heave`).
     - ``current_sensor_std``: std of ``e2`` (0.1).
     - ``thrust_range``: physical thrust at actions −1 and +1 (``(0.0, 0.5)``).
     - ``reference``: a constant reference velocity, or ``"random"`` (default): levels

@@ -1,10 +1,10 @@
 """``vesselid/Manoeuvring3DOF-v0``: surge/sway/yaw manoeuvring of CyberShip II.
 
-The plant is :mod:`vesselid.vessels`: the Skjetne, Smogeli & Fossen (2004) CyberShip II
+The plant is :mod:`vesselid.plant.vessels`: the Skjetne, Smogeli & Fossen (2004) CyberShip II
 model discretised with explicit Euler into the second-order modulus regression of
-:func:`vesselid.vessels.cybership2_spec`, driven through the spec's term codes and θ0 by
-the compiled kernels of :mod:`vesselid.vessels` (the same code as
-:func:`vesselid.vessels.simulate_cybership2`), with an earth-fixed ocean current rotated
+:func:`vesselid.plant.vessels.cybership2_spec`, driven through the spec's term codes and θ0 by
+the compiled kernels of :mod:`vesselid.plant.vessels` (the same code as
+:func:`vesselid.plant.vessels.simulate_cybership2`), with an earth-fixed ocean current rotated
 into the body frame (the paper's non-additive ``v = −ν_c``), Blendermann (1994) wind with
 gusts, optional unmodelled forces, and a switchable sensor suite.
 
@@ -30,13 +30,13 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from vesselid.catalogue import vessel_module
+from vesselid.plant.catalogue import vessel_module
 from vesselid.envs._render import FigureRenderer, check_render_mode, warn_no_render_mode
 from vesselid.envs._settings import document, merged, triple
 from vesselid.envs._validate import check_action, require_reset
 from vesselid.errors import VesselidError
-from vesselid.model import ModelSpec
-from vesselid.vessels import (
+from vesselid.model.spec import ModelSpec
+from vesselid.plant.vessels import (
     LAYOUT,
     VesselBatch,
     VesselDisturbances,
@@ -45,7 +45,7 @@ from vesselid.vessels import (
     log_columns,
     wrap,
 )
-from vesselid.vessels.kernel import STATUS_OK
+from vesselid.plant.vessels.kernel import STATUS_OK
 
 __all__ = ["Manoeuvring3DOFEnv", "Manoeuvring3DOFVectorEnv", "reward"]
 
@@ -93,7 +93,7 @@ DEFAULTS: dict[str, Any] = {
 
 
 class _Core:
-    """A :class:`~vesselid.vessels.VesselBatch` of ``B`` vessels plus the environment's
+    """A :class:`~vesselid.plant.vessels.VesselBatch` of ``B`` vessels plus the environment's
     action scaling, references and reward (shared by both envs)."""
 
     def __init__(
@@ -332,11 +332,11 @@ _DOC_ARGS = """
     - ``wind_gust``: std of the coloured (Gauss–Markov, 5 s) gusts of the wind speed; with
       gusts the wind direction also varies (0.1 rad, 30 s).
     - ``force_noise``: std of unmodelled Gauss–Markov forces ``[X, Y, N]`` (0).
-    - ``sensors``: :class:`vesselid.vessels.CyberShip2Sensors` or a mapping of its fields
+    - ``sensors``: :class:`vesselid.plant.vessels.CyberShip2Sensors` or a mapping of its fields
       (noise std per sensor, ``None`` switches a sensor off). Default: all six sensors.
     - ``cubic_surge``: add the published cubic surge damping ``X_uuu u_r³`` (then the
       identification spec is misspecified).
-    - ``vessel``: catalogue vessel (:func:`vesselid.catalogue.vessel_names`; ``"cybership2"``).
+    - ``vessel``: catalogue vessel (:func:`vesselid.plant.catalogue.vessel_names`; ``"cybership2"``).
     - ``force_max``: physical ``[X, Y, N]`` at action ±1; default the vessel's actuator
       limits (``Hull.force_max``; CyberShip II: 2 N, 1.5 N, 1 N m).
     - ``u_ref``, ``psi_ref``: reference surge speed (0.3 m/s) and heading (0 rad).
@@ -391,7 +391,7 @@ class _ManoeuvringBase:
 
     def log_row(self, info: dict[str, Any]) -> dict[str, Any]:
         """Trial-log columns at the time of ``info`` (recorder contract; floats, or arrays
-        ``(num_envs,)``): :func:`vesselid.vessels.log_columns` without the inputs."""
+        ``(num_envs,)``): :func:`vesselid.plant.vessels.log_columns` without the inputs."""
         return _log_row(info, self._core.model.sensors.enabled)
 
     def log_inputs(self, action: Any) -> dict[str, Any]:
@@ -416,7 +416,7 @@ class Manoeuvring3DOFEnv(_ManoeuvringBase, gym.Env[np.ndarray, np.ndarray]):
     the horizontal plane. Its velocity relative to water obeys
     ``M ν̇_r + C(ν_r)ν_r + D(ν_r)ν_r = τ + τ_wind`` with linear and modulus damping,
     discretised by explicit Euler at ``dt`` into the second-order modulus regression of
-    :func:`vesselid.vessels.cybership2_spec` (paper Definition 2.1). In the paper's
+    :func:`vesselid.plant.vessels.cybership2_spec` (paper Definition 2.1). In the paper's
     notation ``x(k+1) = Φᵀ([x(k) + v(k); τ(k)])θ0 + w(k)`` with ``x = ν`` the absolute
     velocity, ``v = −ν_c`` the body-frame current (non-additive) and ``w`` the change of
     the body-frame current plus wind and unmodelled forces. Position and heading follow

@@ -2,7 +2,7 @@
 
 :class:`TrialRecorder` wraps a single environment, :class:`VectorTrialRecorder` a
 vector environment. Every episode becomes one ``experiment`` of a
-:class:`~vesselid.logs.TrialLog`, so ``vesselid identify LOG --model SPEC.toml`` runs
+:class:`~vesselid.data.logs.TrialLog`, so ``vesselid identify LOG --model SPEC.toml`` runs
 directly on environment data::
 
     env = TrialRecorder(gym.make("vesselid/Heave-v0"))
@@ -17,7 +17,7 @@ Environment contract
 --------------------
 The recorder reads everything through ``env.unwrapped`` (attribute names exact):
 
-``model_spec`` : :class:`vesselid.model.ModelSpec`
+``model_spec`` : :class:`vesselid.model.spec.ModelSpec`
     The identification structure of the recorded data. ``model_spec.states`` and
     ``model_spec.inputs`` name the measured state and input columns, ``model_spec.sensors``
     the disturbance-sensor columns of its aggregate relations.
@@ -70,7 +70,7 @@ A controller in the loop makes the input depend on the noise; closed-loop estima
 (call it before ``step``: e.g. the dither added to the controller's output) as extra
 columns, and :meth:`TrialRecorder.declare_closed_loop` names the controller and the
 reference/dither columns in ``metadata["closed_loop"]``
-(:func:`vesselid.closedloop.closed_loop_metadata`)::
+(:func:`vesselid.plant.closedloop.closed_loop_metadata`)::
 
     rec = TrialRecorder(gym.make("vesselid/Heave-v0"))
     rec.declare_closed_loop(pid, reference={"w": "w_ref"}, dither={"tau": "tau_dither"})
@@ -99,8 +99,8 @@ import pandas as pd
 from gymnasium.vector import AutoresetMode
 
 from vesselid.errors import VesselidError
-from vesselid.logs import TrialLog
-from vesselid.model import ModelSpec
+from vesselid.data.logs import TrialLog
+from vesselid.model.spec import ModelSpec
 
 __all__ = ["TrialRecorder", "VectorTrialRecorder"]
 
@@ -292,10 +292,10 @@ class TrialRecorder(gym.Wrapper):
                             reference: dict[str, str] | None = None,
                             dither: dict[str, str] | None = None) -> None:
         """Record that the episodes run in closed loop: ``metadata["closed_loop"]`` names
-        the controller (a :class:`vesselid.closedloop.PID`, a JSON description, or None
+        the controller (a :class:`vesselid.plant.closedloop.PID`, a JSON description, or None
         when it cannot be described) and the log columns of the reference (state ->
         column) and of the dither (input -> column)."""
-        from vesselid.closedloop import closed_loop_metadata
+        from vesselid.plant.closedloop import closed_loop_metadata
 
         self._closed_loop = closed_loop_metadata(controller, reference or {}, dither or {})
 
@@ -329,7 +329,7 @@ class TrialRecorder(gym.Wrapper):
         return obs, reward, terminated, truncated, info
 
     def to_log(self, *, include_unfinished: bool = True, min_rows: int = 2) -> TrialLog:
-        """The recorded episodes as a :class:`~vesselid.logs.TrialLog`.
+        """The recorded episodes as a :class:`~vesselid.data.logs.TrialLog`.
 
         Parameters
         ----------
@@ -523,7 +523,7 @@ class VectorTrialRecorder(gym.vector.VectorWrapper):
         return obs, reward, terminated, truncated, info
 
     def to_log(self, *, include_unfinished: bool = True, min_rows: int = 2) -> TrialLog:
-        """The recorded episodes as a :class:`~vesselid.logs.TrialLog`.
+        """The recorded episodes as a :class:`~vesselid.data.logs.TrialLog`.
 
         Parameters and returned columns as :meth:`TrialRecorder.to_log`; the metadata's
         ``episodes`` also give each experiment's ``env_index``.

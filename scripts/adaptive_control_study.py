@@ -4,18 +4,18 @@ Run ``python scripts/adaptive_control_study.py [--seeds 0 1 2] [--samples 5000]
 [--figure docs/_static/adaptive_control.png] [--out docs/adaptive_control.csv]``.
 
 CyberShip II in ``vesselid/Manoeuvring3DOF-v0`` with current (0.05 m/s) and wind (1 m/s,
-gusts) tracks a periodic speed/heading reference (:func:`vesselid.control.
+gusts) tracks a periodic speed/heading reference (:func:`vesselid.control.controllers.
 default_reference`, repeated every 180 s) for 360 s. At 120 s the actuators lose 40 % of
 their effect (the applied forces are 0.6 times the commanded ones: a change of the
 model's input gains ``θ_u,X``, ``θ_r,N`` — and of every Y/N input term — seen from the
-controller). Three feedback-linearising controllers (:mod:`vesselid.control`), on the same
+controller). Three feedback-linearising controllers (:mod:`vesselid.control.controllers`), on the same
 disturbance realisation:
 
 * ``θ0 (oracle)`` — the true model, told about the change (its gains switch at 120 s);
 * ``fixed θ̂`` — the IV_E{ζ}=0 estimate of a simulated six-experiment sea trial, fixed;
 * ``adaptive`` — starts from the same θ̂ and updates its input gains and offsets online
   with recursive IV (forgetting 0.995, delayed-input instruments):
-  :class:`vesselid.control.AdaptiveFeedbackLinearizingController`.
+  :class:`vesselid.control.controllers.AdaptiveFeedbackLinearizingController`.
 
 Reported per seed: RMS surge-speed and heading errors over the whole run (after 10 s) and
 after the change, their ratios adaptive/θ0 and whether adaptive ≤ fixed θ̂; the figure
@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from vesselid.control import (
+from vesselid.control.controllers import (
     AdaptiveFeedbackLinearizingController,
     FeedbackLinearizingController,
     default_reference,
@@ -87,7 +87,7 @@ def _rms(tr: pd.DataFrame, t0: float) -> tuple[float, float]:
 
 def run_study(seed: int = 0, samples: int = 5_000, steps: int = 3600,
               t_change: float = 120.0, efficiency: float = 0.6):
-    from vesselid.seatrial import run_pipeline
+    from vesselid.studies.seatrial import run_pipeline
 
     trial = run_pipeline(6, samples, seed, methods=("iv-zero-mean",))
     spec = trial.spec
@@ -172,7 +172,7 @@ def main() -> None:
                                                                  level="controller")
     print("\nadaptive / θ0:\n" + ratio.iloc[:, :4].to_string(float_format="%.3f"))
     print("\nadaptive <= fixed θ̂:\n" + worse.iloc[:, :4].to_string())
-    from vesselid._io import atomic_write_text
+    from vesselid.core.fileio import atomic_write_text
 
     atomic_write_text(args.out, table.to_csv(float_format="%.6g"))
     print(f"\nwrote {args.out} and {args.figure}")

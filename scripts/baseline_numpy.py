@@ -4,7 +4,7 @@ Time-recursive parts (the true system and the auxiliary-model simulations of the
 refined IV iteration, paper §6) are Python loops over samples, vectorised across
 the Monte Carlo runs; moment sums are vectorised numpy. The input design, noise and
 seeds are those of ``vesselid reproduce`` (the random draws come from
-:meth:`vesselid.systems.System._draw_batch`, which is plain numpy), and the refined
+:meth:`vesselid.plant.systems.System._draw_batch`, which is plain numpy), and the refined
 iteration is the plain fixed point ``θ ← T(θ)`` with the same tolerance (1e-9),
 iteration cap (100) and per-run stopping — so the results agree with the compiled
 path to iteration tolerance while all the arithmetic runs in numpy.
@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from vesselid.reproduce import table_study
+from vesselid.studies.reproduce import table_study
 
 THETA0 = np.array([0.99, -0.1, 1.0])
 

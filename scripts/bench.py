@@ -60,7 +60,7 @@ def median_time(fn: Callable[[], object], repeats: int = 5, warmup: int = 1, *,
 
 def numpy_simulate(spec, u, x0, v, w):
     """Plain-numpy baseline: Python loop over samples, vectorised across runs, same terms."""
-    from vesselid.regressors import predict
+    from vesselid.model.regressors import predict
 
     theta = spec.theta0_vector()
     n_runs, n_samples, n = v.shape
@@ -73,8 +73,8 @@ def numpy_simulate(spec, u, x0, v, w):
 
 
 def bench_simulate(repeats: int = 5) -> dict:
-    from vesselid.simulate import simulate_states
-    from vesselid.systems import heave
+    from vesselid.plant.simulate import simulate_states
+    from vesselid.plant.systems import heave
 
     system = heave()
     sim = system.simulate(10_000, n_runs=1000, seed=0)
@@ -99,20 +99,20 @@ def bench_simulate(repeats: int = 5) -> dict:
 def _three_state_log(samples: int, experiments: int):
     """A 3-state log: the CyberShip II sea trial when available, else a generic 3-state model."""
     try:
-        from vesselid.seatrial import design_sea_trial  # noqa: F401
+        from vesselid.studies.seatrial import design_sea_trial  # noqa: F401
 
         have_seatrial = True
     except ImportError:
         have_seatrial = False
     if have_seatrial:
-        from vesselid.seatrial import simulate_sea_trial
+        from vesselid.studies.seatrial import simulate_sea_trial
 
         log = simulate_sea_trial(experiments=experiments, samples=samples, seed=0)
         return log, log.spec
-    from vesselid.disturbances import Gaussian, Uniform
-    from vesselid.model import ModelSpec
-    from vesselid.signals import RandomPulses, StaticOffset
-    from vesselid.systems import System
+    from vesselid.plant.disturbances import Gaussian, Uniform
+    from vesselid.model.spec import ModelSpec
+    from vesselid.plant.signals import RandomPulses, StaticOffset
+    from vesselid.plant.systems import System
 
     spec = ModelSpec(
         name="three_state",
@@ -142,7 +142,7 @@ def bench_identify(repeats: int = 15) -> dict:
     ``identify(log, spec)`` (default estimator, default HAC covariance, every diagnostic —
     checked below), then each estimator by name. Median wall and CPU (process) time."""
     from vesselid.identify import DEFAULT_METHOD, identify
-    from vesselid.systems import heave
+    from vesselid.plant.systems import heave
 
     warnings.simplefilter("ignore")
     log = heave().simulate(10_000, seed=0).to_log()
@@ -171,7 +171,7 @@ def bench_pem(repeats: int = 5) -> dict:
     wall time; and one pass of its compiled Gaussian filter (10 parameter rows together, as
     the Fisher scoring runs it, and one row) against the same function run as plain Python
     (``gaussian_filter.py_func``, one row), per row and sample."""
-    from vesselid.calibration import heave_scenario
+    from vesselid.studies.calibration import heave_scenario
     from vesselid.identify import identify
     from vesselid.identify._pemkernels import gaussian_filter, term_kinds
 

@@ -1,4 +1,4 @@
-"""Time Figure 1 (``vesselid.plots.error_histograms``) in fresh processes, as ``reproduce``
+"""Time Figure 1 (``vesselid.studies.plots.error_histograms``) in fresh processes, as ``reproduce``
 draws it: each child process loads a saved Table 1 results file, then builds the figure
 and saves it at 90 dpi (the first figure of a process pays font loading), reporting CPU
 (``time.process_time``) and wall seconds of each stage; medians over the processes.
@@ -26,9 +26,9 @@ import numpy as np
 
 CHILD = r"""
 import json, sys, time
-from vesselid.montecarlo import load_results
-from vesselid.plots import error_histograms
-from vesselid.reproduce import PARAMETER_LABELS
+from vesselid.studies.montecarlo import load_results
+from vesselid.studies.plots import error_histograms
+from vesselid.studies.reproduce import PARAMETER_LABELS
 df = load_results(sys.argv[1])
 c0, w0 = time.process_time(), time.perf_counter()
 fig = error_histograms(df, labels=PARAMETER_LABELS,

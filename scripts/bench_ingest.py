@@ -18,9 +18,9 @@ SENTENCES_PER_SECOND = 48  # GGA 5 + RMC 10 + HDT 20 + ROT 10 + VHW 2 + MWV 1 Hz
 def bench_ingest(repeats: int = 3, sentences: int = 1_000_000) -> dict:
     import pynmea2
 
-    from vesselid.ingest import ingest
-    from vesselid.rawstreams import write_raw_streams
-    from vesselid.systems import get_system
+    from vesselid.data.ingest import ingest
+    from vesselid.data.rawexport import write_raw_streams
+    from vesselid.plant.systems import get_system
 
     per_exp = int(sentences / SENTENCES_PER_SECOND / 2 / 0.1) + 1
     log = get_system("cybership2").simulate(per_exp, n_runs=2, seed=0).to_log()
@@ -63,7 +63,7 @@ def _bench_stream(log, tmp: Path, repeats: int) -> dict:
     import numpy as np
 
     from vesselid.identify import identify
-    from vesselid.streaming import identify_stream
+    from vesselid.identify.streaming import identify_stream
 
     spec = log.spec
     path = tmp / "trial.parquet"

@@ -26,7 +26,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 
-_WARM = ("import time; t=time.perf_counter(); from vesselid.reproduce import warm_up; "
+_WARM = ("import time; t=time.perf_counter(); from vesselid.studies.reproduce import warm_up; "
          "i=time.perf_counter(); warm_up(); print(i-t, time.perf_counter()-i)")
 
 
@@ -40,8 +40,8 @@ def _fresh_process_warmup(env: dict[str, str]) -> tuple[float, float]:
 
 def bench_reproduce(repeats: int = 3, baseline_runs: int = 1000) -> dict:
     """Median timings of the reproduction and the numpy-baseline ratio (see module doc)."""
-    from vesselid.montecarlo import run_study
-    from vesselid.reproduce import table_study, warm_up
+    from vesselid.studies.montecarlo import run_study
+    from vesselid.studies.reproduce import table_study, warm_up
 
     with tempfile.TemporaryDirectory() as tmp:
         env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "numba"),
@@ -82,15 +82,15 @@ def bench_reproduce(repeats: int = 3, baseline_runs: int = 1000) -> dict:
 
 def bench_estimators(runs: int = 1000, repeats: int = 3) -> dict:
     """Where Table 1's Monte Carlo time goes (in-process, after warm-up): per chunk as
-    :func:`vesselid.montecarlo.run_chunk` does it — one simulation, then every estimator
+    :func:`vesselid.studies.montecarlo.run_chunk` does it — one simulation, then every estimator
     in the table's order, ``auto`` handed the chunk's converged IV_{E{ζ}=0} result — wall
     and CPU seconds (all threads) per part, summed over the chunks; medians over
     ``repeats``; median and mean iterations per estimator. ``python scripts/bench.py
     --only estimators``."""
     import numpy as np
 
-    from vesselid import montecarlo as mc
-    from vesselid.reproduce import table_study, warm_up
+    from vesselid.studies import montecarlo as mc
+    from vesselid.studies.reproduce import table_study, warm_up
 
     warm_up(tables=(1,), runs=runs)
     study = table_study(1, runs=runs)

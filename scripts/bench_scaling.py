@@ -141,8 +141,8 @@ def bench_mc_threads(repeats: int = 3, runs: int = 1000, samples: int = 10_000
     """The Monte Carlo part of Table 1 with one and two workers, alternated: wall and CPU
     (this process and its worker processes) medians; the result CSVs compared byte for
     byte."""
-    from vesselid.montecarlo import run_study, save_results
-    from vesselid.reproduce import table_study, warm_up
+    from vesselid.studies.montecarlo import run_study, save_results
+    from vesselid.studies.reproduce import table_study, warm_up
 
     warnings.simplefilter("ignore")
     warm_up()
@@ -210,7 +210,7 @@ def bench_identify_memory(sizes: tuple[int, ...] = (100_000, 1_000_000, 4_000_00
                           repeats: int = 1) -> dict[str, Any]:
     """Peak RSS and time of the whole ``vesselid identify LOG`` process (default
     estimator) on one-state heave logs (CSV) of ``sizes`` samples."""
-    from vesselid.systems import heave
+    from vesselid.plant.systems import heave
 
     out: dict[str, Any] = {"sizes": list(sizes)}
     exe = [sys.executable, "-m", "vesselid", "identify"]
@@ -236,7 +236,7 @@ def bench_identify_memory(sizes: tuple[int, ...] = (100_000, 1_000_000, 4_000_00
 def bench_pem_path(repeats: int = 11) -> dict[str, Any]:
     """``identify(log)`` on a 10⁴-sample heave log with a Gauss–Markov current (the
     default estimator takes ``pem`` there), in-process: median wall and CPU."""
-    from vesselid.calibration import heave_scenario
+    from vesselid.studies.calibration import heave_scenario
     from vesselid.identify import identify
 
     warnings.simplefilter("ignore")

@@ -17,8 +17,8 @@ import warnings
 
 
 def bench_seatrial(repeats: int = 3, experiments: int = 6, samples: int = 20_000) -> dict:
-    """Median wall time (s) of :func:`vesselid.seatrial.run_pipeline` after one warm-up."""
-    from vesselid.seatrial import run_pipeline
+    """Median wall time (s) of :func:`vesselid.studies.seatrial.run_pipeline` after one warm-up."""
+    from vesselid.studies.seatrial import run_pipeline
 
     warnings.simplefilter("ignore")
     run_pipeline(experiments, 2_000, seed=0)  # JIT warm-up (compiled kernels are cached)

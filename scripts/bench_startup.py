@@ -176,7 +176,7 @@ def bench_startup(repeats: int = 5, baseline_runs: int = 1000,
         "reproduce_table1_paper_rows_process_s": statistics.median(paper["process"]),
         "reproduce_table1_paper_rows_monte_carlo_s": statistics.median(paper["mc"]),
         "speedup_vs_numpy_paper_rows": base / statistics.median(paper["process"]),
-        "help_loads": modules_loaded("from vesselid.cli import build_parser\n"
+        "help_loads": modules_loaded("from vesselid.cli.app import build_parser\n"
                                      "build_parser(['--help'])"),
         "import_vesselid_top_ms": import_times("vesselid"),
         "all_times_s": {**times, "reproduce": repro, "monte_carlo": mc,
@@ -247,10 +247,10 @@ def bench_cold_start(table: str = "all") -> dict:
                  "            k = f.__module__.rsplit('.', 1)[-1][:24] + '.' + f.__name__\n"
                  "            per[k] = round(per.get(k, 0.0) + dt, 3)\n"
                  "ev.register('numba:compile', L())\n"
-                 "from vesselid.reproduce import warm_up\n"
+                 "from vesselid.studies.reproduce import warm_up\n"
                  "warm_up()\n"
                  "print(json.dumps([*tot, per]))")
-        # in-process compiles only: no helper process (vesselid._precompile)
+        # in-process compiles only: no helper process (vesselid.core.precompile)
         cold_env = dict(env, NUMBA_CACHE_DIR=str(tmp / "numba2"),
                         VESSELID_KERNEL_DIR=str(tmp / "kernels2"), VESSELID_PRECOMPILE="0")
         compiles = json.loads(subprocess.run(

@@ -1,7 +1,7 @@
 """Calibration study: do the reported 95 % intervals cover θ0 in 95 % of runs?
 
 Runs the package's default estimator on every heave scenario of
-:data:`vesselid.calibration.SCENARIOS` (Table 1 with alternating and random pulses,
+:data:`vesselid.studies.calibration.SCENARIOS` (Table 1 with alternating and random pulses,
 Table 2, a Gauss–Markov current with time constant 25 samples and Gauss–Markov
 sensor noise with time constant 20 samples, both pulse designs) and on the
 CyberShip II sea trial (6 × 2·10⁴ samples), computes each run's covariance with
@@ -28,8 +28,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small matrices; threads on
 import numpy as np
 import pandas as pd
 
-from vesselid._io import atomic_write_text, atomic_write_with
-from vesselid.calibration import SCENARIOS, coverage_study, seatrial_coverage
+from vesselid.core.fileio import atomic_write_text, atomic_write_with
+from vesselid.studies.calibration import SCENARIOS, coverage_study, seatrial_coverage
 from vesselid.identify.covariance import DEFAULT_COV_TYPE
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from vesselid.closedloop import DESIGNS, ClosedLoopDesign
+from vesselid.plant.closedloop import DESIGNS, ClosedLoopDesign
 from vesselid.identify import identify
 from vesselid.identify.closedloop import feedback_test
 from vesselid.identify.data import from_log
@@ -140,7 +140,7 @@ def main() -> None:
         rates.append(rate)
     table = pd.concat(tables, ignore_index=True)
     rate = pd.DataFrame(rates)
-    from vesselid._io import atomic_write_text
+    from vesselid.core.fileio import atomic_write_text
 
     out = Path(args.out)
     atomic_write_text(out, table.to_csv(index=False, float_format="%.6g"))

@@ -140,7 +140,7 @@ def coverage(runs: int, seed: int = 6, scenario: str = "gm-sensor-random") -> pd
     """Coverage of the default covariance: ``auto`` and ``auto`` with the whitened colour
     test, on the calibration's runs of ``scenario`` (``scripts/calibration.py`` uses seed
     ``i`` for its ``i``-th scenario: 6 for gm-sensor-random)."""
-    from vesselid.calibration import (
+    from vesselid.studies.calibration import (
         _heave_batches,
         _heave_data,
         heave_scenario,

@@ -13,7 +13,7 @@ Two studies, each printing one table:
     alternating and random pulses): the share of runs on which the share-of-samples rule
     (more than 1 % within η = 3σ of zero in some experiment) flags the design, and on which
     ``identify`` warns (the non-smoothness bias reaches
-    :data:`vesselid.diagnostics.SMOOTHNESS_BIAS_SE` standard errors), with the distribution
+    :data:`vesselid.identify.diagnostics.SMOOTHNESS_BIAS_SE` standard errors), with the distribution
     of that bias.
 
 Usage::
@@ -47,7 +47,7 @@ def _fmt(value: object) -> str:
 
 
 def convergence(seeds: list[int], out: Path) -> None:
-    from vesselid.cli import main
+    from vesselid.cli.app import main
 
     print("seed | exit | converged | status | iterations | mean step (SE) | location (SE) | "
           "method")
@@ -70,7 +70,7 @@ def convergence(seeds: list[int], out: Path) -> None:
 
 
 def smoothness(runs: int, samples: int, seed: int) -> None:
-    from vesselid.calibration import heave_scenario
+    from vesselid.studies.calibration import heave_scenario
     from vesselid.errors import ExperimentDesignWarning
     from vesselid.identify import identify
 

@@ -36,12 +36,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from vesselid.diagnostics import normalized_error
-from vesselid.disturbances import GaussMarkov
+from vesselid.identify.diagnostics import normalized_error
+from vesselid.plant.disturbances import GaussMarkov
 from vesselid.identify import get_estimator
 from vesselid.identify.data import from_arrays
 from vesselid.identify.efficient import InstrumentalGMM
-from vesselid.systems import heave
+from vesselid.plant.systems import heave
 
 METHODS = ("iv-zero-mean", "lagged-2sls", "sriv", "gmm", "pem", "auto")
 #: Noise-model orders compared for the SRIV prefilter (evidence for the registered order).

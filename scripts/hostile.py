@@ -411,7 +411,7 @@ def real_nmea(*kinds: str, n: int = 120):
     def setup(d: Path) -> None:
         import numpy as np
 
-        from vesselid.nmea import KNOT, sentence_lines
+        from vesselid.data.nmea0183 import KNOT, sentence_lines
 
         t = 1_780_308_000.0 + np.arange(n)
         hms = [time.strftime("%H%M%S", time.gmtime(x)) + ".00" for x in t]
@@ -539,7 +539,7 @@ MISSING_EXTRA = """
 import sys
 sys.modules["pynmea2"] = None  # as after a plain `pip install .`
 import io, contextlib
-from vesselid.cli import main
+from vesselid.cli.app import main
 err = io.StringIO()
 with contextlib.redirect_stderr(err):
     rc = main(["ingest", "raw", "--dt", "1", "--out", "x.csv"])
@@ -601,7 +601,7 @@ def env_case(cls: str, kind: str, vector: bool) -> Case:
 
 #: every registered estimator (``identify --method``; the static list the command line
 #: checks, which tests/test_lazy_imports.py holds equal to the registry)
-from vesselid._names import METHODS  # noqa: E402
+from vesselid.core.names import METHODS  # noqa: E402
 
 #: the estimators that run on an open-loop log (``cl-iv`` needs a closed-loop one and
 #: refuses these logs: its own case below)

@@ -68,7 +68,7 @@ def read_run(path: Path) -> pd.DataFrame:
 
 
 def free_run_fit(spec, theta, run: pd.DataFrame) -> dict[str, float]:
-    from vesselid.simulate import simulate_states
+    from vesselid.plant.simulate import simulate_states
 
     y = run[list(spec.states)].to_numpy()
     u = run[list(spec.inputs)].to_numpy()
@@ -96,8 +96,8 @@ def main(argv=None) -> int:
     if not files:
         print(f"no *KVLCC2_Z_*.dat files under {raw}; nothing to do")
         return 0
-    from vesselid.logs import TrialLog
-    from vesselid.model import ModelSpec
+    from vesselid.data.logs import TrialLog
+    from vesselid.model.spec import ModelSpec
     from vesselid.selection import fit_structure, select_terms
 
     runs = {f: read_run(f) for f in files}

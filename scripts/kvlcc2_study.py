@@ -1,6 +1,6 @@
 """KVLCC2 free-running model tests (HSVA, SIMMAN 2008): ingest → identify → validate.
 
-Trains the shipped 3-DOF specs (:mod:`vesselid.specs`: ``kvlcc2.toml``, two-factor terms
+Trains the shipped 3-DOF specs (:mod:`vesselid.model.specs`: ``kvlcc2.toml``, two-factor terms
 only, and ``kvlcc2_u2delta.toml``, rudder forces in ``u²δ`` as derived inputs) on nine of the
 thirteen HSVA zig-zags and validates on the four held out (one of each family: 10°/10°,
 15°/5°, 20°/10°, 25°/5°), with the package's default estimator, least squares and
@@ -54,7 +54,7 @@ def _short(eid: str) -> str:
 def spectral_radius(spec, theta) -> float:
     """Largest |eigenvalue| of the discrete map linearised at the approach equilibrium
     (all states and inputs zero), by central differences."""
-    from vesselid.regressors import predict
+    from vesselid.model.regressors import predict
 
     n, m = spec.n_states, spec.n_inputs
     jac = np.empty((n, n))
@@ -80,10 +80,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     warnings.simplefilter("ignore")  # the design warnings are in the JSON of identify
     from vesselid.identify import DEFAULT_METHOD, identify
-    from vesselid.ingest.tank import ingest_tank, load_tank_format
-    from vesselid.logs import TrialLog
-    from vesselid.specs import load_spec, path
-    from vesselid.validation import validate
+    from vesselid.data.ingest.tank import ingest_tank, load_tank_format
+    from vesselid.data.logs import TrialLog
+    from vesselid.model.specs import load_spec, path
+    from vesselid.validation.report import validate
 
     specs = [load_spec("kvlcc2"), load_spec("kvlcc2_u2delta")]
     dt = args.dt or specs[0].dt
@@ -152,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     table = pd.DataFrame(rows)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    from vesselid._io import atomic_write_text
+    from vesselid.core.fileio import atomic_write_text
 
     atomic_write_text(out / "kvlcc2.csv", table.to_csv(index=False, float_format="%.6g"))
     atomic_write_text(out / "kvlcc2.md", "\n".join(
@@ -207,8 +207,8 @@ def _markdown(table: pd.DataFrame, spec, dt: float) -> str:
 
 def _figure(reports: dict, path: Path) -> None:
     """Two held-out runs: surge, sway, yaw rate and heading, measured vs each estimator."""
-    from vesselid._io import atomic_write_with
-    from vesselid.figures import new_figure
+    from vesselid.core.fileio import atomic_write_with
+    from vesselid.core.figures import new_figure
 
     first = next(iter(reports.values()))
     picks = [e.experiment for e in first.experiments][:2]

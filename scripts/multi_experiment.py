@@ -24,12 +24,12 @@ import time
 import numpy as np
 import pandas as pd
 
-from vesselid.diagnostics import normalized_error
-from vesselid.disturbances import Gaussian, Uniform
+from vesselid.identify.diagnostics import normalized_error
+from vesselid.plant.disturbances import Gaussian, Uniform
 from vesselid.identify.data import RegressionData, from_arrays
 from vesselid.identify.estimators import estimate
-from vesselid.signals import StaticOffset
-from vesselid.systems import System, heave
+from vesselid.plant.signals import StaticOffset
+from vesselid.plant.systems import System, heave
 
 LEVELS = (0.06, 0.12, 0.2, 0.3)
 

@@ -42,9 +42,9 @@ import numpy as np
 import pandas as pd
 from numba import njit
 
-from vesselid._io import atomic_write_text
+from vesselid.core.fileio import atomic_write_text
 from vesselid.identify import identify
-from vesselid.model import ModelSpec
+from vesselid.model.spec import ModelSpec
 
 #: The study's own true parameters (a, n, f): not the paper's.
 THETA0 = (0.9, -0.2, 0.8)
@@ -290,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
     unknown = sorted(set(args.designs) - set(DESIGNS))
     if unknown:
         ap.error(f"unknown designs {unknown}; choose from {list(DESIGNS)}")
-    from vesselid._names import METHODS as registered
+    from vesselid.core.names import METHODS as registered
 
     bad = sorted(set(args.methods) - set(registered))
     if bad:

@@ -28,11 +28,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from vesselid.control import run_control_experiment
-from vesselid.diagnostics import normalized_error
+from vesselid.control.controllers import run_control_experiment
+from vesselid.identify.diagnostics import normalized_error
 from vesselid.identify.data import from_arrays
 from vesselid.identify.estimators import estimate
-from vesselid.seatrial import (
+from vesselid.studies.seatrial import (
     design_sea_trial,
     markdown_table,
     normalized_errors,
@@ -40,7 +40,7 @@ from vesselid.seatrial import (
     seatrial_spec,
     simulate_sea_trial,
 )
-from vesselid.vessels import SENSOR_CHANNELS, simulate_cybership2
+from vesselid.plant.vessels import SENSOR_CHANNELS, simulate_cybership2
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 METHODS = ("ls", "iv", "iv-zero-mean")
@@ -50,7 +50,7 @@ _SIM = dict(current_speed=0.05, current_direction=np.radians(30.0), current_vari
 
 
 def _disturbances():
-    from vesselid.seatrial import _disturbances as make
+    from vesselid.studies.seatrial import _disturbances as make
 
     return make(_SIM["current_speed"], _SIM["current_direction"], _SIM["wind_speed"],
                 _SIM["wind_direction"], _SIM["current_variation"], _SIM["wind_gust"],

@@ -35,14 +35,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from vesselid.disturbances import Gaussian, GaussMarkov
+from vesselid.plant.disturbances import Gaussian, GaussMarkov
 from vesselid.identify import identify
-from vesselid.model import ModelSpec
+from vesselid.model.spec import ModelSpec
 from vesselid.selection import select_terms
 from vesselid.selection.engine import library_factors, regressors
 from vesselid.selection.library import canonical, resolve_library
-from vesselid.systems import System, heave
-from vesselid.terms import Term
+from vesselid.plant.systems import System, heave
+from vesselid.model.terms import Term
 
 
 # ----------------------------------------------------------------------------- designs
@@ -55,7 +55,7 @@ def _heave_system(current) -> System:
 
 
 def _cybership_system(current_u, current_v) -> System:
-    from vesselid.vessels.cybership2 import cybership2_system
+    from vesselid.plant.vessels.cybership2 import cybership2_system
 
     base = cybership2_system()
     return System(spec=base.spec, inputs=base.inputs,

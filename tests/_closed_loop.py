@@ -1,11 +1,11 @@
 """The controller's designed closed loop, checked sample by sample (tests of
-:mod:`vesselid.control` on every vessel): tolerances from float32/float64 round-off."""
+:mod:`vesselid.control.controllers` on every vessel): tolerances from float32/float64 round-off."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from vesselid.control import FeedbackLinearizingController
+from vesselid.control.controllers import FeedbackLinearizingController
 
 __all__ = ["QUIET", "closed_loop_residuals", "quiet_env"]
 
@@ -40,6 +40,6 @@ QUIET = dict(current_speed=0.0, wind_speed=0.0, wind_gust=0.0)
 
 
 def quiet_env() -> dict:
-    from vesselid.vessels import VesselSensors
+    from vesselid.plant.vessels import VesselSensors
 
     return {"sensors": VesselSensors.noiseless(), "current_variation": 0.0, "force_noise": 0.0}

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from vesselid.model import ModelSpec
+from vesselid.model.spec import ModelSpec
 
 SHIP = """
 name = "ship"
@@ -33,7 +33,7 @@ r = [0.96, -0.03, -0.05, -0.2, -0.005]
 def zigzag_log(spec: ModelSpec, n: int = 600, delta0: float = 0.35, psi_s: float = 0.17,
                first: float = 1.0, theta: np.ndarray | None = None, u0: float = 1.0):
     """A noise-free zig-zag of the spec's own model (rudder switched on its heading)."""
-    from vesselid.freerun import Plant, ZigZagLogic
+    from vesselid.validation.freerun import Plant, ZigZagLogic
 
     plant = Plant(spec, theta)
     frame = pd.DataFrame({"u": np.full(n, u0), "v": np.zeros(n), "r": np.zeros(n),
@@ -43,7 +43,7 @@ def zigzag_log(spec: ModelSpec, n: int = 600, delta0: float = 0.35, psi_s: float
     x, u_used, bad = plant.simulate(frame, x0=np.array([0.0, 0.0, 0.0]), zigzag=logic,
                                     dt=spec.dt)
     assert bad == -1
-    from vesselid.manoeuvre_metrics import integrate_track
+    from vesselid.validation.metrics import integrate_track
 
     uu = x[:, 0] + u0
     psi, north, east = integrate_track(uu, x[:, 1], x[:, 2], spec.dt)

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from _closed_loop import QUIET, quiet_env
 
-from vesselid.control import AdaptiveFeedbackLinearizingController, ControlError
+from vesselid.control.controllers import AdaptiveFeedbackLinearizingController, ControlError
 from vesselid.errors import IdentificationError
-from vesselid.seatrial import seatrial_spec
+from vesselid.studies.seatrial import seatrial_spec
 
 
 def test_adapted_gains_equal_the_changed_plant_without_noise() -> None:

@@ -87,7 +87,7 @@ def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
 
 def test_no_import_cycle() -> None:
     graph = _imports()
-    assert "vesselid.catalogue" in graph and graph["vesselid.systems"]
+    assert "vesselid.plant.catalogue" in graph and graph["vesselid.plant.systems"]
     assert "vesselid.envs.manoeuvring" in graph and graph["vesselid.envs.heave"]
     assert _cycle(graph) is None, " -> ".join(_cycle(graph) or [])
 
@@ -137,5 +137,5 @@ def test_private_import_detector() -> None:
 
     with tempfile.TemporaryDirectory() as d:
         p = Path(d) / "m.py"
-        p.write_text("from vesselid.vessels.kernel import _step\nfrom vesselid.envs._x import y\n")
-        assert _private_imports("vesselid.envs.m", p) == ["vesselid.vessels.kernel._step"]
+        p.write_text("from vesselid.plant.vessels.kernel import _step\nfrom vesselid.envs._x import y\n")
+        assert _private_imports("vesselid.envs.m", p) == ["vesselid.plant.vessels.kernel._step"]

@@ -7,7 +7,7 @@ import pytest
 from _stats import binomial_ok, bonferroni_z
 from scipy import stats
 
-from vesselid.calibration import coverage_table, wilson_interval
+from vesselid.studies.calibration import coverage_table, wilson_interval
 
 
 def test_wilson_interval_matches_statsmodels():
@@ -41,7 +41,7 @@ def test_default_covariance_covers_95_percent(scenario):
     prefiltered one) covers ~60 %; under coloured sensor noise ``auto`` with the C test
     alone kept the invalid delayed instruments in ~10 % (alternating pulses) to ~56 %
     (random pulses) of runs (random pulses: next test)."""
-    from vesselid.calibration import coverage_study
+    from vesselid.studies.calibration import coverage_study
 
     runs = 150
     tab = coverage_study(scenario, runs, seed=11, covariances={"hac": ("hac", {})})
@@ -66,7 +66,7 @@ def test_default_estimator_not_fooled_by_coloured_sensor_noise():
     one-sided exact binomial test at α = 0.001). Not tested against 95 %: the HAC SEs of
     every simulated-instrument estimator are 0.8–0.9× the Monte Carlo spread here
     (IV_{E{ζ}=0} and SRIV cover 89–97 % on these runs; docs/guide/uncertainty.md)."""
-    from vesselid.calibration import coverage_study
+    from vesselid.studies.calibration import coverage_study
 
     runs = 150
     tab = coverage_study("gm-sensor-random", runs, seed=11, covariances={"hac": ("hac", {})})
@@ -86,7 +86,7 @@ def test_default_covariance_matches_the_spread_on_the_default_sea_trial():
     parameters (α = 0.001; ratio band ≈ [0.5, 1.9] at κ = 3). It can fail: the old
     calibration trial (static offsets, wind load not measured) gave ratios 1.2–3.6 (median
     1.65 on 30 runs; docs/guide/uncertainty.md)."""
-    from vesselid.calibration import seatrial_coverage
+    from vesselid.studies.calibration import seatrial_coverage
 
     runs = 20
     tab = seatrial_coverage(runs, seed=3, covariances={"hac": ("hac", {})})

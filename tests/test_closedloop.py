@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 from _stats import binomial_ok
 
-from vesselid.cli import main
-from vesselid.closedloop import PID, closed_loop_states, simulate_closed_loop
-from vesselid.disturbances import Gaussian
+from vesselid.cli.app import main
+from vesselid.plant.closedloop import PID, closed_loop_states, simulate_closed_loop
+from vesselid.plant.disturbances import Gaussian
 from vesselid.errors import ClosedLoopWarning, ControlError, IdentificationError
 from vesselid.identify import identify
 from vesselid.identify.closedloop import feedback_test
-from vesselid.logs import TrialLog
-from vesselid.signals import RandomPulses
-from vesselid.systems import heave
+from vesselid.data.logs import TrialLog
+from vesselid.plant.signals import RandomPulses
+from vesselid.plant.systems import heave
 
 PI = PID(loops={"tau": "w"}, kp={"tau": 0.3}, ki={"tau": 0.05}, offset={"tau": 0.2})
 REF = {"w": RandomPulses(1.0, 2.0, 50, 200)}

@@ -1,4 +1,4 @@
-"""Tests of the model-based controller (vesselid.control)."""
+"""Tests of the model-based controller (vesselid.control.controllers)."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from _closed_loop import QUIET, closed_loop_residuals, quiet_env
 
-from vesselid.control import ControlError, FeedbackLinearizingController, run_control_experiment
-from vesselid.seatrial import seatrial_spec
+from vesselid.control.controllers import ControlError, FeedbackLinearizingController, run_control_experiment
+from vesselid.studies.seatrial import seatrial_spec
 
 
 def test_controller_realises_its_closed_loop_with_theta0():

@@ -364,7 +364,7 @@ def test_sriv_covariance_matches_iv2sls_on_its_prefiltered_rows(kernel):
     from vesselid.identify.backend import kernels as kern
     from vesselid.identify.data import from_log
     from vesselid.identify.registry import get_estimator
-    from vesselid.systems import heave
+    from vesselid.plant.systems import heave
 
     log = heave(pulse_design="random").simulate(3000, seed=5).to_log()
     est = get_estimator("sriv")

@@ -7,9 +7,9 @@ import pandas as pd
 import pytest
 from _ship import SHIP, zigzag_log
 
-from vesselid.derived import DerivedSignal, add_derived, state_dependent
+from vesselid.model.derived import DerivedSignal, add_derived, state_dependent
 from vesselid.errors import LogValidationError, ModelSpecError
-from vesselid.model import ModelSpec
+from vesselid.model.spec import ModelSpec
 
 
 def test_expressions_expand_to_polynomials():

@@ -42,7 +42,7 @@ def _frame(frame) -> list[tuple[str, object]]:
 # ------------------------------------------------------------------------------ outputs
 def reproduce_table(table: int) -> str:
     """(a) small ``reproduce``: LS, IV and IV-zero-mean estimate columns."""
-    from vesselid.reproduce import reproduce
+    from vesselid.studies.reproduce import reproduce
 
     res = reproduce(table=table, runs=8, samples=2000, seed=0, warm=False, progress=False,
                     figures=False)
@@ -53,14 +53,14 @@ def reproduce_table(table: int) -> str:
 
 def simulate_heave() -> str:
     """(b) ``vesselid simulate --system heave --samples 1000 --seed 3`` through the API."""
-    from vesselid.systems import get_system
+    from vesselid.plant.systems import get_system
 
     return digest(_frame(get_system("heave").simulate(1000, n_runs=1, seed=3).to_log().to_frame()))
 
 
 def simulate_cybership2() -> str:
     """(b) ``vesselid simulate --system cybership2 --samples 800 --seed 4`` (2 experiments)."""
-    from vesselid.systems import get_system
+    from vesselid.plant.systems import get_system
 
     return digest(_frame(get_system("cybership2").simulate(800, n_runs=2, seed=4)
                          .to_log().to_frame()))
@@ -72,7 +72,7 @@ def sea_trial() -> str:
     A change of the default sea-trial design keeps the design used here available under an
     explicit name, and this pin then selects it by that name.
     """
-    from vesselid.seatrial import simulate_sea_trial
+    from vesselid.studies.seatrial import simulate_sea_trial
 
     log = simulate_sea_trial(experiments=2, samples=600, seed=5, design="static-offset",
                              wind_input="none")  # the wind load as a known input came later
@@ -119,7 +119,7 @@ def env_vector(env_id: str, steps: int = 200, n: int = 3) -> str:
 def identify_heave() -> str:
     """(e) ``identify`` params (ls, iv, iv-zero-mean) on a seeded heave log."""
     from vesselid.identify import identify
-    from vesselid.systems import get_system
+    from vesselid.plant.systems import get_system
 
     log = get_system("heave").simulate(3000, n_runs=2, seed=9).to_log()
     return digest((m, identify(log, method=m).params.to_numpy())

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from _stats import assert_mean_within, assert_std_within, within_se
 
-from vesselid.disturbances import (
+from vesselid.plant.disturbances import (
     Constant,
     Gaussian,
     GaussMarkov,
@@ -16,7 +16,7 @@ from vesselid.disturbances import (
     process_from_dict,
 )
 from vesselid.errors import VesselidError
-from vesselid.signals import PRBS, Multisine, RandomPulses, StaticOffset, input_from_dict
+from vesselid.plant.signals import PRBS, Multisine, RandomPulses, StaticOffset, input_from_dict
 
 N = 200_000
 
@@ -108,7 +108,7 @@ def test_static_offset_prbs_multisine():
 def test_ar1_filter_is_lfilter_bit_for_bit() -> None:
     from scipy import signal as sps
 
-    from vesselid._filters import ar1_filter
+    from vesselid.core.filters import ar1_filter
 
     rng = np.random.default_rng(5)
     x = rng.standard_normal((4, 3000))

@@ -9,7 +9,7 @@ import pytest
 
 from vesselid.identify import ESTIMATORS, from_arrays, get_estimator, identify
 from vesselid.identify.data import from_log
-from vesselid.systems import heave
+from vesselid.plant.systems import heave
 
 NEW = ["lagged-2sls", "sriv", "gmm", "auto"]
 
@@ -18,7 +18,7 @@ NEW = ["lagged-2sls", "sriv", "gmm", "auto"]
 def test_every_registered_estimator_is_exact_on_noise_free_data(method):
     log = heave(variance=0.0, xi_mean=0.0).simulate(2000, n_runs=2, seed=1).to_log()
     if method == "cl-iv":  # a closed-loop estimator needs a closed-loop log
-        from vesselid.closedloop import heave_pi_design, simulate_closed_loop
+        from vesselid.plant.closedloop import heave_pi_design, simulate_closed_loop
 
         d = heave_pi_design()
         log = simulate_closed_loop(heave(variance=0.0, xi_mean=0.0), d.controller,
@@ -90,7 +90,7 @@ def test_auto_rejects_delayed_instruments_under_coloured_disturbances(
         pulses, field, tau, samples, p_key, p_max):
     import dataclasses
 
-    from vesselid.disturbances import GaussMarkov
+    from vesselid.plant.disturbances import GaussMarkov
 
     system = dataclasses.replace(heave(pulse_design=pulses),
                                  **{field: {"w": GaussMarkov(0.0, 0.1, tau)}})
@@ -113,7 +113,7 @@ def test_auto_falls_back_without_prefilter_on_a_low_pass_filtered_log():
     import dataclasses
     import warnings
 
-    from vesselid.disturbances import GaussMarkov
+    from vesselid.plant.disturbances import GaussMarkov
     from vesselid.identify import identify
     from vesselid.identify.efficient import InstrumentalGMM
 
@@ -377,7 +377,7 @@ def test_fused_colour_test_equals_the_explicit_one(scenario):
     group with a NaN segment; the combined estimates do not change (bit for bit)."""
     import dataclasses
 
-    from vesselid.calibration import heave_scenario
+    from vesselid.studies.calibration import heave_scenario
     from vesselid.identify import gmm
     from vesselid.identify.estimators import estimate
 
@@ -414,7 +414,7 @@ def test_auto_decision_and_estimates_do_not_depend_on_the_fused_colour_test(monk
     """``auto`` batched with the fused colour test and with the explicit one (generic
     kernels) makes the same choice and the same estimates, bit for bit; the statistics
     agree to 1e-9 relative (white and coloured sensor noise, both choices taken)."""
-    from vesselid.calibration import heave_scenario
+    from vesselid.studies.calibration import heave_scenario
     from vesselid.identify.estimators import estimate
 
     est = get_estimator("auto")
@@ -518,7 +518,7 @@ def test_whitened_colour_test_size_on_white_noise_and_power_on_coloured_sensor_n
     from _stats import binomial_ok
     from scipy.stats import binomtest, chi2
 
-    from vesselid.disturbances import GaussMarkov
+    from vesselid.plant.disturbances import GaussMarkov
     from vesselid.identify import gmm, kernels
     from vesselid.identify.estimators import estimate
 

@@ -9,8 +9,8 @@ import pytest
 from vesselid.errors import IdentificationError
 from vesselid.identify import identify
 from vesselid.identify.eiv import correct_regressors, noise_vector, resolve_sensor_noise
-from vesselid.logs import TrialLog
-from vesselid.model import ModelSpec
+from vesselid.data.logs import TrialLog
+from vesselid.model.spec import ModelSpec
 
 SPEC = ModelSpec("toy", ["x"], ["u"], {"x": ["x", "x*|x|", "u"]})
 THETA = np.array([0.9, -1.0, 0.05])
@@ -132,7 +132,7 @@ def test_bad_sensor_noise_is_a_clear_error(bad):
 def test_cli_sensor_noise_option(tmp_path, capsys):
     """`identify --sensor-noise x=0.03` corrects (and says so), `none` does not, a bad
     value exits 2 with one line."""
-    from vesselid.cli import main
+    from vesselid.cli.app import main
 
     log = _toy_log(0, 0.03, n=1500, experiments=2)
     path = log.save(tmp_path / "toy.csv")
@@ -153,8 +153,8 @@ def test_sea_trial_records_the_regressor_noise():
     (speed log for u, v; gyro for r); a low-pass-filtered log drops it."""
     from math import erf, erfc, exp, pi, sqrt
 
-    from vesselid.seatrial import simulate_sea_trial
-    from vesselid.wavefilter import WaveFilter, wave_filter_log
+    from vesselid.studies.seatrial import simulate_sea_trial
+    from vesselid.data.wavefilter import WaveFilter, wave_filter_log
 
     log = simulate_sea_trial(2, 300, seed=0, design="static-offset")
     c = 3.0
@@ -173,7 +173,7 @@ def test_noise_order_from_the_log_or_the_option():
     """`metadata["noise_order"]` (sea-trial writes the planner's SRIV order) or the
     `noise_order` option sets SRIV's AR order; estimators without a prefilter ignore it;
     a bad order is a clear error."""
-    from vesselid.planner import SRIV_ORDER
+    from vesselid.studies.planner import SRIV_ORDER
 
     log = _toy_log(1, 0.02, n=1500, experiments=2)
     tagged = TrialLog(log.data, {"noise_order": 8})
@@ -188,7 +188,7 @@ def test_noise_order_from_the_log_or_the_option():
     for bad in (0, 51, 2.5, True):
         with pytest.raises(IdentificationError, match="noise_order"):
             _fit(log, noise_order=bad)
-    from vesselid.seatrial import simulate_sea_trial
+    from vesselid.studies.seatrial import simulate_sea_trial
 
     assert simulate_sea_trial(2, 300, seed=0, design="static-offset"
                               ).metadata["noise_order"] == SRIV_ORDER

@@ -12,9 +12,9 @@ import vesselid  # noqa: F401  (registers the environments)
 from vesselid.envs.heave import HeaveEnv, HeaveVectorEnv
 from vesselid.envs.recorder import TrialRecorder, VectorTrialRecorder
 from vesselid.errors import VesselidError
-from vesselid.logs import TrialLog
-from vesselid.simulate import simulate_states
-from vesselid.systems import heave
+from vesselid.data.logs import TrialLog
+from vesselid.plant.simulate import simulate_states
+from vesselid.plant.systems import heave
 
 ENV_ID = "vesselid/Heave-v0"
 THETA0 = np.array([0.99, -0.1, 1.0])

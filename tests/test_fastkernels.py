@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vesselid.catalogue import get_system, names
+from vesselid.plant.catalogue import get_system, names
 from vesselid.identify import _fastkernels as fk
 from vesselid.identify import estimators
 from vesselid.identify.data import block_starts, from_log
@@ -183,7 +183,7 @@ def test_generated_file_name_is_salted(monkeypatch, tmp_path):
     assert fk.specialised_moments(*args) is not None
     first = {p.name for p in Path(tmp_path).glob("*.py")}
     fk._clear()
-    monkeypatch.setattr(fk, "SALT", "0" * 16)  # as after an edit of vesselid/regressors.py
+    monkeypatch.setattr(fk, "SALT", "0" * 16)  # as after an edit of vesselid/model/regressors.py
     assert fk.specialised_moments(*args) is not None
     second = {p.name for p in Path(tmp_path).glob("*.py")}
     assert len(first) == 1 and len(second) == 2 and first < second

@@ -2,7 +2,7 @@
 
 Property: every run ends with exit 2 and a one-line reason, or exit 0 with a
 valid result (strict JSON) — never a traceback (an exception escaping
-``vesselid.cli.main``), never ``NaN``/``Infinity`` in JSON. The CLI runs in-process on a
+``vesselid.cli.app.main``), never ``NaN``/``Infinity`` in JSON. The CLI runs in-process on a
 small log; examples are bounded so the whole module takes a few seconds.
 """
 
@@ -19,7 +19,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from vesselid.cli import main
+from vesselid.cli.app import main
 
 FUZZ = settings(max_examples=25, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow,
@@ -293,7 +293,7 @@ def test_ingest_option_values(raw, tmp_path, option, value):
     code, out, err = run(argv)
     assert_clean(code, out, err)
     if code == 0:  # a log was written: readable and finite
-        from vesselid.logs import TrialLog
+        from vesselid.data.logs import TrialLog
 
         data = TrialLog.load(tmp_path / "x.csv").data
         assert np.all(np.isfinite(data.select_dtypes("number").to_numpy()))

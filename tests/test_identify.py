@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from vesselid.disturbances import Gaussian, Uniform
+from vesselid.plant.disturbances import Gaussian, Uniform
 from vesselid.errors import (
     ConvergenceWarning,
     ExperimentDesignWarning,
@@ -18,10 +18,10 @@ from vesselid.errors import (
 )
 from vesselid.identify import estimators, from_arrays, identify
 from vesselid.identify.estimators import estimate, refined_iv
-from vesselid.logs import TrialLog
-from vesselid.model import ModelSpec
-from vesselid.signals import RandomPulses, StaticOffset
-from vesselid.systems import System, heave
+from vesselid.data.logs import TrialLog
+from vesselid.model.spec import ModelSpec
+from vesselid.plant.signals import RandomPulses, StaticOffset
+from vesselid.plant.systems import System, heave
 
 METHODS = ["ls", "iv", "iv-zero-mean"]
 
@@ -412,7 +412,7 @@ def test_fit_restores_blas_threads():
     from threadpoolctl import threadpool_info, threadpool_limits
 
     from vesselid.identify import identify, linalg
-    from vesselid.systems import heave
+    from vesselid.plant.systems import heave
 
     def blas_threads() -> list[int]:
         return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]

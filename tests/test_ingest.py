@@ -12,13 +12,13 @@ import pymap3d  # noqa: F401  (a missing test dependency fails)
 import pynmea2
 import pytest
 
-from vesselid.cli import main
-from vesselid.ingest import IngestError, ingest
-from vesselid.ingest.nmea import read_nmea
-from vesselid.logs import TrialLog
-from vesselid.nmea import checksums, hex_checksums
-from vesselid.rawstreams import RawStreamConfig, write_raw_streams
-from vesselid.systems import get_system
+from vesselid.cli.app import main
+from vesselid.data.ingest import IngestError, ingest
+from vesselid.data.ingest.nmea import read_nmea
+from vesselid.data.logs import TrialLog
+from vesselid.data.nmea0183 import checksums, hex_checksums
+from vesselid.data.rawexport import RawStreamConfig, write_raw_streams
+from vesselid.plant.systems import get_system
 
 SAMPLES = 3000
 
@@ -50,7 +50,7 @@ def _decode(rows: np.ndarray) -> list[str]:
 
 def test_byte_matrix_formatting_equals_python_format():
     """The vectorised writer's fields equal Python's str.format and the list helpers."""
-    from vesselid import nmea
+    from vesselid.data import nmea0183 as nmea
 
     rng = np.random.default_rng(0)
     v = np.concatenate([rng.normal(size=3000) * 10.0 ** rng.integers(-6, 10, 3000),
@@ -156,7 +156,7 @@ def test_bad_sentences_are_counted(trial, tmp_path):
     assert src["talkers"]["RMC"]["GP"] == len(extra)
     assert src["ignored_talkers"]["RMC"] == len(extra)
     # read in small chunks (lines split across reads, a line longer than a chunk): the same
-    import vesselid.ingest.nmea as nmea_reader
+    import vesselid.data.ingest.nmea as nmea_reader
 
     with (d / "nav.nmea").open("a") as fh:
         fh.write("$GPGGA," + "9" * 9000 + "\n")

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vesselid.cli import main
-from vesselid.ingest import IngestError, ingest, summary
-from vesselid.nmea import KNOT, sentence_lines
+from vesselid.cli.app import main
+from vesselid.data.ingest import IngestError, ingest, summary
+from vesselid.data.nmea0183 import KNOT, sentence_lines
 
 T0 = 1_780_308_000.0  # the synthetic log starts on 1 June 2026 at ten o'clock
 LAT0, LON0 = 63.43, 10.39

@@ -8,7 +8,7 @@ import numpy as np
 import pymap3d  # noqa: F401  (a missing test dependency fails)
 import pytest
 
-from vesselid.ingest import ingest
+from vesselid.data.ingest import ingest
 
 
 def _write_bag(path, n=700, dt=0.05):
@@ -143,7 +143,7 @@ def test_ros1_bag_to_trial_log(tmp_path):
 
 
 def test_ros1_bag_garbage_is_refused(tmp_path):
-    from vesselid.ingest import IngestError
+    from vesselid.data.ingest import IngestError
 
     (tmp_path / "x.bag").write_bytes(b"#ROSBAG V2.0\n" + bytes(range(256)) * 20)
     with pytest.raises(IngestError, match=r"cannot read ROS 1 bag .*x\.bag"):

@@ -1,4 +1,4 @@
-"""Model-test tables (vesselid.ingest.tank): synthetic files in the SIMMAN/HSVA layout."""
+"""Model-test tables (vesselid.data.ingest.tank): synthetic files in the SIMMAN/HSVA layout."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from vesselid.ingest import ingest
-from vesselid.ingest.config import IngestError
-from vesselid.ingest.tank import tank_format_from_dict
+from vesselid.data.ingest import ingest
+from vesselid.data.ingest.config import IngestError
+from vesselid.data.ingest.tank import tank_format_from_dict
 
 NAMES = ["time", "x0", "y0", "psi", "u", "v", "r", "p", "delta", "rev", "thrust", "torque"]
 DT = 0.05
@@ -196,8 +196,8 @@ def test_shipped_kvlcc2_config_and_spec_end_to_end(tmp_path):
     from _ship import zigzag_log
 
     from vesselid.identify import identify
-    from vesselid.specs import load_spec, path
-    from vesselid.validation import validate
+    from vesselid.model.specs import load_spec, path
+    from vesselid.validation.report import validate
 
     spec = load_spec("kvlcc2")
     theta = {"du": [0.99, -0.01, 0.3, -0.006],

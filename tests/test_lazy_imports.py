@@ -34,7 +34,7 @@ def test_import_vesselid_is_light() -> None:
     ["identify", "--stream", "--method", "gmm", "logs"],
 ])
 def test_help_and_argument_errors_load_no_kernels(argv: list[str]) -> None:
-    code = ("from vesselid.cli import main\n"
+    code = ("from vesselid.cli.app import main\n"
             "try:\n"
             f"    main({argv!r})\n"
             "except SystemExit:\n"
@@ -70,10 +70,10 @@ def test_lazy_top_level_names() -> None:
 
 def test_static_names_equal_the_registries() -> None:
     """The CLI's static ``--method``/``--cov`` names (no kernels loaded) are the registries'."""
-    from vesselid import _names
+    from vesselid.core import names as _names
     from vesselid.identify import covariance_api
     from vesselid.identify.registry import DEFAULT_METHOD, ESTIMATORS
-    from vesselid.streaming import DEFAULT_STREAM_METHOD, STREAM_METHODS
+    from vesselid.identify.streaming import DEFAULT_STREAM_METHOD, STREAM_METHODS
 
     assert _names.METHODS == tuple(ESTIMATORS)
     assert _names.DEFAULT_METHOD == DEFAULT_METHOD

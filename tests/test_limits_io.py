@@ -10,12 +10,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from vesselid import limits
-from vesselid._io import atomic_group, strict_json
+from vesselid.core import limits
+from vesselid.core.fileio import atomic_group, strict_json
 from vesselid.errors import LogValidationError, ResourceLimitError
-from vesselid.logs import TrialLog, estimate_shape
-from vesselid.stream import simulate_to_file
-from vesselid.systems import get_system
+from vesselid.data.logs import TrialLog, estimate_shape
+from vesselid.plant.todisk import simulate_to_file
+from vesselid.plant.systems import get_system
 
 
 def test_check_refuses_with_need_and_limit(monkeypatch):

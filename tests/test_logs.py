@@ -1,4 +1,4 @@
-"""Tests of vesselid.logs: trial log validation, exact save/load round trips, atomicity."""
+"""Tests of vesselid.data.logs: trial log validation, exact save/load round trips, atomicity."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import pytest
 from pandas.testing import assert_frame_equal
 
 from vesselid.errors import LogValidationError
-from vesselid.logs import PARQUET_METADATA_KEY, TrialLog, concat_logs
-from vesselid.model import ModelSpec
+from vesselid.data.logs import PARQUET_METADATA_KEY, TrialLog, concat_logs
+from vesselid.model.spec import ModelSpec
 
 
 @pytest.fixture
@@ -189,9 +189,9 @@ def test_atomic_csv_writer_raises(
         Path(str(path)).write_text("experiment,time,w\n0,0.0,")  # half written
         raise OSError("disk full")
 
-    import vesselid.logs
+    import vesselid.data.logs
 
-    monkeypatch.setattr(vesselid.logs, "_write_csv", boom)
+    monkeypatch.setattr(vesselid.data.logs, "_write_csv", boom)
     with pytest.raises(OSError, match="disk full"):
         log.save(tmp_path / "trial.csv")
     assert list(tmp_path.iterdir()) == []
@@ -411,7 +411,7 @@ def test_concat_logs_errors(log: TrialLog) -> None:
 def test_atomic_write_uses_umask_mode(tmp_path):
     import os
 
-    from vesselid._io import atomic_write_text
+    from vesselid.core.fileio import atomic_write_text
 
     path = tmp_path / "f.txt"
     atomic_write_text(path, "x")

@@ -7,11 +7,11 @@ import sys
 
 import numpy as np
 
-from vesselid.cli import main
+from vesselid.cli.app import main
 
 
 def test_unmap_large_blocks_keeps_arrays_working() -> None:
-    from vesselid._memory import unmap_large_blocks
+    from vesselid.core.memory import unmap_large_blocks
 
     done = unmap_large_blocks()
     assert done is sys.platform.startswith("linux") or done is False

@@ -5,7 +5,7 @@ import pandas as pd
 import pytest
 
 from vesselid.errors import ModelSpecError
-from vesselid.model import Aggregate, ModelSpec
+from vesselid.model.spec import Aggregate, ModelSpec
 
 HEAVE_TOML = """
 name = "heave"

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from vesselid.identify import identify
-from vesselid.model import ModelSpec
-from vesselid.modelio import export_model, load_model, to_control
-from vesselid.simulate import simulate_states
-from vesselid.systems import get_system
+from vesselid.model.spec import ModelSpec
+from vesselid.model.export import export_model, load_model, to_control
+from vesselid.plant.simulate import simulate_states
+from vesselid.plant.systems import get_system
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from vesselid.errors import VesselidError
-from vesselid.montecarlo import (
+from vesselid.studies.montecarlo import (
     COLUMNS,
     Study,
     load_results,
@@ -56,14 +56,14 @@ def test_concurrent_chunks_bit_identical(reference, monkeypatch):
     """Chunks run concurrently on the local threads (serial kernels each) give the frame
     of one chunk with threaded kernels; the default chunk count is a multiple of the
     threads."""
-    from vesselid import montecarlo as mc
+    from vesselid.studies import montecarlo as mc
 
     pd.testing.assert_frame_equal(run_study(SMALL, n_jobs=2, batch_size=5, progress=False),
                                   reference)
-    monkeypatch.setattr("vesselid._threads.n_threads", lambda: 2)
+    monkeypatch.setattr("vesselid.core.threads.n_threads", lambda: 2)
     assert mc._local_batch(1000) == 250 and mc._local_batch(750) == 188
     assert mc._local_batch(200) == mc.DEFAULT_BATCH_SIZE  # one chunk: threaded kernels
-    monkeypatch.setattr("vesselid._threads.n_threads", lambda: 1)
+    monkeypatch.setattr("vesselid.core.threads.n_threads", lambda: 1)
     assert mc._local_batch(750) == mc.DEFAULT_BATCH_SIZE
 
 
@@ -165,7 +165,7 @@ def test_specialised_kernel_bit_identical_to_generic(monkeypatch, use_sim):
     including a run whose auxiliary model diverges."""
     from vesselid.identify import estimators
     from vesselid.identify.data import from_arrays
-    from vesselid.systems import heave
+    from vesselid.plant.systems import heave
 
     system = heave(current_mean=0.1, current_sensor=True, pulse_design="alternating")
     spec = system.identification_spec()
@@ -186,8 +186,8 @@ def test_auto_shares_the_chunks_iv_zero_mean_result_bit_for_bit(monkeypatch):
     """``auto`` starts from the converged IV_{E{ζ}=0} iteration: a chunk computes it once
     and hands it over (or takes auto's when auto comes first); the frame is identical
     to estimating every method on its own."""
-    import vesselid.montecarlo as mc
-    from vesselid.montecarlo import Study, run_study
+    import vesselid.studies.montecarlo as mc
+    from vesselid.studies.montecarlo import Study, run_study
 
     calls = []
     real = mc.get_estimator("auto").estimate_parameters
@@ -214,7 +214,7 @@ def test_auto_shares_the_chunks_iv_zero_mean_result_bit_for_bit(monkeypatch):
 def test_concurrent_chunks_in_processes_and_threads_agree(reference, monkeypatch):
     """The concurrent chunks give the same frame bit for bit in forked worker processes
     (the default where the platform forks) and in threads."""
-    from vesselid import montecarlo as mc
+    from vesselid.studies import montecarlo as mc
 
     if mc._fork_context() is None:
         pytest.skip("no fork on this platform")

@@ -21,7 +21,7 @@ from vesselid.identify import _npkernels as npk
 from vesselid.identify import backend
 from vesselid.identify import kernels as jk
 from vesselid.identify.data import block_starts, from_log
-from vesselid.systems import get_system
+from vesselid.plant.systems import get_system
 
 EPS = np.finfo(float).eps
 
@@ -76,7 +76,7 @@ def test_divergence_matches():
     assert not ok2.any()
     np.testing.assert_array_equal(ok1, ok2)
     np.testing.assert_array_equal(z1, z2)
-    from vesselid.simulate import simulate_states
+    from vesselid.plant.simulate import simulate_states
 
     sl = data.segment(0)
     x1 = npk.simulate_states(spec, data.u[sl], theta=theta[0], x0=data.target[sl][0],
@@ -150,7 +150,7 @@ def test_matrix_helpers_equal_to_rounding():
 
 def test_identify_both_paths_agree_to_rounding(monkeypatch):
     """Every method: the numpy path (forced) and the compiled path agree to rounding."""
-    from vesselid.closedloop import heave_pi_design, simulate_closed_loop
+    from vesselid.plant.closedloop import heave_pi_design, simulate_closed_loop
     from vesselid.identify import ESTIMATORS, identify
 
     system = get_system("heave")
@@ -226,7 +226,7 @@ def test_small_log_identify_process_loads_no_numba(tmp_path):
     """``vesselid identify`` on a 10⁴-sample heave log: no numba in the process."""
     log = tmp_path / "heave.csv"
     get_system("heave").simulate(10_000, seed=0).to_log().save(log)
-    code = ("import sys\nfrom vesselid.cli import main\n"
+    code = ("import sys\nfrom vesselid.cli.app import main\n"
             f"rc = main(['identify', {str(log)!r}])\n"
             "print('NUMBA', 'numba' in sys.modules, rc)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
@@ -265,7 +265,7 @@ def test_thread_ranges_cover_every_item_once_and_survive_fork():
     gets a fresh pool (the parent's threads do not exist there)."""
     import os
 
-    from vesselid import _threads
+    from vesselid.core import threads as _threads
 
     hits = np.zeros(1000, dtype=np.int64)
 

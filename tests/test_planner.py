@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from vesselid.cli import main
-from vesselid.manoeuvres import (
+from vesselid.cli.app import main
+from vesselid.studies.manoeuvres import (
     AccelerationStopping,
     ManoeuvreError,
     NominalVessel,
@@ -17,7 +17,7 @@ from vesselid.manoeuvres import (
     ZigZag,
     manoeuvre_from_dict,
 )
-from vesselid.planner import (
+from vesselid.studies.planner import (
     Information,
     PlannerError,
     _ar1_meat,
@@ -151,9 +151,9 @@ def test_equation_error_autocovariance_matches_a_simulated_trial():
     """The planner's pooled equation-error autocorrelations (the input of auto's SRIV
     noise model) agree with those of θ0's residuals on a simulated trial of the plan,
     within 4 Bartlett standard errors of the sample autocorrelations."""
-    from vesselid.planner import DisturbanceLevels, _Vessel, design_information
-    from vesselid.regressors import predict
-    from vesselid.seatrial import planned_sea_trial_design, simulate_sea_trial
+    from vesselid.studies.planner import DisturbanceLevels, _Vessel, design_information
+    from vesselid.model.regressors import predict
+    from vesselid.studies.seatrial import planned_sea_trial_design, simulate_sea_trial
 
     plan = plan_trial(16000, 2, block=4000, evaluate_block=2000)
     assert plan.estimator == "auto"
@@ -182,8 +182,8 @@ def test_equation_error_autocovariance_matches_a_simulated_trial():
 def test_modulus_bias_matches_sampled_expectation():
     """E[φ(x+e)] − φ(x) of the modulus regressors near zero (errors in variables at the
     zero crossings) against a sample mean, within 5 sample SE."""
-    from vesselid.planner import _modulus_bias
-    from vesselid.regressors import evaluate
+    from vesselid.studies.planner import _modulus_bias
+    from vesselid.model.regressors import evaluate
 
     rng = np.random.default_rng(4)
     # signals [x, y, u]; factor codes s = 0..2, |s| = 3..5, 1 = 6:
@@ -224,10 +224,10 @@ def test_disturbed_paths_weaken_the_instruments_as_in_a_simulated_trial():
     the effect is real: their mean exceeds the noise-free-path prediction by more than 4
     standard errors of that mean. Without process disturbances the paths are the
     noise-free path (identical information)."""
-    from vesselid.planner import DisturbanceLevels, _Vessel, design_information
-    from vesselid.regressors import evaluate
-    from vesselid.seatrial import planned_sea_trial_design, simulate_sea_trial
-    from vesselid.simulate import simulate_states
+    from vesselid.studies.planner import DisturbanceLevels, _Vessel, design_information
+    from vesselid.model.regressors import evaluate
+    from vesselid.studies.seatrial import planned_sea_trial_design, simulate_sea_trial
+    from vesselid.plant.simulate import simulate_states
 
     plan = plan_trial(16000, 2, block=4000, evaluate_block=2000)
     vessel = _Vessel.cybership2()

@@ -8,9 +8,9 @@ import pytest
 from vesselid.errors import IdentificationError
 from vesselid.identify import identify
 from vesselid.identify.recursive import RecursiveEstimator, recursive_estimate
-from vesselid.regressors import evaluate
-from vesselid.simulate import simulate_states
-from vesselid.systems import heave
+from vesselid.model.regressors import evaluate
+from vesselid.plant.simulate import simulate_states
+from vesselid.plant.systems import heave
 
 
 @pytest.fixture(scope="module")

@@ -7,8 +7,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from vesselid._json import dumps, strict
-from vesselid.cli import build_parser, main
+from vesselid.core.jsonio import dumps, strict
+from vesselid.cli.app import build_parser, main
 from vesselid.errors import IdentificationError
 from vesselid.identify import (
     DEFAULT_METHOD,
@@ -20,7 +20,7 @@ from vesselid.identify import (
     method_labels,
 )
 from vesselid.identify.covariance_api import available as cov_names
-from vesselid.systems import heave
+from vesselid.plant.systems import heave
 
 
 def _choices(parser, command: str, option: str) -> list[str]:

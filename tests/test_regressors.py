@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 from numba import njit
 
 from vesselid.errors import ModelSpecError
-from vesselid.regressors import (
+from vesselid.model.regressors import (
     SALT,
     advance,
     encode_terms,
@@ -20,7 +20,7 @@ from vesselid.regressors import (
     predict,
     regressors,
 )
-from vesselid.terms import Term
+from vesselid.model.terms import Term
 
 NAMES = ["u", "v", "r", "X"]
 
@@ -85,7 +85,7 @@ def test_every_evaluation_matches_the_definition(terms, values):
 @settings(deadline=None)
 @given(st.lists(st.floats(-10, 10), min_size=6, max_size=6))
 def test_one_step_update_numpy_and_compiled_agree_bitwise(values):
-    from vesselid.vessels import cybership2_spec
+    from vesselid.plant.vessels import cybership2_spec
 
     spec = cybership2_spec(0.1)
     layout, theta = spec.codes, spec.theta0_vector()

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
-from vesselid.cli import main
+from vesselid.cli.app import main
 from vesselid.errors import VesselidError
-from vesselid.reproduce import (
+from vesselid.studies.reproduce import (
     PARAMETER_LABELS,
     PUBLISHED_TABLE_1,
     PUBLISHED_TABLE_2,
@@ -18,7 +18,7 @@ from vesselid.reproduce import (
     reproduce,
     table_study,
 )
-from vesselid.systems import heave
+from vesselid.plant.systems import heave
 
 
 @pytest.fixture(scope="module")
@@ -102,7 +102,7 @@ def test_comparison_and_text_format(small):
     comp = small.comparisons[1]
     assert {"published_mean", "published_sd", "mean", "sd", "se", "z", "diff_sd",
             "sd_ratio", "not_converged", "failed"} <= set(comp.columns)
-    from vesselid.reproduce import EXTRA_METHODS
+    from vesselid.studies.reproduce import EXTRA_METHODS
 
     # the paper's 9 rows with published numbers, plus the package default as an extra row
     assert len(comp) == 9 + 3 * len(EXTRA_METHODS)
@@ -130,7 +130,7 @@ def test_comparison_table_uses_published_rows(small):
 
 
 def test_figures(small, tmp_path):
-    from vesselid.plots import error_histograms, estimate_vs_truth, trial_timeseries
+    from vesselid.studies.plots import error_histograms, estimate_vs_truth, trial_timeseries
 
     fig = error_histograms(small.results[1], labels=PARAMETER_LABELS, title="t")
     # one axes per parameter, the estimators stacked inside it (one histogram polygon each)

@@ -15,7 +15,7 @@ from vesselid.identify.data import from_log
 from vesselid.identify.fallback import CHAIN, identify_with_fallback
 from vesselid.identify.methods import LeastSquares
 from vesselid.identify.stability import jacobians, stability_report
-from vesselid.systems import get_system
+from vesselid.plant.systems import get_system
 
 pytestmark = pytest.mark.filterwarnings("ignore::vesselid.errors.ExperimentDesignWarning")
 
@@ -83,7 +83,7 @@ def test_bad_input_is_raised_by_the_first_member(log):
 
 def test_chain_order_is_documented():
     assert CHAIN[0] == "auto" and CHAIN[-1] == "ls"
-    from vesselid import _names
+    from vesselid.core import names as _names
 
     assert set(CHAIN) <= set(_names.METHODS)
 
@@ -134,7 +134,7 @@ def test_status_of_an_unstable_result(log):
 
 def test_cli_exit_code_3_without_a_usable_model(tmp_path, log, monkeypatch, capsys):
     from vesselid import identify as ident_pkg
-    from vesselid.cli import main
+    from vesselid.cli.app import main
 
     path = tmp_path / "trial.csv"
     log.save(path)
@@ -170,10 +170,10 @@ def test_cli_exit_code_3_without_a_usable_model(tmp_path, log, monkeypatch, caps
 
 def _hovering(amp: float):
     """A state that hovers around zero, its pulses of ±amp small against the sensor noise."""
-    from vesselid.disturbances import Gaussian
-    from vesselid.model import ModelSpec
-    from vesselid.signals import RandomPulses
-    from vesselid.systems import System
+    from vesselid.plant.disturbances import Gaussian
+    from vesselid.model.spec import ModelSpec
+    from vesselid.plant.signals import RandomPulses
+    from vesselid.plant.systems import System
 
     return System(spec=ModelSpec("s", ["x"], ["u"], {"x": ["x", "x*|x|", "u"]},
                                  theta0={"x": [0.9, -0.5, 1.0]}),
@@ -183,7 +183,7 @@ def _hovering(amp: float):
 
 
 def test_smoothness_warning_once_where_the_bias_matters():
-    from vesselid.diagnostics import SMOOTHNESS_BIAS_SE
+    from vesselid.identify.diagnostics import SMOOTHNESS_BIAS_SE
     from vesselid.errors import ExperimentDesignWarning
 
     log = _hovering(0.05).simulate(20000, seed=1).to_log()
@@ -200,10 +200,10 @@ def test_smoothness_warning_once_where_the_bias_matters():
 
 
 def test_excitation_names_a_constant_input_and_the_lost_terms():
-    from vesselid.disturbances import Gaussian
-    from vesselid.model import ModelSpec
-    from vesselid.signals import RandomPulses, StaticOffset
-    from vesselid.systems import System
+    from vesselid.plant.disturbances import Gaussian
+    from vesselid.model.spec import ModelSpec
+    from vesselid.plant.signals import RandomPulses, StaticOffset
+    from vesselid.plant.systems import System
 
     # a two-input vessel-like model whose second input (rpm) is held constant in every run
     system = System(spec=ModelSpec("s", ["x"], ["u", "n"], {"x": ["x", "x*|x|", "u", "n*|n|"]},
@@ -228,7 +228,7 @@ def _noisy_map_refinement(monkeypatch, noise: float, average: bool):
     (a stall: the residual cannot fall below the noise)."""
     from vesselid.identify import estimators
     from vesselid.identify.data import from_arrays
-    from vesselid.systems import heave
+    from vesselid.plant.systems import heave
 
     system = heave()
     spec = system.identification_spec()

@@ -9,11 +9,11 @@ import pymap3d  # noqa: F401  (a missing test dependency fails)
 import pynmea2  # noqa: F401  (a missing test dependency fails)
 import pytest
 
-from vesselid.cli import main
+from vesselid.cli.app import main
 from vesselid.identify import identify
-from vesselid.ingest import ingest
-from vesselid.logs import TrialLog
-from vesselid.model import ModelSpec
+from vesselid.data.ingest import ingest
+from vesselid.data.logs import TrialLog
+from vesselid.model.spec import ModelSpec
 
 
 @pytest.mark.slow

@@ -6,8 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from vesselid.cli import main
-from vesselid.sampling import SamplingError, check_sampling
+from vesselid.cli.app import main
+from vesselid.data.sampling import SamplingError, check_sampling
 
 
 @pytest.fixture(scope="module")

@@ -9,8 +9,8 @@ import pytest
 
 from vesselid.errors import IdentificationError
 from vesselid.identify import identify
-from vesselid.logs import TrialLog
-from vesselid.systems import get_system
+from vesselid.data.logs import TrialLog
+from vesselid.plant.systems import get_system
 
 
 @pytest.fixture(scope="module")
@@ -151,7 +151,7 @@ def test_pem_is_unit_invariant(s):
     current, where ``auto`` takes it too)."""
     import dataclasses
 
-    from vesselid.disturbances import GaussMarkov
+    from vesselid.plant.disturbances import GaussMarkov
 
     system = dataclasses.replace(get_system("heave", pulse_design="alternating"),
                                  current={"w": GaussMarkov(0.0, 0.1, 25.0)})

@@ -1,4 +1,4 @@
-"""Tests of the CyberShip II sea-trial pipeline (vesselid.seatrial)."""
+"""Tests of the CyberShip II sea-trial pipeline (vesselid.studies.seatrial)."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from _stats import bonferroni_z
 
-from vesselid.cli import main
+from vesselid.cli.app import main
 from vesselid.errors import VesselidError
 from vesselid.identify import identify
-from vesselid.seatrial import (
+from vesselid.studies.seatrial import (
     SeaTrialError,
     design_sea_trial,
     normalized_errors,
@@ -19,7 +19,7 @@ from vesselid.seatrial import (
     seatrial_spec,
     simulate_sea_trial,
 )
-from vesselid.vessels import CyberShip2Sensors, get_hull
+from vesselid.plant.vessels import CyberShip2Sensors, get_hull
 
 QUIET = dict(sensors=CyberShip2Sensors.noiseless(), current_speed=0.0, current_variation=0.0,
              wind_speed=0.0, wind_gust=0.0, force_noise=(0.0, 0.0, 0.0))

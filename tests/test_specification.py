@@ -110,7 +110,7 @@ def test_identify_reports_diagnostics_and_plots_residuals():
     import warnings
 
     from vesselid.identify import identify
-    from vesselid.systems import heave
+    from vesselid.plant.systems import heave
 
     log = heave(pulse_design="alternating").simulate(3000, 1, seed=5).to_log()
     with warnings.catch_warnings():

@@ -9,9 +9,9 @@ import pyarrow  # noqa: F401  (a missing test dependency fails)
 import pytest
 
 from vesselid.identify import identify
-from vesselid.logs import TrialLog
-from vesselid.streaming import ParquetExperiments, identify_stream
-from vesselid.systems import get_system
+from vesselid.data.logs import TrialLog
+from vesselid.identify.streaming import ParquetExperiments, identify_stream
+from vesselid.plant.systems import get_system
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +69,7 @@ def test_streamed_equals_in_memory(logs, method, combine, cov_type, cov_config):
 
 def test_streamed_result_is_an_identification_result(logs, tmp_path):
     from vesselid.identify import IdentificationResult
-    from vesselid.model import ModelSpec
+    from vesselid.model.spec import ModelSpec
 
     d, _ = logs
     got = identify_stream(d)
@@ -112,7 +112,7 @@ def test_not_parquet_is_a_clear_error(tmp_path):
 def test_cli_identify_stream(logs, tmp_path, capsys):
     import json
 
-    from vesselid.cli import main
+    from vesselid.cli.app import main
 
     d, _log = logs
     out = tmp_path / "r.json"

@@ -5,7 +5,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from vesselid.errors import ModelSpecError
-from vesselid.terms import Term
+from vesselid.model.terms import Term
 
 NAMES = ["u", "v", "r", "X"]
 
@@ -56,7 +56,7 @@ def test_terms_and_model_import_no_numba():
     import subprocess
     import sys
 
-    code = ("import sys, vesselid, vesselid.terms, vesselid.model; "
-            "vesselid.model.ModelSpec('m', ['x'], ['u'], {'x': ['x', 'x*|x|', 'u']}); "
+    code = ("import sys, vesselid, vesselid.model.terms, vesselid.model.spec; "
+            "vesselid.model.spec.ModelSpec('m', ['x'], ['u'], {'x': ['x', 'x*|x|', 'u']}); "
             "assert 'numba' not in sys.modules, 'numba imported'")
     subprocess.run([sys.executable, "-c", code], check=True)

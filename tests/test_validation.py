@@ -12,9 +12,9 @@ import pandas as pd
 import pytest
 from _ship import SHIP, zigzag_log
 
-from vesselid.manoeuvre_metrics import detect, integrate_track, turning_figures, zigzag_figures
-from vesselid.model import ModelSpec
-from vesselid.validation import ValidationError, validate
+from vesselid.validation.metrics import detect, integrate_track, turning_figures, zigzag_figures
+from vesselid.model.spec import ModelSpec
+from vesselid.validation.report import ValidationError, validate
 
 
 @pytest.fixture(scope="module")
@@ -121,7 +121,7 @@ def test_bad_input_refused(spec, log):
 
 
 def test_cli_strict_json_plot_and_exit_2(spec, log, tmp_path):
-    from vesselid.logs import TrialLog
+    from vesselid.data.logs import TrialLog
 
     TrialLog(log).save(tmp_path / "trial.csv")
     spec.save(tmp_path / "model.toml")
@@ -148,9 +148,9 @@ def test_cli_strict_json_plot_and_exit_2(spec, log, tmp_path):
 
 def test_one_step_prediction_equals_the_regressor_prediction(spec, log):
     """k = 1: Φᵀ(y(k), u(k)) θ from the measured signals (derived columns included)."""
-    from vesselid.derived import add_derived
-    from vesselid.freerun import Plant
-    from vesselid.regressors import predict
+    from vesselid.model.derived import add_derived
+    from vesselid.validation.freerun import Plant
+    from vesselid.model.regressors import predict
 
     theta = spec.theta0_vector() * 1.01
     g = log[log["experiment"] == "zz10"].reset_index(drop=True)

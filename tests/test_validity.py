@@ -13,7 +13,7 @@ from vesselid.errors import IdentifiabilityWarning, IdentificationError, Paramet
 from vesselid.identify import identify
 from vesselid.identify.efficient import InstrumentalGMM
 from vesselid.identify.pem import PredictionError
-from vesselid.model import ModelSpec
+from vesselid.model.spec import ModelSpec
 
 THETA0 = (0.9, -0.2, 0.8)
 SPEC = ModelSpec(name="heave-test", states=["w"], inputs=["tau"],

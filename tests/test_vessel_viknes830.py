@@ -8,8 +8,8 @@ import warnings
 import numpy as np
 import pytest
 
-from vesselid.catalogue import get_system, vessel_module, vessel_names
-from vesselid.cli import main
+from vesselid.plant.catalogue import get_system, vessel_module, vessel_names
+from vesselid.cli.app import main
 from vesselid.identify import identify
 
 VESSEL = "viknes830"
@@ -37,7 +37,7 @@ def test_simulate_cli(tmp_path, capsys) -> None:
 def test_sea_trial_cli(tmp_path, capsys) -> None:
     assert main(["sea-trial", "--vessel", VESSEL, "--experiments", "2", "--samples", "300",
                  "--format", "csv", "--seed", "0", "--out", str(tmp_path)]) == 0
-    from vesselid.logs import TrialLog
+    from vesselid.data.logs import TrialLog
 
     assert (tmp_path / f"{VESSEL}.toml").exists()
     log = TrialLog.load(tmp_path / "seatrial.csv")
@@ -65,8 +65,8 @@ def test_controller_realises_its_closed_loop() -> None:
     tracks a 4 m/s, 29° reference exactly as designed (to round-off, unsaturated steps)."""
     from _closed_loop import QUIET, closed_loop_residuals, quiet_env
 
-    from vesselid.control import FeedbackLinearizingController, run_control_experiment
-    from vesselid.seatrial import seatrial_spec
+    from vesselid.control.controllers import FeedbackLinearizingController, run_control_experiment
+    from vesselid.studies.seatrial import seatrial_spec
 
     spec = seatrial_spec(vessel=VESSEL, structure="full")
     ref = lambda t: (4.0, 0.5 if t > 20 else 0.0)  # noqa: E731

@@ -1,4 +1,4 @@
-"""Tests of vesselid.vessels: CyberShip II θ0 mapping, batch simulator and physics sanity."""
+"""Tests of vesselid.plant.vessels: CyberShip II θ0 mapping, batch simulator and physics sanity."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from vesselid.errors import SimulationDivergedError, VesselidError
-from vesselid.regressors import predict
-from vesselid.simulate import simulate_states
-from vesselid.vessels import (
+from vesselid.model.regressors import predict
+from vesselid.plant.simulate import simulate_states
+from vesselid.plant.vessels import (
     CYBERSHIP2,
     CyberShip2Disturbances,
     CyberShip2Sensors,

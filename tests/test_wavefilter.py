@@ -1,4 +1,4 @@
-"""Wave filter of trial measurements (vesselid.wavefilter)."""
+"""Wave filter of trial measurements (vesselid.data.wavefilter)."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ import pytest
 from _stats import bonferroni_z
 
 from vesselid.errors import VesselidError
-from vesselid.logs import TrialLog
-from vesselid.wavefilter import WaveFilter, WaveFilterError, wave_filter_log
-from vesselid.waves import WaveConditions
+from vesselid.data.logs import TrialLog
+from vesselid.data.wavefilter import WaveFilter, WaveFilterError, wave_filter_log
+from vesselid.plant.waves import WaveConditions
 
 
 @pytest.mark.parametrize("kwargs", [
@@ -77,7 +77,7 @@ def test_wave_filtered_trial_is_consistent_and_more_precise() -> None:
     zero-mean simulated instruments is within the family-wise normal bound on every
     parameter, with smaller standard errors than the unfiltered log."""
     from vesselid.identify import identify
-    from vesselid.seatrial import simulate_sea_trial
+    from vesselid.studies.seatrial import simulate_sea_trial
 
     waves = WaveConditions.sea_state("moderate")
     log = simulate_sea_trial(6, 20000, seed=3, waves=waves)
@@ -93,7 +93,7 @@ def test_wave_filtered_trial_is_consistent_and_more_precise() -> None:
 
 
 def test_sea_trial_cli_writes_the_wave_filtered_log(tmp_path, capsys) -> None:
-    from vesselid.cli import main
+    from vesselid.cli.app import main
 
     args = ["sea-trial", "--experiments", "2", "--samples", "800", "--design", "static-offset",
             "--sea-state", "moderate", "--seed", "1", "--format", "csv"]

@@ -13,7 +13,7 @@ __version__ = "0.1.0"
 import sys
 from typing import Any
 
-from vesselid._lazy import lazy_attributes
+from vesselid.core.lazy import lazy_attributes
 from vesselid.errors import (
     ConvergenceWarning,
     ExperimentDesignWarning,
@@ -44,7 +44,7 @@ __all__ = [
 
 # Imported on first use (PEP 562), so that ``import vesselid`` — and ``vesselid --help`` —
 # load neither pandas nor the numerical stack.
-_LAZY = {"Aggregate": "vesselid.model", "ModelSpec": "vesselid.model", "Term": "vesselid.terms"}
+_LAZY = {"Aggregate": "vesselid.model.spec", "ModelSpec": "vesselid.model.spec", "Term": "vesselid.model.terms"}
 
 
 __getattr__, __dir__ = lazy_attributes(__name__, _LAZY, __all__)

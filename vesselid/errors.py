@@ -144,7 +144,7 @@ class ExperimentDesignWarning(UserWarning):
 
 
 class DerivedInputWarning(UserWarning):
-    """A derived input is computed from measured states: not exogenous (vesselid.derived)."""
+    """A derived input is computed from measured states: not exogenous (vesselid.model.derived)."""
 
 
 class IdentifiabilityWarning(UserWarning):

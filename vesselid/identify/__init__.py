@@ -28,7 +28,7 @@ from vesselid.identify.registry import (
     register,
 )
 from vesselid.identify.results import IdentificationResult
-from vesselid.model import ModelSpec
+from vesselid.model.spec import ModelSpec
 
 if TYPE_CHECKING:
     import pandas as pd

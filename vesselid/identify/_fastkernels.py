@@ -5,7 +5,7 @@ every term from arrays at every sample. For a given structure — the number of
 states ``n`` and inputs ``m``, the factor layout, the equations of the terms — this
 module writes the same computation with all loops over states, inputs and terms
 unrolled into scalar code (factors spelled through
-:func:`vesselid.regressors.factor_source`), and compiles it with numba.
+:func:`vesselid.model.regressors.factor_source`), and compiles it with numba.
 
 * The operations and their order are exactly those of the generic kernel (same
   auxiliary-model recursion, same divergence test, same accumulation order), so
@@ -15,7 +15,7 @@ unrolled into scalar code (factors spelled through
   directory (:func:`kernel_dir`) and only rewritten if its text changes, so numba's
   on-disk cache of the compiled code stays valid across processes. Its file name is
   a digest of the source, the numba and Python versions and
-  :data:`vesselid.regressors.SALT`, so an edit of the kernel module invalidates it.
+  :data:`vesselid.model.regressors.SALT`, so an edit of the kernel module invalidates it.
 * Code is only executed from a directory that is owned by the current user and
   closed to everybody else (mode ``0o700``; an own directory that is more open is
   tightened); otherwise — and whenever writing, importing or compiling the generated
@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vesselid.regressors import SALT, factor_source
+from vesselid.model.regressors import SALT, factor_source
 
 __all__ = [
     "MAX_KEPT_FILES",
@@ -194,7 +194,7 @@ def prune(directory: Path, *, now: float | None = None,
 
 def _factor(idx: int, n: int, m: int, sig: str) -> str | None:
     """Variable name of factor ``idx`` of the layout ``F = [s, |s|, 1]`` with ``s = [x; u]``
-    (:func:`vesselid.regressors.factor_source`); None for the constant 1."""
+    (:func:`vesselid.model.regressors.factor_source`); None for the constant 1."""
     src = factor_source(idx, n + m)
     if src is None:
         return None
@@ -266,7 +266,7 @@ def _advance(add: Callable[[str], None], ind: str, n: int, m: int, fac: np.ndarr
 
 def _entry_point(add: Callable[[str], None], params: str, args: str) -> None:
     """``segments``: ``_segment`` over the segments ``lo .. hi - 1`` (serial, ``nogil``;
-    :func:`vesselid._threads.run_ranges` runs ranges on threads)."""
+    :func:`vesselid.core.threads.run_ranges` runs ranges on threads)."""
     add("")
     add("")
     add("@njit(cache=True, nogil=True)")
@@ -765,7 +765,7 @@ def _load(source: str) -> Callable | None:
     except (OSError, UnicodeDecodeError):
         current = None
     if current != source:
-        from vesselid._io import atomic_write_text
+        from vesselid.core.fileio import atomic_write_text
 
         atomic_write_text(path, source)  # replaces whatever is there (a link, a foreign file)
     if not _safe_file(path):
@@ -789,7 +789,7 @@ class SpecialisedMoments:
     """The generated kernel of one structure, with a fallback.
 
     One serial ``nogil`` kernel over a segment range; calling the object runs it (over
-    threads when ``parallel``, :func:`vesselid._threads.run_ranges`) and returns True.
+    threads when ``parallel``, :func:`vesselid.core.threads.run_ranges`) and returns True.
     If numba fails to compile the generated code at its first call, it warns once,
     disables itself and returns False, and the caller runs the generic kernel instead.
     Errors of an already compiled kernel propagate.
@@ -819,7 +819,7 @@ class SpecialisedMoments:
                               "generic kernel", RuntimeWarning, stacklevel=3)
                 return False
         self.compiled = True
-        from vesselid._threads import run_ranges
+        from vesselid.core.threads import run_ranges
 
         run_ranges(fn, args[3].shape[0] - 1, args, parallel=parallel)
         return True

@@ -26,8 +26,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from vesselid._threads import run_ranges
-from vesselid.regressors import fill_factors_xu, kernel, one_step, regressors
+from vesselid.core.threads import run_ranges
+from vesselid.model.regressors import fill_factors_xu, kernel, one_step, regressors
 
 #: Below this many samples the segments run in the calling thread only.
 PARALLEL_MIN_SAMPLES = 200_000

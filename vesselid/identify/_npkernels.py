@@ -6,7 +6,7 @@ kernel) costs more than the whole estimation, so :mod:`vesselid.identify.backend
 these instead. Same arguments and results as the compiled kernels of
 :mod:`vesselid.identify.kernels` and :mod:`vesselid.identify._ivkernels`:
 
-* The regressors are evaluated with :func:`vesselid.regressors.evaluate` (the same
+* The regressors are evaluated with :func:`vesselid.model.regressors.evaluate` (the same
   products: bit-identical to the compiled ``regressors``).
 * The auxiliary-model recursion ``x̂(k) = Φᵀ([x̂(k−1); u(k−1)]) θ`` (and the simulation
   ``x(k+1) = Φᵀ([x(k) + v(k); u(k)]) θ + w(k)``) is a Python loop generated once per
@@ -27,7 +27,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from vesselid.regressors import evaluate, factor_source
+from vesselid.model.regressors import evaluate, factor_source
 
 __all__ = [
     "AUX_DIVERGED",
@@ -366,10 +366,10 @@ def design_centre(z, phi, p_lo, p_hi, target, i_eq, valid, col, starts):
 
 def simulate_states(spec, u, *, theta, x0, v=None, limit: float = 1e8,
                     raise_on_divergence: bool = False) -> np.ndarray:
-    """One run of :func:`vesselid.simulate.simulate_states` (``w = 0``; diverged states
+    """One run of :func:`vesselid.plant.simulate.simulate_states` (``w = 0``; diverged states
     NaN from the sample after the failing one). Only ``raise_on_divergence=False``."""
     if raise_on_divergence:  # pragma: no cover - the diagnostics never ask for it
-        raise NotImplementedError("use vesselid.simulate.simulate_states")
+        raise NotImplementedError("use vesselid.plant.simulate.simulate_states")
     codes = spec.codes
     u = np.asarray(u, dtype=np.float64)
     t_len, m = u.shape

@@ -17,7 +17,7 @@ by statistical linearisation, ``cov(h, s) = cov(h, r) cov(r, s) / var(r)``.
 Parameter rows ``ψ = [θ (P), μ_w, atanh ρ_v, log σ_v, atanh ρ_c, log σ_c, log σ_w,
 log σ_e]``; ``log σ = −inf`` switches a disturbance off. Each row is filtered
 independently (the perturbed rows of a finite-difference Jacobian), so the kernel takes
-a row range and runs under :func:`vesselid._threads.run_ranges`.
+a row range and runs under :func:`vesselid.core.threads.run_ranges`.
 """
 
 from __future__ import annotations
@@ -171,7 +171,7 @@ def gaussian_filter(lo, hi, psi, y, u, starts, p_init, kind, fa, fb, eps, var): 
 
 
 def term_kinds(fac: np.ndarray, n_signals: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(kind, fa, fb)`` of the terms ``F[a] F[b]`` (:func:`vesselid.regressors.
+    """``(kind, fa, fb)`` of the terms ``F[a] F[b]`` (:func:`vesselid.model.regressors.
     encode_terms`, ``F = [x, u, |x|, |u|, 1]`` over ``n_signals = 1 + m`` signals) for
     :func:`gaussian_filter`: ``kind`` 0 (no state factor), 1 (``x``), 2 (``|x|``),
     3 (``x|x|``), 4 (``x²``: ``x·x`` or ``|x|·|x|``); ``fa``/``fb`` index the factors

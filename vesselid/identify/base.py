@@ -27,7 +27,7 @@ from typing import Any, ClassVar
 import numpy as np
 import pandas as pd
 
-from vesselid.diagnostics import (
+from vesselid.identify.diagnostics import (
     collinear_terms,
     design_frame,
     design_rows,
@@ -61,7 +61,7 @@ from vesselid.identify.estimators import (
 from vesselid.identify.excitation import excitation_report
 from vesselid.identify.results import IdentificationResult
 from vesselid.identify.stability import free_run_states, stability_report
-from vesselid.model import ModelSpec
+from vesselid.model.spec import ModelSpec
 
 __all__ = ["CLOSED_LOOP_ESTIMATOR", "TARGETS", "EquationDesign", "Estimator", "equation_rows"]
 
@@ -639,7 +639,7 @@ def _target_rule(spec: ModelSpec, target: str) -> str:
 
 
 def _check_rank(phi: np.ndarray, spec: ModelSpec, blocks: np.ndarray, names: list[str]) -> None:
-    from vesselid.diagnostics import check_moment_range
+    from vesselid.identify.diagnostics import check_moment_range
 
     check_moment_range(phi, names)  # overflow first: a Gram matrix of inf says nothing
     problems = []

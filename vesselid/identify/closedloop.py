@@ -22,8 +22,8 @@ refined_iv`, from least squares. Covariance: the package's ``cov_type`` (default
 the final instruments, regressors and residuals.
 
 The log names its controller and external signals in ``metadata["closed_loop"]``
-(:func:`vesselid.closedloop.closed_loop_metadata`, written by
-:func:`vesselid.closedloop.simulate_closed_loop` and the environment recorder).
+(:func:`vesselid.plant.closedloop.closed_loop_metadata`, written by
+:func:`vesselid.plant.closedloop.simulate_closed_loop` and the environment recorder).
 
 Feedback test
 -------------
@@ -61,7 +61,7 @@ from vesselid.identify.loop import (
     closed_loop_signals,
     feedback_test,
 )
-from vesselid.model import ModelSpec
+from vesselid.model.spec import ModelSpec
 
 __all__ = ["ClosedLoopIV", "ClosedLoopSignals", "FeedbackTest", "closed_loop_signals",
            "feedback_test"]
@@ -98,7 +98,7 @@ class ClosedLoopIV(Estimator):
         if options.get("instruments") is not None:
             raise IdentificationError("method 'cl-iv' builds its own instruments from the "
                                       "reference and dither")
-        from vesselid.logs import TrialLog
+        from vesselid.data.logs import TrialLog
 
         log = log if isinstance(log, TrialLog) else TrialLog(log)
         signals = closed_loop_signals(log, spec or log.spec)

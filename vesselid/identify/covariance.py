@@ -798,7 +798,7 @@ def _block_inverse(m: np.ndarray, eq: np.ndarray) -> np.ndarray:
 
 
 def _condition(a: np.ndarray) -> float:
-    from vesselid.diagnostics import condition_number
+    from vesselid.identify.diagnostics import condition_number
 
     return condition_number(a)
 

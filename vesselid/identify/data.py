@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from vesselid.errors import IdentificationError, LogValidationError
-from vesselid.model import ModelSpec
+from vesselid.model.spec import ModelSpec
 
 __all__ = ["RegressionData", "from_arrays", "from_log"]
 
@@ -108,7 +108,7 @@ def _aggregated(spec: ModelSpec, states: np.ndarray, sensors: dict[str, np.ndarr
 
 def from_log(log, spec: ModelSpec | None = None, *, min_samples: int | None = None,
              sensor_noise: Any = None, noise_order: int | None = None):
-    """Build regression data from a :class:`~vesselid.logs.TrialLog` (or DataFrame).
+    """Build regression data from a :class:`~vesselid.data.logs.TrialLog` (or DataFrame).
 
     The log is validated first (missing columns, NaN/inf, time order, samples per
     experiment); nothing is silently dropped. ``sensor_noise`` (``{state: σ}``, or
@@ -121,15 +121,15 @@ def from_log(log, spec: ModelSpec | None = None, *, min_samples: int | None = No
     -------
     (RegressionData, ModelSpec)
     """
-    from vesselid.logs import TrialLog
+    from vesselid.data.logs import TrialLog
 
     if not isinstance(log, TrialLog):
         log = TrialLog(log)
     spec = spec or log.spec
     if spec is None:
         raise IdentificationError("no model spec given and the log carries none")
-    if spec.derived:  # states/inputs computed from measured columns (vesselid.derived)
-        from vesselid.derived import add_derived, state_dependent
+    if spec.derived:  # states/inputs computed from measured columns (vesselid.model.derived)
+        from vesselid.model.derived import add_derived, state_dependent
 
         log = TrialLog(add_derived(log.data, spec), log.metadata)
         dep = state_dependent(spec)
@@ -141,7 +141,7 @@ def from_log(log, spec: ModelSpec | None = None, *, min_samples: int | None = No
             uses = "; ".join(f"{k} uses {list(v)}" for k, v in dep.items())
             warnings.warn(f"derived input(s) computed from measured states ({uses}) are not "
                           f"exogenous: the consistency results of the instrumental-variable "
-                          f"estimators do not cover their parameters (see vesselid.derived)",
+                          f"estimators do not cover their parameters (see vesselid.model.derived)",
                           DerivedInputWarning, stacklevel=2)
     # validated; the rows of each experiment (TrialLog.experiments() order) as the
     # validation split them, taken from the columns directly: no sub-frame copies, and

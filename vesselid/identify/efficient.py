@@ -45,7 +45,7 @@ from vesselid.identify.base import EquationDesign, Estimator, square_designs
 from vesselid.identify.data import RegressionData
 from vesselid.identify.eiv import corrected_regressor_matrix
 from vesselid.identify.estimators import IterationResult, estimate
-from vesselid.model import ModelSpec
+from vesselid.model.spec import ModelSpec
 
 __all__ = ["InstrumentalGMM", "LaggedIV"]
 
@@ -463,7 +463,7 @@ class InstrumentalGMM(Estimator):
         """The AR noise-model order: the estimator's ``noise_order``, or the order the log
         asks for (``data.noise_order``: ``metadata["noise_order"]`` or identify's
         ``noise_order``) when the estimator prefilters at all. The sea trial asks for
-        :data:`vesselid.planner.SRIV_ORDER`: its equation error is the differenced white
+        :data:`vesselid.studies.planner.SRIV_ORDER`: its equation error is the differenced white
         sensor noise (an MA(1) with its root near the unit circle) plus 2-s Gauss–Markov
         forces, which a short AR model whitens poorly."""
         if not self.noise_order or data.noise_order is None:

@@ -31,7 +31,7 @@ measured state, or the aggregated signal ``ỹ`` of (9)); it comes from the sens
 specification: a log's ``metadata["sensor_noise_std"]`` (``{state: σ}``, written by
 ``vesselid sea-trial``) or ``identify(..., sensor_noise={...})``. Only white noise is
 meant: a coloured disturbance (waves) or a low-pass-filtered log changes the variance
-(:func:`vesselid.wavefilter.wave_filter_log` drops the entry).
+(:func:`vesselid.data.wavefilter.wave_filter_log` drops the entry).
 """
 
 from __future__ import annotations
@@ -107,7 +107,7 @@ def correct_regressors(phi: np.ndarray, regsig: np.ndarray, factors: np.ndarray,
     regsig : ndarray (T, n)
         The regressor signals (states).
     factors : ndarray (P, 2)
-        Factor layout (:class:`vesselid.regressors.RegressorLayout`).
+        Factor layout (:class:`vesselid.model.regressors.RegressorLayout`).
     n_signals : int
         ``S``: states + inputs (factor ``j < S`` is signal ``j``, ``S + j`` its modulus).
     noise : ndarray (n,) or None

@@ -36,7 +36,7 @@ from vesselid.identify.data import (
     block_starts,
     duplicate_blocks,
 )
-from vesselid.model import ModelSpec
+from vesselid.model.spec import ModelSpec
 
 __all__ = [
     "COMBINE_MODES",
@@ -367,7 +367,7 @@ def refined_iv(
 
     ``moment_source(theta, active, out, limits)``, when given, fills the moments ``out``
     instead of :func:`compute_moments` on ``data`` (which then only needs the attributes
-    the solvers read): :mod:`vesselid.streaming` sums them over streamed experiments.
+    the solvers read): :mod:`vesselid.identify.streaming` sums them over streamed experiments.
 
     Returns
     -------

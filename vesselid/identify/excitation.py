@@ -7,7 +7,7 @@ A design-level check on the regressors, before any estimate:
   propeller rpm of free-running zig-zag model tests, held at the self-propulsion point;
 * a term is *not identifiable with per-experiment constants* when its regressor, centred
   within each experiment, is zero or collinear with the other centred regressors of its
-  equation (:func:`vesselid.diagnostics.collinear_terms`). Every estimator that carries a
+  equation (:func:`vesselid.identify.diagnostics.collinear_terms`). Every estimator that carries a
   constant per experiment (zero-mean instruments: ``iv-zero-mean``, ``auto``, ``sriv``,
   ``gmm``; ``lagged-2sls``) then cannot estimate it: a constant input's term is absorbed
   into the experiments' offsets. Least squares (no constants) still returns a number for
@@ -21,8 +21,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from vesselid.diagnostics import collinear_terms
-from vesselid.model import ModelSpec
+from vesselid.identify.diagnostics import collinear_terms
+from vesselid.model.spec import ModelSpec
 
 if TYPE_CHECKING:
     from vesselid.identify.data import RegressionData

@@ -50,7 +50,7 @@ from vesselid.identify._fastkernels import specialised_combined
 from vesselid.identify.backend import ivk, kernels, numpy_active
 from vesselid.identify.covariance import moving_sums
 from vesselid.identify.data import RegressionData, block_starts
-from vesselid.model import ModelSpec
+from vesselid.model.spec import ModelSpec
 
 __all__ = [
     "COLOUR_WINDOW",

@@ -25,9 +25,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from vesselid._threads import run_ranges
+from vesselid.core.threads import run_ranges
 from vesselid.identify._fastkernels import specialised_moments
-from vesselid.regressors import fill_factors_xu, kernel, one_step, regressors
+from vesselid.model.regressors import fill_factors_xu, kernel, one_step, regressors
 
 __all__ = ["AUX_DIVERGED", "AUX_OK", "instrument_matrix", "moments", "regressor_matrix"]
 
@@ -71,7 +71,7 @@ def moments(
     active : (G,) bool, groups to process (others are left untouched)
     mode : int, instruments: ``MODE_LS`` (z = φ), ``MODE_SIMULATED`` (auxiliary model
         ``theta``) or ``MODE_LAGGED`` (basic IV, ``ζ(k) = Φ([ỹ(k−2); u(k−1)])``)
-    fac, eq : factor-coded terms (:class:`vesselid.regressors.RegressorLayout`) and their equations;
+    fac, eq : factor-coded terms (:class:`vesselid.model.regressors.RegressorLayout`) and their equations;
         ``block_start`` (n+1,) parameter offsets per equation; ``block_src`` (n,): an
         earlier equation with the same terms (whose ``S_zφ``, ``S_z``, ``S_φ`` block is
         copied instead of accumulated again), or the equation itself
@@ -80,7 +80,7 @@ def moments(
         Outputs, overwritten for active segments.
 
     Segments run in parallel threads when there are several and enough samples
-    (:func:`vesselid._threads.run_ranges`; one serial kernel either way).
+    (:func:`vesselid.core.threads.run_ranges`; one serial kernel either way).
     """
     parallel = starts.shape[0] > 2 and target.shape[0] >= PARALLEL_MIN_SAMPLES
     if mode in (MODE_LS, MODE_SIMULATED):

@@ -28,7 +28,7 @@ from vesselid.errors import ControlError, IdentificationError
 from vesselid.identify.backend import kernels
 from vesselid.identify.data import RegressionData, block_starts
 from vesselid.identify.estimators import estimate
-from vesselid.model import ModelSpec
+from vesselid.model.spec import ModelSpec
 
 __all__ = ["ClosedLoopSignals", "FeedbackTest", "closed_loop_instruments",
            "closed_loop_route", "closed_loop_signals", "feedback_check", "feedback_test",
@@ -72,8 +72,8 @@ def closed_loop_signals(log: Any, spec: ModelSpec | None = None, *,
         One-line reasons: no ``metadata["closed_loop"]``, a missing reference column, a
         controller that cannot be simulated, non-finite external signals.
     """
-    from vesselid.closedloop import PID, closed_loop_info
-    from vesselid.logs import TrialLog
+    from vesselid.plant.closedloop import PID, closed_loop_info
+    from vesselid.data.logs import TrialLog
 
     if not isinstance(log, TrialLog):
         log = TrialLog(log)
@@ -84,7 +84,7 @@ def closed_loop_signals(log: Any, spec: ModelSpec | None = None, *,
     if info is None:
         raise IdentificationError(
             f"method {method!r} needs a closed-loop log: metadata['closed_loop'] naming the "
-            "controller and the reference/dither columns (vesselid.closedloop."
+            "controller and the reference/dither columns (vesselid.plant.closedloop."
             "simulate_closed_loop or TrialRecorder.closed_loop write it); this log has none")
     ctrl = info.get("controller")
     if ctrl is None:
@@ -139,7 +139,7 @@ def closed_loop_instruments(data: RegressionData, spec: ModelSpec, theta: np.nda
     parameters ``theta``, driven by the reference and dither (rows as
     :func:`~vesselid.identify.kernels.regressor_matrix`), and the per-segment status (0 ok,
     1 the simulated loop diverged)."""
-    from vesselid.closedloop import closed_loop_states
+    from vesselid.plant.closedloop import closed_loop_states
 
     n_seg = data.n_segments
     xs = np.empty_like(data.target)
@@ -308,7 +308,7 @@ def feedback_test(log: Any, spec: ModelSpec | None = None, *, lags: int = FEEDBA
 
 def _declares_closed_loop(log: Any) -> bool:
     """Whether the log's metadata names a closed loop (read without importing the
-    compiled closed-loop simulation, :func:`vesselid.closedloop.closed_loop_info`)."""
+    compiled closed-loop simulation, :func:`vesselid.plant.closedloop.closed_loop_info`)."""
     meta = getattr(log, "metadata", None) or {}
     return isinstance(meta.get("closed_loop"), Mapping)
 

@@ -14,7 +14,7 @@ from vesselid.identify.backend import kernels
 from vesselid.identify.base import Estimator, _UserInstrumentMixin, square_designs
 from vesselid.identify.data import RegressionData
 from vesselid.identify.estimators import IterationResult, estimate
-from vesselid.model import ModelSpec
+from vesselid.model.spec import ModelSpec
 
 __all__ = ["LeastSquares", "RefinedIV"]
 

@@ -57,7 +57,7 @@ from vesselid.errors import IdentificationError
 from vesselid.identify.base import Estimator, square_designs
 from vesselid.identify.data import RegressionData
 from vesselid.identify.estimators import IterationResult, estimate
-from vesselid.model import ModelSpec
+from vesselid.model.spec import ModelSpec
 
 __all__ = ["COVARIANCES", "DISTURBANCE_MODELS", "JOINT", "PredictionError",
            "assumption_text", "fit_groups", "load_kernels", "supports"]
@@ -110,7 +110,7 @@ def _start(theta: np.ndarray, y: np.ndarray, u: np.ndarray, starts: np.ndarray,
            fac: np.ndarray, model: str) -> tuple[np.ndarray, np.ndarray, float]:
     """Starting row ψ₀ and free mask of ``model`` from the IV estimate ``theta``, and
     the standard deviation of the start's one-step residuals."""
-    from vesselid.regressors import evaluate
+    from vesselid.model.regressors import evaluate
 
     n_par = theta.size
     ix = _layout(n_par)
@@ -166,7 +166,7 @@ class _Filter:
         self.count = self.n - (self.starts.size - 1)
 
     def run(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        from vesselid._threads import run_ranges
+        from vesselid.core.threads import run_ranges
         from vesselid.identify._pemkernels import gaussian_filter
 
         rows = np.ascontiguousarray(rows, dtype=np.float64)
@@ -181,7 +181,7 @@ class _Filter:
 
 def load_kernels() -> None:
     """Load (or compile, on first use) the filter kernel with the signature every fit
-    calls it with (:mod:`vesselid._precompile` compiles the same one)."""
+    calls it with (:mod:`vesselid.core.precompile` compiles the same one)."""
     fac = np.array([[0, 4], [0, 2], [1, 4]], dtype=np.int64)  # heave: x, x|x|, u
     filt = _Filter(np.zeros(4), np.zeros((4, 1)), np.array([0, 4]), fac, parallel=False)
     filt.run(np.zeros((1, fac.shape[0] + 7)))

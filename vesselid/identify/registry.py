@@ -1,7 +1,7 @@
 """The one registry of estimators: ``--method`` names, labels, Monte Carlo, plots.
 
 Everything that lists or labels estimators (the CLI choices, ``identify``,
-:mod:`vesselid.montecarlo`, :mod:`vesselid.reproduce`, :mod:`vesselid.plots`)
+:mod:`vesselid.studies.montecarlo`, :mod:`vesselid.studies.reproduce`, :mod:`vesselid.studies.plots`)
 reads :data:`ESTIMATORS`. Adding an estimator is one subclass of
 :class:`~vesselid.identify.base.Estimator` and one :func:`register` call.
 """

@@ -10,10 +10,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from vesselid._json import strict
-from vesselid.diagnostics import normalized_error
+from vesselid.core.jsonio import strict
+from vesselid.identify.diagnostics import normalized_error
 from vesselid.errors import IdentificationError
-from vesselid.model import ModelSpec
+from vesselid.model.spec import ModelSpec
 
 __all__ = ["IdentificationResult"]
 
@@ -78,18 +78,18 @@ class IdentificationResult:
     def to_control(self, **kwargs: Any) -> Any:
         """The identified model as a discrete-time python-control ``NonlinearIOSystem``.
 
-        See :func:`vesselid.modelio.to_control` (keyword arguments ``dt``, ``name``).
+        See :func:`vesselid.model.export.to_control` (keyword arguments ``dt``, ``name``).
         """
-        from vesselid.modelio import to_control
+        from vesselid.model.export import to_control
 
         return to_control(self.spec, self.params, **kwargs)
 
     def export(self, path: Any, **kwargs: Any) -> Any:
         """Write the spec with θ̂ (as θ0), standard errors and covariance; atomic.
 
-        See :func:`vesselid.modelio.export_model`; ``ModelSpec.load`` reads it back.
+        See :func:`vesselid.model.export.export_model`; ``ModelSpec.load`` reads it back.
         """
-        from vesselid.modelio import export_model
+        from vesselid.model.export import export_model
 
         return export_model(self, path, **kwargs)
 
@@ -207,11 +207,11 @@ class IdentificationResult:
 
     def plot_residuals(self, *, title: str | None = None):
         """MATLAB ``resid``-style figure: residual autocorrelation and residual–input
-        cross-correlation with confidence bands (:func:`vesselid.figures.residual_analysis`).
+        cross-correlation with confidence bands (:func:`vesselid.core.figures.residual_analysis`).
 
         Returns a matplotlib ``Figure`` (save it with ``fig.savefig``).
         """
-        from vesselid.figures import residual_analysis
+        from vesselid.core.figures import residual_analysis
 
         rc = self.diagnostics.get("residual_correlation")
         if rc is None:
@@ -254,7 +254,7 @@ class IdentificationResult:
         })
 
     def to_json(self, **kwargs: Any) -> str:
-        from vesselid._io import strict_json
+        from vesselid.core.fileio import strict_json
 
         return strict_json(self.to_dict(), **({"indent": 2} | kwargs))
 

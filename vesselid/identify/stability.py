@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from vesselid.model import ModelSpec
+from vesselid.model.spec import ModelSpec
 
 if TYPE_CHECKING:
     from vesselid.identify.data import RegressionData
@@ -49,7 +49,7 @@ def free_run_states(data: RegressionData, spec: ModelSpec, theta: np.ndarray
     if numpy_active():  # a small log estimated without compiled kernels
         from vesselid.identify._npkernels import simulate_states
     else:
-        from vesselid.simulate import simulate_states
+        from vesselid.plant.simulate import simulate_states
 
     out = []
     for s in range(data.n_segments):

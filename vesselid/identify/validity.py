@@ -33,7 +33,7 @@ import numpy as np
 from vesselid.identify.backend import kernels
 from vesselid.identify.data import RegressionData
 from vesselid.identify.gmm import hac_lags
-from vesselid.model import ModelSpec
+from vesselid.model.spec import ModelSpec
 
 __all__ = ["MEAN_CURRENT_ALPHA", "STABILITY_ALPHA", "mean_current", "parameter_stability"]
 

@@ -49,9 +49,9 @@ import numpy as np
 
 from vesselid.identify.backend import kernels
 from vesselid.identify.data import RegressionData
-from vesselid.regressors import encode_terms
+from vesselid.model.regressors import encode_terms
 from vesselid.selection.library import Library, SelectionError
-from vesselid.terms import Term
+from vesselid.model.terms import Term
 
 __all__ = ["Blocks", "critical_value", "eliminate", "make_blocks", "same_in_data_groups"]
 

@@ -1,6 +1,6 @@
 """Candidate libraries of modulus terms (Definition 2.1) for term selection.
 
-A library is, per state equation, an ordered tuple of candidate :class:`~vesselid.terms.Term`
+A library is, per state equation, an ordered tuple of candidate :class:`~vesselid.model.terms.Term`
 objects. :func:`full_library` builds every form of Definition 2.1 over the states and
 inputs of a spec — ``x``, ``|x|``, ``x*y`` and ``x*|y|`` — in a fixed order (first-order
 terms before products, signals in spec order), so that among candidates that are the same
@@ -15,8 +15,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from vesselid.errors import ModelSpecError, VesselidError
-from vesselid.model import ModelSpec
-from vesselid.terms import Term
+from vesselid.model.spec import ModelSpec
+from vesselid.model.terms import Term
 
 __all__ = ["Library", "SelectionError", "canonical", "full_library", "library_from_spec",
            "parse_library", "resolve_library", "vessel_library"]

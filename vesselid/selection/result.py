@@ -9,8 +9,8 @@ from typing import Any
 
 import pandas as pd
 
-from vesselid._io import atomic_write_text
-from vesselid.model import ModelSpec
+from vesselid.core.fileio import atomic_write_text
+from vesselid.model.spec import ModelSpec
 
 __all__ = ["SelectionResult"]
 

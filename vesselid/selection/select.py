@@ -14,11 +14,11 @@ import pandas as pd
 
 from vesselid.identify.backend import kernels
 from vesselid.identify.data import from_log
-from vesselid.model import ModelSpec
+from vesselid.model.spec import ModelSpec
 from vesselid.selection import engine
 from vesselid.selection.library import Library, SelectionError, resolve_library
 from vesselid.selection.result import SelectionResult
-from vesselid.terms import Term
+from vesselid.model.terms import Term
 
 __all__ = ["fit_structure", "select_terms"]
 
@@ -162,7 +162,7 @@ def select_terms(
             block_length, int | np.integer) or block_length < 2):
         raise SelectionError(f"block_length must be an integer >= 2, got {block_length!r}")
     if spec is None:
-        from vesselid.logs import TrialLog
+        from vesselid.data.logs import TrialLog
 
         spec = (log if isinstance(log, TrialLog) else TrialLog(log)).spec
         if spec is None:

@@ -1,0 +1,1 @@
+"""The command line: ``vesselid <command>``; one module per plugin command."""

@@ -1,0 +1,79 @@
+"""``vesselid select``: choose the modulus terms of a model from a trial log (CLI plugin)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from pathlib import Path
+from typing import Any
+
+__all__ = ["add_parser", "cmd_select"]
+
+
+def add_parser(subparsers: Any) -> None:
+    """Register ``vesselid select`` (the CLI plugin contract of :mod:`vesselid.cli.app`)."""
+    from vesselid.cli.app import int_at_least, plugin_parser
+
+    p = plugin_parser(subparsers, "select")
+    p.add_argument("log", help="trial log (CSV with its JSON sidecar, or Parquet)")
+    p.add_argument("--model", metavar="BASE.toml",
+                   help="base spec: states, inputs, dt, aggregate relations, and equations "
+                        "whose fit simulates the first instruments (default: the log's spec)")
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--library", metavar="TERMS", default=None,
+                     help="candidates: 'full' (every Definition 2.1 form over states and "
+                          "inputs, default), 'vessel' (state forms; inputs linear and times "
+                          "states), 'u, v, u*|u|' (every equation) or 'u: u, u*|u|; v: v'")
+    src.add_argument("--candidates", metavar="SPEC.toml",
+                     help="a spec whose [equations] table lists each equation's candidates")
+    p.add_argument("--out", required=True, metavar="SPEC.toml",
+                   help="write the selected spec (with the selection report as comments)")
+    p.add_argument("--json", metavar="PATH|-", help="write the full report as JSON ('-' = stdout)")
+    p.add_argument("--alpha", type=float, default=0.01,
+                   help="family-wise level of the Wald tests (Bonferroni; default 0.01)")
+    p.add_argument("--bootstrap", type=int_at_least(0), default=100,
+                   help="block-bootstrap replicates for the selection probabilities (default 100)")
+    p.add_argument("--block-length", type=int_at_least(2), default=None,
+                   help="samples per block of the HAC estimator and the bootstrap")
+    p.add_argument("--seed", type=int, default=0, help="bootstrap seed")
+    p.set_defaults(func=cmd_select)
+
+
+def cmd_select(args: argparse.Namespace) -> int:
+    """Run the selection, write the spec (and JSON), print the report."""
+    from vesselid.cli.app import check_output_file
+
+    check_output_file("--out", args.out)
+    if args.json and args.json != "-":
+        check_output_file("--json", args.json)
+    from vesselid.core import jsonio as _json
+    from vesselid.core.fileio import atomic_write_text
+    from vesselid.errors import CLIError
+    from vesselid.data.logs import TrialLog
+    from vesselid.model.spec import ModelSpec
+    from vesselid.selection import select_terms
+    from vesselid.selection.library import library_from_spec
+
+    spec = ModelSpec.load(args.model) if args.model else None
+    log = TrialLog.load(args.log, spec=spec)
+    spec = spec or log.spec
+    if spec is None:
+        raise CLIError(f"{args.log} carries no model spec; pass --model BASE.toml")
+    library = (library_from_spec(args.candidates, spec) if args.candidates
+               else ("full" if args.library is None else args.library))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = select_terms(log, spec, library, alpha=args.alpha, n_boot=args.bootstrap,
+                           block_length=args.block_length, seed=args.seed)
+    res.save(args.out)
+    if args.json:
+        text = _json.dumps(res.to_dict(), indent=2)
+        if args.json == "-":
+            print(text)
+        else:
+            atomic_write_text(Path(args.json), text + "\n")
+    out = sys.stderr if args.json == "-" else sys.stdout
+    print(res.summary(), file=out)
+    print(f"wrote {args.out}", file=out)
+    return 0

@@ -1,0 +1,1 @@
+"""Model-based control from an identified model."""
