@@ -30,12 +30,12 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from vesselid.plant.catalogue import vessel_module
 from vesselid.envs._render import FigureRenderer, check_render_mode, warn_no_render_mode
 from vesselid.envs._settings import document, merged, triple
 from vesselid.envs._validate import check_action, require_reset
 from vesselid.errors import VesselidError
 from vesselid.model.spec import ModelSpec
+from vesselid.plant.catalogue import vessel_module
 from vesselid.plant.vessels import (
     LAYOUT,
     VesselBatch,

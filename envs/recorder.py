@@ -98,8 +98,8 @@ import numpy as np
 import pandas as pd
 from gymnasium.vector import AutoresetMode
 
-from vesselid.errors import VesselidError
 from vesselid.data.logs import TrialLog
+from vesselid.errors import VesselidError
 from vesselid.model.spec import ModelSpec
 
 __all__ = ["TrialRecorder", "VectorTrialRecorder"]

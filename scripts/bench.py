@@ -109,8 +109,8 @@ def _three_state_log(samples: int, experiments: int):
 
         log = simulate_sea_trial(experiments=experiments, samples=samples, seed=0)
         return log, log.spec
-    from vesselid.plant.disturbances import Gaussian, Uniform
     from vesselid.model.spec import ModelSpec
+    from vesselid.plant.disturbances import Gaussian, Uniform
     from vesselid.plant.signals import RandomPulses, StaticOffset
     from vesselid.plant.systems import System
 
@@ -171,9 +171,9 @@ def bench_pem(repeats: int = 5) -> dict:
     wall time; and one pass of its compiled Gaussian filter (10 parameter rows together, as
     the Fisher scoring runs it, and one row) against the same function run as plain Python
     (``gaussian_filter.py_func``, one row), per row and sample."""
-    from vesselid.studies.calibration import heave_scenario
     from vesselid.identify import identify
     from vesselid.identify._pemkernels import gaussian_filter, term_kinds
+    from vesselid.studies.calibration import heave_scenario
 
     warnings.simplefilter("ignore")
     system, _, _ = heave_scenario("gm-current-random")

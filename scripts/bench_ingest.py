@@ -20,7 +20,7 @@ def bench_ingest(repeats: int = 3, sentences: int = 1_000_000) -> dict:
 
     from vesselid.data.ingest import ingest
     from vesselid.data.rawexport import write_raw_streams
-    from vesselid.plant.systems import get_system
+    from vesselid.plant.catalogue import get_system
 
     per_exp = int(sentences / SENTENCES_PER_SECOND / 2 / 0.1) + 1
     log = get_system("cybership2").simulate(per_exp, n_runs=2, seed=0).to_log()

@@ -23,8 +23,8 @@ __all__ = ["bench"]
 
 
 def _designs():
-    from vesselid.studies.seatrial import seatrial_spec
     from vesselid.plant.systems import heave
+    from vesselid.studies.seatrial import seatrial_spec
 
     rng = np.random.default_rng(0)
     out = []

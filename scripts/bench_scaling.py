@@ -236,8 +236,8 @@ def bench_identify_memory(sizes: tuple[int, ...] = (100_000, 1_000_000, 4_000_00
 def bench_pem_path(repeats: int = 11) -> dict[str, Any]:
     """``identify(log)`` on a 10⁴-sample heave log with a Gauss–Markov current (the
     default estimator takes ``pem`` there), in-process: median wall and CPU."""
-    from vesselid.studies.calibration import heave_scenario
     from vesselid.identify import identify
+    from vesselid.studies.calibration import heave_scenario
 
     warnings.simplefilter("ignore")
     system, _, _ = heave_scenario("gm-current-random")

@@ -250,7 +250,7 @@ def bench_cold_start(table: str = "all") -> dict:
                  "from vesselid.studies.reproduce import warm_up\n"
                  "warm_up()\n"
                  "print(json.dumps([*tot, per]))")
-        # in-process compiles only: no helper process (vesselid.core.precompile)
+        # in-process compiles only: no helper process (vesselid.studies.precompile)
         cold_env = dict(env, NUMBA_CACHE_DIR=str(tmp / "numba2"),
                         VESSELID_KERNEL_DIR=str(tmp / "kernels2"), VESSELID_PRECOMPILE="0")
         compiles = json.loads(subprocess.run(

@@ -29,8 +29,8 @@ import numpy as np
 import pandas as pd
 
 from vesselid.core.fileio import atomic_write_text, atomic_write_with
-from vesselid.studies.calibration import SCENARIOS, coverage_study, seatrial_coverage
 from vesselid.identify.covariance import DEFAULT_COV_TYPE
+from vesselid.studies.calibration import SCENARIOS, coverage_study, seatrial_coverage
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 

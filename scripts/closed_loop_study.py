@@ -36,11 +36,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from vesselid.plant.closedloop import DESIGNS, ClosedLoopDesign
 from vesselid.identify import identify
 from vesselid.identify.closedloop import feedback_test
 from vesselid.identify.data import from_log
 from vesselid.identify.estimators import estimate
+from vesselid.plant.closedloop import DESIGNS, ClosedLoopDesign
 
 __all__ = ["run_design"]
 

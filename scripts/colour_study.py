@@ -140,6 +140,7 @@ def coverage(runs: int, seed: int = 6, scenario: str = "gm-sensor-random") -> pd
     """Coverage of the default covariance: ``auto`` and ``auto`` with the whitened colour
     test, on the calibration's runs of ``scenario`` (``scripts/calibration.py`` uses seed
     ``i`` for its ``i``-th scenario: 6 for gm-sensor-random)."""
+    from vesselid.identify.efficient import InstrumentalGMM
     from vesselid.studies.calibration import (
         _heave_batches,
         _heave_data,
@@ -147,7 +148,6 @@ def coverage(runs: int, seed: int = 6, scenario: str = "gm-sensor-random") -> pd
         registry_covariances,
         wilson_interval,
     )
-    from vesselid.identify.efficient import InstrumentalGMM
 
     system_, aggregate, target = heave_scenario(scenario)
     spec = system_.identification_spec(aggregate=aggregate)

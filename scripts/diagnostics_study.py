@@ -47,7 +47,7 @@ def _fmt(value: object) -> str:
 
 
 def convergence(seeds: list[int], out: Path) -> None:
-    from vesselid.cli.app import main
+    from vesselid.cli import main
 
     print("seed | exit | converged | status | iterations | mean step (SE) | location (SE) | "
           "method")
@@ -70,9 +70,9 @@ def convergence(seeds: list[int], out: Path) -> None:
 
 
 def smoothness(runs: int, samples: int, seed: int) -> None:
-    from vesselid.studies.calibration import heave_scenario
     from vesselid.errors import ExperimentDesignWarning
     from vesselid.identify import identify
+    from vesselid.studies.calibration import heave_scenario
 
     print("design | runs | share rule flags | identify warns | median share within 3σ | "
           "bias (SE) median / 95th pct / max")

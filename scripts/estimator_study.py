@@ -36,11 +36,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from vesselid.identify.diagnostics import normalized_error
-from vesselid.plant.disturbances import GaussMarkov
 from vesselid.identify import get_estimator
 from vesselid.identify.data import from_arrays
+from vesselid.identify.diagnostics import normalized_error
 from vesselid.identify.efficient import InstrumentalGMM
+from vesselid.plant.disturbances import GaussMarkov
 from vesselid.plant.systems import heave
 
 METHODS = ("iv-zero-mean", "lagged-2sls", "sriv", "gmm", "pem", "auto")

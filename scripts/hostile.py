@@ -539,7 +539,7 @@ MISSING_EXTRA = """
 import sys
 sys.modules["pynmea2"] = None  # as after a plain `pip install .`
 import io, contextlib
-from vesselid.cli.app import main
+from vesselid.cli import main
 err = io.StringIO()
 with contextlib.redirect_stderr(err):
     rc = main(["ingest", "raw", "--dt", "1", "--out", "x.csv"])

@@ -79,9 +79,9 @@ def main(argv: list[str] | None = None) -> int:
               "holding the HSVA_CPMC_KVLCC2_Z_*.dat files; skipping the study")
         return 0
     warnings.simplefilter("ignore")  # the design warnings are in the JSON of identify
-    from vesselid.identify import DEFAULT_METHOD, identify
     from vesselid.data.ingest.tank import ingest_tank, load_tank_format
     from vesselid.data.logs import TrialLog
+    from vesselid.identify import DEFAULT_METHOD, identify
     from vesselid.model.specs import load_spec, path
     from vesselid.validation.report import validate
 
@@ -207,8 +207,8 @@ def _markdown(table: pd.DataFrame, spec, dt: float) -> str:
 
 def _figure(reports: dict, path: Path) -> None:
     """Two held-out runs: surge, sway, yaw rate and heading, measured vs each estimator."""
-    from vesselid.core.fileio import atomic_write_with
     from vesselid.core.figures import new_figure
+    from vesselid.core.fileio import atomic_write_with
 
     first = next(iter(reports.values()))
     picks = [e.experiment for e in first.experiments][:2]

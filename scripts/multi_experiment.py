@@ -24,10 +24,10 @@ import time
 import numpy as np
 import pandas as pd
 
-from vesselid.identify.diagnostics import normalized_error
-from vesselid.plant.disturbances import Gaussian, Uniform
 from vesselid.identify.data import RegressionData, from_arrays
+from vesselid.identify.diagnostics import normalized_error
 from vesselid.identify.estimators import estimate
+from vesselid.plant.disturbances import Gaussian, Uniform
 from vesselid.plant.signals import StaticOffset
 from vesselid.plant.systems import System, heave
 

@@ -26,8 +26,8 @@ import numpy as np
 def run(seeds: int, methods: list[str], sea_state: str | None, out: str | None,
         first: int = 0, wave_filter: float = 0.9) -> dict:
     from vesselid.identify import identify
-    from vesselid.studies.seatrial import planned_sea_trial_design, simulate_sea_trial
     from vesselid.plant.waves import SEA_STATES, WaveConditions
+    from vesselid.studies.seatrial import planned_sea_trial_design, simulate_sea_trial
 
     design = planned_sea_trial_design(6, 20000)
     waves = None
@@ -67,9 +67,9 @@ def run(seeds: int, methods: list[str], sea_state: str | None, out: str | None,
 def predictions(rec: dict) -> None:
     """Predicted SEs of the planned design for every estimator of the study (the design
     is re-planned: the same default plan the seeds were simulated with)."""
+    from vesselid.plant.waves import SEA_STATES, WaveConditions
     from vesselid.studies.planner import PREDICTED_ESTIMATORS, DisturbanceLevels, predict_design
     from vesselid.studies.seatrial import planned_sea_trial_design
-    from vesselid.plant.waves import SEA_STATES, WaveConditions
 
     plan = planned_sea_trial_design(6, 20000).plan
     rec["success_probability"] = plan.success_probability()

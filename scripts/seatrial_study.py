@@ -29,9 +29,10 @@ import numpy as np
 import pandas as pd
 
 from vesselid.control.controllers import run_control_experiment
-from vesselid.identify.diagnostics import normalized_error
 from vesselid.identify.data import from_arrays
+from vesselid.identify.diagnostics import normalized_error
 from vesselid.identify.estimators import estimate
+from vesselid.plant.vessels import SENSOR_CHANNELS, simulate_cybership2
 from vesselid.studies.seatrial import (
     design_sea_trial,
     markdown_table,
@@ -40,7 +41,6 @@ from vesselid.studies.seatrial import (
     seatrial_spec,
     simulate_sea_trial,
 )
-from vesselid.plant.vessels import SENSOR_CHANNELS, simulate_cybership2
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 METHODS = ("ls", "iv", "iv-zero-mean")

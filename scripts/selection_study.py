@@ -35,14 +35,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from vesselid.plant.disturbances import Gaussian, GaussMarkov
 from vesselid.identify import identify
 from vesselid.model.spec import ModelSpec
+from vesselid.model.terms import Term
+from vesselid.plant.disturbances import Gaussian, GaussMarkov
+from vesselid.plant.systems import System, heave
 from vesselid.selection import select_terms
 from vesselid.selection.engine import library_factors, regressors
 from vesselid.selection.library import canonical, resolve_library
-from vesselid.plant.systems import System, heave
-from vesselid.model.terms import Term
 
 
 # ----------------------------------------------------------------------------- designs

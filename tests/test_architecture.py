@@ -1,11 +1,17 @@
 """Architecture rules: imports inside the package (module level and inside functions,
-the environments ``vesselid.envs`` included) form no cycle; ``if TYPE_CHECKING:`` blocks do
-not count. The environments use only public names of the rest of the package."""
+string entry points loaded through :mod:`importlib` and the environments ``vesselid.envs``
+included) form no cycle and point down the layers of the import-linter contract in
+``pyproject.toml``; ``if TYPE_CHECKING:`` blocks do not count. The environments use only
+public names of the rest of the package."""
 
 from __future__ import annotations
 
 import ast
+import re
+import sys
 from pathlib import Path
+
+import pytest
 
 import vesselid
 import vesselid.envs
@@ -47,8 +53,25 @@ def _imports() -> dict[str, set[str]]:
                 if len(targets) < len(subs):
                     targets.append(node.module)
             deps |= {t for t in targets if t in mods and t != name}
+        deps |= {t for t in _entry_points(path) if t in mods and t != name}
         graph[name] = deps
     return graph
+
+
+#: A string naming a package module, alone or as an entry point ``"module:attribute"``.
+_ENTRY = re.compile(r"^(vesselid(?:\.[a-z_][a-z0-9_]*)+)(?::[A-Za-z_][A-Za-z0-9_]*)?$")
+
+
+def _entry_points(path: Path) -> set[str]:
+    """Modules named by string constants (registries, lazy command tables, lazy attributes):
+    :func:`importlib.import_module` turns them into imports that ``ast`` imports miss."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str):
+            m = _ENTRY.match(node.value)
+            if m:
+                found.add(m.group(1))
+    return found
 
 
 def _nodes(tree: ast.AST):
@@ -139,3 +162,68 @@ def test_private_import_detector() -> None:
         p = Path(d) / "m.py"
         p.write_text("from vesselid.plant.vessels.kernel import _step\nfrom vesselid.envs._x import y\n")
         assert _private_imports("vesselid.envs.m", p) == ["vesselid.plant.vessels.kernel._step"]
+
+
+def _layers() -> list[list[str]]:
+    """The layers contract of ``pyproject.toml``, top first, as full module prefixes."""
+    import tomllib
+
+    text = (ROOT.parent / "pyproject.toml").read_text()
+    contracts = tomllib.loads(text)["tool"]["importlinter"]["contracts"]
+    layers = next(c for c in contracts if c["type"] == "layers")
+    (container,) = layers["containers"]
+    return [[f"{container}.{part.strip().strip('()')}" for part in re.split(r"[|:]", layer)]
+            for layer in layers["layers"]]
+
+
+def _layer_of(module: str, layers: list[list[str]]) -> int | None:
+    for rank, layer in enumerate(layers):
+        if any(module == p or module.startswith(p + ".") for p in layer):
+            return rank
+    return None
+
+
+def _upward(graph: dict[str, set[str]], layers: list[list[str]]) -> list[str]:
+    """Imports from a lower layer into a higher one (rank 0 is the top)."""
+    bad = []
+    for importer, targets in graph.items():
+        a = _layer_of(importer, layers)
+        for target in targets:
+            b = _layer_of(target, layers)
+            if a is not None and b is not None and b < a:
+                bad.append(f"{importer} -> {target}")
+    return sorted(bad)
+
+
+def test_imports_point_down_the_layers() -> None:
+    """Every import, entry-point strings and function-level imports included, points down."""
+    layers = _layers()
+    assert layers[0] == ["vesselid.cli"] and layers[-1] == ["vesselid.core"]
+    assert any("vesselid.envs" in layer for layer in layers)
+    assert _upward(_imports(), layers) == []
+
+
+def test_layer_check_finds_an_upward_import() -> None:
+    layers = [["vesselid.cli"], ["vesselid.identify"], ["vesselid.model"]]
+    graph = {"vesselid.model.spec": {"vesselid.identify.base"},
+             "vesselid.identify.base": {"vesselid.model.spec"},
+             "vesselid.cli.app": {"vesselid.identify.base"}}
+    assert _upward(graph, layers) == ["vesselid.model.spec -> vesselid.identify.base"]
+
+
+def test_nothing_outside_the_command_line_imports_it() -> None:
+    graph = _imports()
+    users = {m for m, deps in graph.items() for d in deps
+             if d.startswith("vesselid.cli") and not m.startswith("vesselid.cli")}
+    assert users <= {"vesselid.__main__"}, users
+
+
+def test_import_linter_contracts_hold() -> None:
+    """``lint-imports`` (the CI step) on the installed package."""
+    pytest.importorskip("importlinter")
+    import subprocess
+
+    run = subprocess.run([sys.executable, "-c", "from importlinter.cli import lint_imports_command;"
+                          " lint_imports_command()"], capture_output=True, text=True,
+                         cwd=ROOT.parent)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from vesselid.cli.app import main
+from vesselid.cli import main
 
 
 def run(args, capsys):

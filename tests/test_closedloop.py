@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 from _stats import binomial_ok
 
-from vesselid.cli.app import main
-from vesselid.plant.closedloop import PID, closed_loop_states, simulate_closed_loop
-from vesselid.plant.disturbances import Gaussian
+from vesselid.cli import main
+from vesselid.data.logs import TrialLog
 from vesselid.errors import ClosedLoopWarning, ControlError, IdentificationError
 from vesselid.identify import identify
 from vesselid.identify.closedloop import feedback_test
-from vesselid.data.logs import TrialLog
+from vesselid.plant.closedloop import PID, closed_loop_states, simulate_closed_loop
+from vesselid.plant.disturbances import Gaussian
 from vesselid.plant.signals import RandomPulses
 from vesselid.plant.systems import heave
 

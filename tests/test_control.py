@@ -6,7 +6,11 @@ import numpy as np
 import pytest
 from _closed_loop import QUIET, closed_loop_residuals, quiet_env
 
-from vesselid.control.controllers import ControlError, FeedbackLinearizingController, run_control_experiment
+from vesselid.control.controllers import (
+    ControlError,
+    FeedbackLinearizingController,
+    run_control_experiment,
+)
 from vesselid.studies.seatrial import seatrial_spec
 
 

@@ -7,8 +7,8 @@ import pandas as pd
 import pytest
 from _ship import SHIP, zigzag_log
 
-from vesselid.model.derived import DerivedSignal, add_derived, state_dependent
 from vesselid.errors import LogValidationError, ModelSpecError
+from vesselid.model.derived import DerivedSignal, add_derived, state_dependent
 from vesselid.model.spec import ModelSpec
 
 

@@ -53,14 +53,14 @@ def reproduce_table(table: int) -> str:
 
 def simulate_heave() -> str:
     """(b) ``vesselid simulate --system heave --samples 1000 --seed 3`` through the API."""
-    from vesselid.plant.systems import get_system
+    from vesselid.plant.catalogue import get_system
 
     return digest(_frame(get_system("heave").simulate(1000, n_runs=1, seed=3).to_log().to_frame()))
 
 
 def simulate_cybership2() -> str:
     """(b) ``vesselid simulate --system cybership2 --samples 800 --seed 4`` (2 experiments)."""
-    from vesselid.plant.systems import get_system
+    from vesselid.plant.catalogue import get_system
 
     return digest(_frame(get_system("cybership2").simulate(800, n_runs=2, seed=4)
                          .to_log().to_frame()))
@@ -119,7 +119,7 @@ def env_vector(env_id: str, steps: int = 200, n: int = 3) -> str:
 def identify_heave() -> str:
     """(e) ``identify`` params (ls, iv, iv-zero-mean) on a seeded heave log."""
     from vesselid.identify import identify
-    from vesselid.plant.systems import get_system
+    from vesselid.plant.catalogue import get_system
 
     log = get_system("heave").simulate(3000, n_runs=2, seed=9).to_log()
     return digest((m, identify(log, method=m).params.to_numpy())

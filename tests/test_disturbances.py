@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from _stats import assert_mean_within, assert_std_within, within_se
 
+from vesselid.errors import VesselidError
 from vesselid.plant.disturbances import (
     Constant,
     Gaussian,
@@ -15,7 +16,6 @@ from vesselid.plant.disturbances import (
     Zero,
     process_from_dict,
 )
-from vesselid.errors import VesselidError
 from vesselid.plant.signals import PRBS, Multisine, RandomPulses, StaticOffset, input_from_dict
 
 N = 200_000

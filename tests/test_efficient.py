@@ -113,9 +113,9 @@ def test_auto_falls_back_without_prefilter_on_a_low_pass_filtered_log():
     import dataclasses
     import warnings
 
-    from vesselid.plant.disturbances import GaussMarkov
     from vesselid.identify import identify
     from vesselid.identify.efficient import InstrumentalGMM
+    from vesselid.plant.disturbances import GaussMarkov
 
     system = dataclasses.replace(heave(pulse_design="alternating"),
                                  current={"w": GaussMarkov(0.0, 0.1, 25.0)})
@@ -377,9 +377,9 @@ def test_fused_colour_test_equals_the_explicit_one(scenario):
     group with a NaN segment; the combined estimates do not change (bit for bit)."""
     import dataclasses
 
-    from vesselid.studies.calibration import heave_scenario
     from vesselid.identify import gmm
     from vesselid.identify.estimators import estimate
+    from vesselid.studies.calibration import heave_scenario
 
     system, aggregate, _ = heave_scenario(scenario)
     spec = system.identification_spec(aggregate=aggregate)
@@ -414,8 +414,8 @@ def test_auto_decision_and_estimates_do_not_depend_on_the_fused_colour_test(monk
     """``auto`` batched with the fused colour test and with the explicit one (generic
     kernels) makes the same choice and the same estimates, bit for bit; the statistics
     agree to 1e-9 relative (white and coloured sensor noise, both choices taken)."""
-    from vesselid.studies.calibration import heave_scenario
     from vesselid.identify.estimators import estimate
+    from vesselid.studies.calibration import heave_scenario
 
     est = get_estimator("auto")
     for scenario in ("table1-alternating", "gm-sensor-alternating"):
@@ -518,9 +518,9 @@ def test_whitened_colour_test_size_on_white_noise_and_power_on_coloured_sensor_n
     from _stats import binomial_ok
     from scipy.stats import binomtest, chi2
 
-    from vesselid.plant.disturbances import GaussMarkov
     from vesselid.identify import gmm, kernels
     from vesselid.identify.estimators import estimate
+    from vesselid.plant.disturbances import GaussMarkov
 
     def rejections(system, samples, runs, seed):
         spec = system.identification_spec(aggregate=False)

@@ -6,10 +6,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from vesselid.data.logs import TrialLog
 from vesselid.errors import IdentificationError
 from vesselid.identify import identify
 from vesselid.identify.eiv import correct_regressors, noise_vector, resolve_sensor_noise
-from vesselid.data.logs import TrialLog
 from vesselid.model.spec import ModelSpec
 
 SPEC = ModelSpec("toy", ["x"], ["u"], {"x": ["x", "x*|x|", "u"]})
@@ -132,7 +132,7 @@ def test_bad_sensor_noise_is_a_clear_error(bad):
 def test_cli_sensor_noise_option(tmp_path, capsys):
     """`identify --sensor-noise x=0.03` corrects (and says so), `none` does not, a bad
     value exits 2 with one line."""
-    from vesselid.cli.app import main
+    from vesselid.cli import main
 
     log = _toy_log(0, 0.03, n=1500, experiments=2)
     path = log.save(tmp_path / "toy.csv")
@@ -153,8 +153,8 @@ def test_sea_trial_records_the_regressor_noise():
     (speed log for u, v; gyro for r); a low-pass-filtered log drops it."""
     from math import erf, erfc, exp, pi, sqrt
 
-    from vesselid.studies.seatrial import simulate_sea_trial
     from vesselid.data.wavefilter import WaveFilter, wave_filter_log
+    from vesselid.studies.seatrial import simulate_sea_trial
 
     log = simulate_sea_trial(2, 300, seed=0, design="static-offset")
     c = 3.0

@@ -9,10 +9,10 @@ from _stats import assert_mean_within, assert_std_within
 from numpy.testing import assert_allclose, assert_array_equal
 
 import vesselid  # noqa: F401  (registers the environments)
+from vesselid.data.logs import TrialLog
 from vesselid.envs.heave import HeaveEnv, HeaveVectorEnv
 from vesselid.envs.recorder import TrialRecorder, VectorTrialRecorder
 from vesselid.errors import VesselidError
-from vesselid.data.logs import TrialLog
 from vesselid.plant.simulate import simulate_states
 from vesselid.plant.systems import heave
 

@@ -11,8 +11,9 @@ from gymnasium.utils.env_checker import check_env
 
 from vesselid.envs import register_envs
 from vesselid.envs.manoeuvring import Manoeuvring3DOFEnv, Manoeuvring3DOFVectorEnv
+from vesselid.plant.catalogue import get_hull
 from vesselid.plant.simulate import simulate_states
-from vesselid.plant.vessels import CyberShip2Sensors, cybership2_spec, get_hull
+from vesselid.plant.vessels import CyberShip2Sensors, cybership2_spec
 
 ENV_ID = "vesselid/Manoeuvring3DOF-v0"
 CALM = {"current_speed": 0.0, "current_variation": 0.0, "wind_speed": 0.0, "wind_gust": 0.0,

@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vesselid.plant.catalogue import get_system, names
 from vesselid.identify import _fastkernels as fk
 from vesselid.identify import estimators
 from vesselid.identify.data import block_starts, from_log
+from vesselid.plant.catalogue import get_system, names
 
 #: Every catalogue system (the CyberShip II structure has 23 parameters).
 CATALOGUE = names()

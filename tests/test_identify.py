@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from vesselid.plant.disturbances import Gaussian, Uniform
+from vesselid.data.logs import TrialLog
 from vesselid.errors import (
     ConvergenceWarning,
     ExperimentDesignWarning,
@@ -18,8 +18,8 @@ from vesselid.errors import (
 )
 from vesselid.identify import estimators, from_arrays, identify
 from vesselid.identify.estimators import estimate, refined_iv
-from vesselid.data.logs import TrialLog
 from vesselid.model.spec import ModelSpec
+from vesselid.plant.disturbances import Gaussian, Uniform
 from vesselid.plant.signals import RandomPulses, StaticOffset
 from vesselid.plant.systems import System, heave
 

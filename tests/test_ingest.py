@@ -12,13 +12,13 @@ import pymap3d  # noqa: F401  (a missing test dependency fails)
 import pynmea2
 import pytest
 
-from vesselid.cli.app import main
+from vesselid.cli import main
 from vesselid.data.ingest import IngestError, ingest
 from vesselid.data.ingest.nmea import read_nmea
 from vesselid.data.logs import TrialLog
 from vesselid.data.nmea0183 import checksums, hex_checksums
 from vesselid.data.rawexport import RawStreamConfig, write_raw_streams
-from vesselid.plant.systems import get_system
+from vesselid.plant.catalogue import get_system
 
 SAMPLES = 3000
 

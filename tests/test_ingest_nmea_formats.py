@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vesselid.cli.app import main
+from vesselid.cli import main
 from vesselid.data.ingest import IngestError, ingest, summary
 from vesselid.data.nmea0183 import KNOT, sentence_lines
 

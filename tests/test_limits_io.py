@@ -12,10 +12,10 @@ import pytest
 
 from vesselid.core import limits
 from vesselid.core.fileio import atomic_group, strict_json
-from vesselid.errors import LogValidationError, ResourceLimitError
 from vesselid.data.logs import TrialLog, estimate_shape
+from vesselid.errors import LogValidationError, ResourceLimitError
+from vesselid.plant.catalogue import get_system
 from vesselid.plant.todisk import simulate_to_file
-from vesselid.plant.systems import get_system
 
 
 def test_check_refuses_with_need_and_limit(monkeypatch):

@@ -10,8 +10,8 @@ import pandas as pd
 import pytest
 from pandas.testing import assert_frame_equal
 
-from vesselid.errors import LogValidationError
 from vesselid.data.logs import PARQUET_METADATA_KEY, TrialLog, concat_logs
+from vesselid.errors import LogValidationError
 from vesselid.model.spec import ModelSpec
 
 

@@ -7,7 +7,7 @@ import sys
 
 import numpy as np
 
-from vesselid.cli.app import main
+from vesselid.cli import main
 
 
 def test_unmap_large_blocks_keeps_arrays_working() -> None:

@@ -33,8 +33,8 @@ def test_nrmse_error_and_fit_are_one_ratio() -> None:
 @pytest.mark.filterwarnings("ignore::vesselid.errors.ExperimentDesignWarning")
 def test_sea_trial_nrmse_is_the_complement_of_the_result_fit() -> None:
     from vesselid.identify import identify
+    from vesselid.plant.catalogue import get_system
     from vesselid.studies.seatrial import free_run_nrmse, normalized_errors
-    from vesselid.plant.systems import get_system
 
     system = get_system("heave")
     log = system.simulate(1500, n_runs=2, seed=2).to_log()

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from vesselid.identify import identify
-from vesselid.model.spec import ModelSpec
 from vesselid.model.export import export_model, load_model, to_control
+from vesselid.model.spec import ModelSpec
+from vesselid.plant.catalogue import get_system
 from vesselid.plant.simulate import simulate_states
-from vesselid.plant.systems import get_system
 
 
 @pytest.fixture(scope="module")

@@ -21,7 +21,7 @@ from vesselid.identify import _npkernels as npk
 from vesselid.identify import backend
 from vesselid.identify import kernels as jk
 from vesselid.identify.data import block_starts, from_log
-from vesselid.plant.systems import get_system
+from vesselid.plant.catalogue import get_system
 
 EPS = np.finfo(float).eps
 
@@ -150,8 +150,8 @@ def test_matrix_helpers_equal_to_rounding():
 
 def test_identify_both_paths_agree_to_rounding(monkeypatch):
     """Every method: the numpy path (forced) and the compiled path agree to rounding."""
-    from vesselid.plant.closedloop import heave_pi_design, simulate_closed_loop
     from vesselid.identify import ESTIMATORS, identify
+    from vesselid.plant.closedloop import heave_pi_design, simulate_closed_loop
 
     system = get_system("heave")
     open_loop = system.simulate(3000, n_runs=2, seed=9).to_log()

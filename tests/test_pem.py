@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from _stats import binomial_ok
 
-from vesselid.studies.calibration import heave_scenario
 from vesselid.errors import IdentificationError
 from vesselid.identify import from_arrays, get_estimator, identify
 from vesselid.identify.estimators import estimate
 from vesselid.plant.systems import heave
+from vesselid.studies.calibration import heave_scenario
 
 THETA0 = np.array([0.99, -0.1, 1.0])
 
@@ -111,7 +111,7 @@ def _one(log):
 
 
 def test_auto_uses_pem_under_a_coloured_current_and_json_is_strict(tmp_path):
-    from vesselid.cli.app import main
+    from vesselid.cli import main
 
     system, _, _ = heave_scenario("gm-current-random")
     log = system.simulate(10_000, seed=5).to_log(aggregate=False)
@@ -141,7 +141,7 @@ def test_auto_on_white_noise_does_not_call_pem():
 
 
 def test_pem_bad_input_one_line_reasons(capsys, tmp_path):
-    from vesselid.cli.app import main
+    from vesselid.cli import main
 
     est = get_estimator("pem")
     log2 = heave(current_mean=0.1).simulate(500, seed=1).to_log(aggregate=True)

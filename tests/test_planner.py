@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from vesselid.cli.app import main
+from vesselid.cli import main
 from vesselid.studies.manoeuvres import (
     AccelerationStopping,
     ManoeuvreError,
@@ -151,8 +151,8 @@ def test_equation_error_autocovariance_matches_a_simulated_trial():
     """The planner's pooled equation-error autocorrelations (the input of auto's SRIV
     noise model) agree with those of θ0's residuals on a simulated trial of the plan,
     within 4 Bartlett standard errors of the sample autocorrelations."""
-    from vesselid.studies.planner import DisturbanceLevels, _Vessel, design_information
     from vesselid.model.regressors import predict
+    from vesselid.studies.planner import DisturbanceLevels, _Vessel, design_information
     from vesselid.studies.seatrial import planned_sea_trial_design, simulate_sea_trial
 
     plan = plan_trial(16000, 2, block=4000, evaluate_block=2000)
@@ -182,8 +182,8 @@ def test_equation_error_autocovariance_matches_a_simulated_trial():
 def test_modulus_bias_matches_sampled_expectation():
     """E[φ(x+e)] − φ(x) of the modulus regressors near zero (errors in variables at the
     zero crossings) against a sample mean, within 5 sample SE."""
-    from vesselid.studies.planner import _modulus_bias
     from vesselid.model.regressors import evaluate
+    from vesselid.studies.planner import _modulus_bias
 
     rng = np.random.default_rng(4)
     # signals [x, y, u]; factor codes s = 0..2, |s| = 3..5, 1 = 6:
@@ -224,10 +224,10 @@ def test_disturbed_paths_weaken_the_instruments_as_in_a_simulated_trial():
     the effect is real: their mean exceeds the noise-free-path prediction by more than 4
     standard errors of that mean. Without process disturbances the paths are the
     noise-free path (identical information)."""
-    from vesselid.studies.planner import DisturbanceLevels, _Vessel, design_information
     from vesselid.model.regressors import evaluate
-    from vesselid.studies.seatrial import planned_sea_trial_design, simulate_sea_trial
     from vesselid.plant.simulate import simulate_states
+    from vesselid.studies.planner import DisturbanceLevels, _Vessel, design_information
+    from vesselid.studies.seatrial import planned_sea_trial_design, simulate_sea_trial
 
     plan = plan_trial(16000, 2, block=4000, evaluate_block=2000)
     vessel = _Vessel.cybership2()

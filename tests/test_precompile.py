@@ -1,4 +1,4 @@
-"""The first-run helper process (vesselid.core.precompile): what it compiles is what the
+"""The first-run helper process (vesselid.studies.precompile): what it compiles is what the
 warm-up calls, and it starts only with cold caches."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ pytest.importorskip("numba")
 
 from numba.core.sigutils import normalize_signature
 
-from vesselid.core import precompile as _precompile
+from vesselid.studies import precompile as _precompile
 from vesselid.studies.reproduce import warm_up
 
 

@@ -62,7 +62,7 @@ def test_patterns_treat_dots_as_any_text() -> None:
 
 
 def test_command_line_quickstart_output(tmp_path, monkeypatch) -> None:
-    from vesselid.cli.app import main
+    from vesselid.cli import main
 
     (_, commands), (_, expected) = _blocks(_section("Command line"))[:2]
     monkeypatch.chdir(tmp_path)

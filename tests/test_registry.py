@@ -7,8 +7,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from vesselid.core.jsonio import dumps, strict
 from vesselid.cli.app import build_parser, main
+from vesselid.core.jsonio import dumps, strict
 from vesselid.errors import IdentificationError
 from vesselid.identify import (
     DEFAULT_METHOD,

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
-from vesselid.cli.app import main
+from vesselid.cli import main
 from vesselid.errors import VesselidError
+from vesselid.plant.systems import heave
 from vesselid.studies.reproduce import (
     PARAMETER_LABELS,
     PUBLISHED_TABLE_1,
@@ -18,7 +19,6 @@ from vesselid.studies.reproduce import (
     reproduce,
     table_study,
 )
-from vesselid.plant.systems import heave
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ from vesselid.identify.data import from_log
 from vesselid.identify.fallback import CHAIN, identify_with_fallback
 from vesselid.identify.methods import LeastSquares
 from vesselid.identify.stability import jacobians, stability_report
-from vesselid.plant.systems import get_system
+from vesselid.plant.catalogue import get_system
 
 pytestmark = pytest.mark.filterwarnings("ignore::vesselid.errors.ExperimentDesignWarning")
 
@@ -134,7 +134,7 @@ def test_status_of_an_unstable_result(log):
 
 def test_cli_exit_code_3_without_a_usable_model(tmp_path, log, monkeypatch, capsys):
     from vesselid import identify as ident_pkg
-    from vesselid.cli.app import main
+    from vesselid.cli import main
 
     path = tmp_path / "trial.csv"
     log.save(path)
@@ -170,8 +170,8 @@ def test_cli_exit_code_3_without_a_usable_model(tmp_path, log, monkeypatch, caps
 
 def _hovering(amp: float):
     """A state that hovers around zero, its pulses of ±amp small against the sensor noise."""
-    from vesselid.plant.disturbances import Gaussian
     from vesselid.model.spec import ModelSpec
+    from vesselid.plant.disturbances import Gaussian
     from vesselid.plant.signals import RandomPulses
     from vesselid.plant.systems import System
 
@@ -183,8 +183,8 @@ def _hovering(amp: float):
 
 
 def test_smoothness_warning_once_where_the_bias_matters():
-    from vesselid.identify.diagnostics import SMOOTHNESS_BIAS_SE
     from vesselid.errors import ExperimentDesignWarning
+    from vesselid.identify.diagnostics import SMOOTHNESS_BIAS_SE
 
     log = _hovering(0.05).simulate(20000, seed=1).to_log()
     with pytest.warns(ExperimentDesignWarning) as rec:
@@ -200,8 +200,8 @@ def test_smoothness_warning_once_where_the_bias_matters():
 
 
 def test_excitation_names_a_constant_input_and_the_lost_terms():
-    from vesselid.plant.disturbances import Gaussian
     from vesselid.model.spec import ModelSpec
+    from vesselid.plant.disturbances import Gaussian
     from vesselid.plant.signals import RandomPulses, StaticOffset
     from vesselid.plant.systems import System
 

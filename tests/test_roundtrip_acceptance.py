@@ -9,10 +9,10 @@ import pymap3d  # noqa: F401  (a missing test dependency fails)
 import pynmea2  # noqa: F401  (a missing test dependency fails)
 import pytest
 
-from vesselid.cli.app import main
-from vesselid.identify import identify
+from vesselid.cli import main
 from vesselid.data.ingest import ingest
 from vesselid.data.logs import TrialLog
+from vesselid.identify import identify
 from vesselid.model.spec import ModelSpec
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from vesselid.cli.app import main
+from vesselid.cli import main
 from vesselid.data.sampling import SamplingError, check_sampling
 
 

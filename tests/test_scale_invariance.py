@@ -7,10 +7,10 @@ import warnings
 import numpy as np
 import pytest
 
+from vesselid.data.logs import TrialLog
 from vesselid.errors import IdentificationError
 from vesselid.identify import identify
-from vesselid.data.logs import TrialLog
-from vesselid.plant.systems import get_system
+from vesselid.plant.catalogue import get_system
 
 
 @pytest.fixture(scope="module")

@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 from _stats import bonferroni_z
 
-from vesselid.cli.app import main
+from vesselid.cli import main
 from vesselid.errors import VesselidError
 from vesselid.identify import identify
+from vesselid.plant.catalogue import get_hull
+from vesselid.plant.vessels import CyberShip2Sensors
 from vesselid.studies.seatrial import (
     SeaTrialError,
     design_sea_trial,
@@ -19,7 +21,6 @@ from vesselid.studies.seatrial import (
     seatrial_spec,
     simulate_sea_trial,
 )
-from vesselid.plant.vessels import CyberShip2Sensors, get_hull
 
 QUIET = dict(sensors=CyberShip2Sensors.noiseless(), current_speed=0.0, current_variation=0.0,
              wind_speed=0.0, wind_gust=0.0, force_noise=(0.0, 0.0, 0.0))

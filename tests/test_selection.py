@@ -10,15 +10,15 @@ import warnings
 import numpy as np
 import pytest
 
-from vesselid.cli.app import main
-from vesselid.plant.disturbances import Zero
+from vesselid.cli import main
 from vesselid.errors import VesselidError
 from vesselid.model.spec import ModelSpec
+from vesselid.model.terms import Term
+from vesselid.plant.disturbances import Zero
+from vesselid.plant.systems import System, heave
 from vesselid.selection import SelectionError, full_library, select_terms
 from vesselid.selection.engine import critical_value, same_in_data_groups
 from vesselid.selection.library import canonical, parse_library, vessel_library
-from vesselid.plant.systems import System, heave
-from vesselid.model.terms import Term
 
 
 def _heave_log(n: int, seed: int, *, noise: bool = True):

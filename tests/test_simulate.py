@@ -6,8 +6,9 @@ from _stats import assert_mean_within, assert_std_within
 
 from vesselid.errors import SimulationDivergedError
 from vesselid.model.spec import ModelSpec
+from vesselid.plant.catalogue import get_system
 from vesselid.plant.simulate import simulate_states, step_states
-from vesselid.plant.systems import get_system, heave, siso_example
+from vesselid.plant.systems import heave, siso_example
 
 SPEC = ModelSpec(name="heave", states=["w"], inputs=["tau"],
                  equations={"w": ["w", "w*|w|", "tau"]}, theta0={"w": [0.99, -0.1, 1.0]})

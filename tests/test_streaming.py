@@ -8,10 +8,10 @@ import numpy as np
 import pyarrow  # noqa: F401  (a missing test dependency fails)
 import pytest
 
-from vesselid.identify import identify
 from vesselid.data.logs import TrialLog
+from vesselid.identify import identify
 from vesselid.identify.streaming import ParquetExperiments, identify_stream
-from vesselid.plant.systems import get_system
+from vesselid.plant.catalogue import get_system
 
 
 @pytest.fixture(scope="module")
@@ -112,7 +112,7 @@ def test_not_parquet_is_a_clear_error(tmp_path):
 def test_cli_identify_stream(logs, tmp_path, capsys):
     import json
 
-    from vesselid.cli.app import main
+    from vesselid.cli import main
 
     d, _log = logs
     out = tmp_path / "r.json"

@@ -12,8 +12,8 @@ import pandas as pd
 import pytest
 from _ship import SHIP, zigzag_log
 
-from vesselid.validation.metrics import detect, integrate_track, turning_figures, zigzag_figures
 from vesselid.model.spec import ModelSpec
+from vesselid.validation.metrics import detect, integrate_track, turning_figures, zigzag_figures
 from vesselid.validation.report import ValidationError, validate
 
 
@@ -149,8 +149,8 @@ def test_cli_strict_json_plot_and_exit_2(spec, log, tmp_path):
 def test_one_step_prediction_equals_the_regressor_prediction(spec, log):
     """k = 1: Φᵀ(y(k), u(k)) θ from the measured signals (derived columns included)."""
     from vesselid.model.derived import add_derived
-    from vesselid.validation.freerun import Plant
     from vesselid.model.regressors import predict
+    from vesselid.validation.freerun import Plant
 
     theta = spec.theta0_vector() * 1.01
     g = log[log["experiment"] == "zz10"].reset_index(drop=True)

@@ -8,9 +8,9 @@ import warnings
 import numpy as np
 import pytest
 
-from vesselid.plant.catalogue import get_system, vessel_module, vessel_names
-from vesselid.cli.app import main
+from vesselid.cli import main
 from vesselid.identify import identify
+from vesselid.plant.catalogue import get_system, vessel_module, vessel_names
 
 VESSEL = "viknes830"
 

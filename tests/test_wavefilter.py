@@ -10,9 +10,9 @@ import pandas as pd
 import pytest
 from _stats import bonferroni_z
 
-from vesselid.errors import VesselidError
 from vesselid.data.logs import TrialLog
 from vesselid.data.wavefilter import WaveFilter, WaveFilterError, wave_filter_log
+from vesselid.errors import VesselidError
 from vesselid.plant.waves import WaveConditions
 
 
@@ -93,7 +93,7 @@ def test_wave_filtered_trial_is_consistent_and_more_precise() -> None:
 
 
 def test_sea_trial_cli_writes_the_wave_filtered_log(tmp_path, capsys) -> None:
-    from vesselid.cli.app import main
+    from vesselid.cli import main
 
     args = ["sea-trial", "--experiments", "2", "--samples", "800", "--design", "static-offset",
             "--sea-state", "moderate", "--seed", "1", "--format", "csv"]

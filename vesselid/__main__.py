@@ -1,5 +1,5 @@
 """``python -m vesselid`` runs the command line."""
 
-from vesselid.cli.app import main
+from vesselid.cli import main
 
 raise SystemExit(main())

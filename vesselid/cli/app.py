@@ -30,42 +30,39 @@ from pathlib import Path
 from typing import Any
 
 from vesselid import __version__
+from vesselid.cli.common import check_output_file, check_raw_dir, finite_float, int_at_least
 from vesselid.errors import CLIError, VesselidError
 
 __all__ = ["main"]
 
-#: Modules that add their own subcommands (``add_parser(subparsers)``).
-PLUGIN_MODULES = ("vesselid.studies.reproduce", "vesselid.studies.seatrial", "vesselid.studies.planner", "vesselid.data.ingest")
-
 #: Plugin commands imported only when they are run (or their own ``--help`` is asked
 #: for): command -> (module, one-line help, description of its ``--help``); the plugin
-#: module adds its arguments (:func:`plugin_parser`). ``vesselid --help`` lists them without
-#: importing the module, so it loads neither pandas nor numba. A module listed only in
-#: :data:`PLUGIN_MODULES` is imported for every command line (correct, but slower).
+#: module adds its arguments (``add_arguments(parser)``). ``vesselid --help`` lists them without
+#: importing the module, so it loads neither pandas nor numba.
 LAZY_COMMANDS = {
     "reproduce": (
-        "vesselid.studies.reproduce", "reproduce the paper's Tables 1-2 and Figure 1",
+        "vesselid.cli.reproduce", "reproduce the paper's Tables 1-2 and Figure 1",
         "Monte Carlo reproduction of Ljungberg & Enqvist §6: LS, IV and IV with zero-mean "
         "instruments on the heave system; prints the published and reproduced tables row by "
         "row and checks the paper's claims."),
     "sea-trial": (
-        "vesselid.studies.seatrial", "design and simulate a multi-experiment sea trial",
+        "vesselid.cli.sea_trial", "design and simulate a multi-experiment sea trial",
         "Design a multi-experiment sea trial (steady turns to both sides at several levels plus "
         "pulses), simulate it with current and wind, and write the trial log and the model "
         "spec for `vesselid identify`."),
     "plan-trial": (
-        "vesselid.studies.planner", "plan a sea trial: manoeuvres and predicted standard errors",
+        "vesselid.cli.plan_trial", "plan a sea trial: manoeuvres and predicted standard errors",
         "Choose standard manoeuvres (turning circles, zig-zags, pull-outs, spirals, stopping, "
         "thruster tests) for a sample budget so that the worst relative standard error of the "
         "identified parameters is smallest, predicted from the asymptotic IV covariance (no "
         "Monte Carlo)."),
     "ingest": (
-        "vesselid.data.ingest", "turn raw sensor streams (NMEA 0183, ROS 2 bags, CSV) into a trial log",
+        "vesselid.cli.ingest", "turn raw sensor streams (NMEA 0183, ROS 2 bags, CSV) into a trial log",
         "Read NMEA 0183 logs, ROS 2 bags and mapped multi-rate CSV files, align the clocks, "
         "resample onto a uniform grid, convert to local NED and body-frame velocities, split "
         "experiments at gaps, and write a trial log with a quality report in its metadata."),
     "validate": (
-        "vesselid.validation.report", "validate an identified model on held-out experiments",
+        "vesselid.cli.validate", "validate an identified model on held-out experiments",
         "Simulate an identified model on (held-out) experiments with their measured inputs: "
         "free-run and k-step-ahead fit per state, and for zig-zags and turning circles "
         "(detected from the rudder) the overshoot angles, advance, tactical diameter and "
@@ -106,44 +103,10 @@ def _spec_path_for(out: Path) -> Path:
     return out.with_name(out.stem + ".toml")
 
 
-def plugin_parser(subparsers: Any, command: str) -> argparse.ArgumentParser:
-    """The subparser of the plugin command ``command``, its help and description from
-    :data:`LAZY_COMMANDS` (written once: ``vesselid --help`` lists it without the plugin)."""
-    _, help_text, description = LAZY_COMMANDS[command]
-    return subparsers.add_parser(command, help=help_text, description=description)
-
-
-def int_at_least(minimum: int) -> Any:
-    """An argparse ``type``: an integer ``>= minimum`` (the error names the option)."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be at least {minimum}, got {value}")
-        return value
-
-    parse.__name__ = f"integer >= {minimum}"
-    return parse
-
-
-def finite_float(text: str) -> float:
-    """An argparse ``type``: a finite float."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
-    return value
-
-
 def cmd_simulate(args: argparse.Namespace) -> int:
     from vesselid.core import limits
+    from vesselid.plant.catalogue import get_system
     from vesselid.plant.todisk import log_columns, peak_rows, simulate_to_file
-    from vesselid.plant.systems import get_system
 
     out = Path(args.out)
     if out.suffix.lower() not in (".csv", ".parquet", ".pq"):
@@ -207,27 +170,6 @@ def _check_raw_request(raw: str, system: Any) -> None:
     check_raw_dir(raw)
 
 
-def check_output_file(option: str, target: str) -> None:
-    """An output file path: not a directory, and no regular file among its parents."""
-    path = Path(target)
-    if path.is_dir():
-        raise IsADirectoryError(21, f"{option} path is a directory", target)
-    parent = next((p for p in path.absolute().parents if p.exists()), None)
-    if parent is not None and not parent.is_dir():
-        raise NotADirectoryError(20, f"{option}: not a directory", str(parent))
-
-
-def check_raw_dir(raw: str) -> None:
-    """``--raw DIR`` (simulate, sea-trial): refuse a path that cannot become a directory
-    before anything is simulated or written (all outputs or none)."""
-    path = Path(raw)
-    if path.exists() and not path.is_dir():
-        raise NotADirectoryError(20, "--raw must be a directory, not an existing file", raw)
-    parent = next((p for p in path.absolute().parents if p.exists()), None)
-    if parent is not None and not parent.is_dir():
-        raise NotADirectoryError(20, "not a directory", str(parent))
-
-
 def _check_cov(cov: str | None) -> None:
     from vesselid.core import names as _names
 
@@ -264,8 +206,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
     _check_cov(args.cov)
     from vesselid.core import limits
     from vesselid.core import memory as _memory
-    from vesselid.identify import identify
     from vesselid.data.logs import TrialLog, estimate_shape
+    from vesselid.identify import identify
     from vesselid.model.spec import ModelSpec
 
     spec = ModelSpec.load(args.model) if args.model else None
@@ -330,8 +272,8 @@ def _identify_stream(args: argparse.Namespace) -> int:
                        f"{', '.join(_names.STREAM_METHODS)}")
     _check_cov(args.cov)
     from vesselid.core import limits
-    from vesselid.model.spec import ModelSpec
     from vesselid.identify.streaming import ParquetExperiments, identify_stream
+    from vesselid.model.spec import ModelSpec
 
     if args.target != "measured":
         raise CLIError("--target aggregated is not available with --stream")
@@ -502,9 +444,10 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
                         "(default 0.01; a log that fails: resample it with `ingest --dt`)")
     p.set_defaults(func=cmd_identify)
 
-    lazy_modules = {entry[0] for entry in LAZY_COMMANDS.values()}
-    modules = [m for m in PLUGIN_MODULES if m not in lazy_modules]
+    modules: list[str] = []
+    command_of: dict[str, str] = {}
     for command, (module, help_text, _) in LAZY_COMMANDS.items():
+        command_of[module] = command
         if argv is None or command == wanted:
             modules.append(module)
         else:  # listed in the help; never parsed in this run
@@ -516,7 +459,9 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
             if exc.name != name:
                 raise
             continue
-        module.add_parser(sub)
+        _, help_text, description = LAZY_COMMANDS[command_of[name]]
+        module.add_arguments(sub.add_parser(command_of[name], help=help_text,
+                                            description=description))
     return parser
 
 

@@ -6,16 +6,14 @@ import argparse
 import sys
 import warnings
 from pathlib import Path
-from typing import Any
 
-__all__ = ["add_parser", "cmd_select"]
+from vesselid.cli.common import check_output_file, int_at_least
+
+__all__ = ["add_arguments", "cmd_select"]
 
 
-def add_parser(subparsers: Any) -> None:
-    """Register ``vesselid select`` (the CLI plugin contract of :mod:`vesselid.cli.app`)."""
-    from vesselid.cli.app import int_at_least, plugin_parser
-
-    p = plugin_parser(subparsers, "select")
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``vesselid select``."""
     p.add_argument("log", help="trial log (CSV with its JSON sidecar, or Parquet)")
     p.add_argument("--model", metavar="BASE.toml",
                    help="base spec: states, inputs, dt, aggregate relations, and equations "
@@ -42,15 +40,14 @@ def add_parser(subparsers: Any) -> None:
 
 def cmd_select(args: argparse.Namespace) -> int:
     """Run the selection, write the spec (and JSON), print the report."""
-    from vesselid.cli.app import check_output_file
 
     check_output_file("--out", args.out)
     if args.json and args.json != "-":
         check_output_file("--json", args.json)
     from vesselid.core import jsonio as _json
     from vesselid.core.fileio import atomic_write_text
-    from vesselid.errors import CLIError
     from vesselid.data.logs import TrialLog
+    from vesselid.errors import CLIError
     from vesselid.model.spec import ModelSpec
     from vesselid.selection import select_terms
     from vesselid.selection.library import library_from_spec

@@ -56,8 +56,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from vesselid.data import nmea0183 as nmea
 from vesselid.core.fileio import atomic_path, atomic_write_text
+from vesselid.data import nmea0183 as nmea
 from vesselid.errors import VesselidError
 
 __all__ = ["RawStreamConfig", "RawStreamError", "write_raw_streams"]

@@ -27,15 +27,6 @@ from typing import Any, ClassVar
 import numpy as np
 import pandas as pd
 
-from vesselid.identify.diagnostics import (
-    collinear_terms,
-    design_frame,
-    design_rows,
-    free_run_ratio,
-    modulus_signals,
-    nrmse_fit,
-    smoothness_report,
-)
 from vesselid.errors import (
     ConvergenceWarning,
     EstimationFailedError,
@@ -48,6 +39,15 @@ from vesselid.errors import (
 from vesselid.identify import backend, linalg
 from vesselid.identify.backend import kernels
 from vesselid.identify.data import RegressionData, block_starts, from_log
+from vesselid.identify.diagnostics import (
+    collinear_terms,
+    design_frame,
+    design_rows,
+    free_run_ratio,
+    modulus_signals,
+    nrmse_fit,
+    smoothness_report,
+)
 from vesselid.identify.estimators import (
     COMBINE_MODES,
     STOP_FIXED,

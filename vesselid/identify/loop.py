@@ -72,8 +72,8 @@ def closed_loop_signals(log: Any, spec: ModelSpec | None = None, *,
         One-line reasons: no ``metadata["closed_loop"]``, a missing reference column, a
         controller that cannot be simulated, non-finite external signals.
     """
-    from vesselid.plant.closedloop import PID, closed_loop_info
     from vesselid.data.logs import TrialLog
+    from vesselid.plant.closedloop import PID, closed_loop_info
 
     if not isinstance(log, TrialLog):
         log = TrialLog(log)

@@ -181,7 +181,7 @@ class _Filter:
 
 def load_kernels() -> None:
     """Load (or compile, on first use) the filter kernel with the signature every fit
-    calls it with (:mod:`vesselid.core.precompile` compiles the same one)."""
+    calls it with (:mod:`vesselid.studies.precompile` compiles the same one)."""
     fac = np.array([[0, 4], [0, 2], [1, 4]], dtype=np.int64)  # heave: x, x|x|, u
     filt = _Filter(np.zeros(4), np.zeros((4, 1)), np.array([0, 4]), fac, parallel=False)
     filt.run(np.zeros((1, fac.shape[0] + 7)))

@@ -54,8 +54,8 @@ from typing import Any
 import numpy as np
 
 from vesselid.errors import IdentificationError
-from vesselid.model.spec import ModelSpec
 from vesselid.model.regressors import advance, fill_factors, kernel, regressors
+from vesselid.model.spec import ModelSpec
 
 __all__ = ["RecursiveEstimator", "RecursiveResult", "check_forgetting", "recursive_estimate"]
 

@@ -11,8 +11,8 @@ import numpy as np
 import pandas as pd
 
 from vesselid.core.jsonio import strict
-from vesselid.identify.diagnostics import normalized_error
 from vesselid.errors import IdentificationError
+from vesselid.identify.diagnostics import normalized_error
 from vesselid.model.spec import ModelSpec
 
 __all__ = ["IdentificationResult"]

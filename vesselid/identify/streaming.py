@@ -127,8 +127,8 @@ def _read_experiment(path: Path, eid: Any) -> pd.DataFrame:
 
 
 def _regression_data(frame: pd.DataFrame, spec: ModelSpec):
-    from vesselid.identify.data import from_log
     from vesselid.data.logs import TrialLog
+    from vesselid.identify.data import from_log
 
     frame = frame.drop(columns=["experiment"], errors="ignore")
     data, _ = from_log(TrialLog(frame.reset_index(drop=True)), spec)
@@ -203,9 +203,9 @@ def _design_parts(path: Path, eid: Any, spec_dict: dict, method: str, theta, the
     ``Σ g``, the last score, and either the lag products ``Γ_E(j) = Σ_k g(k) g(k−j)ᵀ``
     (``j ≤ lags``) or, with known kernel ``weights``, the long-run covariance ``S_E``.
     """
-    from vesselid.identify.diagnostics import free_run_ratio
     from vesselid.identify import kernels
     from vesselid.identify.covariance import long_run_covariance
+    from vesselid.identify.diagnostics import free_run_ratio
     from vesselid.identify.estimators import IterationResult
     from vesselid.identify.registry import get_estimator
 

@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from vesselid.errors import ModelSpecError, VesselidError
-from vesselid.model.spec import ModelSpec
 from vesselid.model.regressors import predict
+from vesselid.model.spec import ModelSpec
 
 __all__ = ["control_signals", "export_model", "load_model", "to_control"]
 

@@ -40,8 +40,8 @@ import numpy as np
 import pandas as pd
 
 from vesselid.core.fileio import atomic_write_text
-from vesselid.model.derived import DerivedSignal
 from vesselid.errors import ModelSpecError
+from vesselid.model.derived import DerivedSignal
 from vesselid.model.terms import Term
 
 if TYPE_CHECKING:  # pragma: no cover

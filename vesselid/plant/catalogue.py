@@ -17,8 +17,10 @@ from vesselid.errors import VesselidError
 
 if TYPE_CHECKING:  # pragma: no cover
     from vesselid.plant.systems import System
+    from vesselid.plant.vessels.hull import Hull
 
-__all__ = ["SYSTEMS", "VESSELS", "get_system", "names", "vessel_module", "vessel_names"]
+__all__ = ["SYSTEMS", "VESSELS", "get_hull", "get_system", "names", "vessel_module",
+           "vessel_names"]
 
 #: Systems of the paper: name -> "module:factory".
 SYSTEMS: dict[str, str] = {
@@ -54,6 +56,11 @@ def vessel_module(name: str) -> ModuleType:
     if name not in VESSELS:
         raise VesselidError(f"unknown vessel {name!r}; known: {vessel_names()}")
     return importlib.import_module(VESSELS[name])
+
+
+def get_hull(name: str) -> Hull:
+    """The hull of a catalogue vessel (its data module's ``HULL``)."""
+    return vessel_module(name).HULL
 
 
 def get_system(name: str, **options: Any) -> System:

@@ -41,8 +41,8 @@ from typing import Any
 import numpy as np
 
 from vesselid.errors import ControlError, SimulationDivergedError, VesselidError
-from vesselid.model.spec import ModelSpec
 from vesselid.model.regressors import advance, kernel
+from vesselid.model.spec import ModelSpec
 from vesselid.plant.systems import Simulation, System
 
 __all__ = [

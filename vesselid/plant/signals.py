@@ -13,8 +13,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from vesselid.plant.disturbances import Process, Sampled, process_from_dict
 from vesselid.errors import VesselidError
+from vesselid.plant.disturbances import Process, Sampled, process_from_dict
 
 __all__ = [
     "PRBS",

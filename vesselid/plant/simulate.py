@@ -15,8 +15,8 @@ import numpy as np
 
 from vesselid.core.threads import run_ranges
 from vesselid.errors import SimulationDivergedError, SimulationError
-from vesselid.model.spec import ModelSpec
 from vesselid.model.regressors import advance, kernel
+from vesselid.model.spec import ModelSpec
 
 __all__ = ["DEFAULT_DIVERGENCE_LIMIT", "simulate_states", "step_states"]
 

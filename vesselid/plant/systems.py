@@ -21,16 +21,14 @@ from typing import Any
 
 import numpy as np
 
-from vesselid.plant.catalogue import get_system
-from vesselid.plant.disturbances import Gaussian, Process, Uniform, Zero
 from vesselid.errors import VesselidError
 from vesselid.model.spec import ModelSpec
+from vesselid.plant.disturbances import Gaussian, Process, Uniform, Zero
+from vesselid.plant.result import SimulationResult
 from vesselid.plant.signals import AlternatingPulses, InputSignal, RandomPulses, StaticOffset
 from vesselid.plant.simulate import DEFAULT_DIVERGENCE_LIMIT, simulate_states
-from vesselid.plant.result import SimulationResult
 
-__all__ = ["SYSTEMS", "Simulation", "System", "get_system", "heave", "siso_example",
-           "truth_columns"]
+__all__ = ["Simulation", "System", "heave", "siso_example", "truth_columns"]
 
 SeedLike = int | np.random.SeedSequence | None
 
@@ -485,5 +483,3 @@ def siso_example(
         description="SISO example, Ljungberg & Enqvist §5",
     )
 
-
-SYSTEMS = {"heave": heave, "siso": siso_example}

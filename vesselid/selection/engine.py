@@ -50,8 +50,8 @@ import numpy as np
 from vesselid.identify.backend import kernels
 from vesselid.identify.data import RegressionData
 from vesselid.model.regressors import encode_terms
-from vesselid.selection.library import Library, SelectionError
 from vesselid.model.terms import Term
+from vesselid.selection.library import Library, SelectionError
 
 __all__ = ["Blocks", "critical_value", "eliminate", "make_blocks", "same_in_data_groups"]
 

@@ -15,10 +15,10 @@ import pandas as pd
 from vesselid.identify.backend import kernels
 from vesselid.identify.data import from_log
 from vesselid.model.spec import ModelSpec
+from vesselid.model.terms import Term
 from vesselid.selection import engine
 from vesselid.selection.library import Library, SelectionError, resolve_library
 from vesselid.selection.result import SelectionResult
-from vesselid.model.terms import Term
 
 __all__ = ["fit_structure", "select_terms"]
 

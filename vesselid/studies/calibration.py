@@ -33,8 +33,8 @@ from vesselid.errors import VesselidError
 from vesselid.identify import kernels
 from vesselid.identify.covariance import DEFAULT_COV_TYPE, get_covariance_estimator
 from vesselid.identify.data import RegressionData, from_arrays
-from vesselid.model.spec import ModelSpec
 from vesselid.model.regressors import weights_matrix
+from vesselid.model.spec import ModelSpec
 
 __all__ = [
     "SCENARIOS",

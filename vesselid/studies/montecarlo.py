@@ -49,16 +49,17 @@ import numpy as np
 import pandas as pd
 
 from vesselid.core.fileio import atomic_write_with
-from vesselid.identify.diagnostics import normalized_error
 from vesselid.errors import VesselidError
 from vesselid.identify.data import RegressionData, from_arrays
+from vesselid.identify.diagnostics import normalized_error
 from vesselid.identify.efficient import InstrumentalGMM
 from vesselid.identify.estimators import COMBINE_MODES, IterationResult
 from vesselid.identify.methods import RefinedIV
 from vesselid.identify.pem import PredictionError
 from vesselid.identify.registry import ESTIMATORS, PAPER_METHODS, get_estimator
 from vesselid.model.spec import ModelSpec
-from vesselid.plant.systems import System, get_system
+from vesselid.plant.catalogue import get_system
+from vesselid.plant.systems import System
 
 __all__ = [
     "COLUMNS",
@@ -93,7 +94,7 @@ class Study:
     Parameters
     ----------
     system : str or callable
-        Catalogue name (:func:`vesselid.plant.systems.get_system`) or a picklable factory
+        Catalogue name (:func:`vesselid.plant.catalogue.get_system`) or a picklable factory
         returning a :class:`~vesselid.plant.systems.System`; called with ``options``.
     options : mapping
         Keyword options of the system factory (e.g. ``current_mean=0.1``).

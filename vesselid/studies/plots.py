@@ -25,9 +25,9 @@ from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from vesselid.errors import VesselidError
 from vesselid.core.figures import new_figure as _figure
 from vesselid.core.figures import residual_analysis
+from vesselid.errors import VesselidError
 
 __all__ = ["error_histograms", "estimate_vs_truth", "residual_analysis", "trial_timeseries"]
 

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from vesselid.errors import SimulationError
-from vesselid.model.spec import ModelSpec
 from vesselid.model.regressors import fill_factors, kernel, one_step, regressors
+from vesselid.model.spec import ModelSpec
 
 __all__ = ["Plant", "ZigZagLogic"]
 

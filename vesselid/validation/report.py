@@ -26,9 +26,7 @@ as :func:`vesselid.identify.diagnostics.free_run_ratio` does.
 
 from __future__ import annotations
 
-import argparse
 import math
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,7 +38,7 @@ import pandas as pd
 from vesselid.errors import VesselidError
 from vesselid.model.spec import ModelSpec
 
-__all__ = ["ExperimentValidation", "ValidationError", "ValidationReport", "add_parser",
+__all__ = ["ExperimentValidation", "ValidationError", "ValidationReport",
            "validate"]
 
 DEFAULT_HORIZON = 10
@@ -294,8 +292,8 @@ def validate(log: Any, model: Any, *, experiments: Sequence[Any] | None = None,
         Unknown experiment, sampling that disagrees with the model's ``dt``, a horizon
         shorter than one step or longer than an experiment.
     """
-    from vesselid.validation.freerun import Plant, ZigZagLogic
     from vesselid.data.logs import TrialLog
+    from vesselid.validation.freerun import Plant, ZigZagLogic
     from vesselid.validation.metrics import detect, integrate_track, turning_figures, zigzag_figures
 
     spec, theta = _model(model)
@@ -414,77 +412,3 @@ def validate(log: Any, model: Any, *, experiments: Sequence[Any] | None = None,
         model=spec.name, states=spec.states, horizon=int(horizon), dt=dt, experiments=results,
         free_run_fit={s: _pooled_fit(p) for s, p in pooled.items()},
         k_step_fit={s: _pooled_fit(p) for s, p in pooled_k.items()})
-
-
-# ------------------------------------------------------------------------------ CLI
-def add_parser(subparsers: Any) -> None:
-    """Register ``vesselid validate`` (the CLI plugin contract of :mod:`vesselid.cli.app`)."""
-    from vesselid.cli.app import int_at_least, plugin_parser
-
-    p = plugin_parser(subparsers, "validate")
-    p.add_argument("log", help="trial log (.csv with optional .json sidecar, or .parquet)")
-    p.add_argument("--model", required=True,
-                   help="identified model TOML (identify --export) or a spec with [theta0]")
-    p.add_argument("--experiments", metavar="ID[,ID...]",
-                   help="held-out experiments to validate on (default: every experiment)")
-    p.add_argument("--horizon", type=int_at_least(1), default=DEFAULT_HORIZON,
-                   help=f"steps of the k-step-ahead prediction (default {DEFAULT_HORIZON})")
-    p.add_argument("--rudder", default="delta", help="rudder input column (default delta)")
-    p.add_argument("--manoeuvres", metavar="FILE.toml",
-                   help="nominal test settings per experiment, e.g. [Z_10_05] psi_switch_deg = 5 "
-                        "(default: the log's metadata, else read off the heading)")
-    p.add_argument("--plot", metavar="PATH", help="write the measured-vs-simulated figure")
-    p.add_argument("--json", metavar="PATH|-", help="write the report as JSON ('-' = stdout)")
-    p.set_defaults(func=cmd_validate)
-
-
-def _read_manoeuvres(path: str) -> dict[str, dict[str, float]]:
-    """``--manoeuvres FILE.toml``: ``[experiment] psi_switch_deg = ...`` tables."""
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # pragma: no cover - Python 3.10
-        import tomli as tomllib
-    try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ValidationError(f"--manoeuvres {path}: invalid TOML: {exc}") from exc
-    for key, entry in data.items():
-        if not isinstance(entry, dict) or set(entry) - {"psi_switch_deg", "delta0_deg"}:
-            raise ValidationError(f"--manoeuvres {path}: [{key}] must hold psi_switch_deg "
-                                  f"(and optionally delta0_deg), got {entry!r}")
-    return data
-
-
-def cmd_validate(args: argparse.Namespace) -> int:
-    """``vesselid validate``: print the report, write JSON / figure on request."""
-    from vesselid.core.fileio import atomic_write_text
-    from vesselid.cli.app import check_output_file
-
-    for option, target in (("--json", args.json), ("--plot", args.plot)):
-        if target and target != "-":
-            check_output_file(option, target)
-    if args.plot and Path(args.plot).suffix.lower() not in (".png", ".pdf", ".svg"):
-        raise ValidationError(f"--plot must end in .png, .pdf or .svg, got {args.plot!r}")
-    from vesselid.model.export import load_model
-
-    spec, _theta, _ = load_model(args.model)
-    if spec.theta0 is None:  # pragma: no cover - load_model refuses it
-        raise ValidationError(f"{args.model} has no [theta0]")
-    experiments = ([e.strip() for e in args.experiments.split(",") if e.strip()]
-                   if args.experiments else None)
-    nominal = _read_manoeuvres(args.manoeuvres) if args.manoeuvres else None
-    report = validate(args.log, spec, experiments=experiments, horizon=args.horizon,
-                      rudder=args.rudder, manoeuvres=nominal)
-    out = sys.stderr if args.json == "-" else sys.stdout
-    print(report.summary(), file=out)
-    if args.json:
-        text = report.to_json(indent=2)
-        if args.json == "-":
-            print(text)
-        else:
-            atomic_write_text(args.json, text + "\n")
-            print(f"wrote {args.json}", file=out)
-    if args.plot:
-        report.plot(args.plot)
-        print(f"wrote {args.plot}", file=out)
-    return 0

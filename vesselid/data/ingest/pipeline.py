@@ -38,9 +38,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from vesselid.errors import VesselidError
 from vesselid.data.ingest.config import IngestConfig, IngestError, load_config
 from vesselid.data.ingest.streams import Stream, coverage, resample, stream_quality
+from vesselid.errors import VesselidError
 
 __all__ = ["NMEA_SUFFIXES", "ingest"]
 

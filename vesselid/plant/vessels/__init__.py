@@ -69,16 +69,8 @@ __all__ = [
     "cybership2_hull",
     "cybership2_spec",
     "cybership2_system",
-    "get_hull",
     "log_columns",
     "simulate_cybership2",
     "simulate_vessel",
     "wrap",
 ]
-
-
-def get_hull(name: str) -> Hull:
-    """The hull of a catalogue vessel (:func:`vesselid.plant.catalogue.vessel_module`)."""
-    from vesselid.plant.catalogue import vessel_module
-
-    return vessel_module(name).HULL

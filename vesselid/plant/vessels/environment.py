@@ -20,8 +20,8 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from vesselid.plant.disturbances import GaussMarkov
 from vesselid.errors import VesselidError
+from vesselid.plant.disturbances import GaussMarkov
 from vesselid.plant.vessels.wind import BlendermannWind
 
 __all__ = [

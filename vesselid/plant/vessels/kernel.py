@@ -26,10 +26,10 @@ from numba import njit, prange
 
 from vesselid.core.filters import ar1_filter
 from vesselid.errors import SimulationDivergedError, VesselidError
-from vesselid.model.spec import ModelSpec
 from vesselid.model.regressors import advance, kernel
-from vesselid.plant.simulate import DEFAULT_DIVERGENCE_LIMIT
+from vesselid.model.spec import ModelSpec
 from vesselid.plant.result import SimulationResult
+from vesselid.plant.simulate import DEFAULT_DIVERGENCE_LIMIT
 from vesselid.plant.vessels.environment import (
     N_SENSOR_CHANNELS,
     SENSOR_CHANNELS,

@@ -2,7 +2,7 @@
 
 numba compiles under one process-wide lock, so a process compiles one kernel at a time.
 When the on-disk cache is cold (the first run after an install) and at least two cores
-are idle, :func:`start` launches ``python -m vesselid.core.precompile``, which compiles the
+are idle, :func:`start` launches ``python -m vesselid.studies.precompile``, which compiles the
 explicit-matrix kernels of :data:`KERNELS` with their exact signatures — in the reverse of
 the order in which :func:`vesselid.studies.reproduce.warm_up` first calls them — into the shared
 ``NUMBA_CACHE_DIR``, while the main process compiles the simulation and the generated
@@ -84,7 +84,7 @@ def start() -> subprocess.Popen | None:
     if force != "1" and _cores_idle() < 1.5:
         return None
     try:
-        return subprocess.Popen([sys.executable, "-m", "vesselid.core.precompile"],
+        return subprocess.Popen([sys.executable, "-m", "vesselid.studies.precompile"],
                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                 stderr=subprocess.DEVNULL)
     except OSError:
