@@ -601,7 +601,7 @@ def env_case(cls: str, kind: str, vector: bool) -> Case:
 
 #: every registered estimator (``identify --method``; the static list the command line
 #: checks, which tests/test_lazy_imports.py holds equal to the registry)
-from vesselid.core.names import METHODS  # noqa: E402
+from vesselid.identify.registry import METHODS  # noqa: E402
 
 #: the estimators that run on an open-loop log (``cl-iv`` needs a closed-loop one and
 #: refuses these logs: its own case below)

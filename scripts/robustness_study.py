@@ -290,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
     unknown = sorted(set(args.designs) - set(DESIGNS))
     if unknown:
         ap.error(f"unknown designs {unknown}; choose from {list(DESIGNS)}")
-    from vesselid.core.names import METHODS as registered
+    from vesselid.identify.registry import METHODS as registered
 
     bad = sorted(set(args.methods) - set(registered))
     if bad:

@@ -68,19 +68,30 @@ def test_lazy_top_level_names() -> None:
         vesselid.nonexistent  # noqa: B018
 
 
-def test_static_names_equal_the_registries() -> None:
-    """The CLI's static ``--method``/``--cov`` names (no kernels loaded) are the registries'."""
-    from vesselid.core import names as _names
-    from vesselid.identify import covariance_api
-    from vesselid.identify.registry import DEFAULT_METHOD, ESTIMATORS
-    from vesselid.identify.streaming import DEFAULT_STREAM_METHOD, STREAM_METHODS
+def test_registry_names_are_the_estimators_and_covariances() -> None:
+    """The registry's names, flags and defaults match the estimators they build."""
+    from vesselid.identify import covariance_api, registry
 
-    assert _names.METHODS == tuple(ESTIMATORS)
-    assert _names.DEFAULT_METHOD == DEFAULT_METHOD
-    assert _names.STREAM_METHODS == tuple(STREAM_METHODS)
-    assert _names.DEFAULT_STREAM_METHOD == DEFAULT_STREAM_METHOD
-    assert _names.COV_TYPES == tuple(covariance_api.available())
-    assert _names.DEFAULT_COV_TYPE == covariance_api.default_cov_type()
+    for e in registry.entries():
+        est = registry.get_estimator(e.name)
+        assert est.name == e.name
+        assert e.closed_loop == (not getattr(est, "open_loop", True))
+        assert e.multi_state == (e.name != "pem")
+    assert registry.DEFAULT_METHOD in registry.names()
+    assert set(registry.STREAM_METHODS) == {"ls", "iv", "iv-zero-mean"}
+    assert registry.DEFAULT_STREAM_METHOD in registry.STREAM_METHODS
+    assert registry.COV_TYPES == tuple(covariance_api.available())
+    assert registry.DEFAULT_COV_TYPE == covariance_api.default_cov_type()
+
+
+def test_registry_loads_no_estimator() -> None:
+    """The command line checks ``--method`` against the registry without numba."""
+    code = ("import sys, vesselid.identify.registry as r\n"
+            "assert 'auto' in r.names() and 'pem' in r.ESTIMATORS\n"
+            "print('NUMBA', 'numba' in sys.modules, 'PANDAS', 'pandas' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout
+    assert "NUMBA False PANDAS False" in out, out
 
 
 def test_identify_does_not_import_scipy_stats() -> None:

@@ -83,9 +83,9 @@ def test_bad_input_is_raised_by_the_first_member(log):
 
 def test_chain_order_is_documented():
     assert CHAIN[0] == "auto" and CHAIN[-1] == "ls"
-    from vesselid.core import names as _names
+    from vesselid.identify import registry
 
-    assert set(CHAIN) <= set(_names.METHODS)
+    assert set(CHAIN) <= set(registry.names())
 
 
 def test_jacobian_of_the_heave_model_by_hand():

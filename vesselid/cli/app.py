@@ -171,7 +171,7 @@ def _check_raw_request(raw: str, system: Any) -> None:
 
 
 def _check_cov(cov: str | None) -> None:
-    from vesselid.core import names as _names
+    from vesselid.identify import registry as _names
 
     if cov is not None and cov not in _names.COV_TYPES:
         raise CLIError(f"argument --cov: invalid choice {cov!r} "
@@ -195,14 +195,14 @@ def cmd_identify(args: argparse.Namespace) -> int:
             check_output_file(option, target)
     if getattr(args, "stream", False):
         return _identify_stream(args)
-    from vesselid.core import names as _names
+    from vesselid.identify import registry as _names
 
     # static names: an argument error loads neither the registry nor the compiled kernels
     if args.method is None:
         args.method = _names.DEFAULT_METHOD
-    if args.method not in _names.METHODS:
+    if args.method not in _names.names():
         raise CLIError(f"argument --method: invalid choice {args.method!r} "
-                       f"(choose from {', '.join(_names.METHODS)})")
+                       f"(choose from {', '.join(_names.names())})")
     _check_cov(args.cov)
     from vesselid.core import limits
     from vesselid.core import memory as _memory
@@ -262,7 +262,7 @@ def _sensor_noise(text: str | None) -> dict[str, float] | bool | None:
 
 def _identify_stream(args: argparse.Namespace) -> int:
     """``identify --stream``: Parquet logs read one experiment at a time (bounded memory)."""
-    from vesselid.core import names as _names
+    from vesselid.identify import registry as _names
 
     if args.method is None:
         args.method = _names.DEFAULT_STREAM_METHOD

@@ -13,25 +13,7 @@ an ``[aggregate]`` relation in the spec under Lemma 4.1 via the predictor (9)).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
-
-from vesselid.identify.base import TARGETS, EquationDesign, Estimator
-from vesselid.identify.data import RegressionData, from_arrays, from_log
-from vesselid.identify.estimators import COMBINE_MODES, estimate
-from vesselid.identify.registry import (
-    DEFAULT_METHOD,
-    ESTIMATORS,
-    PAPER_METHODS,
-    get_estimator,
-    method_labels,
-    register,
-)
-from vesselid.identify.results import IdentificationResult
-from vesselid.model.spec import ModelSpec
-
-if TYPE_CHECKING:
-    import pandas as pd
+from vesselid.core.lazy import lazy_attributes
 
 __all__ = [
     "COMBINE_MODES",
@@ -43,6 +25,7 @@ __all__ = [
     "TARGETS",
     "EquationDesign",
     "Estimator",
+    "EstimatorEntry",
     "IdentificationResult",
     "RegressionData",
     "asymptotic_covariance",
@@ -55,140 +38,29 @@ __all__ = [
     "register",
 ]
 
-#: Default way to combine experiments (see docs/method-notes.md).
-DEFAULT_COMBINE = "pooled"
+# Imported on first use (PEP 562): ``vesselid.identify.registry`` (the estimator names and
+# capabilities the command line checks) loads without the compiled estimators.
+_LAZY = {
+    "COMBINE_MODES": "vesselid.identify.estimators",
+    "estimate": "vesselid.identify.estimators",
+    "DEFAULT_COMBINE": "vesselid.identify.api",
+    "asymptotic_covariance": "vesselid.identify.api",
+    "identify": "vesselid.identify.api",
+    "DEFAULT_METHOD": "vesselid.identify.registry",
+    "ESTIMATORS": "vesselid.identify.registry",
+    "METHODS": "vesselid.identify.registry",
+    "PAPER_METHODS": "vesselid.identify.registry",
+    "EstimatorEntry": "vesselid.identify.registry",
+    "get_estimator": "vesselid.identify.registry",
+    "method_labels": "vesselid.identify.registry",
+    "register": "vesselid.identify.registry",
+    "TARGETS": "vesselid.identify.base",
+    "EquationDesign": "vesselid.identify.base",
+    "Estimator": "vesselid.identify.base",
+    "IdentificationResult": "vesselid.identify.results",
+    "RegressionData": "vesselid.identify.data",
+    "from_arrays": "vesselid.identify.data",
+    "from_log": "vesselid.identify.data",
+}
 
-#: Registered method names (kept for backwards compatibility; see :data:`ESTIMATORS`).
-METHODS = tuple(ESTIMATORS)
-
-
-def identify(
-    log: Any,
-    spec: ModelSpec | None = None,
-    method: str | Estimator = DEFAULT_METHOD,
-    **options: Any,
-) -> IdentificationResult:
-    """Identify the parameters of a second-order modulus model from a trial log.
-
-    Parameters
-    ----------
-    log : TrialLog or DataFrame
-        Trial log with one column per state, input and (for aggregate relations)
-        sensor; an optional ``experiment`` column splits it into experiments.
-    spec : ModelSpec, optional
-        Model structure; default the spec stored in the log's metadata.
-    method : str or Estimator
-        A name in :data:`ESTIMATORS` (default :data:`DEFAULT_METHOD`) or an
-        estimator object.
-    **options
-        Keyword-only options of :meth:`Estimator.fit`, passed on (an unknown name is a
-        ``TypeError``):
-    combine : {"pooled", "stacked"}
-        Multi-experiment form: ``"stacked"`` solves the ``p N_E`` equations (6)/(10)
-        in the least-squares sense as the paper writes them; ``"pooled"`` sums the
-        per-experiment normal equations (the default; see docs/method-notes.md).
-    target : {"measured", "aggregated"}
-        Regression target with an ``[aggregate]`` relation: the measured state
-        ``y₁(k)`` as in (10) (default) or the aggregated signal ``ỹ(k)`` (the reading
-        that reproduces Table 2). Without an aggregate relation both are ``y(k)``.
-    cov_type : str, optional
-        Covariance estimator (``--cov``); default the package default.
-    cov_config : mapping, optional
-        Options of the covariance estimator (e.g. kernel, bandwidth).
-    instruments : ndarray (T, P), optional
-        User-supplied instruments (rows aligned with the log's experiments in
-        ``TrialLog.experiments()`` order, columns in parameter order); skips the
-        refined iteration (methods ``iv`` and ``iv-zero-mean`` only).
-    theta_start : array-like, optional
-        Start of the refined iteration instead of the LS estimate.
-    max_iter, tol : int, float
-        Refined-iteration limits (relative fixed-point residual).
-    eta : mapping state -> float, optional
-        Known noise bounds for the A10/A15 design check; default ``3 σ`` of the LS
-        one-step residuals of each state.
-    design_threshold : float
-        Largest share of samples within ``η`` of zero before warning.
-    weak_instrument_cond : float
-        Warn when the equilibrated ``ZᵀΦ`` has a larger condition number.
-    min_samples : int, optional
-        Minimum samples per experiment (default: parameters per equation + 2).
-    sensor_noise : mapping state -> float, or False, optional
-        Std of the white sensor noise on each regressor signal; the refined-IV family
-        (``auto``, ``sriv``, ``gmm-*``) then corrects the square modulus regressors for
-        it (``y|y| − σ² sign(y)``, ``y² − σ²``; :mod:`vesselid.identify.eiv`). Default
-        the log's ``metadata["sensor_noise_std"]`` (written by ``vesselid sea-trial``);
-        ``False``: no correction.
-    noise_order : int, optional
-        AR order of the noise-model prefilter of the estimators that use one (``sriv``,
-        ``auto``'s fallback) instead of their default 4; default the log's
-        ``metadata["noise_order"]`` (``vesselid sea-trial`` writes 16).
-    fallback : bool, optional
-        Run the fallback chain (:mod:`vesselid.identify.fallback`): when ``method`` fails
-        on this log (no finite estimate, an unstable model, non-finite fit figures, no
-        convergence), the next estimator of :data:`~vesselid.identify.fallback.CHAIN` is
-        tried, and the result records every estimator tried
-        (``diagnostics["fallback_chain"]``). Default: on for the default method (by
-        name), off for an explicitly chosen one; never with ``instruments``.
-
-    Returns
-    -------
-    IdentificationResult
-
-    Raises
-    ------
-    LogValidationError
-        Missing columns, NaN/inf, non-increasing time.
-    RankDeficientError
-        Collinear regressors; the message names the terms.
-    IdentificationError
-        Too few samples, unknown method or option.
-    EstimationFailedError
-        No finite estimate (an explicitly chosen method: singular instrument equations,
-        an auxiliary model that diverges from every start); with the fallback chain
-        :class:`~vesselid.errors.NoUsableModelError`, only when no estimator of the chain
-        gave a finite one (``exc.chain`` lists them).
-
-    Notes
-    -----
-    Check ``result.status`` (``"ok"``, ``"not converged"``, ``"unstable"``,
-    ``"non-finite"``) before using an estimate: the last three are returned for
-    inspection, never as a usable model (``vesselid identify`` exits 3 on them).
-    """
-    fallback = options.pop("fallback", None)
-    if fallback is None:
-        fallback = isinstance(method, str) and method == DEFAULT_METHOD
-    if fallback and options.get("instruments") is None:
-        from vesselid.identify.fallback import CHAIN, identify_with_fallback
-
-        first = get_estimator(method)
-        return identify_with_fallback(
-            log, spec, (first, *(m for m in CHAIN if m != first.name)), **options)
-    return get_estimator(method).fit(log, spec, **options)
-
-
-def asymptotic_covariance(
-    log: Any,
-    spec: ModelSpec | None = None,
-    *,
-    method: str | Estimator = DEFAULT_METHOD,
-    cov_type: str | None = None,
-    cov_config: Mapping[str, Any] | None = None,
-    **fit_options: Any,
-) -> pd.DataFrame:
-    """Predicted covariance of ``method``'s estimate for a planned trial.
-
-    Simulate the planned trial (inputs, experiment lengths, the vessel's best-known
-    θ and disturbances) into ``log`` and call this: the estimator runs on it and the
-    sandwich ``(AᵀWA)⁻¹AᵀW Ŝ W A(AᵀWA)⁻¹`` (``A = Σ ζ φᵀ`` with the estimator's own
-    instruments — simulated from the auxiliary model, plus delayed measurements when
-    ``auto``'s C and colour tests keep them — and ``Ŝ`` the ``cov_type`` long-run
-    variance of ``ζ ε``) is returned, indexed like ``identify(...).params``. Warnings of the fit are
-    silenced (a planning call, not an identification).
-    """
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        res = identify(log, spec, method, cov_type=cov_type, cov_config=cov_config,
-                       **fit_options)
-    return res.cov
+__getattr__, __dir__ = lazy_attributes(__name__, _LAZY, __all__)

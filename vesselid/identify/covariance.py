@@ -68,6 +68,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from vesselid.errors import CovarianceError
+from vesselid.identify.defaults import DEFAULT_COV_TYPE
 
 __all__ = [
     "BANDWIDTH_RULES",
@@ -105,10 +106,6 @@ _KERNEL_LABELS = {"bartlett": "Bartlett", "parzen": "Parzen", "qs": "quadratic-s
 
 #: Automatic bandwidth rules.
 BANDWIDTH_RULES = ("andrews", "newey-west")
-
-#: The package's default covariance (chosen from the calibration study, ``scripts/calibration.py``).
-DEFAULT_COV_TYPE = "hac"
-
 
 # --------------------------------------------------------------------------- kernels
 def kernel_weights(kernel: str, bandwidth: float, n_lags: int) -> np.ndarray:

@@ -36,6 +36,7 @@ import numpy as np
 import pandas as pd
 
 from vesselid.errors import IdentificationError, LogValidationError
+from vesselid.identify.registry import DEFAULT_STREAM_METHOD, STREAM_METHODS
 from vesselid.model.spec import ModelSpec
 
 __all__ = ["DEFAULT_STREAM_METHOD", "STREAM_METHODS", "ParquetExperiments", "identify_stream"]
@@ -179,14 +180,6 @@ def _stack(parts: list) -> Any:
     return Moments(**{f: np.concatenate([getattr(p, f) for p in parts])
                       for f in ("zphi", "zy", "z", "phi", "y", "count", "status")})
 
-
-#: Methods whose estimates depend on the data only through per-experiment sums.
-STREAM_METHODS = ("ls", "iv", "iv-zero-mean")
-
-#: Method of streamed identification when none is given. The package default (``auto``)
-#: chooses delayed-measurement instruments by a C test and a colour test and
-#: prefilters with an AR noise model fitted to the whole log; it is not a sum over experiments.
-DEFAULT_STREAM_METHOD = "iv-zero-mean"
 
 #: Lag products ``Γ_E(j)`` of the scores kept by the covariance pass when the HAC
 #: bandwidth is automatic; a bandwidth needing more lags costs one more pass.

@@ -19,8 +19,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from vesselid.plant.systems import System
     from vesselid.plant.vessels.hull import Hull
 
-__all__ = ["SYSTEMS", "VESSELS", "get_hull", "get_system", "names", "vessel_module",
-           "vessel_names"]
+__all__ = ["SYSTEMS", "VESSELS", "get_hull", "get_system", "names", "register_system",
+           "register_vessel", "vessel_module", "vessel_names"]
 
 #: Systems of the paper: name -> "module:factory".
 SYSTEMS: dict[str, str] = {
@@ -33,6 +33,26 @@ VESSELS: dict[str, str] = {
     "cybership2": "vesselid.plant.vessels.cybership2",
     "viknes830": "vesselid.plant.vessels.viknes830",
 }
+
+
+def register_vessel(name: str, module: str) -> None:
+    """Add a vessel: ``module`` is the import path of its data module (``HULL``, ``system``)."""
+    _check_new(name, module)
+    VESSELS[name] = module
+
+
+def register_system(name: str, target: str) -> None:
+    """Add a system: ``target`` is ``"module:factory"`` (``factory(**options) -> System``)."""
+    _check_new(name, target)
+    if ":" not in target:
+        raise VesselidError(f"system target {target!r} is not 'module:factory'")
+    SYSTEMS[name] = target
+
+
+def _check_new(name: str, target: str) -> None:
+    if not name or not isinstance(name, str) or not isinstance(target, str) or not target:
+        raise VesselidError(f"a catalogue entry needs a name and a target, got {name!r}, "
+                            f"{target!r}")
 
 
 def names() -> list[str]:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -29,6 +30,7 @@ __all__ = [
     "Uniform",
     "Zero",
     "process_from_dict",
+    "register_process",
 ]
 
 
@@ -362,6 +364,17 @@ _KINDS = {
                                           d.get("bound", math.inf)),
     "sum": lambda d: Sum(tuple(process_from_dict(p) for p in d["parts"])),
 }
+
+
+def register_process(kind: str, factory: Callable[[dict[str, Any]], Process]) -> None:
+    """Make a new process kind rebuildable from log metadata (:func:`process_from_dict`).
+
+    ``factory`` maps the process's :meth:`~Sampled.to_dict` output (``{"kind": kind, ...}``)
+    back to the process; a new disturbance is its :class:`Process` subclass plus this line.
+    """
+    if not kind or not isinstance(kind, str):
+        raise VesselidError(f"a process kind must be a non-empty string, got {kind!r}")
+    _KINDS[kind] = factory
 
 
 def process_from_dict(data: dict[str, Any]) -> Process:
