@@ -8,7 +8,8 @@ gusts) tracks a periodic speed/heading reference (:func:`vesselid.control.contro
 default_reference`, repeated every 180 s) for 360 s. At 120 s the actuators lose 40 % of
 their effect (the applied forces are 0.6 times the commanded ones: a change of the
 model's input gains ``θ_u,X``, ``θ_r,N`` — and of every Y/N input term — seen from the
-controller). Three feedback-linearising controllers (:mod:`vesselid.control.controllers`), on the same
+controller). Three feedback-linearising controllers (:mod:`vesselid.control.controllers`), on the
+same
 disturbance realisation:
 
 * ``θ0 (oracle)`` — the true model, told about the change (its gains switch at 120 s);

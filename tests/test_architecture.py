@@ -160,7 +160,8 @@ def test_private_import_detector() -> None:
 
     with tempfile.TemporaryDirectory() as d:
         p = Path(d) / "m.py"
-        p.write_text("from vesselid.plant.vessels.kernel import _step\nfrom vesselid.envs._x import y\n")
+        p.write_text("from vesselid.plant.vessels.kernel import _step\n"
+                     "from vesselid.envs._x import y\n")
         assert _private_imports("vesselid.envs.m", p) == ["vesselid.plant.vessels.kernel._step"]
 
 

@@ -44,7 +44,8 @@ __all__ = [
 
 # Imported on first use (PEP 562), so that ``import vesselid`` — and ``vesselid --help`` —
 # load neither pandas nor the numerical stack.
-_LAZY = {"Aggregate": "vesselid.model.spec", "ModelSpec": "vesselid.model.spec", "Term": "vesselid.model.terms"}
+_LAZY = {"Aggregate": "vesselid.model.spec", "ModelSpec": "vesselid.model.spec",
+         "Term": "vesselid.model.terms"}
 
 
 __getattr__, __dir__ = lazy_attributes(__name__, _LAZY, __all__)

@@ -57,7 +57,8 @@ LAZY_COMMANDS = {
         "identified parameters is smallest, predicted from the asymptotic IV covariance (no "
         "Monte Carlo)."),
     "ingest": (
-        "vesselid.cli.ingest", "turn raw sensor streams (NMEA 0183, ROS 2 bags, CSV) into a trial log",
+        "vesselid.cli.ingest",
+        "turn raw sensor streams (NMEA 0183, ROS 2 bags, CSV) into a trial log",
         "Read NMEA 0183 logs, ROS 2 bags and mapped multi-rate CSV files, align the clocks, "
         "resample onto a uniform grid, convert to local NED and body-frame velocities, split "
         "experiments at gaps, and write a trial log with a quality report in its metadata."),

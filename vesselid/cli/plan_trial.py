@@ -1,4 +1,5 @@
-"""``vesselid plan-trial``: manoeuvres and predicted standard errors (:mod:`vesselid.studies.planner`)."""
+"""``vesselid plan-trial``: manoeuvres and predicted standard errors
+(:mod:`vesselid.studies.planner`)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""``vesselid reproduce``: the paper's Tables 1–2 and Figure 1 (:mod:`vesselid.studies.reproduce`)."""
+"""``vesselid reproduce``: the paper's Tables 1–2 and Figure 1
+(:mod:`vesselid.studies.reproduce`)."""
 
 from __future__ import annotations
 

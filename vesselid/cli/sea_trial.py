@@ -1,4 +1,5 @@
-"""``vesselid sea-trial``: design, simulate and identify a multi-experiment sea trial (:mod:`vesselid.studies.seatrial`)."""
+"""``vesselid sea-trial``: design, simulate and identify a multi-experiment sea trial
+(:mod:`vesselid.studies.seatrial`)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""``vesselid validate``: an identified model on held-out experiments (:mod:`vesselid.validation.report`)."""
+"""``vesselid validate``: an identified model on held-out experiments
+(:mod:`vesselid.validation.report`)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,8 @@
 """Figure helpers below the studies layer: the Agg figure factory and the residual-analysis
 figure that :meth:`vesselid.identify.results.IdentificationResult.plot_residuals` draws.
 
-Kept apart from :mod:`vesselid.studies.plots` (which labels estimators from the registry) so that the
+Kept apart from :mod:`vesselid.studies.plots` (which labels estimators from the registry) so that
+the
 results object, low in the identify layer, imports nothing that imports the registry.
 """
 

@@ -71,7 +71,8 @@ def moments(
     active : (G,) bool, groups to process (others are left untouched)
     mode : int, instruments: ``MODE_LS`` (z = φ), ``MODE_SIMULATED`` (auxiliary model
         ``theta``) or ``MODE_LAGGED`` (basic IV, ``ζ(k) = Φ([ỹ(k−2); u(k−1)])``)
-    fac, eq : factor-coded terms (:class:`vesselid.model.regressors.RegressorLayout`) and their equations;
+    fac, eq : factor-coded terms (:class:`vesselid.model.regressors.RegressorLayout`) and their
+    equations;
         ``block_start`` (n+1,) parameter offsets per equation; ``block_src`` (n,): an
         earlier equation with the same terms (whose ``S_zφ``, ``S_z``, ``S_φ`` block is
         copied instead of accumulated again), or the equation itself

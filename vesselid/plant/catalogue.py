@@ -3,7 +3,8 @@
 Each line names a catalogue entry and the module (and factory) that builds it; nothing
 is imported until an entry is asked for, and no model module imports this one's
 consumers, so imports run one way (model modules → plant → model spec). A vessel data
-module (``vesselid.plant.vessels.<name>``) provides ``HULL`` (a :class:`~vesselid.plant.vessels.hull.Hull`)
+module (``vesselid.plant.vessels.<name>``) provides ``HULL`` (a
+:class:`~vesselid.plant.vessels.hull.Hull`)
 and ``system(**options)``; adding a vessel is its module plus one line in :data:`VESSELS`.
 """
 

@@ -11,8 +11,8 @@ reproduce §6 (which deliberately used unbounded Gaussian noise).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -36,7 +36,8 @@ __all__ = [
 
 class Sampled:
     """Drawn on a uniform grid from the caller's generator and recorded in log metadata:
-    a disturbance :class:`Process` or an input design (:class:`vesselid.plant.signals.InputSignal`)."""
+    a disturbance :class:`Process` or an input design
+    (:class:`vesselid.plant.signals.InputSignal`)."""
 
     def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:  # pragma: no cover
         """Draw ``n`` consecutive samples."""

@@ -9,7 +9,8 @@ state measurement ``y = x + e`` (1b), and optionally a disturbance sensor
 aggregate relation.
 
 Catalogue: :func:`heave` (paper §6, Tables 1–2) and :func:`siso_example` (paper §5).
-Vessels live in :mod:`vesselid.plant.vessels`; every entry is listed in :mod:`vesselid.plant.catalogue`.
+Vessels live in :mod:`vesselid.plant.vessels`; every entry is listed in
+:mod:`vesselid.plant.catalogue`.
 """
 
 from __future__ import annotations

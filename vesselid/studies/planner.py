@@ -116,7 +116,8 @@ STRUCTURES = ("full", "merged")
 class DisturbanceLevels:
     """Disturbance levels the planner assumes (model scale, SI units).
 
-    Defaults are those of ``vesselid sea-trial`` (:func:`vesselid.studies.seatrial.simulate_sea_trial`).
+    Defaults are those of ``vesselid sea-trial``
+    (:func:`vesselid.studies.seatrial.simulate_sea_trial`).
 
     Parameters
     ----------

@@ -364,7 +364,8 @@ def planned_sea_trial_design(
     levels: Any = None,
     plan: Any = None,
 ) -> SeaTrialDesign:
-    """The planned design: standard manoeuvres chosen by :func:`vesselid.studies.planner.plan_trial`.
+    """The planned design: standard manoeuvres chosen by
+    :func:`vesselid.studies.planner.plan_trial`.
 
     Each experiment is a programme of manoeuvres (zig-zags, turning circles, stopping,
     thruster tests, ...) whose rudder switching instants were found on the nominal

@@ -2,7 +2,8 @@
 
 ``vesselid validate trial.csv --model identified.toml [--experiments A,B] [--horizon K]
 [--plot PATH] [--json PATH|-]`` and :func:`validate`: simulate the model on each experiment
-with its measured inputs (:class:`vesselid.validation.freerun.Plant`: derived inputs recomputed from the
+with its measured inputs (:class:`vesselid.validation.freerun.Plant`: derived inputs recomputed
+from the
 simulated states) and report, per experiment and state,
 
 * the **free-run fit** ``100 (1 − ‖y − ŷ‖/‖y − ȳ‖)`` % (MATLAB ``compare``; the one metric

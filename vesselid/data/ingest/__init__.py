@@ -1,6 +1,7 @@
 """Raw sensor data → trial logs: ``vesselid ingest RAW_DIR_OR_FILES --dt 0.1 --out trial.csv``.
 
-One module per source: :mod:`~vesselid.data.ingest.nmea` (NMEA 0183), :mod:`~vesselid.data.ingest.tables`
+One module per source: :mod:`~vesselid.data.ingest.nmea` (NMEA 0183),
+:mod:`~vesselid.data.ingest.tables`
 (mapped multi-rate CSV), :mod:`~vesselid.data.ingest.tank` (model-test tables, one experiment per
 file), :mod:`~vesselid.data.ingest.rosbag` (ROS 1 and ROS 2 bags, optional extra ``ros``);
 :mod:`~vesselid.data.ingest.streams` resamples, :mod:`~vesselid.data.ingest.pipeline`

@@ -34,7 +34,8 @@ Doppler speed log measures ``ν_r = x + v`` directly: the aggregated state of Re
 Kinematics ``η = [north, east, ψ]``: ``η(k+1) = η(k) + dt R(ψ(k)) ν(k)``.
 
 The data live here; the discrete-time model, the compiled kernel, disturbances and
-sensors are the generic ones of :mod:`vesselid.plant.vessels` (:class:`~vesselid.plant.vessels.hull.Hull`,
+sensors are the generic ones of :mod:`vesselid.plant.vessels`
+(:class:`~vesselid.plant.vessels.hull.Hull`,
 :mod:`vesselid.plant.vessels.kernel`).
 """
 
