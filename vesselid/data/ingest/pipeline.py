@@ -501,6 +501,11 @@ def _grid(used: dict[str, Stream], dt: float, cfg: IngestConfig) -> dict[str, An
         spans = {n: [_iso(used[n].t[0]), _iso(used[n].t[-1])] for n in names}
         return {"segments": [], "dropped": [], "coverage": {},
                 "reason": f"the channels do not overlap in time: {spans}"}
+    span = (hi - lo) / dt
+    if not math.isfinite(span) or span + 1 > MAX_GRID:
+        return {"segments": [], "dropped": [], "coverage": {},
+                "reason": f"the common time span ({(hi - lo) / 3600:.1f} h) is too long for "
+                          f"dt={dt} (more than {MAX_GRID} samples); check the clocks"}
     k0 = math.floor(lo / dt - 0.5)
     k1 = math.ceil(hi / dt + 0.5)
     if k1 - k0 > MAX_GRID:
