@@ -30,7 +30,13 @@ from pathlib import Path
 from typing import Any
 
 from vesselid import __version__
-from vesselid.cli.common import check_output_file, check_raw_dir, finite_float, int_at_least
+from vesselid.cli.common import (
+    check_output_file,
+    check_raw_dir,
+    finite_float,
+    int_at_least,
+    write_json,
+)
 from vesselid.errors import CLIError, VesselidError
 
 __all__ = ["main"]
@@ -311,18 +317,11 @@ def _check_stream_sampling(source: Any, spec: Any, tolerance: float) -> None:
 
 
 def _report_identify(args: argparse.Namespace, result: Any, caught: list) -> int:
-    from vesselid.core.fileio import atomic_write_text
-
-    if args.json:
-        text = result.to_json(indent=2)
-        if args.json == "-":
-            print(text)
-        else:
-            atomic_write_text(args.json, text + "\n")
-            print(result.summary())
-            print(f"\nwrote {args.json}")
-    else:
+    wrote = write_json(args.json, result.to_json(indent=2))
+    if args.json != "-":
         print(result.summary())
+        if wrote:
+            print(f"\nwrote {args.json}")
     status = getattr(result, "status", "ok")
     unusable = status in UNUSABLE_STATUS
     if getattr(args, "export", None):

@@ -7,7 +7,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-__all__ = ["check_output_file", "check_raw_dir", "finite_float", "int_at_least"]
+__all__ = ["check_output_file", "check_raw_dir", "finite_float", "int_at_least", "write_json"]
 
 
 def int_at_least(minimum: int) -> Any:
@@ -53,3 +53,17 @@ def check_raw_dir(raw: str) -> None:
     parent = next((p for p in path.absolute().parents if p.exists()), None)
     if parent is not None and not parent.is_dir():
         raise NotADirectoryError(20, "not a directory", str(parent))
+
+
+def write_json(target: str | None, text: str) -> bool:
+    """``--json TARGET``: ``"-"`` prints ``text`` on stdout, a path gets it written
+    atomically (no half-written file); returns whether a file was written."""
+    if not target:
+        return False
+    if target == "-":
+        print(text)
+        return False
+    from vesselid.core.fileio import atomic_write_text
+
+    atomic_write_text(target, text + "\n")
+    return True

@@ -5,9 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 import warnings
-from pathlib import Path
 
-from vesselid.cli.common import check_output_file, int_at_least
+from vesselid.cli.common import check_output_file, int_at_least, write_json
 
 __all__ = ["add_arguments", "cmd_select"]
 
@@ -45,7 +44,6 @@ def cmd_select(args: argparse.Namespace) -> int:
     if args.json and args.json != "-":
         check_output_file("--json", args.json)
     from vesselid.core import jsonio as _json
-    from vesselid.core.fileio import atomic_write_text
     from vesselid.data.logs import TrialLog
     from vesselid.errors import CLIError
     from vesselid.model.spec import ModelSpec
@@ -65,11 +63,7 @@ def cmd_select(args: argparse.Namespace) -> int:
                            block_length=args.block_length, seed=args.seed)
     res.save(args.out)
     if args.json:
-        text = _json.dumps(res.to_dict(), indent=2)
-        if args.json == "-":
-            print(text)
-        else:
-            atomic_write_text(Path(args.json), text + "\n")
+        write_json(args.json, _json.dumps(res.to_dict(), indent=2))
     out = sys.stderr if args.json == "-" else sys.stdout
     print(res.summary(), file=out)
     print(f"wrote {args.out}", file=out)

@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from vesselid.cli.common import check_output_file, int_at_least
+from vesselid.cli.common import check_output_file, int_at_least, write_json
 from vesselid.validation.report import DEFAULT_HORIZON, ValidationError, validate
 
 
@@ -48,7 +48,6 @@ def _read_manoeuvres(path: str) -> dict[str, dict[str, float]]:
 
 def cmd_validate(args: argparse.Namespace) -> int:
     """``vesselid validate``: print the report, write JSON / figure on request."""
-    from vesselid.core.fileio import atomic_write_text
 
     for option, target in (("--json", args.json), ("--plot", args.plot)):
         if target and target != "-":
@@ -67,13 +66,8 @@ def cmd_validate(args: argparse.Namespace) -> int:
                       rudder=args.rudder, manoeuvres=nominal)
     out = sys.stderr if args.json == "-" else sys.stdout
     print(report.summary(), file=out)
-    if args.json:
-        text = report.to_json(indent=2)
-        if args.json == "-":
-            print(text)
-        else:
-            atomic_write_text(args.json, text + "\n")
-            print(f"wrote {args.json}", file=out)
+    if write_json(args.json, report.to_json(indent=2)):
+        print(f"wrote {args.json}", file=out)
     if args.plot:
         report.plot(args.plot)
         print(f"wrote {args.plot}", file=out)
