@@ -12,8 +12,8 @@ from zero are unbiased. Under A10 (the sign of ``x`` fixed within an experiment)
 ``σ²`` terms are constants that the per-experiment zero-mean instruments remove (the
 proof of Lemma 3.1); on a design where a noisy state changes sign within an experiment
 (e.g. the planned sea trial's thruster squares) ``σ²·θ·sign(x(k))`` correlates with the
-instruments and biases the estimate (measured on the planned CyberShip II trial: the yaw
-equation's ``v`` coefficient −1.9 % of θ0, −0.44 Monte Carlo standard deviations).
+instruments and biases the estimate (``scripts/seatrial_study.py`` measures it on the
+planned CyberShip II trial).
 
 The corrected regressors (a *corrected score*, Nakamura 1990; Carroll, Ruppert,
 Stefanski & Crainiceanu 2006, *Measurement Error in Nonlinear Models*, ch. 7)

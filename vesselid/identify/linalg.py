@@ -509,10 +509,9 @@ def one_blas_thread(fn: _F) -> _F:
     """Run ``fn`` with the BLAS on one thread (restored afterwards; threadpoolctl).
 
     A fit multiplies tall, narrow matrices (10⁴ rows, a handful of columns): a second
-    BLAS thread saves nothing there, and OpenBLAS's waiting threads spin, so on a busy
-    machine they cost 2–3× the wall time and twice the CPU (measured on 2 cores at load
-    8–12). The numbers are the same: OpenBLAS splits the output, not the sums, between
-    threads (the 266 seeded fits of the speed work are bit-identical either way).
+    BLAS thread saves nothing there, and OpenBLAS's waiting threads spin, costing wall
+    time and CPU on a busy machine (``scripts/bench.py``). The numbers are the same:
+    OpenBLAS splits the output, not the sums, between threads.
     Nested and concurrent calls share one setting; the outermost restores it.
     """
 

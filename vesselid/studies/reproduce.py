@@ -11,47 +11,10 @@ tidy results and a JSON summary.
 * Table 2: ``w̄c = 0.1``, current measured (``y₂ = w_c + e₂``), relative
   measurement ``ỹ = y₁ − y₂`` and the predictor ``ŷ(k) = a ỹ(k−1) + n ỹ|ỹ| + f τ``.
 
-Settings the paper leaves open, decided from evidence
------------------------------------------------------
-All numbers: 1000 runs × 10⁴ samples, normalized errors mean ± sd, scored
-against the 18 published numbers of a table as the rms of (mean − published
-mean)/published sd ("rms bias") and the rms of log(sd/published sd) ("rms
-log-sd").
-
-**Input design.** §6: "a set of pulses with amplitudes between 0.1 and 0.3 ... of
-varying width". Random levels uniform on [0.1, 0.3] held 10–100 samples
-(``heave()``'s default, ``pulses="random"``) match the IV rows' means but not the
-spreads: Table 1 LS f +0.510 ± 0.053 (published +0.131 ± 0.019), IV f
-−0.003 ± 0.081 (−0.003 ± 0.020); rms bias 7.2, rms log-sd 0.81 (Table 2: 8.2,
-0.77). Shorter widths alone trade one row for another (widths 1–10:
-IV_{E{ζ}=0} a sd 0.089 vs 0.050), and pulses returning to 0 drive the state
-through zero (A10 violated; the plain IV iteration did not converge in 73 % of
-300 runs). *Pulses
-alternating between 0.1 and 0.3, each level held 1–20 samples*
-(``pulses="alternating"``, the default here) reproduce every row: Table 1 rms
-bias 0.34, rms log-sd 0.063 (spreads within ≈ 6 %); Table 2 0.48, 0.090.
-
-**Mean of ξ and the regression target in Table 2.** §6 literally: ``ξ ~ N(w̄c −
-0.05, 0.01)`` = N(0.05, 0.01) (consistent with ξ = w_c + ξ̃, E ξ̃ = −0.05, from
-restructuring (15)). With the target ``y₁(k)`` of eq. (10) the plain-IV bias
-flips sign against the published row (IV a +0.109 ± 0.007, n +0.495 ± 0.051;
-published −0.0994, −0.4470; rms bias 11.6), because the unmodelled offset is
-E ξ = +0.05. Reading ξ̄ = −0.05 instead does *not* repair it: τ = 0.1 then drives
-w_r below zero (A15 fails), the plain IV iteration does not converge in 1000 of
-1000 runs (IV a −0.369, n −3.23; rms bias 19.2; with target ỹ: 964 of 1000, rms
-bias 95) and even IV_{E{ζ}=0} is biased (n +0.065 ± 0.261, 7.8 SE). What
-reproduces Table 2 is the literal ξ with the relative measurement on *both*
-sides of the predictor, ``ỹ(k) = a ỹ(k−1) + n ỹ(k−1)|ỹ(k−1)| + f τ(k−1)`` — the
-offset is then E ξ − w̄c = −0.05 as in Table 1, and the additional current noise
-in the target explains Table 2's wider spreads: LS −0.0454 ± 0.0097,
-+0.303 ± 0.060, +0.218 ± 0.022 (published −0.0460 ± 0.0104, +0.3413 ± 0.0627,
-+0.2502 ± 0.0244); IV −0.1001 ± 0.0085, −0.4487 ± 0.0587, −0.0029 ± 0.0222
-(−0.0994 ± 0.0088, −0.4470 ± 0.0591, −0.0032 ± 0.0252); IV_{E{ζ}=0}
-+0.0046 ± 0.063, +0.022 ± 0.290, +0.0018 ± 0.023. Defaults: ``xi_mean="literal"``,
-``target="aggregated"``; ``target="measured"`` is eq. (10) as written and
-``xi_mean=-0.05`` (any float) the other reading of ξ. With the literal ξ,
-IV_{E{ζ}=0} is unbiased for either target (Lemma 4.1; both are consistent since
-the extra term −w_c(k) is white and independent of the instruments).
+Settings the paper leaves open (input pulses, Table 2's process-noise mean and predictor
+target) are options of :func:`reproduce`; the defaults reproduce every published row, and
+the evidence for them (each reading scored against the published numbers) is in the
+documentation's "Reproduce the paper" guide.
 """
 
 from __future__ import annotations
@@ -378,8 +341,8 @@ def warm_up(tables: tuple[int, ...] = (1, 2), runs: int | None = None,
             run_study(table_study(table, runs=2, samples=50, seed=0, extra_methods=extras),
                       progress=False)
         if "auto" in extras or "pem" in extras:
-            # auto's prediction-error fallback (a validity test rejects) is taken by
-            # ≈ 4 % of Table 1's runs but by none of a tiny study
+            # auto's prediction-error fallback (taken when a validity test rejects)
+            # is reached by some of Table 1's runs but by none of a tiny study
             from vesselid.identify.pem import load_kernels
 
             load_kernels()
