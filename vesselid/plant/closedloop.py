@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from vesselid.core import seeds
 from vesselid.errors import ControlError, SimulationDivergedError, VesselidError
 from vesselid.model.regressors import advance, kernel
 from vesselid.model.spec import ModelSpec
@@ -436,14 +437,12 @@ def simulate_closed_loop(system: System, controller: PID, reference: Mapping[str
     unknown = [j for j in (dither or {}) if j not in spec.inputs]
     if unknown:
         raise ControlError(f"dither given for unknown inputs {unknown}")
-    root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
-    run_seeds = root.spawn(int(n_runs))
+    run_seeds = seeds.run_seeds(seed, n_runs)
     stack = system._draw_batch(run_seeds, n_samples)
     r_arr = np.zeros((n_runs, n_samples, len(ref_states)))
     d_arr = np.zeros((n_runs, n_samples, spec.n_inputs))
     for r, ss in enumerate(run_seeds):
-        rng = np.random.default_rng(np.random.SeedSequence(
-            ss.entropy, spawn_key=(*ss.spawn_key, 0x434C)))
+        rng = np.random.default_rng(seeds.child(ss, 0x434C))
         exp = int(ss.spawn_key[-1]) if ss.spawn_key else 0
         for i, s in enumerate(ref_states):
             sig = _per_experiment(reference[s], exp)

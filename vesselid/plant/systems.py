@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from vesselid.core import seeds
 from vesselid.errors import VesselidError
 from vesselid.model.spec import ModelSpec
 from vesselid.plant.disturbances import Gaussian, Process, Uniform, Zero
@@ -259,9 +260,7 @@ class System:
         if run_seeds is None:
             if int(n_runs) < 1:
                 raise VesselidError(f"need at least one run, got {n_runs}")
-            root = (seed if isinstance(seed, np.random.SeedSequence)
-                    else np.random.SeedSequence(seed))
-            run_seeds = root.spawn(int(n_runs))
+            run_seeds = seeds.run_seeds(seed, n_runs)
         stack = self._draw_batch(run_seeds, n_samples)
         signs = np.array([self.sign(s) for s in self.spec.states], dtype=float)
         v = stack["q"] * signs

@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from vesselid.core import seeds
 from vesselid.errors import VesselidError
 from vesselid.identify import kernels
 from vesselid.identify.covariance import DEFAULT_COV_TYPE, get_covariance_estimator
@@ -323,7 +324,8 @@ def _seatrial_trials(
 
     ``design`` names another input design (:data:`vesselid.studies.seatrial.DESIGNS`). The design
     is built once (as ``simulate_sea_trial(seed=seed, design=design)`` builds it); run
-    ``r`` simulates it with its own seed, child ``r`` of ``SeedSequence(seed + 2000)``."""
+    ``r`` simulates it with its own seed, run ``r`` of the study's own root seed (``seed + 2000``,
+    :data:`vesselid.core.seeds.STUDY_OFFSETS`)."""
     from vesselid.studies.seatrial import _make_design, simulate_sea_trial
 
     trial = _make_design(design, int(experiments), int(samples), 0.1,
@@ -347,8 +349,9 @@ def _seatrial_trials(
 
 
 def _run_seed(seed: int, run: int) -> int:
-    """Integer seed of sea-trial run ``run``: child ``run`` of ``SeedSequence(seed + 2000)``."""
-    child = np.random.SeedSequence(seed + 2000).spawn(int(run) + 1)[-1]
+    """Integer seed of sea-trial run ``run``: run ``run`` of the study's own root seed
+    (:func:`vesselid.core.seeds.study_seed`)."""
+    child = seeds.run_seeds(seeds.study_seed(seed, "calibration-seatrial"), int(run) + 1)[-1]
     return int(child.generate_state(1, np.uint64)[0])
 
 

@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from vesselid.core import seeds
 from vesselid.core.fileio import atomic_write_with
 from vesselid.errors import VesselidError
 from vesselid.identify.data import RegressionData, from_arrays
@@ -177,13 +178,11 @@ class Study:
     def run_seeds(self, start: int = 0, stop: int | None = None) -> list[np.random.SeedSequence]:
         """Seeds of the experiments of runs ``start … stop−1`` (flattened, run-major)."""
         stop = int(self.runs) if stop is None else stop
-        root = np.random.SeedSequence(int(self.seed))
-        children = root.spawn(int(self.runs))[start:stop]
+        children = seeds.run_seeds(int(self.seed), self.runs)[start:stop]
         e_count = int(self.experiments_per_run)
         if e_count == 1:
             return children
-        return [np.random.SeedSequence(c.entropy, spawn_key=(*c.spawn_key, e))
-                for c in children for e in range(e_count)]
+        return [seeds.child(c, e) for c in children for e in range(e_count)]
 
     def describe(self) -> dict[str, Any]:
         """JSON-serialisable settings."""

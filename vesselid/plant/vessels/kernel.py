@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 from numba import njit, prange
 
+from vesselid.core import seeds
 from vesselid.core.filters import ar1_filter
 from vesselid.errors import SimulationDivergedError, VesselidError
 from vesselid.model.regressors import advance, kernel
@@ -685,8 +686,7 @@ def simulate_vessel(
     model = VesselModel(hull=hull, dt=dt, disturbances=disturbances, sensors=sensors,
                         limit=limit)
     if run_seeds is None:
-        root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
-        run_seeds = root.spawn(n_r)
+        run_seeds = seeds.run_seeds(seed, n_r)
     dist = np.empty((n_r, n_k, N_DIST))
     for r, ss in enumerate(run_seeds):
         dist[r] = model.draw_run(np.random.default_rng(ss), n_k)
