@@ -332,7 +332,7 @@ _DOC_ARGS = """
     - ``wind_gust``: std of the coloured (Gauss–Markov, 5 s) gusts of the wind speed; with
       gusts the wind direction also varies (0.1 rad, 30 s).
     - ``force_noise``: std of unmodelled Gauss–Markov forces ``[X, Y, N]`` (0).
-    - ``sensors``: :class:`vesselid.plant.vessels.CyberShip2Sensors` or a mapping of its fields
+    - ``sensors``: :class:`vesselid.plant.vessels.VesselSensors` or a mapping of its fields
       (noise std per sensor, ``None`` switches a sensor off). Default: all six sensors.
     - ``cubic_surge``: add the published cubic surge damping ``X_uuu u_r³`` (then the
       identification spec is misspecified).

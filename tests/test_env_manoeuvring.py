@@ -13,11 +13,11 @@ from vesselid.envs import register_envs
 from vesselid.envs.manoeuvring import Manoeuvring3DOFEnv, Manoeuvring3DOFVectorEnv
 from vesselid.plant.catalogue import get_hull
 from vesselid.plant.simulate import simulate_states
-from vesselid.plant.vessels import CyberShip2Sensors, cybership2_spec
+from vesselid.plant.vessels import VesselSensors, cybership2_spec
 
 ENV_ID = "vesselid/Manoeuvring3DOF-v0"
 CALM = {"current_speed": 0.0, "current_variation": 0.0, "wind_speed": 0.0, "wind_gust": 0.0,
-        "sensors": CyberShip2Sensors.noiseless()}
+        "sensors": VesselSensors.noiseless()}
 
 
 @pytest.fixture(scope="module", autouse=True)

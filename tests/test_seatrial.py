@@ -12,7 +12,7 @@ from vesselid.cli import main
 from vesselid.errors import VesselidError
 from vesselid.identify import identify
 from vesselid.plant.catalogue import get_hull
-from vesselid.plant.vessels import CyberShip2Sensors
+from vesselid.plant.vessels import VesselSensors
 from vesselid.studies.seatrial import (
     SeaTrialError,
     design_sea_trial,
@@ -22,7 +22,7 @@ from vesselid.studies.seatrial import (
     simulate_sea_trial,
 )
 
-QUIET = dict(sensors=CyberShip2Sensors.noiseless(), current_speed=0.0, current_variation=0.0,
+QUIET = dict(sensors=VesselSensors.noiseless(), current_speed=0.0, current_variation=0.0,
              wind_speed=0.0, wind_gust=0.0, force_noise=(0.0, 0.0, 0.0))
 
 

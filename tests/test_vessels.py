@@ -10,15 +10,15 @@ from vesselid.model.regressors import predict
 from vesselid.plant.simulate import simulate_states
 from vesselid.plant.vessels import (
     CYBERSHIP2,
-    CyberShip2Disturbances,
-    CyberShip2Sensors,
+    VesselDisturbances,
+    VesselSensors,
     blendermann_wind_force,
     cybership2_spec,
     cybership2_system,
     simulate_cybership2,
 )
 
-QUIET = CyberShip2Sensors.noiseless()
+QUIET = VesselSensors.noiseless()
 
 
 def test_spec_structure() -> None:
@@ -74,7 +74,7 @@ def test_noiseless_simulation_matches_simulate_states() -> None:
 
 def test_disturbed_simulation_is_the_papers_system() -> None:
     """x(k+1) = Φᵀ([x+v; τ])θ0 + w with v = −ν_c and recorded w, all disturbances on."""
-    d = CyberShip2Disturbances(
+    d = VesselDisturbances(
         current_speed=0.1, current_direction=1.0, current_speed_std=0.02,
         current_direction_std=0.2, wind_speed=1.5, wind_direction=-2.0, gust_std=0.3,
         wind_direction_std=0.1, force_noise_std=(0.02, 0.02, 0.01), cubic_surge=True,
@@ -92,7 +92,7 @@ def test_disturbed_simulation_is_the_papers_system() -> None:
 
 
 def test_deterministic_and_run_subsets() -> None:
-    d = CyberShip2Disturbances(current_speed=0.05, current_speed_std=0.01, wind_speed=1.0,
+    d = VesselDisturbances(current_speed=0.05, current_speed_std=0.01, wind_speed=1.0,
                                gust_std=0.2)
     tau = _inputs(3, 200)
     a = simulate_cybership2(tau, seed=7, disturbances=d)
@@ -125,13 +125,13 @@ def test_steady_surge_speed_matches_force_balance() -> None:
     assert -CYBERSHIP2.X_u * u_ss - CYBERSHIP2.X_uu * u_ss**2 == pytest.approx(X)
     assert sim.nu[0, -1, 0] == pytest.approx(u_ss, rel=1e-6)
     cubic = simulate_cybership2(tau, sensors=QUIET,
-                                disturbances=CyberShip2Disturbances(cubic_surge=True))
+                                disturbances=VesselDisturbances(cubic_surge=True))
     assert cubic.nu[0, -1, 0] == pytest.approx(CYBERSHIP2.steady_surge_speed(X, cubic_surge=True),
                                                rel=1e-6)
 
 
 def test_constant_current_drift_and_energy_decay() -> None:
-    d = CyberShip2Disturbances(current_speed=0.1, current_direction=0.7)
+    d = VesselDisturbances(current_speed=0.1, current_direction=0.7)
     sim = simulate_cybership2(np.zeros((6000, 3)), disturbances=d, sensors=QUIET,
                               nu0=[0.3, 0.1, 0.05], eta0=[0.0, 0.0, 0.3])
     nu_r = sim.nu_r[0]

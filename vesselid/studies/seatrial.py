@@ -465,13 +465,13 @@ def _make_design(name: str | None, experiments: int, samples: int, dt: float, se
 def _disturbances(current_speed: float, current_direction: float, wind_speed: float,
                   wind_direction: float, current_variation: float, wind_gust: float,
                   force_noise: Sequence[float]):
-    from vesselid.plant.vessels import CyberShip2Disturbances
+    from vesselid.plant.vessels import VesselDisturbances
 
     for name, val in (("current_speed", current_speed), ("wind_speed", wind_speed),
                       ("current_variation", current_variation), ("wind_gust", wind_gust)):
         if not (math.isfinite(float(val)) and float(val) >= 0):
             raise SeaTrialError(f"{name} must be a non-negative number, got {val!r}")
-    return CyberShip2Disturbances(
+    return VesselDisturbances(
         current_speed=float(current_speed),
         current_direction=float(current_direction),
         current_speed_std=float(current_variation),
@@ -530,7 +530,7 @@ def simulate_sea_trial(
         gust std (m/s).
     force_noise : (float, float, float)
         Std of unmodelled Gauss–Markov forces (N, N, N m).
-    sensors : CyberShip2Sensors or mapping, optional
+    sensors : VesselSensors or mapping, optional
         Sensor noise (default: GNSS/speed log/current meter 0.005 m/s, gyro 0.002 rad/s).
     aggregate : {"relative", "speed_log", "current_meter", "none", None}
         Predictor (:func:`seatrial_spec`). With ``"relative"`` (default) the columns

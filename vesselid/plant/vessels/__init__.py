@@ -41,11 +41,6 @@ from vesselid.plant.vessels.kernel import (
 )
 from vesselid.plant.vessels.wind import BLENDERMANN94, BlendermannWind, blendermann_wind_force
 
-#: Former CyberShip II-specific names of the shared classes.
-CyberShip2Disturbances = VesselDisturbances
-CyberShip2Sensors = VesselSensors
-CyberShip2Simulation = VesselSimulation
-
 __all__ = [
     "BLENDERMANN94",
     "CYBERSHIP2",
@@ -55,9 +50,6 @@ __all__ = [
     "BlendermannWind",
     "ComponentDraw",
     "CyberShip2Coefficients",
-    "CyberShip2Disturbances",
-    "CyberShip2Sensors",
-    "CyberShip2Simulation",
     "DisturbanceComponent",
     "Hull",
     "VesselBatch",
