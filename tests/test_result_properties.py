@@ -57,6 +57,20 @@ def test_every_entry_has_a_property_equal_to_its_json(fits, method):
         assert _typed_as_json(result, key) == entry, key
 
 
+def test_streamed_result(log, tmp_path):
+    from vesselid.streaming import identify_stream
+
+    log.save(tmp_path / "log.parquet")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = identify_stream(tmp_path)
+    doc = result.to_dict()["diagnostics"]
+    assert set(result.diagnostics) <= set(IdentificationResult.DIAGNOSTICS)
+    for key in result.diagnostics:
+        assert _typed_as_json(result, key) == doc[key], key
+    assert result.streamed is True and result.passes >= 1
+
+
 def test_json_rebuilt_from_the_properties(fits):
     """The typed view is lossless: the ``--json`` diagnostics follow from the properties."""
     result = fits["auto"]

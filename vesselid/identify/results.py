@@ -163,16 +163,16 @@ class IdentificationResult:
     #: The typed diagnostic properties, one per entry of :attr:`diagnostics` (the entry of
     #: the same name), in the order docs/guide/diagnostics.md lists them.
     DIAGNOSTICS: ClassVar[tuple[str, ...]] = (
-        "combine", "cov_type", "cov_label", "target", "instrument_condition", "fit_one_step",
-        "fit_free_run", "fixed_point_residual", "convergence_rule", "fixed_point_step_se",
-        "fixed_point_step_own_se", "stall_average", "oscillation", "start", "instruments",
-        "noise_model", "sensor_noise_correction", "instrument_choice", "choice",
+        "combine", "cov_type", "cov_label", "cov_config", "target", "instrument_condition",
+        "fit_one_step", "fit_free_run", "fixed_point_residual", "convergence_rule",
+        "fixed_point_step_se", "fixed_point_step_own_se", "stall_average", "oscillation", "start",
+        "instruments", "noise_model", "sensor_noise_correction", "instrument_choice", "choice",
         "choice_reason", "auto_choice", "hansen_j_combined", "c_test_lagged", "colour_test",
         "colour_test_prefilter", "sargan_hansen_j", "parameter_stability", "mean_current",
         "specification", "design", "design_eta", "design_eta_source", "smoothness",
         "modulus_states", "whiteness", "residual_correlation", "feedback", "stability",
         "excitation", "fallback_chain", "assumption", "disturbance_model", "model_choice",
-        "log_likelihood", "noise_parameters", "controller", "warnings")
+        "log_likelihood", "noise_parameters", "controller", "streamed", "passes", "warnings")
 
     # --- typed diagnostics (one property per entry of ``diagnostics``) -------------------
     # Each reads its entry on access (estimators such as the fallback path add entries
@@ -199,6 +199,11 @@ class IdentificationResult:
     def cov_label(self) -> str | None:
         """The covariance estimator in words (kernel and bandwidth for ``hac``)."""
         return self._entry("cov_label")
+
+    @property
+    def cov_config(self) -> Mapping[str, Any] | None:
+        """Streamed results: the covariance estimator's settings (kernel, bandwidth)."""
+        return self._entry("cov_config", frozen_mapping)
 
     @property
     def target(self) -> str | None:
@@ -467,6 +472,17 @@ class IdentificationResult:
     def controller(self) -> Mapping[str, Any] | None:
         """``cl-iv``: the controller the closed-loop instruments were simulated with."""
         return self._entry("controller", frozen_mapping)
+
+    @property
+    def streamed(self) -> bool | None:
+        """Whether the result was estimated out of core, experiment by experiment
+        (:func:`vesselid.streaming.identify_stream`)."""
+        return self._entry("streamed")
+
+    @property
+    def passes(self) -> int | None:
+        """Streamed results: passes over the data files."""
+        return self._entry("passes")
 
     @property
     def warnings(self) -> tuple[str, ...]:
