@@ -242,6 +242,7 @@ BENCHES: dict[str, Callable[[], Callable | None]] = {
     "seatrial_cli": lambda: _load("bench_seatrial", "bench_seatrial_cli"),
     "startup": lambda: _load("bench_startup", "bench_startup"),
     "cold_start": lambda: _load("bench_startup", "bench_cold_start"),
+    "kernel_paths": lambda: _load("bench_startup", "bench_kernel_paths"),
     "ingest": lambda: _load("bench_ingest", "bench_ingest"),
     "single_envs": lambda: _load("bench_scaling", "bench_single_envs"),
     "mc_threads": lambda: _load("bench_scaling", "bench_mc_threads"),
@@ -250,7 +251,7 @@ BENCHES: dict[str, Callable[[], Callable | None]] = {
 }
 
 #: The benchmarks of the generated performance page (``--docs``).
-DOCS_BENCHES = ("single_envs", "mc_threads", "identify_memory", "pem_path")
+DOCS_BENCHES = ("single_envs", "mc_threads", "identify_memory", "pem_path", "kernel_paths")
 
 
 def main(argv: list[str] | None = None) -> dict:

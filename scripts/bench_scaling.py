@@ -395,7 +395,50 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
             f"(medians; load average {pem['load_average']:.1f}).",
             "",
         ]
+    kp = results.get("kernel_paths")
+    if kp:
+        lines += render_kernel_paths(kp)
     return "\n".join(lines)
+
+
+def render_kernel_paths(kp: dict[str, Any]) -> list[str]:
+    """The page's section on ``identify``'s numpy kernels for small logs
+    (``scripts/bench_startup.py``: :func:`bench_kernel_paths`)."""
+    return [
+        "## Start-up of `vesselid identify`: numpy kernels for small logs",
+        "",
+        "A `vesselid identify` process on a small log (rows × parameters ≤ 3·10⁵) runs "
+        "numpy formulations of the estimation kernels (`identify/_npkernels.py`) "
+        "instead of loading numba and its cached kernels; results agree with the "
+        "compiled path to rounding. Whole processes on a 10⁴-sample heave log, "
+        f"{kp['runs_per_path']} runs per path in ABBA order (medians; load average "
+        f"{kp['load_average']:.1f}); cold: empty numba and generated-kernel caches, "
+        f"the first run after an install ({kp['cold_runs_per_path']} runs per path); "
+        "`python scripts/bench_startup.py --kernel-paths` measures this section alone.",
+        "",
+        "| process | wall (s) | CPU (s) |",
+        "|---|---:|---:|",
+        f"| `python -c \"import numpy, pandas\"` | {kp['numpy_pandas_import_wall_s']:.2f} "
+        f"| {kp['numpy_pandas_import_cpu_s']:.2f} |",
+        f"| `python -c \"import vesselid\"` | {kp['import_vesselid_wall_s']:.2f} "
+        f"| {kp['import_vesselid_cpu_s']:.2f} |",
+        f"| `vesselid identify`, numpy kernels | {kp['numpy_wall_s']:.2f} "
+        f"| {kp['numpy_cpu_s']:.2f} |",
+        f"| `vesselid identify`, compiled kernels | {kp['compiled_wall_s']:.2f} "
+        f"| {kp['compiled_cpu_s']:.2f} |",
+        f"| first `vesselid identify`, numpy kernels | {kp['cold_numpy_wall_s']:.2f} "
+        f"| {kp['cold_numpy_cpu_s']:.2f} |",
+        f"| first `vesselid identify`, compiled kernels | {kp['cold_compiled_wall_s']:.2f} "
+        f"| {kp['cold_compiled_cpu_s']:.2f} |",
+        "",
+        f"The numpy kernels save {kp['cpu_saving_s']:.2f} s of CPU per process (paired "
+        f"median; mean {kp['cpu_saving_mean_s']:.2f} ± {kp['cpu_saving_se_s']:.2f} s), "
+        f"{100 * kp['cpu_saving_share']:.0f} % of the compiled path's process, and "
+        f"{kp['cold_cpu_saving_s']:.1f} s on the first run after an install (no kernel "
+        "is compiled). They are kept while the saving on this command stays at 0.3 s of "
+        "CPU or more; `VESSELID_KERNELS=compiled` selects the compiled kernels.",
+        "",
+    ]
 
 
 def write_docs(results: dict[str, Any], path: Path = ROOT / "docs" / "performance.md") -> Path:

@@ -26,7 +26,12 @@ slows all of them alike, and medians are reported.
   ``vesselid reproduce`` (both tables; target ≤ 15 s), then a second run with the
   caches the first one left.
 
+* :func:`bench_kernel_paths`: ``vesselid identify`` on the 10⁴-sample heave log with the
+  numpy kernels (the default for small logs) against the compiled ones, warm and cold
+  (``--kernel-paths``).
+
     python scripts/bench_startup.py [--repeats 5] [--baseline-runs 1000] [--cold]
+    python scripts/bench_startup.py --kernel-paths
 """
 
 from __future__ import annotations
@@ -188,6 +193,80 @@ def bench_startup(repeats: int = 5, baseline_runs: int = 1000,
     }
 
 
+def bench_kernel_paths(rounds: int = 8, cold_rounds: int = 5) -> dict:
+    """``vesselid identify`` on a 10⁴-sample heave log: numpy kernels against compiled.
+
+    Whole processes, warm caches: ``VESSELID_KERNELS=auto`` (the default: the numpy
+    kernels of :mod:`vesselid.identify._npkernels`, no numba in the process) against
+    ``VESSELID_KERNELS=compiled`` (numba and its cached kernels loaded), alternated in
+    ABBA order against the reference ``python -c "import numpy, pandas"``; the paired
+    CPU saving (compiled − numpy, per pair of neighbouring runs) with its standard error.
+    Cold: the first ``identify`` after an install, empty numba and generated-kernel
+    caches (``NUMBA_CACHE_DIR``, ``VESSELID_KERNEL_DIR``) per run, both paths.
+    """
+    vid = vesselid_command()
+    paths = {"numpy": "auto", "compiled": "compiled"}
+    with tempfile.TemporaryDirectory() as tmpdir:
+        tmp = Path(tmpdir)
+        log = tmp / "heave.csv"
+        run_timed([*vid, "simulate", "--system", "heave", "--samples", "10000", "--seed", "0",
+                   "--out", str(log)])
+        cmds = {k: ([*vid, "identify", str(log)], user_env(VESSELID_KERNELS=v))
+                for k, v in paths.items()}
+        cmds["numpy_pandas_import"] = (REFERENCE, user_env())
+        cmds["import_vesselid"] = ([sys.executable, "-c", "import vesselid"], user_env())
+        for cmd, env in cmds.values():  # page in; load or compile cached kernels
+            run_timed(cmd, env)
+        wall: dict[str, list[float]] = {k: [] for k in cmds}
+        cpu: dict[str, list[float]] = {k: [] for k in cmds}
+        saving: list[float] = []
+        loads = []
+        for r in range(rounds):
+            first, second = ("numpy", "compiled") if r % 2 == 0 else ("compiled", "numpy")
+            for pair in ((first, second), (second, first)):
+                got = {}
+                for key in pair:
+                    dt, proc = run_timed(*cmds[key])
+                    wall[key].append(dt)
+                    cpu[key].append(proc.cpu_s)
+                    got[key] = proc.cpu_s
+                saving.append(got["compiled"] - got["numpy"])
+                for key in ("numpy_pandas_import", "import_vesselid"):
+                    dt, proc = run_timed(*cmds[key])
+                    wall[key].append(dt)
+                    cpu[key].append(proc.cpu_s)
+            loads.append(os.getloadavg()[0])
+        cold: dict[str, dict[str, list[float]]] = {k: {"wall": [], "cpu": []} for k in paths}
+        for r in range(cold_rounds):
+            for key, mode in paths.items():
+                d = tmp / f"cold{r}{key}"
+                env = user_env(VESSELID_KERNELS=mode, NUMBA_CACHE_DIR=str(d / "numba"),
+                               VESSELID_KERNEL_DIR=str(d / "kernels"))
+                dt, proc = run_timed([*vid, "identify", str(log)], env)
+                cold[key]["wall"].append(dt)
+                cold[key]["cpu"].append(proc.cpu_s)
+            loads.append(os.getloadavg()[0])
+    med = statistics.median
+    out: dict = {"rounds": rounds, "runs_per_path": len(cpu["numpy"]),
+                 "cold_runs_per_path": cold_rounds}
+    for key in cmds:
+        out[f"{key}_wall_s"] = med(wall[key])
+        out[f"{key}_cpu_s"] = med(cpu[key])
+    for key in paths:
+        out[f"cold_{key}_wall_s"] = med(cold[key]["wall"])
+        out[f"cold_{key}_cpu_s"] = med(cold[key]["cpu"])
+    out["cpu_saving_s"] = med(saving)
+    out["cpu_saving_mean_s"] = statistics.mean(saving)
+    out["cpu_saving_se_s"] = statistics.stdev(saving) / len(saving) ** 0.5
+    out["cpu_saving_share"] = out["cpu_saving_s"] / out["compiled_cpu_s"]
+    out["cold_cpu_saving_s"] = out["cold_compiled_cpu_s"] - out["cold_numpy_cpu_s"]
+    ref = out["numpy_pandas_import_cpu_s"]
+    out["identify_ratio_cpu_numpy"] = out["numpy_cpu_s"] / ref
+    out["identify_ratio_cpu_compiled"] = out["compiled_cpu_s"] / ref
+    out["load_average"] = med(loads)
+    return out
+
+
 def _fresh_venv(tmp: Path) -> Path:
     """A new virtual environment with a wheel of this checkout; dependencies shared."""
     wheels = tmp / "wheels"
@@ -288,7 +367,12 @@ def main() -> None:
                    help="runs of the numpy baseline (scaled linearly to 1000 if fewer)")
     p.add_argument("--cold", action="store_true", help="also the fresh-install first run")
     p.add_argument("--only-cold", action="store_true", help="only the fresh-install first run")
+    p.add_argument("--kernel-paths", action="store_true",
+                   help="only identify's numpy kernels against the compiled ones")
     args = p.parse_args()
+    if args.kernel_paths:
+        print(json.dumps(bench_kernel_paths(), indent=2))
+        return
     res = {} if args.only_cold else bench_startup(args.repeats, args.baseline_runs,
                                                   args.reproduce_repeats)
     print(json.dumps(res, indent=2), flush=True)

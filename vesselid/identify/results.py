@@ -3,17 +3,36 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import pandas as pd
 
 from vesselid.core.jsonio import strict
 from vesselid.errors import IdentificationError
+from vesselid.identify.diagnostic_records import (
+    EquationSpecification,
+    ExcitationReport,
+    FallbackAttempt,
+    FeedbackTest,
+    FirstStage,
+    MeanCurrentTest,
+    ParameterStabilityTest,
+    SmoothnessReport,
+    StabilityReport,
+    StallAverage,
+    TestStatistic,
+    frozen_mapping,
+    records,
+)
 from vesselid.identify.diagnostics import normalized_error
 from vesselid.model.spec import ModelSpec
+
+if TYPE_CHECKING:
+    from vesselid.identify.specification import ResidualCorrelation
 
 __all__ = ["IdentificationResult"]
 
@@ -39,7 +58,11 @@ class IdentificationResult:
     diagnostics : dict
         ``design`` (A10/A15 margins per experiment and state), ``instrument_condition``
         (per equation), ``fit_one_step`` / ``fit_free_run`` (NRMSE %, per state),
-        ``oscillation``, ``fixed_point_residual``, ``combine``, warnings raised.
+        ``oscillation``, ``fixed_point_residual``, ``combine``, warnings raised: the
+        JSON-ready entries that ``vesselid identify --json`` writes. Each entry is also a
+        typed property of the same name (listed in :data:`DIAGNOSTICS`; records from
+        :mod:`vesselid.identify.diagnostic_records`), e.g. ``result.whiteness["w"].pvalue``;
+        None where the estimator does not produce the entry.
     label : str
         The estimator's long label (set by the estimator that made the result, so this
         module needs no registry; empty: the method name is shown).
@@ -137,9 +160,334 @@ class IdentificationResult:
             return "not converged", f"the estimator did not converge ({self.stop_reason})"
         return "ok", "converged, finite and stable on the log"
 
+    #: The typed diagnostic properties, one per entry of :attr:`diagnostics` (the entry of
+    #: the same name), in the order docs/guide/diagnostics.md lists them.
+    DIAGNOSTICS: ClassVar[tuple[str, ...]] = (
+        "combine", "cov_type", "cov_label", "cov_config", "target", "instrument_condition",
+        "fit_one_step", "fit_free_run", "fixed_point_residual", "convergence_rule",
+        "fixed_point_step_se", "fixed_point_step_own_se", "stall_average", "oscillation", "start",
+        "instruments", "noise_model", "sensor_noise_correction", "instrument_choice", "choice",
+        "choice_reason", "auto_choice", "hansen_j_combined", "c_test_lagged", "colour_test",
+        "colour_test_prefilter", "sargan_hansen_j", "parameter_stability", "mean_current",
+        "specification", "design", "design_eta", "design_eta_source", "smoothness",
+        "modulus_states", "whiteness", "residual_correlation", "feedback", "stability",
+        "excitation", "fallback_chain", "assumption", "disturbance_model", "model_choice",
+        "log_likelihood", "noise_parameters", "controller", "streamed", "passes", "warnings")
+
+    # --- typed diagnostics (one property per entry of ``diagnostics``) -------------------
+    # Each reads its entry on access (estimators such as the fallback path add entries
+    # after construction); None where the estimator does not produce the entry.
+
+    def _entry(self, key: str, convert: Callable[[Any], Any] | None = None) -> Any:
+        value = self.diagnostics.get(key)
+        return value if value is None or convert is None else convert(value)
+
+    @property
+    def combine(self) -> str:
+        """How several experiments were combined: ``"pooled"`` (one set of moment
+        equations over all experiments, the paper's (10) stacked per experiment and
+        summed) or ``"stacked"`` (the per-experiment equations solved jointly)."""
+        return str(self.diagnostics.get("combine", "pooled"))
+
+    @property
+    def cov_type(self) -> str | None:
+        """Name of the covariance estimator of :attr:`cov` (``unadjusted``, ``hac``,
+        ``cluster``; an estimator with its own covariance names it)."""
+        return self._entry("cov_type")
+
+    @property
+    def cov_label(self) -> str | None:
+        """The covariance estimator in words (kernel and bandwidth for ``hac``)."""
+        return self._entry("cov_label")
+
+    @property
+    def cov_config(self) -> Mapping[str, Any] | None:
+        """Streamed results: the covariance estimator's settings (kernel, bandwidth)."""
+        return self._entry("cov_config", frozen_mapping)
+
+    @property
+    def target(self) -> str | None:
+        """Regression target: ``"measured"`` (``y1(k)``, eq. (10)) or ``"aggregated"``
+        (the aggregated-state predictor ``ỹ(k)``, eq. (9))."""
+        return self._entry("target")
+
     @property
     def instrument_condition(self) -> dict[str, float]:
+        """Condition number of ``ZᵀΦ`` per equation (dimensionless; large: weak
+        instruments). ``{}`` where the estimator has no instruments."""
         return dict(self.diagnostics.get("instrument_condition", {}))
+
+    @property
+    def fit_one_step(self) -> Mapping[str, float] | None:
+        """One-step-ahead prediction fit per state, NRMSE in per cent
+        (``100 (1 − ‖y − ŷ‖/‖y − ȳ‖)``, ŷ from eq. (9); 100: perfect)."""
+        return self._entry("fit_one_step", frozen_mapping)
+
+    @property
+    def fit_free_run(self) -> Mapping[str, float] | None:
+        """Free-run simulation fit per state on the log's own inputs, NRMSE in per cent
+        (as :attr:`fit_one_step`)."""
+        return self._entry("fit_free_run", frozen_mapping)
+
+    @property
+    def fixed_point_residual(self) -> float | None:
+        """Relative fixed-point residual ``‖T(θ̂) − θ̂‖/‖θ̂‖`` of the refined IV iteration
+        (dimensionless; 0 for closed forms)."""
+        return self._entry("fixed_point_residual")
+
+    @property
+    def convergence_rule(self) -> str | None:
+        """The stopping rule that applied, in words."""
+        return self._entry("convergence_rule")
+
+    @property
+    def fixed_point_step_se(self) -> float | None:
+        """Last fixed-point step, in standard errors of the parameters (largest over the
+        parameters; the result's own standard errors)."""
+        return self._entry("fixed_point_step_se")
+
+    @property
+    def fixed_point_step_own_se(self) -> float | None:
+        """Last fixed-point step in the iteration's own standard errors (for ``auto``,
+        ``sriv`` and ``gmm``: those of the IV_E{ζ}=0 iteration that supplied the
+        instruments); the convergence rule compares it with 0.1."""
+        return self._entry("fixed_point_step_own_se")
+
+    @property
+    def stall_average(self) -> StallAverage | None:
+        """The averaged steps of a stalled iteration (None where it did not stall)."""
+        return self._entry("stall_average", StallAverage.from_dict)
+
+    @property
+    def oscillation(self) -> bool | None:
+        """Whether the refined IV iteration oscillated between iterates."""
+        return self._entry("oscillation")
+
+    @property
+    def start(self) -> str | None:
+        """The estimate the iteration started from (e.g. ``"ls"``); None: closed form."""
+        return self._entry("start")
+
+    @property
+    def instruments(self) -> str | None:
+        """The instruments used, in words (None: least squares)."""
+        return self._entry("instruments")
+
+    @property
+    def noise_model(self) -> str | None:
+        """The equation-error noise model of the prefilter (``"none"``, ``AR(p)``, …)."""
+        return self._entry("noise_model")
+
+    @property
+    def sensor_noise_correction(self) -> str | None:
+        """The correction for sensor noise in the regressors (``"none"`` where none)."""
+        return self._entry("sensor_noise_correction")
+
+    @property
+    def instrument_choice(self) -> str | None:
+        """``auto``: the instrument set chosen and why (detail)."""
+        return self._entry("instrument_choice")
+
+    @property
+    def choice(self) -> str | None:
+        """``auto``'s choice as one token: ``combined``, ``sriv`` or ``pem-<model>``."""
+        return self._entry("choice")
+
+    @property
+    def choice_reason(self) -> str | None:
+        """``auto``'s choice in one plain sentence."""
+        return self._entry("choice_reason")
+
+    @property
+    def auto_choice(self) -> str | None:
+        """Why ``auto`` handed the log to another estimator (a declared closed loop)."""
+        return self._entry("auto_choice")
+
+    @property
+    def hansen_j_combined(self) -> tuple[TestStatistic, ...] | None:
+        """Hansen J test of the combined (simulated + delayed) instrument set, one per
+        group of experiments; χ²(df) under valid instruments."""
+        return self._entry("hansen_j_combined", records(TestStatistic.from_dict))
+
+    @property
+    def c_test_lagged(self) -> tuple[TestStatistic, ...] | None:
+        """Difference-in-J (C) test of the delayed-measurement instruments, one per group;
+        χ²(df) under their validity (rejection: coloured disturbances)."""
+        return self._entry("c_test_lagged", records(TestStatistic.from_dict))
+
+    @property
+    def colour_test(self) -> tuple[TestStatistic, ...] | None:
+        """Test of colour in the equation error, one per group; χ²(df) under white
+        disturbances."""
+        return self._entry("colour_test", records(TestStatistic.from_dict))
+
+    @property
+    def colour_test_prefilter(self) -> str | None:
+        """The prefilter of the colour test (``"none"`` or ``AR(p)``)."""
+        return self._entry("colour_test_prefilter")
+
+    @property
+    def sargan_hansen_j(self) -> tuple[TestStatistic, ...] | None:
+        """``lagged-2sls``: Sargan–Hansen J test of the over-identifying restrictions,
+        one per group; χ²(df) under valid instruments."""
+        return self._entry("sargan_hansen_j", records(TestStatistic.from_dict))
+
+    @property
+    def parameter_stability(self) -> ParameterStabilityTest | None:
+        """Split-sample Wald test of constant parameters (``auto``; one state)."""
+        return self._entry("parameter_stability", ParameterStabilityTest.from_dict)
+
+    @property
+    def mean_current(self) -> MeanCurrentTest | None:
+        """Test of a mean current inside the modulus (``auto``, where it applies)."""
+        return self._entry("mean_current", MeanCurrentTest.from_dict)
+
+    @property
+    def specification(self) -> Mapping[str, EquationSpecification] | None:
+        """Instrument strength, endogeneity and over-identification tests per equation."""
+        return self._entry("specification",
+                           lambda v: frozen_mapping(v, EquationSpecification.from_dict))
+
+    @property
+    def first_stage(self) -> Mapping[str, FirstStage] | None:
+        """First-stage diagnostics per equation (linearmodels' ``first_stage``): partial
+        F and R² of the excluded instruments, Cragg–Donald statistic."""
+        spec = self.specification
+        return None if spec is None else frozen_mapping(
+            {s: e.first_stage for s, e in spec.items() if e.first_stage is not None})
+
+    @property
+    def endogeneity(self) -> Mapping[str, TestStatistic] | None:
+        """Durbin–Wu–Hausman test per equation (linearmodels' ``wu_hausman``/``durbin``);
+        rejection: least squares is biased on this log."""
+        spec = self.specification
+        return None if spec is None else frozen_mapping(
+            {s: e.endogeneity for s, e in spec.items() if e.endogeneity is not None})
+
+    @property
+    def hansen_j(self) -> Mapping[str, TestStatistic] | None:
+        """Hansen J over-identification test per equation (linearmodels' ``j_stat``/
+        ``sargan``); rejection: some instrument is correlated with the equation error."""
+        spec = self.specification
+        return None if spec is None else frozen_mapping(
+            {s: e.hansen_j for s, e in spec.items() if e.hansen_j is not None})
+
+    @property
+    def design(self) -> pd.DataFrame | None:
+        """Design check per experiment and state (a copy): the share of samples within
+        ``eta`` of zero and the sign changes behind assumptions A10/A15 (the modulus
+        states must cross zero rarely and sharply), ``ok`` per row."""
+        design = self.diagnostics.get("design")
+        return design.copy() if isinstance(design, pd.DataFrame) else design
+
+    @property
+    def design_eta(self) -> Mapping[str, float] | None:
+        """The margin ``η`` around zero per modulus state (the state's units)."""
+        return self._entry("design_eta", frozen_mapping)
+
+    @property
+    def design_eta_source(self) -> str | None:
+        """Where :attr:`design_eta` comes from (given, or 3 × the residual std)."""
+        return self._entry("design_eta_source")
+
+    @property
+    def smoothness(self) -> Mapping[str, SmoothnessReport] | None:
+        """The modulus's non-smoothness per modulus state and the bias it can cause
+        (A10/A15)."""
+        return self._entry("smoothness", lambda v: frozen_mapping(v, SmoothnessReport.from_dict))
+
+    @property
+    def modulus_states(self) -> tuple[str, ...] | None:
+        """States inside a modulus ``|·|`` of the model."""
+        return self._entry("modulus_states", tuple)
+
+    @property
+    def whiteness(self) -> Mapping[str, TestStatistic] | None:
+        """Ljung–Box test of the one-step residual per state (20 lags; χ²(df) under a
+        white residual)."""
+        return self._entry("whiteness", lambda v: frozen_mapping(v, TestStatistic.from_dict))
+
+    @property
+    def residual_correlation(self) -> ResidualCorrelation | None:
+        """Residual autocorrelation and residual–input cross-correlation with their
+        band (MATLAB ``resid``; :meth:`plot_residuals` draws it)."""
+        def convert(v: Mapping[str, Any]) -> ResidualCorrelation:
+            from vesselid.identify.specification import ResidualCorrelation
+
+            return ResidualCorrelation(
+                lags=np.asarray(v["lags"]), acf=np.asarray(v["acf"], dtype=float),
+                cross_lags=np.asarray(v["cross_lags"]),
+                ccf=np.asarray(v["ccf"], dtype=float), band=v["band"], level=v["level"],
+                outputs=list(v["outputs"]), inputs=list(v["inputs"]), n=v["n"])
+
+        return self._entry("residual_correlation", convert)
+
+    @property
+    def feedback(self) -> FeedbackTest | None:
+        """Test of feedback from the outputs to the input (open loop: none)."""
+        return self._entry("feedback", FeedbackTest.from_dict)
+
+    @property
+    def stability(self) -> StabilityReport | None:
+        """Stability of the identified model on the log (drives :attr:`status`)."""
+        return self._entry("stability", StabilityReport.from_dict)
+
+    @property
+    def excitation(self) -> ExcitationReport | None:
+        """Whether the log's inputs excite the model's terms."""
+        return self._entry("excitation", ExcitationReport.from_dict)
+
+    @property
+    def fallback_chain(self) -> tuple[FallbackAttempt, ...] | None:
+        """The estimators the default path tried, in order, and what became of each."""
+        return self._entry("fallback_chain", records(FallbackAttempt.from_dict))
+
+    @property
+    def assumption(self) -> str | None:
+        """``pem``: the disturbance assumption the estimate rests on, in words."""
+        return self._entry("assumption")
+
+    @property
+    def disturbance_model(self) -> str | None:
+        """``pem``: the disturbance model chosen (``"current"`` or ``"sensor"``)."""
+        return self._entry("disturbance_model")
+
+    @property
+    def model_choice(self) -> str | None:
+        """``pem``: the disturbance-model choice with its likelihoods and Vuong test."""
+        return self._entry("model_choice")
+
+    @property
+    def log_likelihood(self) -> Mapping[str, float] | None:
+        """``pem``: Gaussian log-likelihood per disturbance model (nats)."""
+        return self._entry("log_likelihood", frozen_mapping)
+
+    @property
+    def noise_parameters(self) -> Mapping[str, float] | None:
+        """``pem``: the disturbance model's parameters (standard deviations in the
+        state's units, AR coefficients dimensionless)."""
+        return self._entry("noise_parameters", frozen_mapping)
+
+    @property
+    def controller(self) -> Mapping[str, Any] | None:
+        """``cl-iv``: the controller the closed-loop instruments were simulated with."""
+        return self._entry("controller", frozen_mapping)
+
+    @property
+    def streamed(self) -> bool | None:
+        """Whether the result was estimated out of core, experiment by experiment
+        (:func:`vesselid.identify.streaming.identify_stream`)."""
+        return self._entry("streamed")
+
+    @property
+    def passes(self) -> int | None:
+        """Streamed results: passes over the data files."""
+        return self._entry("passes")
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """The warnings raised while estimating, as messages."""
+        return tuple(self.diagnostics.get("warnings", ()))
 
     def summary(self) -> str:
         """A readable table of estimates, standard errors and diagnostics."""
