@@ -34,7 +34,7 @@ def test_import_vesselid_is_light() -> None:
     ["identify", "--stream", "--method", "gmm", "logs"],
 ])
 def test_help_and_argument_errors_load_no_kernels(argv: list[str]) -> None:
-    code = ("from vesselid.cli.app import main\n"
+    code = ("from vesselid.cli import main\n"
             "try:\n"
             f"    main({argv!r})\n"
             "except SystemExit:\n"

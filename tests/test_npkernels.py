@@ -226,7 +226,7 @@ def test_small_log_identify_process_loads_no_numba(tmp_path):
     """``vesselid identify`` on a 10⁴-sample heave log: no numba in the process."""
     log = tmp_path / "heave.csv"
     get_system("heave").simulate(10_000, seed=0).to_log().save(log)
-    code = ("import sys\nfrom vesselid.cli.app import main\n"
+    code = ("import sys\nfrom vesselid.cli import main\n"
             f"rc = main(['identify', {str(log)!r}])\n"
             "print('NUMBA', 'numba' in sys.modules, rc)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

@@ -18,7 +18,7 @@ from vesselid.identify.diagnostic_records import (
     plain,
 )
 from vesselid.identify.results import IdentificationResult
-from vesselid.plant.systems import get_system
+from vesselid.plant.catalogue import get_system
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "guide" / "diagnostics.md"
 
