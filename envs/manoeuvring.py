@@ -337,7 +337,7 @@ _DOC_ARGS = """
     - ``cubic_surge``: add the published cubic surge damping ``X_uuu u_r³`` (then the
       identification spec is misspecified).
     - ``vessel``: catalogue vessel (:func:`vesselid.plant.catalogue.vessel_names`;
-    ``"cybership2"``).
+      ``"cybership2"``).
     - ``force_max``: physical ``[X, Y, N]`` at action ±1; default the vessel's actuator
       limits (``Hull.force_max``; CyberShip II: 2 N, 1.5 N, 1 N m).
     - ``u_ref``, ``psi_ref``: reference surge speed (0.3 m/s) and heading (0 rad).
