@@ -54,30 +54,59 @@ def _heave_system(current) -> System:
                   x0=base.x0)
 
 
+#: CyberShip II input design: random pulses (20–60 s) on static offsets, turns to
+#: starboard in even and to port in odd experiments (paper §6 / A10: ``v`` and ``r``
+#: keep their sign within an experiment, so the logs carry the merged structure of
+#: :func:`vesselid.vessels.cybership2.cybership2_system`), with wider sway-force and
+#: yaw-moment ranges than the catalogue entry's so that the turn rate and drift vary
+#: by a factor of several within every experiment.
+CYBERSHIP_LEVELS = {"X": (1.0, 2.0), "Y": ((-0.6, 0.2), (-0.2, 0.6)),
+                    "N": ((0.05, 0.45), (-0.45, -0.05))}
+
+
 def _cybership_system(current_u, current_v) -> System:
+    from vesselid.signals import RandomPulses
     from vesselid.vessels.cybership2 import cybership2_system
 
     base = cybership2_system()
-    return System(spec=base.spec, inputs=base.inputs,
+    dt = base.spec.dt
+
+    def pulses(level):
+        lo, hi = round(20.0 / dt), round(60.0 / dt)
+        if isinstance(level[0], tuple):
+            return tuple(RandomPulses(a, b, lo, hi) for a, b in level)
+        return RandomPulses(level[0], level[1], lo, hi)
+
+    return System(spec=base.spec, inputs={k: pulses(v) for k, v in CYBERSHIP_LEVELS.items()},
                   current={"u": current_u, "v": current_v},
                   process_noise=base.process_noise, sensor_noise=base.sensor_noise,
                   x0=base.x0, model=base.model)
 
 
-def designs(quick: bool) -> dict:
-    """name -> (system, samples per experiment, experiments, library)."""
+SYSTEMS = ("heave", "cybership2")
+
+
+def designs(quick: bool, samples: int | None = None, experiments: int | None = None
+            ) -> dict:
+    """name -> (system, samples per experiment, experiments, library).
+
+    ``samples``/``experiments`` override the CyberShip II log length (default 4 × 5 000
+    samples at 0.1 s; ``quick``: 4 × 1 000).
+    """
     dt = 0.1
     n_h = 3000 if quick else 30000
-    n_c = 1000 if quick else 5000
+    n_c = int(samples) if samples else (1000 if quick else 5000)
+    k_c = int(experiments) if experiments else 4
     return {
         "heave, white current": (_heave_system(Gaussian(0.0, 0.1)), n_h, 1, "vessel"),
         "heave, Gauss-Markov current": (
             _heave_system(GaussMarkov(0.0, 0.05, 5.0, 1.0, 0.15)), n_h, 1, "vessel"),
         "CyberShip II, white current": (
-            _cybership_system(Gaussian(0.0, 0.005), Gaussian(0.0, 0.005)), n_c, 4, "vessel"),
+            _cybership_system(Gaussian(0.0, 0.005), Gaussian(0.0, 0.005)), n_c, k_c,
+            "vessel"),
         "CyberShip II, Gauss-Markov current": (
             _cybership_system(GaussMarkov(0.0, 0.002, 1.0, dt, 0.006),
-                              GaussMarkov(0.0, 0.002, 1.0, dt, 0.006)), n_c, 4, "vessel"),
+                              GaussMarkov(0.0, 0.002, 1.0, dt, 0.006)), n_c, k_c, "vessel"),
     }
 
 
@@ -98,13 +127,24 @@ def _frols(phi: np.ndarray, y: np.ndarray) -> np.ndarray | None:
     p = phi.shape[1]
     model = FROLS(order_selection=True, info_criteria="aic", n_info_values=min(p, 20),
                   ylag=1, xlag=1, estimator=LeastSquares())
+    n_info = min(p, 20)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        # information_criterion drops the first max_lag (= 1) target rows: give it one more
+        # the ERR drops the first max_lag (= 1) target rows: give it one more
         y_lag = np.concatenate([y[:1], y]).reshape(-1, 1)
-        ic = np.asarray(model.information_criterion(phi, y_lag), dtype=float)
+        # FROLS.information_criterion reruns the greedy ERR for every model size; its
+        # order is greedy (the first i pivots do not depend on how many are asked for),
+        # so one ERR pass and the same per-size fit and criterion give the same values
+        _, piv, _ = model.error_reduction_ratio(phi, y_lag, n_info)
+        target = model._default_estimation_target(y_lag)
+        n_samples = y_lag.shape[0] - model.max_lag
+        ic = np.empty(n_info)
+        for i in range(n_info):
+            reg = phi[:, np.asarray(piv[:i + 1], dtype=int)]
+            theta = model.estimator.optimize(reg, target)
+            e_var = float(np.var(target - reg @ theta, ddof=1))
+            ic[i] = model.info_criteria_function(i + 1, n_samples, e_var)
         n_terms = int(np.nanargmin(ic)) + 1
-        _, piv, _ = model.error_reduction_ratio(phi, y_lag, n_terms)
     out = np.zeros(p, dtype=bool)
     out[np.asarray(piv[:n_terms], dtype=int)] = True
     return out
@@ -163,22 +203,32 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
             selections[name] = picked
     # oracle: |t| of the true terms in the IV fit of the true structure
     t_oracle = None
+    oracle_hits = None
     if oracle:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             try:
                 fit_true = identify(log, truth, "iv-zero-mean")
-                t_oracle = (fit_true.params / np.sqrt(np.diag(fit_true.cov))).abs()
+                se_true = np.sqrt(np.diag(fit_true.cov))
+                t_oracle = (fit_true.params / se_true).abs()
+                err = np.abs(fit_true.params.to_numpy() - theta0.loc[fit_true.params.index]
+                             .to_numpy())
+                oracle_hits = pd.Series(err <= 1.959964 * se_true, index=fit_true.params.index)
             except Exception:
                 t_oracle = None
     for method, picked in selections.items():
         exact = all(picked[s] == true_rep[s] for s in truth.states)
         row = {"method": method, "exact": exact,
                "all_true_kept": all(true_rep[s] <= picked[s] for s in truth.states),
-               "seconds": secs if method == "ivsel" else math.nan}
+               "seconds": secs if method == "ivsel" else math.nan,
+               "critical_value": res.critical_value, "n_candidates": res.n_candidates,
+               "n_rows": res.n_samples - res.n_experiments}
         for s in truth.states:
             for cand in {rep[(s, str(t))] for t in lib[s]}:
                 row[f"keep|{s}|{cand}"] = cand in picked[s]
+                row[f"true|{s}|{cand}"] = cand in true_rep[s]
+            for t in truth.equations[s]:  # each true term, through its representative
+                row[f"tkeep|{s}|{t}"] = rep[(s, str(canonical(t)))] in picked[s]
         if method == "ivsel" and exact:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
@@ -200,6 +250,7 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
         if t_oracle is not None and method == "ivsel":
             for (s, term), tv in t_oracle.items():
                 row[f"oracle_t|{s}|{term}"] = float(tv)
+                row[f"oracle_cover|{s}|{term}"] = bool(oracle_hits[(s, term)])
         rows.append(row)
     return rows
 
@@ -244,18 +295,88 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(out)
 
 
+def power_table(df: pd.DataFrame, truth: ModelSpec, n_rows: int, n_candidates: int,
+                alpha: float = 0.01) -> pd.DataFrame:
+    """Per true term: θ0, the median oracle ``|t|`` (IV fit of the true structure), the
+    keep rate of every method, the oracle interval coverage, the power of the selection's
+    test at this length (normal approximation at the median ``|t|``) and the log length
+    (samples, all experiments) at which that power reaches 95 % (``|t|`` grows like
+    ``√n``; the critical value's ``√log n`` part is followed)."""
+    from statistics import NormalDist
+
+    from vesselid.selection.engine import critical_value
+
+    nd = NormalDist()
+    crit = critical_value(alpha, n_candidates, n_rows)
+    iv = df[df.method == "ivsel"]
+    theta0 = truth.theta0_series()
+    rows = []
+    for s in truth.states:
+        for t in truth.equations[s]:
+            kc, oc, cc = f"tkeep|{s}|{t}", f"oracle_t|{s}|{t}", f"oracle_cover|{s}|{t}"
+            t_med = float(iv[oc].median()) if oc in iv and iv[oc].notna().any() else math.nan
+            power = nd.cdf(t_med - crit) + nd.cdf(-t_med - crit) if math.isfinite(t_med) \
+                else math.nan
+            n95 = math.nan
+            if math.isfinite(t_med) and t_med > 0:
+                n95 = float(n_rows)
+                for _ in range(50):  # fixed point of t·√(n/n_rows) = c(n) + z_0.95
+                    need = critical_value(alpha, n_candidates, int(min(n95, 1e15))) + 1.644854
+                    n95 = n_rows * (need / t_med) ** 2
+            rows.append({
+                "equation": s, "term": str(t), "theta0": float(theta0[(s, str(t))]),
+                **{f"kept_{m}": (float(df[df.method == m][kc].mean()) if kc in df
+                                 else math.nan) for m in df.method.unique()},
+                "oracle_median_t": t_med,
+                "oracle_coverage": (float(iv[cc].dropna().astype(float).mean())
+                                    if cc in iv and iv[cc].notna().any() else math.nan),
+                "power": power, "samples_for_95pct_power": n95})
+    return pd.DataFrame(rows)
+
+
+def detectable_structure(df: pd.DataFrame, power: pd.DataFrame) -> dict[str, float]:
+    """Per method: share of runs that keep every true term whose power at this length is
+    at least 95 % and no zero-coefficient candidate (true terms below that power may be
+    kept or dropped)."""
+    det = [f"tkeep|{r.equation}|{r.term}" for r in power.itertuples() if r.power >= 0.95]
+    keep_cols = [c for c in df.columns if c.startswith("keep|")]
+    out = {}
+    for m, g in df.groupby("method", sort=False):
+        ok = np.ones(len(g), dtype=bool)
+        for c in det:
+            ok &= g[c].fillna(False).to_numpy(dtype=bool)
+        for c in keep_cols:  # a candidate that stands for no true term in that run
+            kept = g[c].fillna(False).to_numpy(dtype=bool)
+            true = g[c.replace("keep|", "true|")].fillna(False).to_numpy(dtype=bool)
+            ok &= ~(kept & ~true)
+        out[m] = float(ok.mean())
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=200)
     ap.add_argument("--seed", type=int, default=2024)
     ap.add_argument("--quick", action="store_true", help="short logs (development)")
+    ap.add_argument("--system", choices=SYSTEMS, action="append",
+                    help="only the designs of this system (default: all)")
     ap.add_argument("--design", action="append", help="only these designs (substring)")
+    ap.add_argument("--samples", type=int,
+                    help="CyberShip II samples per experiment (default 5000)")
+    ap.add_argument("--experiments", type=int,
+                    help="CyberShip II experiments (default 4)")
     ap.add_argument("--out", type=Path, help="write the per-run table (CSV)")
+    ap.add_argument("--power-out", type=Path,
+                    help="write the per-term table (keep rates, oracle |t|, power) (CSV)")
     ap.add_argument("--oracle-runs", type=int, default=25,
                     help="runs that also fit the true structure for the oracle |t|")
     args = ap.parse_args(argv)
-    frames = []
-    for d_i, (name, (system, n, k, library)) in enumerate(designs(args.quick).items()):
+    frames, powers = [], []
+    for d_i, (name, (system, n, k, library)) in enumerate(
+            designs(args.quick, args.samples, args.experiments).items()):
+        key = "cybership2" if name.startswith("CyberShip") else "heave"
+        if args.system and key not in args.system:
+            continue
         if args.design and not any(s in name for s in args.design):
             continue
         truth = (system.model or system.spec).with_aggregate(None)
@@ -270,34 +391,29 @@ def main(argv=None) -> int:
                 print(f"  {name}: {r + 1} runs, {time.perf_counter() - t0:.0f} s",
                       file=sys.stderr, flush=True)
         df = pd.DataFrame(rows)
-        lib = resolve_library(library, linear_base(truth))
-        for s in truth.states:  # which candidates are true (by representative, per run)
-            for c in [c for c in df.columns if c.startswith(f"keep|{s}|")]:
-                term = c.split("|", 2)[2]
-                df[c.replace("keep|", "true|")] = term in {
-                    str(canonical(t)) for t in truth.equations[s]}
-        del lib
         frames.append(df)
         print(f"{name}: {args.runs} runs, {k} x {n} samples, {time.perf_counter() - t0:.0f} s",
               file=sys.stderr)
-        summary = summarise(df)
-        print(summary.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
         iv = df[df.method == "ivsel"]
-        per_term = []
-        for s in truth.states:
-            for t in truth.equations[s]:
-                tc = str(canonical(t))
-                kc = f"keep|{s}|{tc}"
-                oc = f"oracle_t|{s}|{t}"
-                per_term.append({
-                    "term": f"{s}: {t}",
-                    **{m: (df[df.method == m][kc].mean() if kc in df else math.nan)
-                       for m in df.method.unique()},
-                    "oracle_median_|t|": iv[oc].median() if oc in iv else math.nan})
-        print(pd.DataFrame(per_term).to_string(index=False, float_format=lambda x: f"{x:.2f}"))
+        power = power_table(df, truth, int(iv["n_rows"].iloc[0]),
+                            int(iv["n_candidates"].iloc[0]))
+        summary = summarise(df)
+        det = detectable_structure(df, power)
+        summary["detectable_structure"] = summary["method"].map(det)
+        oc = [c for c in iv.columns if c.startswith("oracle_cover|")]
+        if oc:
+            hits = iv[oc].stack().astype(float)
+            summary.loc[summary.method == "ivsel", "oracle_coverage"] = float(hits.mean())
+            summary.loc[summary.method == "ivsel", "oracle_intervals"] = int(hits.size)
+        print(summary.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
+        print(power.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
         sys.stdout.flush()
+        power.insert(0, "design", name)
+        powers.append(power)
     if args.out and frames:
         pd.concat(frames, ignore_index=True).to_csv(args.out, index=False)
+    if args.power_out and powers:
+        pd.concat(powers, ignore_index=True).to_csv(args.power_out, index=False)
     return 0
 
 
