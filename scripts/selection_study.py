@@ -4,7 +4,8 @@ For every design, ``--runs`` independent logs are simulated with a current insid
 modulus (white or Gauss–Markov), and on each log:
 
 * ``ivsel`` — :func:`vesselid.selection.select_terms` (IV stepwise selection, HAC Wald
-  tests), base model: every equation linear in the states and inputs;
+  tests); base model (``--base``): every equation linear in the states and inputs
+  (default), or the true structure (a user who knows the vessel's usual structure);
 * ``frols`` — SysIdentPy's FROLS (error-reduction ratio, AIC for the number of terms) on
   the same candidate regressors of the same log (``pip install sysidentpy``);
 * ``stlsq`` — PySINDy's STLSQ (its default threshold 0.1) on the same candidates
@@ -14,13 +15,23 @@ A method finds the true structure in a run when the set of selected candidates, 
 mapped to the candidate that represents it in that log (``|w| = w`` when ``w > 0``),
 equals the set of true terms so mapped. Reported per design and method: the share of
 runs with the true structure (with its binomial standard error), the share keeping every
-true term, the largest share of runs keeping any one zero-coefficient candidate, and for
-``ivsel`` the coverage of the 95 % intervals of ``identify(method="iv-zero-mean")`` on the
-selected spec (runs with the true structure; HAC covariance). A comparator that is not
-installed is skipped. Also printed: each true term's keep rate and its median ``|t|`` in
-the IV fit of the true structure (the oracle), which bounds what any test can detect.
+true term, the largest share of runs keeping any one zero-coefficient candidate, the
+share of runs with the *detectable* structure (every true term whose test has at least
+95 % power at this length kept, no zero-coefficient candidate kept), and for ``ivsel``
+the coverage of the 95 % intervals of ``identify(method="iv-zero-mean")`` on the
+selected spec (runs with the true structure; HAC covariance) and of the same intervals
+on the true structure (the oracle, first ``--oracle-runs`` runs). A comparator that is
+not installed is skipped. Per true term: its keep rate by every method, the median
+``|t|`` and the noncentrality ``|θ0|/SE`` of the oracle fit, the power of the
+selection's test at this length and the log length at which it reaches 95 %.
 
-    nice -n 10 python scripts/selection_study.py --runs 200 --out docs/selection_study.csv
+Systems (``--system``): ``heave`` (1 × 30 000 samples) and ``cybership2`` (the
+catalogue's CyberShip II model with the pulse design :data:`CYBERSHIP_LEVELS`; length
+``--experiments`` × ``--samples``, default 4 × 5 000).
+
+    nice -n 10 python scripts/selection_study.py --runs 200 --system heave
+    OMP_NUM_THREADS=1 nice -n 10 python scripts/selection_study.py --runs 200 \
+        --system cybership2 --samples 2500 --oracle-runs 50 --power-out power.csv
 """
 
 from __future__ import annotations
@@ -163,14 +174,14 @@ def _stlsq(phi: np.ndarray, y: np.ndarray) -> np.ndarray | None:
 
 
 # --------------------------------------------------------------------------------- run
-def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = True
-            ) -> list[dict]:
+def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = True,
+            base: str = "linear") -> list[dict]:
     sim = system.simulate(n, k, seed=seed)
     log = sim.to_log(aggregate=False)
     truth = system.model if system.model is not None else system.spec
     truth = truth.with_aggregate(None)
-    base = linear_base(truth)
-    lib = resolve_library(library, base)
+    base = linear_base(truth) if base == "linear" else truth
+    lib = resolve_library(library, linear_base(truth))
     rows: list[dict] = []
     t0 = time.perf_counter()
     with warnings.catch_warnings():
@@ -185,9 +196,10 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
     # the candidate regressors of the log for the comparators (rows k -> target k)
     from vesselid.identify.data import from_log
 
-    data, _ = from_log(log, base)
-    union, cols = library_factors(lib, base)
-    phi = regressors(data, union, base)
+    lin = linear_base(truth)
+    data, _ = from_log(log, lin)
+    union, cols = library_factors(lib, lin)
+    phi = regressors(data, union, lin)
     ok = np.isfinite(phi).all(axis=1)
     selections: dict[str, dict[str, set]] = {"ivsel": {s: {rep[(s, t)] for t in res.selected[s]}
                                                        for s in truth.states}}
@@ -250,6 +262,8 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
         if t_oracle is not None and method == "ivsel":
             for (s, term), tv in t_oracle.items():
                 row[f"oracle_t|{s}|{term}"] = float(tv)
+                row[f"oracle_se|{s}|{term}"] = float(se_true[
+                    list(fit_true.params.index).index((s, term))])
                 row[f"oracle_cover|{s}|{term}"] = bool(oracle_hits[(s, term)])
         rows.append(row)
     return rows
@@ -297,11 +311,12 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
 
 def power_table(df: pd.DataFrame, truth: ModelSpec, n_rows: int, n_candidates: int,
                 alpha: float = 0.01) -> pd.DataFrame:
-    """Per true term: θ0, the median oracle ``|t|`` (IV fit of the true structure), the
-    keep rate of every method, the oracle interval coverage, the power of the selection's
-    test at this length (normal approximation at the median ``|t|``) and the log length
-    (samples, all experiments) at which that power reaches 95 % (``|t|`` grows like
-    ``√n``; the critical value's ``√log n`` part is followed)."""
+    """Per true term: θ0, the median oracle ``|t|`` and the noncentrality ``δ = |θ0| /
+    median SE`` of the IV fit of the true structure, the keep rate of every method, the
+    oracle interval coverage, the power of the selection's test at this length (normal
+    approximation, ``P(|N(δ, 1)| ≥ c)``) and the log length (samples, all experiments)
+    at which that power reaches 95 % (``δ`` grows like ``√n``; the critical value's
+    ``√log n`` part is followed)."""
     from statistics import NormalDist
 
     from vesselid.selection.engine import critical_value
@@ -314,20 +329,25 @@ def power_table(df: pd.DataFrame, truth: ModelSpec, n_rows: int, n_candidates: i
     for s in truth.states:
         for t in truth.equations[s]:
             kc, oc, cc = f"tkeep|{s}|{t}", f"oracle_t|{s}|{t}", f"oracle_cover|{s}|{t}"
+            sc = f"oracle_se|{s}|{t}"
             t_med = float(iv[oc].median()) if oc in iv and iv[oc].notna().any() else math.nan
-            power = nd.cdf(t_med - crit) + nd.cdf(-t_med - crit) if math.isfinite(t_med) \
+            # noncentrality: |θ0| over the median standard error (the median |t| of a
+            # term whose θ0 is far below its SE is that of noise, ≈ 0.67)
+            delta = (abs(float(theta0[(s, str(t))])) / float(iv[sc].median())
+                     if sc in iv and iv[sc].notna().any() else math.nan)
+            power = nd.cdf(delta - crit) + nd.cdf(-delta - crit) if math.isfinite(delta) \
                 else math.nan
             n95 = math.nan
-            if math.isfinite(t_med) and t_med > 0:
+            if math.isfinite(delta) and delta > 0:
                 n95 = float(n_rows)
-                for _ in range(50):  # fixed point of t·√(n/n_rows) = c(n) + z_0.95
+                for _ in range(50):  # fixed point of δ·√(n/n_rows) = c(n) + z_0.95
                     need = critical_value(alpha, n_candidates, int(min(n95, 1e15))) + 1.644854
-                    n95 = n_rows * (need / t_med) ** 2
+                    n95 = n_rows * (need / delta) ** 2
             rows.append({
                 "equation": s, "term": str(t), "theta0": float(theta0[(s, str(t))]),
                 **{f"kept_{m}": (float(df[df.method == m][kc].mean()) if kc in df
                                  else math.nan) for m in df.method.unique()},
-                "oracle_median_t": t_med,
+                "oracle_median_t": t_med, "noncentrality": delta,
                 "oracle_coverage": (float(iv[cc].dropna().astype(float).mean())
                                     if cc in iv and iv[cc].notna().any() else math.nan),
                 "power": power, "samples_for_95pct_power": n95})
@@ -368,6 +388,10 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, help="write the per-run table (CSV)")
     ap.add_argument("--power-out", type=Path,
                     help="write the per-term table (keep rates, oracle |t|, power) (CSV)")
+    ap.add_argument("--base", choices=("linear", "true"), default="linear",
+                    help="base model of the selection (its first auxiliary model): every "
+                         "equation linear in the states and inputs (default), or the true "
+                         "structure (a user who knows the vessel's usual structure)")
     ap.add_argument("--oracle-runs", type=int, default=25,
                     help="runs that also fit the true structure for the oracle |t|")
     args = ap.parse_args(argv)
@@ -384,7 +408,8 @@ def main(argv=None) -> int:
         rows = []
         t0 = time.perf_counter()
         for r, ss in enumerate(seeds):
-            for row in one_run(system, n, k, library, ss, oracle=r < args.oracle_runs):
+            for row in one_run(system, n, k, library, ss, oracle=r < args.oracle_runs,
+                               base=args.base):
                 row.update(design=name, run=r)
                 rows.append(row)
             if (r + 1) % 10 == 0:
@@ -392,7 +417,8 @@ def main(argv=None) -> int:
                       file=sys.stderr, flush=True)
         df = pd.DataFrame(rows)
         frames.append(df)
-        print(f"{name}: {args.runs} runs, {k} x {n} samples, {time.perf_counter() - t0:.0f} s",
+        print(f"{name}: {args.runs} runs, {k} x {n} samples, base {args.base}, "
+              f"{time.perf_counter() - t0:.0f} s",
               file=sys.stderr)
         iv = df[df.method == "ivsel"]
         power = power_table(df, truth, int(iv["n_rows"].iloc[0]),
@@ -409,6 +435,7 @@ def main(argv=None) -> int:
         print(power.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
         sys.stdout.flush()
         power.insert(0, "design", name)
+        power.insert(1, "base", args.base)
         powers.append(power)
     if args.out and frames:
         pd.concat(frames, ignore_index=True).to_csv(args.out, index=False)
