@@ -290,13 +290,19 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
         n = len(g)
         p = g["exact"].mean()
         keep_cols = [c for c in g.columns if c.startswith("keep|") and g[c].notna().any()]
-        truth_cols = g.attrs.get("truth", None)
-        false_rates = [g[c].mean() for c in keep_cols if not g[c.replace("keep|", "true|")].any()
-                       ] if any(c.replace("keep|", "true|") in g for c in keep_cols) else []
+        kept = {c: g[c].fillna(False).to_numpy(dtype=bool) for c in keep_cols}
+        true = {c: g[c.replace("keep|", "true|")].fillna(False).to_numpy(dtype=bool)
+                for c in keep_cols}
+        # share of all runs keeping a candidate that stands for no true term in any run
+        false_rates = [float(kept[c].mean()) for c in keep_cols if not true[c].any()]
         row = {"design": design, "method": method, "runs": n,
                "true_structure": p, "se": math.sqrt(max(p * (1 - p), 1e-12) / n),
                "all_true_kept": g["all_true_kept"].mean(),
-               "max_false_keep": max(false_rates) if false_rates else math.nan}
+               "max_false_keep": max(false_rates) if false_rates else math.nan,
+               "true_terms_kept": float(np.mean(sum(
+                   (kept[c] & true[c]).astype(int) for c in keep_cols))),
+               "false_terms_kept": float(np.mean(sum(
+                   (kept[c] & ~true[c]).astype(int) for c in keep_cols)))}
         if "covered" in g and g["intervals"].sum() > 0:
             cov = g["covered"].sum() / g["intervals"].sum()
             row["coverage"] = cov
@@ -304,7 +310,6 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
             row["intervals"] = int(g["intervals"].sum())
         if method == "ivsel":
             row["median_seconds"] = float(g["seconds"].median())
-        del truth_cols
         out.append(row)
     return pd.DataFrame(out)
 
@@ -392,10 +397,20 @@ def main(argv=None) -> int:
                     help="base model of the selection (its first auxiliary model): every "
                          "equation linear in the states and inputs (default), or the true "
                          "structure (a user who knows the vessel's usual structure)")
+    ap.add_argument("--from-csv", type=Path, action="append",
+                    help="summarise the per-run table(s) written by --out instead of "
+                         "simulating")
     ap.add_argument("--oracle-runs", type=int, default=25,
                     help="runs that also fit the true structure for the oracle |t|")
     args = ap.parse_args(argv)
     frames, powers = [], []
+    loaded = None
+    if args.from_csv:
+        loaded = pd.concat([pd.read_csv(f, low_memory=False) for f in args.from_csv],
+                           ignore_index=True).copy()
+        if "base" not in loaded:
+            loaded["base"] = "linear"
+        loaded["base"] = loaded["base"].fillna("linear")
     for d_i, (name, (system, n, k, library)) in enumerate(
             designs(args.quick, args.samples, args.experiments).items()):
         key = "cybership2" if name.startswith("CyberShip") else "heave"
@@ -404,44 +419,74 @@ def main(argv=None) -> int:
         if args.design and not any(s in name for s in args.design):
             continue
         truth = (system.model or system.spec).with_aggregate(None)
-        seeds = np.random.SeedSequence([args.seed, d_i]).spawn(args.runs)
-        rows = []
         t0 = time.perf_counter()
-        for r, ss in enumerate(seeds):
-            for row in one_run(system, n, k, library, ss, oracle=r < args.oracle_runs,
-                               base=args.base):
-                row.update(design=name, run=r)
-                rows.append(row)
-            if (r + 1) % 10 == 0:
-                print(f"  {name}: {r + 1} runs, {time.perf_counter() - t0:.0f} s",
-                      file=sys.stderr, flush=True)
-        df = pd.DataFrame(rows)
+        if loaded is not None:
+            for base, df in loaded[loaded.design == name].groupby("base", sort=False):
+                df = _from_table(df, loaded[(loaded.design == name)
+                                            & (loaded.method == "ivsel")])
+                frames.append(df)
+                print(f"{name}, base {base}:")
+                powers.append(report(df, name, truth))
+            continue
+        else:
+            seeds = np.random.SeedSequence([args.seed, d_i]).spawn(args.runs)
+            rows = []
+            for r, ss in enumerate(seeds):
+                for row in one_run(system, n, k, library, ss, oracle=r < args.oracle_runs,
+                                   base=args.base):
+                    row.update(design=name, run=r, base=args.base)
+                    rows.append(row)
+                if (r + 1) % 10 == 0:
+                    print(f"  {name}: {r + 1} runs, {time.perf_counter() - t0:.0f} s",
+                          file=sys.stderr, flush=True)
+            df = pd.DataFrame(rows)
+            print(f"{name}: {args.runs} runs, {k} x {n} samples, base {args.base}, "
+                  f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
         frames.append(df)
-        print(f"{name}: {args.runs} runs, {k} x {n} samples, base {args.base}, "
-              f"{time.perf_counter() - t0:.0f} s",
-              file=sys.stderr)
-        iv = df[df.method == "ivsel"]
-        power = power_table(df, truth, int(iv["n_rows"].iloc[0]),
-                            int(iv["n_candidates"].iloc[0]))
-        summary = summarise(df)
-        det = detectable_structure(df, power)
-        summary["detectable_structure"] = summary["method"].map(det)
-        oc = [c for c in iv.columns if c.startswith("oracle_cover|")]
-        if oc:
-            hits = iv[oc].stack().astype(float)
-            summary.loc[summary.method == "ivsel", "oracle_coverage"] = float(hits.mean())
-            summary.loc[summary.method == "ivsel", "oracle_intervals"] = int(hits.size)
-        print(summary.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
-        print(power.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
-        sys.stdout.flush()
-        power.insert(0, "design", name)
-        power.insert(1, "base", args.base)
-        powers.append(power)
-    if args.out and frames:
+        powers.append(report(df, name, truth))
+    if args.out and frames and loaded is None:
         pd.concat(frames, ignore_index=True).to_csv(args.out, index=False)
     if args.power_out and powers:
         pd.concat(powers, ignore_index=True).to_csv(args.power_out, index=False)
     return 0
+
+
+def _from_table(df: pd.DataFrame, oracle_rows: pd.DataFrame) -> pd.DataFrame:
+    """One design and base of a per-run table read back: booleans restored, and oracle
+    columns this table lacks taken from another table of the same design and seeds (the
+    oracle fits the true structure on the same log, whatever the base)."""
+    df = df.dropna(axis=1, how="all").reset_index(drop=True).copy()
+    for c in [c for c in df.columns if c.startswith(("keep|", "true|", "tkeep|"))]:
+        df[c] = df[c].map({True: True, False: False, "True": True, "False": False})
+    iv = df.method == "ivsel"
+    for c in [c for c in oracle_rows.columns if c.startswith("oracle_")]:
+        if c in df and df.loc[iv, c].notna().any():
+            continue
+        src = oracle_rows.dropna(subset=[c]).drop_duplicates("run").set_index("run")[c]
+        df[c] = np.where(iv, df["run"].map(src), np.nan)
+    return df
+
+
+def report(df: pd.DataFrame, name: str, truth: ModelSpec) -> pd.DataFrame:
+    """Print the summary and the per-term table of one design; return the latter."""
+    iv = df[df.method == "ivsel"]
+    power = power_table(df, truth, int(iv["n_rows"].iloc[0]), int(iv["n_candidates"].iloc[0]))
+    summary = summarise(df)
+    det = detectable_structure(df, power)
+    summary["detectable_structure"] = summary["method"].map(det)
+    oc = [c for c in iv.columns if c.startswith("oracle_cover|")]
+    if oc:
+        hits = iv[oc].stack().astype(float)
+        summary.loc[summary.method == "ivsel", "oracle_coverage"] = float(hits.mean())
+        summary.loc[summary.method == "ivsel", "oracle_intervals"] = int(hits.size)
+    with pd.option_context("display.width", 250):
+        print(summary.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
+        print(power.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
+    sys.stdout.flush()
+    power.insert(0, "design", name)
+    if "base" in df:
+        power.insert(1, "base", df["base"].iloc[0])
+    return power
 
 
 if __name__ == "__main__":
