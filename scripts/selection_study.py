@@ -410,7 +410,7 @@ def main(argv=None) -> int:
                            ignore_index=True).copy()
         if "base" not in loaded:
             loaded["base"] = "linear"
-        loaded["base"] = loaded["base"].fillna("linear")
+        loaded["base"] = loaded["base"].fillna("linear").astype(str).str.lower()
     for d_i, (name, (system, n, k, library)) in enumerate(
             designs(args.quick, args.samples, args.experiments).items()):
         key = "cybership2" if name.startswith("CyberShip") else "heave"
