@@ -4,7 +4,8 @@ For every design, ``--runs`` independent logs are simulated with a current insid
 modulus (white or Gauss–Markov), and on each log:
 
 * ``ivsel`` — :func:`vesselid.selection.select_terms` (IV stepwise selection, HAC Wald
-  tests), base model: every equation linear in the states and inputs;
+  tests); base model (``--base``): every equation linear in the states and inputs
+  (default), or the true structure (a user who knows the vessel's usual structure);
 * ``frols`` — SysIdentPy's FROLS (error-reduction ratio, AIC for the number of terms) on
   the same candidate regressors of the same log (``pip install sysidentpy``);
 * ``stlsq`` — PySINDy's STLSQ (its default threshold 0.1) on the same candidates
@@ -14,13 +15,23 @@ A method finds the true structure in a run when the set of selected candidates, 
 mapped to the candidate that represents it in that log (``|w| = w`` when ``w > 0``),
 equals the set of true terms so mapped. Reported per design and method: the share of
 runs with the true structure (with its binomial standard error), the share keeping every
-true term, the largest share of runs keeping any one zero-coefficient candidate, and for
-``ivsel`` the coverage of the 95 % intervals of ``identify(method="iv-zero-mean")`` on the
-selected spec (runs with the true structure; HAC covariance). A comparator that is not
-installed is skipped. Also printed: each true term's keep rate and its median ``|t|`` in
-the IV fit of the true structure (the oracle), which bounds what any test can detect.
+true term, the largest share of runs keeping any one zero-coefficient candidate, the
+share of runs with the *detectable* structure (every true term whose test has at least
+95 % power at this length kept, no zero-coefficient candidate kept), and for ``ivsel``
+the coverage of the 95 % intervals of ``identify(method="iv-zero-mean")`` on the
+selected spec (runs with the true structure; HAC covariance) and of the same intervals
+on the true structure (the oracle, first ``--oracle-runs`` runs). A comparator that is
+not installed is skipped. Per true term: its keep rate by every method, the median
+``|t|`` and the noncentrality ``|θ0|/SE`` of the oracle fit, the power of the
+selection's test at this length and the log length at which it reaches 95 %.
 
-    nice -n 10 python scripts/selection_study.py --runs 200 --out docs/selection_study.csv
+Systems (``--system``): ``heave`` (1 × 30 000 samples) and ``cybership2`` (the
+catalogue's CyberShip II model with the pulse design :data:`CYBERSHIP_LEVELS`; length
+``--experiments`` × ``--samples``, default 4 × 5 000).
+
+    nice -n 10 python scripts/selection_study.py --runs 200 --system heave
+    OMP_NUM_THREADS=1 nice -n 10 python scripts/selection_study.py --runs 200 \
+        --system cybership2 --samples 2500 --oracle-runs 50 --power-out power.csv
 """
 
 from __future__ import annotations
@@ -54,30 +65,59 @@ def _heave_system(current) -> System:
                   x0=base.x0)
 
 
+#: CyberShip II input design: random pulses (20–60 s) on static offsets, turns to
+#: starboard in even and to port in odd experiments (paper §6 / A10: ``v`` and ``r``
+#: keep their sign within an experiment, so the logs carry the merged structure of
+#: :func:`vesselid.plant.vessels.cybership2.cybership2_system`), with wider sway-force and
+#: yaw-moment ranges than the catalogue entry's so that the turn rate and drift vary
+#: by a factor of several within every experiment.
+CYBERSHIP_LEVELS = {"X": (1.0, 2.0), "Y": ((-0.6, 0.2), (-0.2, 0.6)),
+                    "N": ((0.05, 0.45), (-0.45, -0.05))}
+
+
 def _cybership_system(current_u, current_v) -> System:
+    from vesselid.plant.signals import RandomPulses
     from vesselid.plant.vessels.cybership2 import cybership2_system
 
     base = cybership2_system()
-    return System(spec=base.spec, inputs=base.inputs,
+    dt = base.spec.dt
+
+    def pulses(level):
+        lo, hi = round(20.0 / dt), round(60.0 / dt)
+        if isinstance(level[0], tuple):
+            return tuple(RandomPulses(a, b, lo, hi) for a, b in level)
+        return RandomPulses(level[0], level[1], lo, hi)
+
+    return System(spec=base.spec, inputs={k: pulses(v) for k, v in CYBERSHIP_LEVELS.items()},
                   current={"u": current_u, "v": current_v},
                   process_noise=base.process_noise, sensor_noise=base.sensor_noise,
                   x0=base.x0, model=base.model)
 
 
-def designs(quick: bool) -> dict:
-    """name -> (system, samples per experiment, experiments, library)."""
+SYSTEMS = ("heave", "cybership2")
+
+
+def designs(quick: bool, samples: int | None = None, experiments: int | None = None
+            ) -> dict:
+    """name -> (system, samples per experiment, experiments, library).
+
+    ``samples``/``experiments`` override the CyberShip II log length (default 4 × 5 000
+    samples at 0.1 s; ``quick``: 4 × 1 000).
+    """
     dt = 0.1
     n_h = 3000 if quick else 30000
-    n_c = 1000 if quick else 5000
+    n_c = int(samples) if samples else (1000 if quick else 5000)
+    k_c = int(experiments) if experiments else 4
     return {
         "heave, white current": (_heave_system(Gaussian(0.0, 0.1)), n_h, 1, "vessel"),
         "heave, Gauss-Markov current": (
             _heave_system(GaussMarkov(0.0, 0.05, 5.0, 1.0, 0.15)), n_h, 1, "vessel"),
         "CyberShip II, white current": (
-            _cybership_system(Gaussian(0.0, 0.005), Gaussian(0.0, 0.005)), n_c, 4, "vessel"),
+            _cybership_system(Gaussian(0.0, 0.005), Gaussian(0.0, 0.005)), n_c, k_c,
+            "vessel"),
         "CyberShip II, Gauss-Markov current": (
             _cybership_system(GaussMarkov(0.0, 0.002, 1.0, dt, 0.006),
-                              GaussMarkov(0.0, 0.002, 1.0, dt, 0.006)), n_c, 4, "vessel"),
+                              GaussMarkov(0.0, 0.002, 1.0, dt, 0.006)), n_c, k_c, "vessel"),
     }
 
 
@@ -98,13 +138,24 @@ def _frols(phi: np.ndarray, y: np.ndarray) -> np.ndarray | None:
     p = phi.shape[1]
     model = FROLS(order_selection=True, info_criteria="aic", n_info_values=min(p, 20),
                   ylag=1, xlag=1, estimator=LeastSquares())
+    n_info = min(p, 20)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        # information_criterion drops the first max_lag (= 1) target rows: give it one more
+        # the ERR drops the first max_lag (= 1) target rows: give it one more
         y_lag = np.concatenate([y[:1], y]).reshape(-1, 1)
-        ic = np.asarray(model.information_criterion(phi, y_lag), dtype=float)
+        # FROLS.information_criterion reruns the greedy ERR for every model size; its
+        # order is greedy (the first i pivots do not depend on how many are asked for),
+        # so one ERR pass and the same per-size fit and criterion give the same values
+        _, piv, _ = model.error_reduction_ratio(phi, y_lag, n_info)
+        target = model._default_estimation_target(y_lag)
+        n_samples = y_lag.shape[0] - model.max_lag
+        ic = np.empty(n_info)
+        for i in range(n_info):
+            reg = phi[:, np.asarray(piv[:i + 1], dtype=int)]
+            theta = model.estimator.optimize(reg, target)
+            e_var = float(np.var(target - reg @ theta, ddof=1))
+            ic[i] = model.info_criteria_function(i + 1, n_samples, e_var)
         n_terms = int(np.nanargmin(ic)) + 1
-        _, piv, _ = model.error_reduction_ratio(phi, y_lag, n_terms)
     out = np.zeros(p, dtype=bool)
     out[np.asarray(piv[:n_terms], dtype=int)] = True
     return out
@@ -123,14 +174,14 @@ def _stlsq(phi: np.ndarray, y: np.ndarray) -> np.ndarray | None:
 
 
 # --------------------------------------------------------------------------------- run
-def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = True
-            ) -> list[dict]:
+def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = True,
+            base: str = "linear") -> list[dict]:
     sim = system.simulate(n, k, seed=seed)
     log = sim.to_log(aggregate=False)
     truth = system.model if system.model is not None else system.spec
     truth = truth.with_aggregate(None)
-    base = linear_base(truth)
-    lib = resolve_library(library, base)
+    base = linear_base(truth) if base == "linear" else truth
+    lib = resolve_library(library, linear_base(truth))
     rows: list[dict] = []
     t0 = time.perf_counter()
     with warnings.catch_warnings():
@@ -145,9 +196,10 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
     # the candidate regressors of the log for the comparators (rows k -> target k)
     from vesselid.identify.data import from_log
 
-    data, _ = from_log(log, base)
-    union, cols = library_factors(lib, base)
-    phi = regressors(data, union, base)
+    lin = linear_base(truth)
+    data, _ = from_log(log, lin)
+    union, cols = library_factors(lib, lin)
+    phi = regressors(data, union, lin)
     ok = np.isfinite(phi).all(axis=1)
     selections: dict[str, dict[str, set]] = {"ivsel": {s: {rep[(s, t)] for t in res.selected[s]}
                                                        for s in truth.states}}
@@ -163,22 +215,32 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
             selections[name] = picked
     # oracle: |t| of the true terms in the IV fit of the true structure
     t_oracle = None
+    oracle_hits = None
     if oracle:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             try:
                 fit_true = identify(log, truth, "iv-zero-mean")
-                t_oracle = (fit_true.params / np.sqrt(np.diag(fit_true.cov))).abs()
+                se_true = np.sqrt(np.diag(fit_true.cov))
+                t_oracle = (fit_true.params / se_true).abs()
+                err = np.abs(fit_true.params.to_numpy() - theta0.loc[fit_true.params.index]
+                             .to_numpy())
+                oracle_hits = pd.Series(err <= 1.959964 * se_true, index=fit_true.params.index)
             except Exception:
                 t_oracle = None
     for method, picked in selections.items():
         exact = all(picked[s] == true_rep[s] for s in truth.states)
         row = {"method": method, "exact": exact,
                "all_true_kept": all(true_rep[s] <= picked[s] for s in truth.states),
-               "seconds": secs if method == "ivsel" else math.nan}
+               "seconds": secs if method == "ivsel" else math.nan,
+               "critical_value": res.critical_value, "n_candidates": res.n_candidates,
+               "n_rows": res.n_samples - res.n_experiments}
         for s in truth.states:
             for cand in {rep[(s, str(t))] for t in lib[s]}:
                 row[f"keep|{s}|{cand}"] = cand in picked[s]
+                row[f"true|{s}|{cand}"] = cand in true_rep[s]
+            for t in truth.equations[s]:  # each true term, through its representative
+                row[f"tkeep|{s}|{t}"] = rep[(s, str(canonical(t)))] in picked[s]
         if method == "ivsel" and exact:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
@@ -200,6 +262,9 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
         if t_oracle is not None and method == "ivsel":
             for (s, term), tv in t_oracle.items():
                 row[f"oracle_t|{s}|{term}"] = float(tv)
+                row[f"oracle_se|{s}|{term}"] = float(se_true[
+                    list(fit_true.params.index).index((s, term))])
+                row[f"oracle_cover|{s}|{term}"] = bool(oracle_hits[(s, term)])
         rows.append(row)
     return rows
 
@@ -225,13 +290,19 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
         n = len(g)
         p = g["exact"].mean()
         keep_cols = [c for c in g.columns if c.startswith("keep|") and g[c].notna().any()]
-        truth_cols = g.attrs.get("truth", None)
-        false_rates = [g[c].mean() for c in keep_cols if not g[c.replace("keep|", "true|")].any()
-                       ] if any(c.replace("keep|", "true|") in g for c in keep_cols) else []
+        kept = {c: g[c].fillna(False).to_numpy(dtype=bool) for c in keep_cols}
+        true = {c: g[c.replace("keep|", "true|")].fillna(False).to_numpy(dtype=bool)
+                for c in keep_cols}
+        # share of all runs keeping a candidate that stands for no true term in any run
+        false_rates = [float(kept[c].mean()) for c in keep_cols if not true[c].any()]
         row = {"design": design, "method": method, "runs": n,
                "true_structure": p, "se": math.sqrt(max(p * (1 - p), 1e-12) / n),
                "all_true_kept": g["all_true_kept"].mean(),
-               "max_false_keep": max(false_rates) if false_rates else math.nan}
+               "max_false_keep": max(false_rates) if false_rates else math.nan,
+               "true_terms_kept": float(np.mean(sum(
+                   (kept[c] & true[c]).astype(int) for c in keep_cols))),
+               "false_terms_kept": float(np.mean(sum(
+                   (kept[c] & ~true[c]).astype(int) for c in keep_cols)))}
         if "covered" in g and g["intervals"].sum() > 0:
             cov = g["covered"].sum() / g["intervals"].sum()
             row["coverage"] = cov
@@ -239,9 +310,72 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
             row["intervals"] = int(g["intervals"].sum())
         if method == "ivsel":
             row["median_seconds"] = float(g["seconds"].median())
-        del truth_cols
         out.append(row)
     return pd.DataFrame(out)
+
+
+def power_table(df: pd.DataFrame, truth: ModelSpec, n_rows: int, n_candidates: int,
+                alpha: float = 0.01) -> pd.DataFrame:
+    """Per true term: θ0, the median oracle ``|t|`` and the noncentrality ``δ = |θ0| /
+    median SE`` of the IV fit of the true structure, the keep rate of every method, the
+    oracle interval coverage, the power of the selection's test at this length (normal
+    approximation, ``P(|N(δ, 1)| ≥ c)``) and the log length (samples, all experiments)
+    at which that power reaches 95 % (``δ`` grows like ``√n``; the critical value's
+    ``√log n`` part is followed)."""
+    from statistics import NormalDist
+
+    from vesselid.selection.engine import critical_value
+
+    nd = NormalDist()
+    crit = critical_value(alpha, n_candidates, n_rows)
+    iv = df[df.method == "ivsel"]
+    theta0 = truth.theta0_series()
+    rows = []
+    for s in truth.states:
+        for t in truth.equations[s]:
+            kc, oc, cc = f"tkeep|{s}|{t}", f"oracle_t|{s}|{t}", f"oracle_cover|{s}|{t}"
+            sc = f"oracle_se|{s}|{t}"
+            t_med = float(iv[oc].median()) if oc in iv and iv[oc].notna().any() else math.nan
+            # noncentrality: |θ0| over the median standard error (the median |t| of a
+            # term whose θ0 is far below its SE is that of noise, ≈ 0.67)
+            delta = (abs(float(theta0[(s, str(t))])) / float(iv[sc].median())
+                     if sc in iv and iv[sc].notna().any() else math.nan)
+            power = nd.cdf(delta - crit) + nd.cdf(-delta - crit) if math.isfinite(delta) \
+                else math.nan
+            n95 = math.nan
+            if math.isfinite(delta) and delta > 0:
+                n95 = float(n_rows)
+                for _ in range(50):  # fixed point of δ·√(n/n_rows) = c(n) + z_0.95
+                    need = critical_value(alpha, n_candidates, int(min(n95, 1e15))) + 1.644854
+                    n95 = n_rows * (need / delta) ** 2
+            rows.append({
+                "equation": s, "term": str(t), "theta0": float(theta0[(s, str(t))]),
+                **{f"kept_{m}": (float(df[df.method == m][kc].mean()) if kc in df
+                                 else math.nan) for m in df.method.unique()},
+                "oracle_median_t": t_med, "noncentrality": delta,
+                "oracle_coverage": (float(iv[cc].dropna().astype(float).mean())
+                                    if cc in iv and iv[cc].notna().any() else math.nan),
+                "power": power, "samples_for_95pct_power": n95})
+    return pd.DataFrame(rows)
+
+
+def detectable_structure(df: pd.DataFrame, power: pd.DataFrame) -> dict[str, float]:
+    """Per method: share of runs that keep every true term whose power at this length is
+    at least 95 % and no zero-coefficient candidate (true terms below that power may be
+    kept or dropped)."""
+    det = [f"tkeep|{r.equation}|{r.term}" for r in power.itertuples() if r.power >= 0.95]
+    keep_cols = [c for c in df.columns if c.startswith("keep|")]
+    out = {}
+    for m, g in df.groupby("method", sort=False):
+        ok = np.ones(len(g), dtype=bool)
+        for c in det:
+            ok &= g[c].fillna(False).to_numpy(dtype=bool)
+        for c in keep_cols:  # a candidate that stands for no true term in that run
+            kept = g[c].fillna(False).to_numpy(dtype=bool)
+            true = g[c.replace("keep|", "true|")].fillna(False).to_numpy(dtype=bool)
+            ok &= ~(kept & ~true)
+        out[m] = float(ok.mean())
+    return out
 
 
 def main(argv=None) -> int:
@@ -249,56 +383,110 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", type=int, default=200)
     ap.add_argument("--seed", type=int, default=2024)
     ap.add_argument("--quick", action="store_true", help="short logs (development)")
+    ap.add_argument("--system", choices=SYSTEMS, action="append",
+                    help="only the designs of this system (default: all)")
     ap.add_argument("--design", action="append", help="only these designs (substring)")
+    ap.add_argument("--samples", type=int,
+                    help="CyberShip II samples per experiment (default 5000)")
+    ap.add_argument("--experiments", type=int,
+                    help="CyberShip II experiments (default 4)")
     ap.add_argument("--out", type=Path, help="write the per-run table (CSV)")
+    ap.add_argument("--power-out", type=Path,
+                    help="write the per-term table (keep rates, oracle |t|, power) (CSV)")
+    ap.add_argument("--base", choices=("linear", "true"), default="linear",
+                    help="base model of the selection (its first auxiliary model): every "
+                         "equation linear in the states and inputs (default), or the true "
+                         "structure (a user who knows the vessel's usual structure)")
+    ap.add_argument("--from-csv", type=Path, action="append",
+                    help="summarise the per-run table(s) written by --out instead of "
+                         "simulating")
     ap.add_argument("--oracle-runs", type=int, default=25,
                     help="runs that also fit the true structure for the oracle |t|")
     args = ap.parse_args(argv)
-    frames = []
-    for d_i, (name, (system, n, k, library)) in enumerate(designs(args.quick).items()):
+    frames, powers = [], []
+    loaded = None
+    if args.from_csv:
+        loaded = pd.concat([pd.read_csv(f, low_memory=False) for f in args.from_csv],
+                           ignore_index=True).copy()
+        if "base" not in loaded:
+            loaded["base"] = "linear"
+        loaded["base"] = loaded["base"].fillna("linear").astype(str).str.lower()
+    for d_i, (name, (system, n, k, library)) in enumerate(
+            designs(args.quick, args.samples, args.experiments).items()):
+        key = "cybership2" if name.startswith("CyberShip") else "heave"
+        if args.system and key not in args.system:
+            continue
         if args.design and not any(s in name for s in args.design):
             continue
         truth = (system.model or system.spec).with_aggregate(None)
-        seeds = np.random.SeedSequence([args.seed, d_i]).spawn(args.runs)
-        rows = []
         t0 = time.perf_counter()
-        for r, ss in enumerate(seeds):
-            for row in one_run(system, n, k, library, ss, oracle=r < args.oracle_runs):
-                row.update(design=name, run=r)
-                rows.append(row)
-            if (r + 1) % 10 == 0:
-                print(f"  {name}: {r + 1} runs, {time.perf_counter() - t0:.0f} s",
-                      file=sys.stderr, flush=True)
-        df = pd.DataFrame(rows)
-        lib = resolve_library(library, linear_base(truth))
-        for s in truth.states:  # which candidates are true (by representative, per run)
-            for c in [c for c in df.columns if c.startswith(f"keep|{s}|")]:
-                term = c.split("|", 2)[2]
-                df[c.replace("keep|", "true|")] = term in {
-                    str(canonical(t)) for t in truth.equations[s]}
-        del lib
+        if loaded is not None:
+            for base, df in loaded[loaded.design == name].groupby("base", sort=False):
+                df = _from_table(df, loaded[(loaded.design == name)
+                                            & (loaded.method == "ivsel")])
+                frames.append(df)
+                print(f"{name}, base {base}:")
+                powers.append(report(df, name, truth))
+            continue
+        else:
+            seeds = np.random.SeedSequence([args.seed, d_i]).spawn(args.runs)
+            rows = []
+            for r, ss in enumerate(seeds):
+                for row in one_run(system, n, k, library, ss, oracle=r < args.oracle_runs,
+                                   base=args.base):
+                    row.update(design=name, run=r, base=args.base)
+                    rows.append(row)
+                if (r + 1) % 10 == 0:
+                    print(f"  {name}: {r + 1} runs, {time.perf_counter() - t0:.0f} s",
+                          file=sys.stderr, flush=True)
+            df = pd.DataFrame(rows)
+            print(f"{name}: {args.runs} runs, {k} x {n} samples, base {args.base}, "
+                  f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
         frames.append(df)
-        print(f"{name}: {args.runs} runs, {k} x {n} samples, {time.perf_counter() - t0:.0f} s",
-              file=sys.stderr)
-        summary = summarise(df)
-        print(summary.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
-        iv = df[df.method == "ivsel"]
-        per_term = []
-        for s in truth.states:
-            for t in truth.equations[s]:
-                tc = str(canonical(t))
-                kc = f"keep|{s}|{tc}"
-                oc = f"oracle_t|{s}|{t}"
-                per_term.append({
-                    "term": f"{s}: {t}",
-                    **{m: (df[df.method == m][kc].mean() if kc in df else math.nan)
-                       for m in df.method.unique()},
-                    "oracle_median_|t|": iv[oc].median() if oc in iv else math.nan})
-        print(pd.DataFrame(per_term).to_string(index=False, float_format=lambda x: f"{x:.2f}"))
-        sys.stdout.flush()
-    if args.out and frames:
+        powers.append(report(df, name, truth))
+    if args.out and frames and loaded is None:
         pd.concat(frames, ignore_index=True).to_csv(args.out, index=False)
+    if args.power_out and powers:
+        pd.concat(powers, ignore_index=True).to_csv(args.power_out, index=False)
     return 0
+
+
+def _from_table(df: pd.DataFrame, oracle_rows: pd.DataFrame) -> pd.DataFrame:
+    """One design and base of a per-run table read back: booleans restored, and oracle
+    columns this table lacks taken from another table of the same design and seeds (the
+    oracle fits the true structure on the same log, whatever the base)."""
+    df = df.dropna(axis=1, how="all").reset_index(drop=True).copy()
+    for c in [c for c in df.columns if c.startswith(("keep|", "true|", "tkeep|"))]:
+        df[c] = df[c].map({True: True, False: False, "True": True, "False": False})
+    iv = df.method == "ivsel"
+    for c in [c for c in oracle_rows.columns if c.startswith("oracle_")]:
+        if c in df and df.loc[iv, c].notna().any():
+            continue
+        src = oracle_rows.dropna(subset=[c]).drop_duplicates("run").set_index("run")[c]
+        df[c] = np.where(iv, df["run"].map(src), np.nan)
+    return df
+
+
+def report(df: pd.DataFrame, name: str, truth: ModelSpec) -> pd.DataFrame:
+    """Print the summary and the per-term table of one design; return the latter."""
+    iv = df[df.method == "ivsel"]
+    power = power_table(df, truth, int(iv["n_rows"].iloc[0]), int(iv["n_candidates"].iloc[0]))
+    summary = summarise(df)
+    det = detectable_structure(df, power)
+    summary["detectable_structure"] = summary["method"].map(det)
+    oc = [c for c in iv.columns if c.startswith("oracle_cover|")]
+    if oc:
+        hits = iv[oc].stack().astype(float)
+        summary.loc[summary.method == "ivsel", "oracle_coverage"] = float(hits.mean())
+        summary.loc[summary.method == "ivsel", "oracle_intervals"] = int(hits.size)
+    with pd.option_context("display.width", 250):
+        print(summary.to_string(index=False, float_format=lambda x: f"{x:.3f}"))
+        print(power.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
+    sys.stdout.flush()
+    power.insert(0, "design", name)
+    if "base" in df:
+        power.insert(1, "base", df["base"].iloc[0])
+    return power
 
 
 if __name__ == "__main__":

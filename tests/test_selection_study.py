@@ -1,0 +1,121 @@
+"""The arithmetic of scripts/selection_study.py: the per-term power table, the detectable
+structure, and the FROLS comparator's one-pass information criterion."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from pathlib import Path
+from statistics import NormalDist
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from vesselid.model.spec import ModelSpec
+from vesselid.selection.engine import critical_value
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def study():
+    spec = importlib.util.spec_from_file_location("selection_study",
+                                                  ROOT / "scripts" / "selection_study.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["selection_study"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _truth() -> ModelSpec:
+    return ModelSpec("t", ["x"], ["f"], {"x": ["x", "x*|x|", "f"]}, dt=1.0,
+                     theta0={"x": [0.9, -0.02, 0.5]})
+
+
+def _table() -> pd.DataFrame:
+    """Four runs of two methods: 'a' keeps x, f and (run 3) the zero term f*x; 'b' keeps
+    x, x*|x|, f in every run."""
+    rows = []
+    for run in range(4):
+        for method in ("a", "b"):
+            row = {"method": method, "run": run, "design": "d", "exact": method == "b",
+                   "all_true_kept": method == "b", "seconds": 1.0,
+                   "n_rows": 10000, "n_candidates": 12, "critical_value": 3.5}
+            for term, true in (("x", True), ("x*|x|", True), ("f", True), ("f*x", False)):
+                kept = (term in ("x", "f") or (term == "f*x" and run == 3)) if method == "a" \
+                    else true
+                row[f"keep|x|{term}"] = kept
+                row[f"true|x|{term}"] = true
+                if true:
+                    row[f"tkeep|x|{term}"] = kept
+            if method == "a":  # the oracle columns live on the selection's rows
+                for term, se, t in (("x", 0.01, 90.0), ("x*|x|", 0.01 * (1 + run), 2.0),
+                                    ("f", 0.05, 10.0)):
+                    row[f"oracle_t|x|{term}"] = t
+                    row[f"oracle_se|x|{term}"] = se
+                    row[f"oracle_cover|x|{term}"] = run != 0
+            rows.append(row)
+    df = pd.DataFrame(rows)
+    df["method"] = df["method"].map({"a": "ivsel", "b": "frols"})
+    return df
+
+
+def test_power_table_by_hand(study):
+    df = _table()
+    power = study.power_table(df, _truth(), 10000, 12)
+    row = power.set_index("term").loc["x*|x|"]
+    delta = 0.02 / 0.025  # median SE of the four runs: (0.02 + 0.03) / 2
+    assert row["noncentrality"] == pytest.approx(delta)
+    c = critical_value(0.01, 12, 10000)
+    nd = NormalDist()
+    assert row["power"] == pytest.approx(nd.cdf(delta - c) + nd.cdf(-delta - c))
+    # the length for 95 % power solves δ √(n/10⁴) = c(n) + z_0.95
+    n95 = row["samples_for_95pct_power"]
+    assert delta * math.sqrt(n95 / 10000) == pytest.approx(
+        critical_value(0.01, 12, int(n95)) + 1.644854, rel=1e-6)
+    assert row["kept_ivsel"] == 0.0 and row["kept_frols"] == 1.0
+    assert row["oracle_coverage"] == pytest.approx(0.75)
+    assert power.set_index("term").loc["x", "power"] > 0.999
+
+
+def test_detectable_structure_by_hand(study):
+    df = _table()
+    power = study.power_table(df, _truth(), 10000, 12)
+    # detectable: x (δ = 0.9/0.01) and f (δ = 10); x*|x| (δ = 0.8) is not
+    assert set(power.loc[power.power >= 0.95, "term"]) == {"x", "f"}
+    det = study.detectable_structure(df, power)
+    assert det["ivsel"] == pytest.approx(0.75)  # run 3 keeps the zero term f*x
+    assert det["frols"] == pytest.approx(1.0)
+    summary = study.summarise(df).set_index("method")
+    assert summary.loc["ivsel", "max_false_keep"] == pytest.approx(0.25)
+    assert summary.loc["ivsel", "true_terms_kept"] == pytest.approx(2.0)
+    assert summary.loc["ivsel", "false_terms_kept"] == pytest.approx(0.25)
+    assert summary.loc["frols", "true_terms_kept"] == pytest.approx(3.0)
+
+
+@pytest.mark.slow
+def test_frols_one_pass_criterion_matches_sysidentpy(study):
+    """The comparator's one ERR pass gives the terms of SysIdentPy's own
+    information_criterion (which reruns the greedy ERR for every model size)."""
+    pytest.importorskip("sysidentpy")
+    from sysidentpy.model_structure_selection import FROLS
+    from sysidentpy.parameter_estimation import LeastSquares
+
+    rng = np.random.default_rng(4)
+    n, p = 600, 8
+    phi = rng.normal(size=(n, p))
+    phi[:, 5] = phi[:, 1] + 0.3 * rng.normal(size=n)
+    y = phi[:, [0, 1, 3]] @ np.array([1.0, -0.4, 0.05]) + 0.2 * rng.normal(size=n)
+    new = study._frols(phi, y)
+    model = FROLS(order_selection=True, info_criteria="aic", n_info_values=p, ylag=1,
+                  xlag=1, estimator=LeastSquares())
+    y_lag = np.concatenate([y[:1], y]).reshape(-1, 1)
+    ic = np.asarray(model.information_criterion(phi, y_lag), dtype=float)
+    n_terms = int(np.nanargmin(ic)) + 1
+    _, piv, _ = model.error_reduction_ratio(phi, y_lag, n_terms)
+    old = np.zeros(p, dtype=bool)
+    old[np.asarray(piv[:n_terms], dtype=int)] = True
+    assert np.array_equal(new, old)
+    assert new[[0, 1]].all()
