@@ -122,6 +122,13 @@ def identify(
         AR order of the noise-model prefilter of the estimators that use one (``sriv``,
         ``auto``'s fallback) instead of their default 4; default the log's
         ``metadata["noise_order"]`` (``vesselid sea-trial`` writes 16).
+    dt_tolerance : float or None, optional
+        Relative tolerance of the sampling check (:func:`vesselid.sampling.check_sampling`,
+        default :data:`vesselid.sampling.DEFAULT_TOLERANCE`): a log with a ``time`` column
+        whose steps are irregular beyond it, or whose interval disagrees with the spec's
+        ``dt``, is refused (:class:`~vesselid.sampling.SamplingError`, one line naming
+        ``vesselid ingest --dt``) — the model is a discrete-time model at ``dt``. ``None``
+        skips the check (rows taken as samples at ``dt`` whatever the time column says).
     fallback : bool, optional
         Run the fallback chain (:mod:`vesselid.identify.fallback`): when ``method`` fails
         on this log (no finite estimate, an unstable model, non-finite fit figures, no
@@ -137,7 +144,8 @@ def identify(
     Raises
     ------
     LogValidationError
-        Missing columns, NaN/inf, non-increasing time.
+        Missing columns, NaN/inf, non-increasing time; irregular sampling or an interval
+        other than the spec's ``dt`` (:class:`~vesselid.sampling.SamplingError`).
     RankDeficientError
         Collinear regressors; the message names the terms.
     IdentificationError
@@ -155,6 +163,7 @@ def identify(
     inspection, never as a usable model (``vesselid identify`` exits 3 on them).
     """
     fallback = options.pop("fallback", None)
+    _check_sampling(log, spec, options.pop("dt_tolerance", "default"))
     if fallback is None:
         fallback = isinstance(method, str) and method == DEFAULT_METHOD
     if fallback and options.get("instruments") is None:
@@ -164,6 +173,29 @@ def identify(
         return identify_with_fallback(
             log, spec, (first, *(m for m in CHAIN if m != first.name)), **options)
     return get_estimator(method).fit(log, spec, **options)
+
+
+def _check_sampling(log: Any, spec: ModelSpec | None, tolerance: Any) -> None:
+    """``identify``'s sampling check (``dt_tolerance``; ``None``: none)."""
+    if tolerance is None:
+        return
+    data = getattr(log, "data", log)
+    if not hasattr(data, "columns") or "time" not in data.columns:
+        return  # rows are the samples; from_log refuses what is not a log
+    from vesselid.sampling import DEFAULT_TOLERANCE, check_sampling
+
+    if isinstance(tolerance, str) and tolerance == "default":
+        tolerance = DEFAULT_TOLERANCE
+    import numbers
+
+    if isinstance(tolerance, bool) or not isinstance(tolerance, numbers.Real):
+        from vesselid.errors import IdentificationError
+
+        raise IdentificationError(f"dt_tolerance must be a number in [0, 1) or None, "
+                                  f"got {tolerance!r}")
+
+    model = spec if spec is not None else getattr(log, "spec", None)
+    check_sampling(data, getattr(model, "dt", None), tolerance=float(tolerance))
 
 
 def asymptotic_covariance(
