@@ -124,7 +124,7 @@ def test_identify_api_refuses_dt_mismatch(sim):
     assert len(msg.splitlines()) == 1
     assert "sampled every 0.1 s" in msg and "spec's dt is 1 s" in msg and "--dt 1" in msg
     # the DataFrame form of the log is checked too
-    with pytest.raises(SamplingError, match="sampled every 0.1 s"):
+    with pytest.raises(SamplingError, match=r"sampled every 0\.1 s"):
         identify(log.data, spec, method="ls")
 
 
