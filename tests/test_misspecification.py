@@ -149,3 +149,24 @@ def test_auto_runs_the_check_only_on_its_multi_state_sriv_choice(ship, monkeypat
         warnings.simplefilter("ignore")
         identify(log, spec, method="sriv", fallback=False)  # an explicit choice is kept
     assert calls == (["auto"] if res.diagnostics.get("choice") == "sriv" else [])
+
+
+@pytest.mark.slow
+def test_correct_structure_keeps_sriv_end_to_end(tmp_path):
+    """A simulated sea trial (the spec is the simulated structure): auto's tests reject the
+    delayed instruments, SRIV is reached and the check keeps it — with the statistic far
+    below the critical value, as the size bound predicts for a correct model."""
+    from vesselid.cli import main
+
+    assert main(["sea-trial", "--vessel", "cybership2", "--experiments", "3", "--samples",
+                 "4000", "--seed", "1", "--out", str(tmp_path / "st")]) == 0
+    log = TrialLog.load(tmp_path / "st" / "seatrial.parquet")
+    spec = ModelSpec.load(tmp_path / "st" / "cybership2.toml")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = identify(log, spec)
+    assert res.method == "auto" and res.diagnostics["choice"] == "sriv"
+    pre = res.diagnostics["specification_check"]["prefilter"]
+    assert not pre["rejected"] and pre["statistic"] < pre["critical"]
+    assert not any(w.category is MisspecificationWarning for w in caught)
+    assert res.status == "ok"
