@@ -9,7 +9,7 @@ the environments) in a scratch directory and is scored:
 * ``slow refusal``: an absurd size not refused within 10 s;
 * ``ok``: everything else (exit 2 with a one-line reason, or a valid result).
 
-Run: ``python scripts/hostile.py`` (about 235 cases, 10-25 minutes on 2 busy cores;
+Run: ``python scripts/hostile.py`` (about 240 cases, 10-25 minutes on 2 busy cores;
 ``-k WORD`` runs the cases whose name contains WORD; ``--list`` lists them). Prints one
 line per case and the counts; exits 1 if any case failed.
 """
