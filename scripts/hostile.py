@@ -9,7 +9,7 @@ the environments) in a scratch directory and is scored:
 * ``slow refusal``: an absurd size not refused within 10 s;
 * ``ok``: everything else (exit 2 with a one-line reason, or a valid result).
 
-Run: ``python scripts/hostile.py`` (about 235 cases, 10-25 minutes on 2 busy cores;
+Run: ``python scripts/hostile.py`` (about 240 cases, 10-25 minutes on 2 busy cores;
 ``-k WORD`` runs the cases whose name contains WORD; ``--list`` lists them). Prints one
 line per case and the counts; exits 1 if any case failed.
 """
@@ -549,6 +549,25 @@ sys.exit(0 if rc == 2 and len(msg.splitlines()) == 1 and "vesselid[raw]" in msg 
 """
 
 
+#: identify() from Python on a retimed t.csv (setup ``retimed_log``): refused with one line
+#: naming ``ingest --dt`` (a SamplingError, a ValueError), never an estimate at the wrong dt.
+API_SAMPLING = """
+import sys
+from vesselid.identify import identify
+from vesselid.data.logs import TrialLog
+from vesselid.model.spec import ModelSpec
+log, spec = TrialLog.load("t.csv"), ModelSpec.load("t.toml")
+try:
+    res = identify(log, spec, {options})
+except ValueError as exc:
+    msg = str(exc)
+    print(type(exc).__name__, msg)
+    sys.exit(0 if len(msg.splitlines()) == 1 and {expect!r} in msg else 3)
+print("accepted:", res.status)
+sys.exit(3)
+"""
+
+
 def readonly_dir(d: Path) -> str:
     ro = d / "ro"
     ro.mkdir()
@@ -792,6 +811,18 @@ def cases(long: bool = False) -> list[Case]:
         Case("identify: irregular 0.05-3 s time column", [*ident, "--method", "ls"],
              setup=retimed_log("jitter")),
         Case("identify: --dt-tolerance 5", [*ident, "--dt-tolerance", "5"], setup=base_log),
+        Case("api: identify() on a log sampled at 0.1 s, spec dt = 1.0",
+             setup=retimed_log("0.1 s"),
+             python=API_SAMPLING.format(options="method='ls'", expect="--dt 1")),
+        Case("api: identify() default (fallback chain) on an irregular time column",
+             setup=retimed_log("jitter"),
+             python=API_SAMPLING.format(options="", expect="irregular sampling")),
+        Case("api: identify(dt_tolerance='loose')", setup=base_log,
+             python=API_SAMPLING.format(options="method='ls', dt_tolerance='loose'",
+                                        expect="dt_tolerance")),
+        Case("api: identify(dt_tolerance=float('nan'))", setup=base_log,
+             python=API_SAMPLING.format(options="method='ls', dt_tolerance=float('nan')",
+                                        expect="tolerance")),
         Case("raw: ROS 1 bag garbage (.bag)", ["ingest", "x.bag", "--dt", "0.1", "--out",
                                                "x.csv"], setup=ros1_bag(False)),
         Case("raw: ROS 1 bag truncated half-way", ["ingest", "x.bag", "--dt", "0.1", "--out",

@@ -215,7 +215,7 @@ def test_shipped_kvlcc2_config_and_spec_end_to_end(tmp_path):
         body = "\n".join(" ".join(f"{x:.12e}" for x in row) for row in np.column_stack(cols))
         (tmp_path / f"HSVA_CPMC_KVLCC2_Z_{i}.dat").write_text("a\nb\nc\nd\n" + body + "\n",
                                                               encoding="latin-1")
-    log = ingest(tmp_path, 0.5, config=path("kvlcc2_hsva_ingest"))
+    log = ingest(tmp_path, spec.dt, config=path("kvlcc2_hsva_ingest"))
     res = identify(log, load_spec("kvlcc2"), method="ls")
     np.testing.assert_allclose(np.asarray(res.params), spec.theta0_vector(), atol=1e-7)
     rep = validate(log, spec)

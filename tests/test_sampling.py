@@ -101,3 +101,68 @@ def test_check_sampling_api():
         check_sampling(f.assign(time=[0, .1, .2, .3, .4, 7, 7.2, 7.4, 7.6, 7.8]), 0.1)
     assert not check_sampling(f.drop(columns="time"), 0.1).checked
     assert isinstance(SamplingError("x"), ValueError)
+
+
+# -------------------------------------------------- the Python identify() path
+def _load(sim, fn=None):
+    from vesselid.data.logs import TrialLog
+    from vesselid.model.spec import ModelSpec
+
+    log = TrialLog.load(sim / "t.csv")
+    if fn is not None:
+        log = TrialLog(fn(log.data.copy()), log.metadata)
+    return log, ModelSpec.load(sim / "t.toml")
+
+
+def test_identify_api_refuses_dt_mismatch(sim):
+    from vesselid.identify import identify
+
+    log, spec = _load(sim, lambda f: f.assign(time=f["time"] * 0.1))
+    with pytest.raises(SamplingError) as exc:
+        identify(log, spec, method="ls")
+    msg = str(exc.value)
+    assert len(msg.splitlines()) == 1
+    assert "sampled every 0.1 s" in msg and "spec's dt is 1 s" in msg and "--dt 1" in msg
+    # the DataFrame form of the log is checked too
+    with pytest.raises(SamplingError, match=r"sampled every 0\.1 s"):
+        identify(log.data, spec, method="ls")
+
+
+def test_identify_api_refuses_irregular_sampling(sim):
+    from vesselid.identify import identify
+
+    rng = np.random.default_rng(1)
+
+    def jitter(f):
+        return f.assign(time=np.concatenate(
+            [np.cumsum(rng.uniform(0.05, 3.0, len(g))) for _e, g in f.groupby("experiment")]))
+
+    log, spec = _load(sim, jitter)
+    for method in ("ls", "auto"):  # the default's fallback chain refuses it before any fit
+        with pytest.raises(SamplingError, match=r"irregular sampling in experiment 0.*--dt 1"):
+            identify(log, spec, method=method)
+
+
+def test_identify_api_tolerance_and_opt_out(sim):
+    from vesselid.errors import IdentificationError
+    from vesselid.identify import identify
+
+    def stretch(f):
+        t = f["time"].to_numpy(dtype=float).copy()
+        t[10:200] += 0.03
+        return f.assign(time=t)
+
+    log, spec = _load(sim, stretch)
+    with pytest.raises(SamplingError, match="beyond the 1 % tolerance"):
+        identify(log, spec, method="ls")
+    ok = identify(log, spec, method="ls", dt_tolerance=0.05)
+    exact = identify(_load(sim)[0], spec, method="ls")
+    # the rows are the samples either way: the same estimate as the regular log
+    assert np.array_equal(ok.params.to_numpy(), exact.params.to_numpy())
+    scaled, _ = _load(sim, lambda f: f.assign(time=f["time"] * 0.1))
+    assert identify(scaled, spec, method="ls", dt_tolerance=None).status == "ok"
+    for bad in ("loose", True, [0.1]):
+        with pytest.raises(IdentificationError, match="dt_tolerance"):
+            identify(log, spec, method="ls", dt_tolerance=bad)
+    with pytest.raises(SamplingError, match="tolerance"):
+        identify(log, spec, method="ls", dt_tolerance=2.0)

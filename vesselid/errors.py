@@ -38,6 +38,7 @@ __all__ = [
     "IdentificationError",
     "InvalidActionError",
     "LogValidationError",
+    "MisspecificationWarning",
     "ModelSpecError",
     "NoUsableModelError",
     "ParameterDriftWarning",
@@ -150,6 +151,12 @@ class DerivedInputWarning(UserWarning):
 class IdentifiabilityWarning(UserWarning):
     """The data identify a combination of parameters, not each one (e.g. a current's mean
     inside the modulus without a disturbance sensor)."""
+
+
+class MisspecificationWarning(UserWarning):
+    """Two estimators that are consistent under a correct model structure disagree
+    significantly: the structure is misspecified on this log
+    (:mod:`vesselid.identify.misspecification`)."""
 
 
 class ParameterDriftWarning(UserWarning):

@@ -238,7 +238,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
             result = identify(log, spec, method=args.method, combine=args.combine,
                               target=args.target, cov_type=args.cov, max_iter=args.max_iter,
                               sensor_noise=_sensor_noise(getattr(args, "sensor_noise", None)),
-                              noise_order=getattr(args, "noise_order", None))
+                              noise_order=getattr(args, "noise_order", None),
+                              dt_tolerance=args.dt_tolerance)
         except EstimationFailedError as exc:  # valid input, no finite estimate: exit 3
             msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             print(f"vesselid identify: error: no usable model: {msg}", file=sys.stderr)

@@ -87,6 +87,15 @@ def identify(
         (``diagnostics["fallback_chain"]``). Default: on for the default method (by
         name), off for an explicitly chosen one; never with ``instruments``.
 
+    dt_tolerance : float or None, optional
+        Relative tolerance of the sampling check (:func:`vesselid.data.sampling.check_sampling`,
+        default :data:`vesselid.data.sampling.DEFAULT_TOLERANCE`): a log with a ``time``
+        column whose steps are irregular beyond it, or whose interval disagrees with the
+        spec's ``dt``, is refused (:class:`~vesselid.data.sampling.SamplingError`, one line
+        naming ``vesselid ingest --dt``) — the model is a discrete-time model at ``dt``.
+        ``None`` skips the check (rows taken as samples at ``dt`` whatever the time column
+        says).
+
     Returns
     -------
     IdentificationResult
@@ -94,7 +103,8 @@ def identify(
     Raises
     ------
     LogValidationError
-        Missing columns, NaN/inf, non-increasing time.
+        Missing columns, NaN/inf, non-increasing time; irregular sampling or an interval
+        other than the spec's ``dt`` (:class:`~vesselid.data.sampling.SamplingError`).
     RankDeficientError
         Collinear regressors; the message names the terms.
     IdentificationError
@@ -111,6 +121,7 @@ def identify(
     ``"non-finite"``) before using an estimate: the last three are returned for
     inspection, never as a usable model (``vesselid identify`` exits 3 on them).
     """
+    _check_sampling(log, spec, options.pop("dt_tolerance", "default"))
     fallback = options.pop("fallback", None)
     if fallback is None:
         fallback = isinstance(method, str) and method == DEFAULT_METHOD
@@ -122,6 +133,28 @@ def identify(
             log, spec, (first, *(m for m in CHAIN if m != first.name)), **options)
     return get_estimator(method).fit(log, spec, **options)
 
+
+
+def _check_sampling(log: Any, spec: ModelSpec | None, tolerance: Any) -> None:
+    """``identify``'s sampling check (``dt_tolerance``; ``None``: none)."""
+    if tolerance is None:
+        return
+    data = getattr(log, "data", log)
+    if not hasattr(data, "columns") or "time" not in data.columns:
+        return  # rows are the samples; from_log refuses what is not a log
+    import numbers
+
+    from vesselid.data.sampling import DEFAULT_TOLERANCE, check_sampling
+
+    if isinstance(tolerance, str) and tolerance == "default":
+        tolerance = DEFAULT_TOLERANCE
+    if isinstance(tolerance, bool) or not isinstance(tolerance, numbers.Real):
+        from vesselid.errors import IdentificationError
+
+        raise IdentificationError(f"dt_tolerance must be a number in [0, 1) or None, "
+                                  f"got {tolerance!r}")
+    model = spec if spec is not None else getattr(log, "spec", None)
+    check_sampling(data, getattr(model, "dt", None), tolerance=float(tolerance))
 
 def asymptotic_covariance(
     log: Any,

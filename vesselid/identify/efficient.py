@@ -245,6 +245,30 @@ class InstrumentalGMM(Estimator):
         super().check_options(combine=combine)
         self._validate()
 
+    def fit(self, log: Any, spec: ModelSpec | None = None, **options: Any):
+        """:meth:`Estimator.fit`; for ``auto`` on a multi-state log whose choice is SRIV,
+        followed by the specification check of
+        :mod:`vesselid.identify.misspecification` (the result may then be the unfiltered
+        IV_E{ζ}=0 or the plain refined IV, with ``choice_reason`` and a
+        :class:`~vesselid.errors.MisspecificationWarning` saying why)."""
+        if self.instruments != "auto" or options.get("instruments") is not None:
+            return super().fit(log, spec, **options)
+        import warnings
+
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            res = super().fit(log, spec, **options)
+        out, out_caught = res, list(caught)
+        if (res.method == self.name and res.spec.n_states > 1
+                and res.diagnostics.get("choice") == "sriv"
+                and str(res.diagnostics.get("noise_model", "")).startswith("AR(")):
+            from vesselid.identify.misspecification import check_default
+
+            out, out_caught = check_default(res, out_caught, log, spec, options)
+        for w in out_caught:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        return out
+
     # ------------------------------------------------------------------ core
     def _refine(self, data, spec, phi, lagged, theta, kind, order, keep, tol, steps=None,
                 colour=False, first_z: list | None = None):

@@ -36,6 +36,13 @@ entry says so. The conditional members are reached only when no earlier member g
 finite, stable result: a result of valid instruments that did not converge (``status``
 ``"not converged"``, its last step in standard errors in the stop reason) is returned
 before an estimate whose instruments may be invalid.
+
+The first member's own result may already be another estimator's: ``auto`` on a
+multi-state log ends with its specification check
+(:mod:`vesselid.identify.misspecification`), which can return the unfiltered IV_E{ζ}=0
+or the plain refined IV instead of SRIV. That is ``auto``'s choice (its
+``choice_reason`` and a :class:`~vesselid.errors.MisspecificationWarning` say why), not a
+fallback: the chain records ``auto`` as accepted.
 """
 
 from __future__ import annotations

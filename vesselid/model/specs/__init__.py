@@ -17,7 +17,7 @@
 >>> spec = load_spec("kvlcc2")
 >>> path("kvlcc2_hsva_ingest")                    # pass it to ``vesselid ingest --config``
 >>> from vesselid.data.ingest.tank import ingest_tank, load_tank_format
->>> log = ingest_tank(files, 0.5, load_tank_format(path("kvlcc2_hsva_ingest")))
+>>> log = ingest_tank(files, spec.dt, load_tank_format(path("kvlcc2_hsva_ingest")))
 """
 
 from __future__ import annotations
