@@ -47,7 +47,6 @@ fallback: the chain records ``auto`` as accepted.
 
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -58,6 +57,7 @@ from vesselid.errors import (
     IdentificationError,
     NoUsableModelError,
 )
+from vesselid.identify.results import assess
 
 if TYPE_CHECKING:
     from vesselid.identify.results import IdentificationResult
@@ -80,37 +80,6 @@ CAVEATS = {
     "ls": "biased under sensor noise (errors in variables); intervals ignore that bias",
     "pem": "assumes a Gauss–Markov disturbance",
 }
-
-
-def assess(result: IdentificationResult) -> tuple[str, str]:
-    """``(outcome, reason)`` of a result: ``accepted`` or the first failure (module
-    docstring), with a one-line reason."""
-    params = result.params.to_numpy(dtype=float)
-    if not np.all(np.isfinite(params)):
-        bad = [f"{eq}: {t}" for (eq, t), v in result.params.items() if not math.isfinite(v)]
-        return "non-finite", "non-finite parameters: " + ", ".join(bad[:4])
-    figs = {f"{kind} fit {s}": v
-            for kind, key in (("one-step", "fit_one_step"), ("free-run", "fit_free_run"))
-            for s, v in result.diagnostics.get(key, {}).items()}
-    nan_figs = [k for k, v in figs.items() if not math.isfinite(v)]
-    stab = result.diagnostics.get("stability") or {}
-    if stab and not stab.get("stable", True):
-        return "unstable", stab.get("sentence", "unstable")
-    if nan_figs:
-        return "non-finite", "non-finite fit figures: " + ", ".join(nan_figs)
-    if not result.converged:
-        return "not converged", str(result.stop_reason)
-    return "accepted", _accepted_reason(result)
-
-
-def _accepted_reason(result: IdentificationResult) -> str:
-    stab = result.diagnostics.get("stability") or {}
-    rho = (stab.get("spectral_radius") or {}).get("operating_point", float("nan"))
-    stop = str(result.stop_reason)
-    text = ("converged" if stop == "converged" else f"converged ({stop})") + "; stable on the log"
-    if math.isfinite(rho):
-        text += f" (spectral radius at the mean operating point {rho:.3g})"
-    return text
 
 
 def identify_with_fallback(log: Any, spec: Any, chain: tuple[Any, ...] = CHAIN,

@@ -97,7 +97,7 @@ def bounded_hausman(a: IdentificationResult, b: IdentificationResult,
 def _usable(res: IdentificationResult | None) -> bool:
     if res is None:
         return False
-    from vesselid.identify.fallback import assess
+    from vesselid.identify.results import assess
 
     return assess(res)[0] == "accepted"
 
@@ -105,12 +105,15 @@ def _usable(res: IdentificationResult | None) -> bool:
 def _fit(method: str, log: Any, spec: Any, options: dict[str, Any]
          ) -> tuple[IdentificationResult | None, list, str]:
     from vesselid.errors import EstimationFailedError
-    from vesselid.identify.registry import get_estimator
+    from vesselid.identify.methods import RefinedIV
 
+    # the comparison estimators by class, not through the registry (which names this
+    # module's caller): "iv" and "iv-zero-mean" are the registry's RefinedIV entries
+    estimator = RefinedIV(zero_mean=method == "iv-zero-mean")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            res = get_estimator(method).fit(log, spec, **options)
+            res = estimator.fit(log, spec, **options)
         except (EstimationFailedError, IdentificationError, np.linalg.LinAlgError,
                 FloatingPointError) as exc:
             return None, [], str(exc).splitlines()[0] if str(exc) else type(exc).__name__

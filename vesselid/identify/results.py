@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -34,7 +35,7 @@ from vesselid.model.spec import ModelSpec
 if TYPE_CHECKING:
     from vesselid.identify.specification import ResidualCorrelation
 
-__all__ = ["IdentificationResult"]
+__all__ = ["IdentificationResult", "assess"]
 
 
 @dataclass
@@ -606,3 +607,33 @@ class IdentificationResult:
 
         return strict_json(self.to_dict(), **({"indent": 2} | kwargs))
 
+
+def assess(result: IdentificationResult) -> tuple[str, str]:
+    """``(outcome, reason)`` of a result: ``accepted`` or the first failure (module
+    docstring), with a one-line reason."""
+    params = result.params.to_numpy(dtype=float)
+    if not np.all(np.isfinite(params)):
+        bad = [f"{eq}: {t}" for (eq, t), v in result.params.items() if not math.isfinite(v)]
+        return "non-finite", "non-finite parameters: " + ", ".join(bad[:4])
+    figs = {f"{kind} fit {s}": v
+            for kind, key in (("one-step", "fit_one_step"), ("free-run", "fit_free_run"))
+            for s, v in result.diagnostics.get(key, {}).items()}
+    nan_figs = [k for k, v in figs.items() if not math.isfinite(v)]
+    stab = result.diagnostics.get("stability") or {}
+    if stab and not stab.get("stable", True):
+        return "unstable", stab.get("sentence", "unstable")
+    if nan_figs:
+        return "non-finite", "non-finite fit figures: " + ", ".join(nan_figs)
+    if not result.converged:
+        return "not converged", str(result.stop_reason)
+    return "accepted", _accepted_reason(result)
+
+
+def _accepted_reason(result: IdentificationResult) -> str:
+    stab = result.diagnostics.get("stability") or {}
+    rho = (stab.get("spectral_radius") or {}).get("operating_point", float("nan"))
+    stop = str(result.stop_reason)
+    text = ("converged" if stop == "converged" else f"converged ({stop})") + "; stable on the log"
+    if math.isfinite(rho):
+        text += f" (spectral radius at the mean operating point {rho:.3g})"
+    return text
