@@ -34,11 +34,23 @@ from vesselid.regressors import fill_factors_xu, kernel, one_step, regressors
 #: Below this many samples the segments run in the calling thread only.
 PARALLEL_MIN_SAMPLES = 200_000
 
-__all__ = ["ar_filter", "autocov", "center", "column_sums", "combined_moments", "cond_bound",
-           "cross_sums",
-           "centred_moving_sums", "design_ar_centre", "design_centre", "design_scan",
-           "equilibrate_one", "moving_sums",
-           "noise_window", "simulated_regressors"]
+__all__ = [
+    "ar_filter",
+    "autocov",
+    "center",
+    "centred_moving_sums",
+    "column_sums",
+    "combined_moments",
+    "cond_bound",
+    "cross_sums",
+    "design_ar_centre",
+    "design_centre",
+    "design_scan",
+    "equilibrate_one",
+    "moving_sums",
+    "noise_window",
+    "simulated_regressors",
+]
 
 
 @kernel()
