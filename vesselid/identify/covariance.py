@@ -632,9 +632,8 @@ class CovarianceEstimator:
         what a J test or an optimal GMM weight needs. Arguments as :meth:`estimate`
         (``z_equation`` default: all instruments in equation 0).
         """
-        sc = _scores(z, None, resid, starts, None, z_equation, zero_mean, skip_first)
-        if not self.meat_uses_z:  # the scores carry all the meat needs
-            sc.z = sc.phi = None
+        sc = _scores(z, None, resid, starts, None, z_equation, zero_mean, skip_first,
+                     keep_z=self.meat_uses_z)  # else the scores carry all the meat needs
         s_list, used = self.meat(sc.g, sc.z, sc.eps, sc.segs, sc.z_equation)
         return sum(s_list) * np.outer(sc.z_scale, sc.z_scale), {**self.config(), **used}
 
@@ -646,9 +645,12 @@ class CovarianceEstimator:
 
 def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
             starts: np.ndarray | None, equation: np.ndarray | None,
-            z_equation: np.ndarray | None, zero_mean: bool, skip_first: bool) -> _Scores:
+            z_equation: np.ndarray | None, zero_mean: bool, skip_first: bool,
+            keep_z: bool = True) -> _Scores:
     """Validate the arrays of :meth:`CovarianceEstimator.estimate` and form the scores
-    (``phi=None``: instruments only, as :meth:`CovarianceEstimator.long_run`)."""
+    (``phi=None``: instruments only, as :meth:`CovarianceEstimator.long_run`); without
+    ``keep_z`` the scores are formed in the equilibrated instruments' buffer (the same
+    products) and ``z`` is None."""
     same = phi is z  # LS / the endogeneity regression: instruments = regressors
     z = np.asarray(z, dtype=float)
     resid = np.asarray(resid, dtype=float)
@@ -702,11 +704,14 @@ def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
     eps = _residual(resid, segs, zero_mean)
     one = eps.shape[1] == 1  # every instrument in equation 0: broadcast, no column copies
     if every_row and len(segs) == 1:  # the products themselves, without a zeroed copy
-        g = z * (eps if one else eps[:, z_equation])
+        # (in the equilibrated copy's buffer when the caller needs no z: same products)
+        g = np.multiply(z, eps if one else eps[:, z_equation], out=None if keep_z else z)
     else:
         g = np.zeros((t_len, n_ins))
         for s in segs:
             g[s] = z[s] * (eps[s] if one else eps[s][:, z_equation])
+    if not keep_z:
+        z = phi = None
     return _Scores(z=z, phi=phi, z_scale=z_scale, phi_scale=phi_scale, eps=eps, g=g,
                    segs=segs, equation=equation, z_equation=z_equation)
 
