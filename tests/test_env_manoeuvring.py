@@ -190,3 +190,35 @@ def test_single_step_is_the_batched_step_with_one_vessel() -> None:
         assert info.keys() == expected.keys()
         for k in info:
             np.testing.assert_array_equal(info[k], expected[k])
+
+
+def test_single_step_info_is_a_dict_of_that_step() -> None:
+    """The single environment's info (views made on first read) holds the values of its
+    own step even when read after later steps, and behaves as the plain dict of those
+    views: keys, membership, ``|``, item assignment, copies and pickling (a plain dict)."""
+    import copy
+    import pickle
+
+    env = Manoeuvring3DOFEnv()
+    ref = Manoeuvring3DOFEnv()
+    env.reset(seed=3)
+    ref.reset(seed=3)
+    a = np.array([0.5, -0.2, 0.1], dtype=np.float32)
+    info = env.step(a)[4]
+    ref.step(a)
+    expected = ref._core.info(0)
+    for _ in range(3):
+        env.step(a)  # later steps do not move the first step's info
+    assert isinstance(info, dict) and len(info) == len(expected)
+    assert list(info) == list(expected) and "nu" in info and "nope" not in info
+    for k, v in expected.items():
+        np.testing.assert_array_equal(info[k], v)
+    for other in (dict(info), {**info}, info.copy(), copy.deepcopy(info),
+                  pickle.loads(pickle.dumps(info))):
+        assert type(other) is dict and list(other) == list(expected)
+        np.testing.assert_array_equal(other["eta"], expected["eta"])
+    merged = env.step(a)[4] | {"episode": 1}
+    assert merged["episode"] == 1 and len(merged) == len(expected) + 1
+    later = env.step(a)[4]
+    later["episode"] = 2
+    assert later.pop("episode") == 2 and len(later) == len(expected)

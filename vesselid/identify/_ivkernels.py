@@ -16,6 +16,8 @@ All work on concatenated rows with experiment boundaries ``starts`` and a row ma
   scaled, (AR-prefiltered and) centred without the stacked temporaries.
 * :func:`moving_sums` — :func:`vesselid.identify.covariance.moving_sums` (the Bartlett
   long-run covariances' running-sum differences) in one pass, bit-identical.
+* :func:`centred_moving_sums` — the same moving sums of a time-major series minus its
+  mean, without the transposed centred copy (bit-identical).
 * :func:`equilibrate_one` — the equilibration scales of one small system, to rounding
   (the singularity decision of a checked fit's solves).
 * :func:`column_sums` — column sums (of squares) in row order, bit-identical to numpy's.
@@ -32,10 +34,23 @@ from vesselid.model.regressors import fill_factors_xu, kernel, one_step, regress
 #: Below this many samples the segments run in the calling thread only.
 PARALLEL_MIN_SAMPLES = 200_000
 
-__all__ = ["ar_filter", "autocov", "center", "column_sums", "combined_moments", "cond_bound",
-           "cross_sums",
-           "design_ar_centre", "design_centre", "design_scan", "equilibrate_one", "moving_sums",
-           "noise_window", "simulated_regressors"]
+__all__ = [
+    "ar_filter",
+    "autocov",
+    "center",
+    "centred_moving_sums",
+    "column_sums",
+    "combined_moments",
+    "cond_bound",
+    "cross_sums",
+    "design_ar_centre",
+    "design_centre",
+    "design_scan",
+    "equilibrate_one",
+    "moving_sums",
+    "noise_window",
+    "simulated_regressors",
+]
 
 
 @kernel()
@@ -563,6 +578,40 @@ def moving_sums(x, lag):
             j += 1
             if j == w:
                 j = 0
+    return out
+
+
+@njit(cache=True)
+def centred_moving_sums(g, mean, lag):  # pragma: no cover - compiled
+    """:func:`moving_sums` of ``(g − mean)ᵀ`` for a C-contiguous ``g`` (n, q), without
+    the transposed centred copy: the same differences ``g(t, i) − mean(i)`` (the values
+    ``gᵀ − mean`` holds), summed in the same order, so the result is bit-identical to
+    ``moving_sums(g.T.copy() − mean[:, None], lag)``. Time runs in the outer loop (one
+    pass over ``g``), one running sum and ring buffer per column."""
+    n, q = g.shape
+    m = n + lag
+    w = lag + 1
+    out = np.empty((q, m))
+    ring = np.empty((q, w))
+    acc = np.zeros(q)
+    j = 0
+    for t in range(n):
+        for i in range(q):
+            x = g[t, i] - mean[i]
+            acc[i] = x if t == 0 else acc[i] + x
+            b = ring[i, j] if t > lag else 0.0
+            out[i, t] = acc[i] - b
+            ring[i, j] = acc[i]
+        j += 1
+        if j == w:
+            j = 0
+    for t in range(n, m):
+        for i in range(q):
+            b = ring[i, j] if t > lag else 0.0
+            out[i, t] = acc[i] - b
+        j += 1
+        if j == w:
+            j = 0
     return out
 
 

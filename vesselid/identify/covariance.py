@@ -318,10 +318,18 @@ def bartlett_long_run(g: np.ndarray, lags: int) -> np.ndarray:
     lags = int(lags)
     if lags == 0 or n < 2:
         return g.T @ g
-    gt = g.T.copy()  # time along contiguous rows
-    mean = gt.mean(axis=1)
-    gt -= mean[:, None]
-    h = moving_sums(gt, lags)  # moving sums of g − mean
+    kernel = _loaded_kernel("centred_moving_sums")
+    if kernel is not None and g.flags.c_contiguous and g.shape[1] > 0:
+        # the column means as numpy's pairwise sums of each (strided) column, the same
+        # numbers as the row means of gᵀ; the moving sums of g − mean without its copy
+        mean = np.array([g[:, i].mean() for i in range(g.shape[1])])
+        h = kernel(g, mean, lags)
+    else:
+        gt = g.T.copy()  # time along contiguous rows
+        mean = gt.mean(axis=1)
+        gt -= mean[:, None]
+        h = moving_sums(gt, lags)  # moving sums of g − mean
+        del gt
     count, count_sq = _window_sizes(n, lags)
     # the moving sums of g are h + count·meanᵀ: add the mean's share as rank-one terms
     v = h @ count
@@ -329,7 +337,7 @@ def bartlett_long_run(g: np.ndarray, lags: int) -> np.ndarray:
     return out / (lags + 1.0)
 
 
-@functools.lru_cache(maxsize=16)
+@functools.lru_cache(maxsize=2)
 def _window_sizes(n: int, lags: int) -> tuple[np.ndarray, float]:
     """The moving-sum window sizes of :func:`bartlett_long_run` (``t = 0 … n + lags − 1``)
     and their sum of squares, per ``(n, lags)`` (a fit's three HAC estimates share them);
@@ -453,6 +461,10 @@ class CovarianceEstimator:
     #: Add Windmeijer's (2005) finite-sample correction to two-step GMM estimates whose
     #: design carries ``weight_jacobian`` (``cov_config`` ``windmeijer=False`` turns it off).
     windmeijer: bool = True
+    #: Whether :meth:`meat` reads the instruments ``z`` (else it gets None, and the
+    #: equilibrated copies of ``z`` and ``φ`` are released before it runs: a long log's
+    #: HAC meat then holds only the scores).
+    meat_uses_z: ClassVar[bool] = True
 
     def __init__(self, **config: Any) -> None:
         if config:
@@ -562,11 +574,16 @@ class CovarianceEstimator:
             if w_mat.shape != (n_ins, n_ins) or not np.all(np.isfinite(w_mat)):
                 raise CovarianceError(f"weight must be a finite ({n_ins}, {n_ins}) matrix")
             w_mat = w_mat * np.outer(sc.z_scale, sc.z_scale)
+        windmeijer = weight_jacobian is not None and self.windmeijer
+        w_first = (_block_inverse(sum(z[s].T @ z[s] for s in segs) * same_z, z_equation)
+                   if windmeijer and weight is not None and n_ins != n_par else None)
+        if not self.meat_uses_z:  # the scores carry all the meat needs
+            sc.z = sc.phi = z = phi = None
         s_list, used = self.meat(sc.g, z, sc.eps, segs, z_equation)
         n_list = [s.stop - s.start for s in segs]
         if weight_jacobian is not None:
             used["windmeijer"] = bool(self.windmeijer)
-        if weight_jacobian is not None and self.windmeijer:
+        if windmeijer:
             d_mat = np.asarray(weight_jacobian, dtype=float)
             if weight is None or n_ins == n_par:
                 raise CovarianceError("weight_jacobian needs the weight of an over-identified "
@@ -576,7 +593,6 @@ class CovarianceEstimator:
             if d_mat.shape != (n_par, n_par) or not np.all(np.isfinite(d_mat)):
                 raise CovarianceError(f"weight_jacobian must be a finite ({n_par}, {n_par}) "
                                       "matrix")
-            w_first = _block_inverse(sum(z[s].T @ z[s] for s in segs) * same_z, z_equation)
             # θ_s = D_φ θ: the Jacobian in the equilibrated units
             d_mat = d_mat * np.outer(sc.phi_scale, 1.0 / sc.phi_scale)
             cov = _windmeijer_sandwich(a_sum, s_list, w_mat, w_first, d_mat)
@@ -613,7 +629,8 @@ class CovarianceEstimator:
         what a J test or an optimal GMM weight needs. Arguments as :meth:`estimate`
         (``z_equation`` default: all instruments in equation 0).
         """
-        sc = _scores(z, None, resid, starts, None, z_equation, zero_mean, skip_first)
+        sc = _scores(z, None, resid, starts, None, z_equation, zero_mean, skip_first,
+                     keep_z=self.meat_uses_z)  # else the scores carry all the meat needs
         s_list, used = self.meat(sc.g, sc.z, sc.eps, sc.segs, sc.z_equation)
         return sum(s_list) * np.outer(sc.z_scale, sc.z_scale), {**self.config(), **used}
 
@@ -625,9 +642,12 @@ class CovarianceEstimator:
 
 def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
             starts: np.ndarray | None, equation: np.ndarray | None,
-            z_equation: np.ndarray | None, zero_mean: bool, skip_first: bool) -> _Scores:
+            z_equation: np.ndarray | None, zero_mean: bool, skip_first: bool,
+            keep_z: bool = True) -> _Scores:
     """Validate the arrays of :meth:`CovarianceEstimator.estimate` and form the scores
-    (``phi=None``: instruments only, as :meth:`CovarianceEstimator.long_run`)."""
+    (``phi=None``: instruments only, as :meth:`CovarianceEstimator.long_run`); without
+    ``keep_z`` the scores are formed in the equilibrated instruments' buffer (the same
+    products) and ``z`` is None."""
     same = phi is z  # LS / the endogeneity regression: instruments = regressors
     z = np.asarray(z, dtype=float)
     resid = np.asarray(resid, dtype=float)
@@ -681,11 +701,14 @@ def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
     eps = _residual(resid, segs, zero_mean)
     one = eps.shape[1] == 1  # every instrument in equation 0: broadcast, no column copies
     if every_row and len(segs) == 1:  # the products themselves, without a zeroed copy
-        g = z * (eps if one else eps[:, z_equation])
+        # (in the equilibrated copy's buffer when the caller needs no z: same products)
+        g = np.multiply(z, eps if one else eps[:, z_equation], out=None if keep_z else z)
     else:
         g = np.zeros((t_len, n_ins))
         for s in segs:
             g[s] = z[s] * (eps[s] if one else eps[s][:, z_equation])
+    if not keep_z:
+        z = phi = None
     return _Scores(z=z, phi=phi, z_scale=z_scale, phi_scale=phi_scale, eps=eps, g=g,
                    segs=segs, equation=equation, z_equation=z_equation)
 
@@ -841,6 +864,7 @@ class KernelCovariance(CovarianceEstimator):
 
     name = "hac"
 
+    meat_uses_z: ClassVar[bool] = False
     def __init__(self, kernel: str = "bartlett", bandwidth: float | str = "newey-west",
                  prewhiten: bool = False) -> None:
         self.kernel = _kernel_name(kernel)
@@ -947,6 +971,8 @@ class ClusterCovariance(CovarianceEstimator):
 
     name = "cluster"
     description = "clustered by experiment"
+
+    meat_uses_z: ClassVar[bool] = False
 
     def meat(self, g, z, eps, segs, equation):
         if len(segs) < 2:

@@ -820,9 +820,9 @@ class VesselBatch:
         return r
 
     def info_one(self) -> dict[str, np.ndarray]:
-        """:meth:`info` of vessel 0 of a batch of one (views into one fresh copy)."""
-        view = self.st[0, :S_INFO].copy().__getitem__
-        return {k: view(sl) for k, sl in self.info_slices}
+        """:meth:`info` of vessel 0 of a batch of one: the fresh copy is taken now, its
+        views are made when the dict is first read (:class:`LazyInfo`)."""
+        return LazyInfo(self.st[0, :S_INFO].copy(), self.info_slices)
 
     def block_of(self, name: str) -> np.ndarray:
         """View of a named block of every vessel's state row (:data:`LAYOUT`)."""
@@ -837,3 +837,58 @@ class VesselBatch:
         """Info dict (views into one fresh copy); ``row`` selects a single vessel."""
         buf = self.st[row if row is not None else slice(None), :S_INFO].copy()
         return {k: buf[..., sl] for k, sl in self.info_slices}
+
+
+def _filled(method: str) -> Callable[..., Any]:
+    """``dict.<method>`` run after :meth:`LazyInfo._fill`."""
+    base = getattr(dict, method)
+
+    def wrapper(self: LazyInfo, *args: Any, **kwargs: Any) -> Any:
+        if self._buf is not None:
+            self._fill()
+        return base(self, *args, **kwargs)
+
+    wrapper.__name__ = wrapper.__qualname__ = method
+    wrapper.__doc__ = base.__doc__
+    return wrapper
+
+
+class LazyInfo(dict):
+    """The info dict of a single environment's step: views into one fresh copy of the
+    vessel's info block, made when the dict is first read.
+
+    The copy is taken at the step (the values are that step's); building a dozen array
+    views costs more than the step itself, and most callers never read ``info``. Every
+    dict operation fills the dict first, so it behaves as the plain dict of those views;
+    a copy, ``dict(info)`` or a pickled/unpickled one is a plain dict.
+    """
+
+    __slots__ = ("_buf", "_slices")
+
+    def __init__(self, buf: np.ndarray, slices: Sequence[tuple[str, slice]]) -> None:
+        # (dict.__new__ made the empty dict; dict.__init__ without arguments adds nothing)
+        self._buf: np.ndarray | None = buf
+        self._slices = slices
+
+    def _fill(self) -> None:
+        buf, self._buf = self._buf, None
+        if buf is not None:
+            view = buf.__getitem__
+            for k, sl in self._slices:
+                dict.__setitem__(self, k, view(sl))
+
+    def copy(self) -> dict[str, Any]:
+        return dict(self.items())
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return dict, (dict(self.items()),)
+
+    def __reduce_ex__(self, protocol: Any) -> tuple[Any, ...]:
+        return self.__reduce__()
+
+    for _m in ("__getitem__", "__setitem__", "__delitem__", "__iter__", "__reversed__",
+               "__len__", "__contains__", "__repr__", "__eq__", "__ne__", "__or__",
+               "__ror__", "__ior__", "__sizeof__", "keys", "values", "items", "get", "pop",
+               "popitem", "setdefault", "update", "clear"):
+        locals()[_m] = _filled(_m)
+    del _m
