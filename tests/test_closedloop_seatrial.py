@@ -88,3 +88,30 @@ def test_cli_sea_trial_closed_loop_bad_input(tmp_path, capsys, extra, msg) -> No
     err = capsys.readouterr().err
     assert code == 2 and msg in err and "Traceback" not in err
     assert len(err.strip().splitlines()) == 1
+
+
+def test_plan_trial_closed_loop(capsys) -> None:
+    """The plan names the declared design and predicts cl-iv's standard errors from a
+    simulated trial of it; the JSON form is valid JSON with every parameter."""
+    import json
+
+    assert main(["plan-trial", "--closed-loop", "--samples", "4000", "--json"]) == 0
+    plan = json.loads(capsys.readouterr().out)
+    assert plan["kind"] == "closed-loop" and plan["method"] == "cl-iv"
+    assert plan["experiments"] == 4 and plan["samples_per_experiment"] == 1000
+    assert plan["design"]["controller"]["loops"] == {"X": "u", "Y": "v", "N": "r"}
+    assert len(plan["predicted"]) == 23
+    se = np.array([p["se"] for p in plan["predicted"].values()])
+    assert np.all(np.isfinite(se)) and np.all(se > 0)
+    assert "--closed-loop" in plan["command"]
+
+
+@pytest.mark.parametrize("extra, msg", [
+    (["--experiments", "2"], "at least 4 experiments"),
+    (["--estimator", "sriv"], "leave --estimator out"),
+    (["--samples", "400"], "at least 200 per experiment"),
+])
+def test_plan_trial_closed_loop_bad_input(capsys, extra, msg) -> None:
+    code = main(["plan-trial", "--closed-loop", *extra])
+    err = capsys.readouterr().err
+    assert code == 2 and msg in err and len(err.strip().splitlines()) == 1

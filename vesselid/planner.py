@@ -1213,25 +1213,151 @@ def _assembled_prediction(forces: list[np.ndarray], vessel: _Vessel, lv: Disturb
 
 
 # ---------------------------------------------------------------------------------- CLI
+@dataclass
+class ClosedLoopPlan:
+    """A closed-loop sea trial (:func:`plan_closed_loop_trial`): the declared controller,
+    references and dithers, and the ``cl-iv`` standard errors predicted from a simulated
+    trial of that design (``table``: ``theta0``, ``se``, ``relative_se`` per parameter)."""
+
+    experiments: int
+    samples_per_experiment: int
+    wind_speed: float
+    seed: int
+    design: dict[str, Any]
+    table: pd.DataFrame
+    method: str
+
+    def worst_relative_se(self) -> float:
+        rel = self.table["relative_se"].to_numpy(float)
+        return float(np.nanmax(rel)) if rel.size else float("nan")
+
+    def command(self) -> str:
+        return (f"vesselid sea-trial --closed-loop --experiments {self.experiments} "
+                f"--samples {self.samples_per_experiment} --wind-speed {self.wind_speed:g} "
+                "--out trial")
+
+    def to_dict(self) -> dict[str, Any]:
+        return _finite({"kind": "closed-loop", "experiments": self.experiments,
+                        "samples_per_experiment": self.samples_per_experiment,
+                        "wind_speed": self.wind_speed, "seed": self.seed,
+                        "design": self.design, "method": self.method,
+                        "predicted": {f"{e}: {t}": {"theta0": float(r.theta0),
+                                                    "se": float(r.se),
+                                                    "relative_se": float(r.relative_se)}
+                                      for (e, t), r in self.table.iterrows()},
+                        "command": self.command()})
+
+    def summary(self) -> str:
+        ctrl = self.design["controller"]
+        loops = ", ".join(f"{j} -> {x}" for j, x in ctrl["loops"].items())
+        lines = [f"closed-loop sea trial: {self.experiments} experiments x "
+                 f"{self.samples_per_experiment} samples, wind {self.wind_speed:g} m/s",
+                 f"controller: PI loops {loops}; kp {ctrl['kp']}, ki {ctrl['ki']}, "
+                 f"feed-forward {ctrl['offset']}, limits {ctrl['limits']}",
+                 f"references: {self.design['references']} (held {self.design['hold_s']} s; "
+                 "sway/yaw sign combinations cycled over the experiments)",
+                 f"dither std: {self.design['dither_std']}",
+                 f"predicted standard errors of {self.method} (HAC, from a simulated trial "
+                 f"of this design, seed {self.seed}):", ""]
+        tab = self.table.copy()
+        tab.index = [f"{e}: {t}" for e, t in tab.index]
+        lines.append(tab.to_string(float_format=lambda x: f"{x:.4g}"))
+        lines += ["", f"worst relative SE: {self.worst_relative_se():.3g}",
+                  f"run it: {self.command()}"]
+        return "\n".join(lines)
+
+
+def plan_closed_loop_trial(samples: int = 24_000, experiments: int = 4, *,
+                           wind_speed: float = 1.0, seed: int = 0) -> ClosedLoopPlan:
+    """Plan a closed-loop sea trial: the PI velocity-loop design of
+    ``vesselid sea-trial --closed-loop`` (:data:`vesselid.seatrial.CLOSED_LOOP_TRIAL`) with
+    ``samples`` split over ``experiments`` (at least 4: the four sign combinations of the
+    sway and yaw references), and the closed-loop estimator's standard errors predicted by
+    simulating one trial of that size (same disturbance levels as the sea trial) and
+    identifying it with ``cl-iv`` (its HAC standard errors: an estimate of the design's
+    standard errors with the relative precision of a HAC estimate, about ±10 %).
+    """
+    import warnings
+
+    from vesselid.identify import identify
+    from vesselid.seatrial import simulate_sea_trial
+
+    if experiments < 4:
+        raise PlannerError(f"a closed-loop trial needs at least 4 experiments (the sign "
+                           f"combinations of the sway and yaw references), got {experiments}")
+    per = samples // experiments
+    if per < 200:
+        raise PlannerError(f"--samples must give at least 200 per experiment, got {per}")
+    log = simulate_sea_trial(experiments, per, seed, closed_loop=True, wind_speed=wind_speed)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = identify(log, log.spec, "cl-iv")
+    theta0 = log.spec.theta0_vector()
+    se = res.std_errors.to_numpy()
+    table = pd.DataFrame({"theta0": theta0, "se": se,
+                          "relative_se": se / np.maximum(np.abs(theta0), 1e-300)},
+                         index=res.params.index)
+    info = log.metadata["closed_loop_trial"]
+    # the design as the simulated log records it
+    design = {"controller": info["controller"],
+              "references": {k: v for k, v in info["references"].items() if k != "hold_s"},
+              "hold_s": info["references"]["hold_s"], "dither_std": info["dither_std"]}
+    return ClosedLoopPlan(experiments=experiments, samples_per_experiment=per,
+                          wind_speed=float(wind_speed), seed=int(seed), design=design,
+                          table=table, method=res.method)
+
+
 def add_parser(subparsers: Any) -> None:
     """Register ``vesselid plan-trial`` (the CLI plugin contract of :mod:`vesselid.cli`)."""
     from vesselid.cli import finite_float, int_at_least, plugin_parser
 
     p = plugin_parser(subparsers, "plan-trial")
     p.add_argument("--vessel", default="cybership2", choices=["cybership2"])
-    p.add_argument("--samples", type=int_at_least(50), default=120_000,
-                   help="total sample budget")
-    p.add_argument("--experiments", type=int_at_least(1), default=6)
+    p.add_argument("--samples", type=int_at_least(50), default=None,
+                   help="total sample budget (default 120000; 24000 with --closed-loop)")
+    p.add_argument("--experiments", type=int_at_least(1), default=None,
+                   help="experiments (default 6; 4 with --closed-loop)")
     p.add_argument("--wind-speed", type=finite_float, default=1.0, help="m/s (model scale)")
     p.add_argument("--estimator", default="auto", choices=list(PREDICTED_ESTIMATORS),
                    help="estimator whose covariance is predicted (default auto, the "
                         "identify default: SRIV on a sea trial)")
+    p.add_argument("--closed-loop", action="store_true",
+                   help="plan a closed-loop trial (PI velocity loops with references and "
+                        "dithers, identified with cl-iv): its design and the standard "
+                        "errors predicted from a simulated trial (default budget 24000 "
+                        "samples over 4 experiments)")
+    p.add_argument("--seed", type=int_at_least(0), default=0,
+                   help="seed of the simulated trial of --closed-loop")
     p.add_argument("--json", action="store_true", help="print the plan as JSON")
     p.set_defaults(func=cmd_plan_trial)
 
 
 def cmd_plan_trial(args: argparse.Namespace) -> int:
     """``vesselid plan-trial``: print the plan and the predicted standard errors."""
+    closed = bool(getattr(args, "closed_loop", False))
+    if args.samples is None:
+        args.samples = 24_000 if closed else 120_000
+    if args.experiments is None:
+        args.experiments = 4 if closed else 6
+    if closed:
+        if not (math.isfinite(args.wind_speed) and args.wind_speed >= 0):
+            raise PlannerError(f"--wind-speed must be a non-negative number, got "
+                               f"{args.wind_speed}")
+        if getattr(args, "estimator", "auto") != "auto":
+            raise PlannerError("--closed-loop predicts the closed-loop estimator cl-iv; "
+                               "leave --estimator out")
+        from vesselid import limits
+
+        limits.check("plan-trial", f"{args.samples} closed-loop samples",
+                     memory=limits.table_memory(args.samples, 40),
+                     seconds=50.0 * limits.simulation_seconds(args.samples, 3))
+        cplan = plan_closed_loop_trial(args.samples, args.experiments,
+                                       wind_speed=args.wind_speed, seed=args.seed)
+        if args.json:
+            print(json.dumps(cplan.to_dict(), indent=2, allow_nan=False))
+        else:
+            print(cplan.summary())
+        return 0
     if args.experiments < 1:
         raise PlannerError(f"--experiments must be at least 1, got {args.experiments}")
     if args.samples < 50 * max(args.experiments, 1):
