@@ -108,3 +108,26 @@ def test_open_loop_log_with_a_reference_like_column_stays_open_loop() -> None:
 def test_closed_loop_note(fb, expect) -> None:
     note = closed_loop_note(fb)
     assert (note is None) if expect is None else (expect in note)
+
+
+@pytest.mark.slow
+def test_undeclared_loop_monte_carlo() -> None:
+    """60 undeclared closed-loop heave logs with the dither not logged (the law is fitted
+    with the dither as its error): auto routes every one to cl-iv, and its 95 % intervals
+    cover θ0 at a rate compatible with 0.95 (exact binomial test at 1e-3, per parameter)."""
+    from _stats import binomial_ok
+
+    runs = 60
+    cover = np.zeros(3, dtype=int)
+    routed = 0
+    for seed in range(runs):
+        spec, _, log, _ = _logs(3000 + seed, n=5000)
+        log = TrialLog(log.data.drop(columns=["tau_dither"]), log.metadata)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = identify(log, spec)
+        routed += res.method == "cl-iv"
+        theta0 = spec.theta0_vector()
+        cover += np.abs(res.params.to_numpy() - theta0) <= 1.96 * res.std_errors.to_numpy()
+    assert routed == runs
+    assert all(binomial_ok(int(c), runs, 0.95) for c in cover), cover

@@ -384,8 +384,11 @@ def closed_loop_route(log: Any, spec: ModelSpec | None) -> ClosedLoopSignals | N
 
 # ------------------------------------------------- undeclared loops: the controller
 #: Share of an input's variation (R², over its unsaturated rows) a PID law fitted to the
-#: log must explain before ``auto`` treats the input as controlled by that law.
-CONTROLLER_MIN_R2 = 0.9
+#: log must explain before ``auto`` treats the input as controlled by that law. The
+#: instruments ``cl-iv`` simulates from the reference through *any* law stay independent
+#: of the disturbances; the law decides only how strong they are, and an input that is
+#: mostly its own external excitation is a better instrument as logged.
+CONTROLLER_MIN_R2 = 0.5
 #: An input that holds its extreme value exactly on at least this many rows is taken as
 #: saturated there (a continuous signal does not repeat a value exactly).
 SATURATION_ROWS = 2
