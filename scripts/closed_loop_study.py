@@ -72,9 +72,12 @@ def _wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
 
 
 def run_design(name: str, runs: int, seed: int, progress: bool = True,
-               cov_config: dict[str, Any] | None = None
+               cov_config: dict[str, Any] | None = None, samples: int | None = None,
+               experiments: int | None = None
                ) -> tuple[pd.DataFrame, dict[str, float]]:
-    d = DESIGNS[name]()
+    opts = {k: v for k, v in (("samples", samples), ("experiments", experiments))
+            if v is not None}
+    d = DESIGNS[name](**opts)
     theta0 = d.spec.theta0_vector()
     names = [f"{e}: {t}" for e, t in d.spec.param_index]
     seeds = np.random.SeedSequence(seed).spawn(runs)
@@ -100,7 +103,8 @@ def run_design(name: str, runs: int, seed: int, progress: bool = True,
         sd = a.std(axis=0, ddof=1)
         z = bias / (sd / np.sqrt(a.shape[0]))
         for p, pname in enumerate(names):
-            row = {"design": name, "estimator": m, "parameter": pname, "theta0": theta0[p],
+            row = {"design": name, "samples": d.samples, "experiments": d.experiments,
+                   "estimator": m, "parameter": pname, "theta0": theta0[p],
                    "runs": int(a.shape[0]), "bias": bias[p], "mc_sd": sd[p], "z": z[p]}
             if m == "cl-iv":
                 se = np.asarray(ses)[ok]
@@ -111,7 +115,7 @@ def run_design(name: str, runs: int, seed: int, progress: bool = True,
                         "coverage_%": 100.0 * k / a.shape[0],
                         "coverage_lo_%": 100 * lo, "coverage_hi_%": 100 * hi}
             rows.append(row)
-    rates = {"design": name, "runs": runs,
+    rates = {"design": name, "samples": d.samples, "experiments": d.experiments, "runs": runs,
              "warning_closed_loop_%": 100.0 * fired_c / runs,
              "warning_open_loop_%": 100.0 * fired_o / runs}
     return pd.DataFrame(rows), rates
@@ -125,6 +129,10 @@ def main() -> None:
     ap.add_argument("--bandwidth", default=None,
                     help="HAC bandwidth of cl-iv's intervals: a number of lags or a rule "
                          "('andrews', 'newey-west'); default the package's")
+    ap.add_argument("--samples", type=int, default=None,
+                    help="samples per experiment (default: the design's)")
+    ap.add_argument("--experiments", type=int, default=None,
+                    help="experiments per run (default: the design's)")
     ap.add_argument("--out", default="docs/closed_loop_study.csv",
                     help="table of every estimator and parameter (CSV); the warning "
                          "rates go to the same name with _warnings.csv")
@@ -135,7 +143,8 @@ def main() -> None:
         bw = args.bandwidth
         cov_config = None if bw is None else {
             "bandwidth": bw if bw in ("andrews", "newey-west") else float(bw)}
-        table, rate = run_design(name, args.runs, args.seed, cov_config=cov_config)
+        table, rate = run_design(name, args.runs, args.seed, cov_config=cov_config,
+                                 samples=args.samples, experiments=args.experiments)
         tables.append(table)
         rates.append(rate)
     table = pd.concat(tables, ignore_index=True)

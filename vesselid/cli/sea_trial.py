@@ -11,7 +11,14 @@ from typing import Any
 
 from vesselid.cli.common import check_raw_dir, finite_float, int_at_least
 from vesselid.errors import SeaTrialError
-from vesselid.studies.seatrial import DESIGNS, WIND_INPUTS, run_pipeline, simulate_sea_trial
+from vesselid.studies.seatrial import (
+    DESIGNS,
+    WIND_INPUTS,
+    aggregate_key,
+    closed_loop_trial_controller,
+    run_pipeline,
+    simulate_sea_trial,
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -62,6 +69,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--format", default=None, choices=["csv", "parquet"],
                    help="trial log format: parquet (default when pyarrow is installed; "
                         "metadata in the file) or csv (+ JSON sidecar)")
+    p.add_argument("--closed-loop", action="store_true",
+                   help="run the trial under feedback: PI velocity loops X->u, Y->v, N->r on "
+                        "the speed log and gyro with random-step references and force "
+                        "dithers (declared in the log, so identify uses cl-iv); CyberShip II, "
+                        "--aggregate relative, no --design")
     p.add_argument("--identify", action="store_true",
                    help="also run LS, IV and IV-zero-mean and print the comparison")
     p.add_argument("--seed", type=int_at_least(0), default=0)
@@ -123,6 +135,16 @@ def cmd_sea_trial(args: argparse.Namespace) -> int:
     if getattr(args, "raw", None):  # before simulating: all outputs or none
 
         check_raw_dir(args.raw)
+    closed = bool(getattr(args, "closed_loop", False))
+    if closed and args.design is not None:
+        raise SeaTrialError("--closed-loop runs the trial under feedback; it takes no --design")
+    if closed and args.source != "batch":
+        raise SeaTrialError("--closed-loop always runs in the environment; leave --source out")
+    if closed:
+        closed_loop_trial_controller(0.1, args.vessel)  # one-line refusal for other vessels
+        if aggregate_key(args.aggregate) != "relative":
+            raise SeaTrialError("--closed-loop needs --aggregate relative (the loops control "
+                                "the speed-log velocities)")
     _guard(args)
     out.mkdir(parents=True, exist_ok=True)
     opts = {"current_speed": args.current_speed,
@@ -132,7 +154,7 @@ def cmd_sea_trial(args: argparse.Namespace) -> int:
     opts["vessel"] = args.vessel
     log = simulate_sea_trial(args.experiments, args.samples, args.seed,
                              aggregate=args.aggregate, source=args.source,
-                             design=args.design, **opts)
+                             design=args.design, closed_loop=closed, **opts)
     log.metadata["command"] = "vesselid " + " ".join(sys.argv[1:]) if sys.argv else ""
     raw_log = log
     if opts["waves"] is not None and opts["waves"].height > 0 and args.wave_filter != 0:
@@ -149,14 +171,24 @@ def cmd_sea_trial(args: argparse.Namespace) -> int:
     extra = f" and sidecar {data.with_suffix('.json')}" if args.format == "csv" else ""
     print(f"wrote {data} ({len(log)} rows, {args.experiments} experiments){extra}, model spec "
           f"{spec_path} (aggregate: {args.aggregate})")
-    print(f"next: vesselid identify {data} --model {spec_path} --method iv-zero-mean")
+    if closed:
+        print("closed loop: PI loops X->u, Y->v, N->r; references u_ref, v_ref, r_ref; "
+              "dithers X_dither, Y_dither, N_dither (metadata['closed_loop'])")
+        print(f"next: vesselid identify {data} --model {spec_path}   (auto -> cl-iv)")
+    else:
+        print(f"next: vesselid identify {data} --model {spec_path} --method iv-zero-mean")
     if getattr(args, "raw", None):
         from vesselid.data.rawexport import write_raw_streams
 
         manifest = write_raw_streams(raw_log, args.raw, seed=args.seed)
         print(f"wrote raw sensor streams to {args.raw} ({sum(manifest['sentences'].values())} "
               f"NMEA sentences, actuators.csv, ingest.toml, {manifest['files'][-1]})")
-    if args.identify:
+    if args.identify and closed:
+        from vesselid.identify import identify
+
+        print()
+        print(identify(log, log.spec).summary())
+    elif args.identify:
         res = run_pipeline(args.experiments, args.samples, args.seed, aggregate=args.aggregate,
                            source=args.source, design=args.design, **opts)
         print()

@@ -248,6 +248,14 @@ class Estimator:
             from vesselid.identify.loop import closed_loop_route
 
             signals = closed_loop_route(log, spec)
+            found = None
+            if signals is None:
+                # undeclared loop with a logged reference: feedback test, then the PID law
+                from vesselid.identify.loop import undeclared_closed_loop_route
+
+                route = undeclared_closed_loop_route(log, spec)
+                if route is not None:
+                    signals, found = route
             if signals is not None:
                 opts = dict(combine=combine, target=target, cov_type=cov_type,
                             cov_config=cov_config, theta_start=theta_start, max_iter=max_iter,
@@ -256,8 +264,21 @@ class Estimator:
                             sensor_noise=sensor_noise, noise_order=noise_order)
                 cl = CLOSED_LOOP_ESTIMATOR["cl-iv"].with_signals(signals)
                 res = cl.fit(log, spec, **opts)
-                res.diagnostics["auto_choice"] = ("cl-iv: the log declares closed loop "
-                                                  "(metadata['closed_loop'])")
+                if found is None:
+                    why = "cl-iv: the log declares closed loop (metadata['closed_loop'])"
+                else:
+                    from vesselid.errors import ClosedLoopWarning
+
+                    why = ("cl-iv: the log does not declare its loop, but the feedback test "
+                           f"rejects open loop (p = {found['feedback']['pvalue']:.2g}) and "
+                           f"it logs a reference; {found['sentence']}; instruments from the "
+                           "reference through the closed loop of that law — declare the "
+                           "controller in metadata['closed_loop'] to use the true one")
+                    res.diagnostics["closed_loop_detected"] = found
+                    res.diagnostics["warnings"] = [*res.diagnostics.get("warnings", []), why]
+                    warnings.warn(why, ClosedLoopWarning, stacklevel=5)
+                res.diagnostics["auto_choice"] = why
+                res.diagnostics["choice_reason"] = why
                 return res
 
         self.check_options(combine=combine)
@@ -459,6 +480,12 @@ class Estimator:
             steps = np.vstack([h[0] for h in it.history])
             history = pd.DataFrame(steps, columns=index,
                                    index=pd.RangeIndex(steps.shape[0], name="iteration"))
+        closed_note = None
+        if self.name == "auto" and feedback:
+            # auto stayed open loop on a log that is (or looks) closed loop: say so first
+            from vesselid.identify.loop import closed_loop_note
+
+            closed_note = closed_loop_note(feedback)
         diagnostics: dict[str, Any] = {
             "combine": combine,
             "cov_type": cov_name,
@@ -493,6 +520,9 @@ class Estimator:
             **({"feedback": feedback} if feedback else {}),
             "warnings": warn_msgs,
         }
+        if closed_note is not None:
+            prior = diagnostics.get("choice_reason")
+            diagnostics["choice_reason"] = closed_note + (f" {prior}" if prior else "")
         results: dict[str, Any] = {
             "method": self.name,
             "spec": spec,

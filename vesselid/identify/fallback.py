@@ -135,6 +135,12 @@ def identify_with_fallback(log: Any, spec: Any, chain: tuple[Any, ...] = CHAIN,
     for w in caught:  # the chosen fit's warnings reach the caller, as without the chain
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     res.diagnostics["fallback_chain"] = tried
+    from vesselid.identify.loop import closed_loop_note
+
+    closed = closed_loop_note(res.diagnostics.get("feedback"))
+    prior = str(res.diagnostics.get("choice_reason") or "")
+    if closed and not prior.startswith("CLOSED LOOP"):  # an open-loop member's result
+        res.diagnostics["choice_reason"] = closed + (f" {prior}" if prior else "")
     if res is not first:  # a later member's result (auto handing a log to cl-iv is not one)
         note = (f"the estimator {tried[0]['method']!r} failed ({tried[0]['outcome']}: "
                 f"{tried[0]['reason']}); the result is {res.method!r}'s "

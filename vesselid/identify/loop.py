@@ -18,6 +18,7 @@
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -30,9 +31,10 @@ from vesselid.identify.data import RegressionData, block_starts
 from vesselid.identify.estimators import estimate
 from vesselid.model.spec import ModelSpec
 
-__all__ = ["ClosedLoopSignals", "FeedbackTest", "closed_loop_instruments",
-           "closed_loop_route", "closed_loop_signals", "feedback_check", "feedback_test",
-           "feedback_test_data"]
+__all__ = ["ClosedLoopSignals", "ControllerFit", "FeedbackTest", "closed_loop_instruments",
+           "closed_loop_note", "closed_loop_route", "closed_loop_signals",
+           "estimate_controller", "feedback_check", "feedback_test", "feedback_test_data",
+           "undeclared_closed_loop_route"]
 
 #: Significance level of the open-loop warning.
 FEEDBACK_ALPHA = 0.01
@@ -98,6 +100,13 @@ def closed_loop_signals(log: Any, spec: ModelSpec | None = None, *,
         raise IdentificationError(f"method {method!r}: {exc}") from None
     reference = dict(info.get("reference") or {})
     dither = dict(info.get("dither") or {})
+    return _signal_arrays(log, spec, pid, reference, dither, method)
+
+
+def _signal_arrays(log: Any, spec: ModelSpec, pid: Any, reference: Mapping[str, str],
+                   dither: Mapping[str, str], method: str) -> ClosedLoopSignals:
+    """The reference and dither columns named by ``reference`` (state -> column) and
+    ``dither`` (input -> column), rows in the regression data's order."""
     cols = set(log.data.columns)
     for state in dict.fromkeys(pid.loops.values()):
         col = reference.get(state)
@@ -343,6 +352,24 @@ def feedback_check(name: str, log: Any, data: RegressionData, spec: ModelSpec,
     return out, msg
 
 
+def closed_loop_note(feedback: Mapping[str, Any] | None) -> str | None:
+    """The sentence that leads ``choice_reason`` when ``auto`` (or its fallback chain)
+    returns an open-loop estimate of a log that declares closed loop or on which the
+    feedback test rejects open loop (``feedback``: ``diagnostics["feedback"]``); None
+    otherwise."""
+    if not feedback or not (feedback.get("rejects") or feedback.get("declared_closed_loop")):
+        return None
+    if feedback.get("declared_closed_loop"):
+        why = "the log declares closed loop but no simulable controller and reference"
+    else:
+        why = (f"the feedback test rejects open loop (p = {feedback['pvalue']:.2g}: the "
+               "inputs react to past output errors), the log declares no loop and no PID "
+               "law on a logged reference <state>_ref explains its inputs")
+    return (f"CLOSED LOOP — {why}; this open-loop estimate is biased under feedback. Log "
+            "the reference (<state>_ref) and declare the controller "
+            "(metadata['closed_loop']) to identify with 'cl-iv'.")
+
+
 def closed_loop_route(log: Any, spec: ModelSpec | None) -> ClosedLoopSignals | None:
     """The external signals when ``log`` declares closed loop *and* names a simulable
     controller and its reference (``auto`` then uses ``cl-iv``), else None."""
@@ -353,3 +380,163 @@ def closed_loop_route(log: Any, spec: ModelSpec | None) -> ClosedLoopSignals | N
     except IdentificationError:
         return None
 
+
+
+# ------------------------------------------------- undeclared loops: the controller
+#: Share of an input's variation (R², over its unsaturated rows) a PID law fitted to the
+#: log must explain before ``auto`` treats the input as controlled by that law. The
+#: instruments ``cl-iv`` simulates from the reference through *any* law stay independent
+#: of the disturbances; the law decides only how strong they are, and an input that is
+#: mostly its own external excitation is a better instrument as logged.
+CONTROLLER_MIN_R2 = 0.5
+#: An input that holds its extreme value exactly on at least this many rows is taken as
+#: saturated there (a continuous signal does not repeat a value exactly).
+SATURATION_ROWS = 2
+
+
+@dataclass(frozen=True)
+class ControllerFit:
+    """A PID law recovered from a log that does not declare its controller
+    (:func:`estimate_controller`): the ``controller``, the R² of each controlled input's
+    law, the reference columns (state -> column) and the external-signal columns (input
+    -> column: logged dithers, and the logged input itself for inputs no law explains —
+    an open-loop input is external)."""
+
+    controller: Any
+    r2: dict[str, float]
+    reference: dict[str, str]
+    dither: dict[str, str]
+
+    def sentence(self) -> str:
+        loops = ", ".join(f"{j} -> {s} (R² {self.r2[j]:.3f})"
+                          for j, s in self.controller.loops.items())
+        return f"PID law fitted to the log: {loops}"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"controller": self.controller.to_dict(), "r2": dict(self.r2),
+                "reference": dict(self.reference), "dither": dict(self.dither)}
+
+
+def _pid_regressors(err: np.ndarray, u: np.ndarray, starts: np.ndarray, dt: float,
+                    lo: float, hi: float) -> np.ndarray:
+    """``[1, e(k), I(k), (e(k) − e(k−1))/dt]`` of :class:`~vesselid.plant.closedloop.PID` per
+    experiment, with its conditional integration (``I`` integrates ``e`` only while the
+    output is inside its limits)."""
+    x = np.zeros((err.size, 4))
+    x[:, 0] = 1.0
+    x[:, 1] = err
+    inside = (u > lo) & (u < hi)
+    for a, b in itertools.pairwise(starts):
+        e = err[a:b]
+        inc = np.where(inside[a:b], dt * e, 0.0)
+        x[a:b, 2] = np.concatenate([[0.0], np.cumsum(inc)[:-1]])
+        x[a + 1:b, 3] = np.diff(e) / dt
+    return x
+
+
+def estimate_controller(log: Any, spec: ModelSpec, *, min_r2: float = CONTROLLER_MIN_R2
+                        ) -> ControllerFit | None:
+    """Recover a PID law from a log with reference columns but no declared controller.
+
+    For every input ``j`` and every state ``s`` with a reference column ``<s>_ref``, the
+    law ``u_j(k) − d_j(k) = u0 + Kp e(k) + Ki I(k) + Kd (e(k) − e(k−1))/dt`` (``e = r −
+    y_s``, ``I`` the conditionally integrated error, ``d_j`` the logged dither
+    ``<j>_dither`` or zero) is fitted by least squares over the rows where the input is
+    not at a saturation limit (an extreme value it holds exactly on at least
+    :data:`SATURATION_ROWS` rows). The regressors at row ``k`` depend on the
+    measurements up to ``k`` and so on the dither only up to ``k − 1``: with a white
+    dither the fit is consistent, with the dither logged it is exact. An input is
+    controlled by the state whose law explains the most of its variation, provided
+    R² ≥ ``min_r2``; the other inputs are taken as external signals. None when no
+    reference column exists or no input meets ``min_r2``.
+    """
+    from vesselid.plant.closedloop import PID
+
+    cols = set(log.data.columns)
+    ref_cols = {s: f"{s}_ref" for s in spec.states if f"{s}_ref" in cols}
+    if not ref_cols:
+        return None
+    dither_cols = {j: f"{j}_dither" for j in spec.inputs if f"{j}_dither" in cols}
+    order = _log_order(log, spec)
+
+    def column(name: str) -> np.ndarray:
+        x = log.data[name].to_numpy(float)
+        return x if order is None else x[order]
+
+    if "experiment" in cols:
+        exp = column("experiment")
+        starts = np.concatenate([[0], np.flatnonzero(np.diff(exp) != 0) + 1, [exp.size]])
+    else:
+        starts = np.array([0, len(log.data)])
+    dt = float(spec.dt or 1.0)
+    loops, kp, ki, kd, offset, limits, r2 = {}, {}, {}, {}, {}, {}, {}
+    for j in spec.inputs:
+        u = column(j)
+        target = u - (column(dither_cols[j]) if j in dither_cols else 0.0)
+        if not (np.all(np.isfinite(u)) and np.all(np.isfinite(target))):
+            continue
+        lo, hi = -np.inf, np.inf
+        for ext in (u.min(), u.max()):
+            if np.count_nonzero(u == ext) >= SATURATION_ROWS and u.min() < u.max():
+                lo, hi = (ext, hi) if ext == u.min() else (lo, ext)
+        free = (u > lo) & (u < hi)
+        best = None
+        for s, col in ref_cols.items():
+            r, y = column(col), column(s)
+            if not (np.all(np.isfinite(r)) and np.all(np.isfinite(y))):
+                continue
+            x = _pid_regressors(r - y, u, starts, dt, lo, hi)[free]
+            t = target[free]
+            if t.size <= x.shape[1] or np.ptp(t) == 0:
+                continue
+            coef, *_ = np.linalg.lstsq(x, t, rcond=None)
+            fit = 1.0 - float(np.sum((t - x @ coef) ** 2) / np.sum((t - t.mean()) ** 2))
+            if best is None or fit > best[0]:
+                best = (fit, s, coef)
+        if best is not None and best[0] >= min_r2:
+            fit, s, coef = best
+            loops[j], r2[j] = s, fit
+            offset[j], kp[j], ki[j], kd[j] = (float(c) for c in coef)
+            if np.isfinite(lo) or np.isfinite(hi):
+                limits[j] = (float(lo) if np.isfinite(lo) else -1e300,
+                             float(hi) if np.isfinite(hi) else 1e300)
+    if not loops:
+        return None
+    pid = PID(loops=loops, kp=kp, ki=ki, kd=kd, offset=offset, limits=limits, dt=dt)
+    external = {j: dither_cols.get(j, j) if j in loops else j for j in spec.inputs}
+    external = {j: c for j, c in external.items() if j not in loops or j in dither_cols}
+    return ControllerFit(controller=pid, r2=r2,
+                         reference={s: ref_cols[s] for s in dict.fromkeys(loops.values())},
+                         dither=external)
+
+
+def undeclared_closed_loop_route(log: Any, spec: ModelSpec | None
+                                 ) -> tuple[ClosedLoopSignals, dict[str, Any]] | None:
+    """``auto``'s route for a log that does not declare its loop but logs a reference:
+    when the feedback test rejects open loop and a PID law explains the inputs
+    (:func:`estimate_controller`), the external signals for ``cl-iv`` and what was
+    found (feedback test, fitted controller); else None."""
+    from vesselid.data.logs import TrialLog
+
+    if _declares_closed_loop(log):
+        return None
+    log = log if isinstance(log, TrialLog) else TrialLog(log)
+    spec = spec or log.spec
+    if spec is None or not any(f"{s}_ref" in log.data.columns for s in spec.states):
+        return None
+    try:
+        test = feedback_test(log, spec)
+    except (IdentificationError, np.linalg.LinAlgError, ValueError):
+        return None
+    if not test.rejects:
+        return None
+    fit = estimate_controller(log, spec)
+    if fit is None:
+        return None
+    try:
+        signals = _signal_arrays(log, spec, fit.controller, fit.reference, fit.dither,
+                                 "cl-iv")
+    except IdentificationError:
+        return None
+    return signals, {"feedback": test.to_dict(), **fit.to_dict(),
+                     "sentence": fit.sentence()}

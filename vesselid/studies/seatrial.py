@@ -139,7 +139,7 @@ def seatrial_spec(dt: float = 0.1, aggregate: str | None = "relative",
     """
     from vesselid.plant.catalogue import vessel_module
 
-    key = _aggregate_key(aggregate)
+    key = aggregate_key(aggregate)
     module = vessel_module(vessel)
     merges = {"merged": getattr(module, "TRIAL_MERGES", ()), "full": ()}
     if structure not in merges:
@@ -151,7 +151,7 @@ def seatrial_spec(dt: float = 0.1, aggregate: str | None = "relative",
     return spec.with_aggregate(rel) if rel else spec
 
 
-def _aggregate_key(aggregate: str | None) -> str:
+def aggregate_key(aggregate: str | None) -> str:
     key = "none" if aggregate is None else str(aggregate).replace("-", "_")
     if key not in AGGREGATES:
         raise SeaTrialError(f"unknown aggregate {aggregate!r}; choose from {sorted(AGGREGATES)}")
@@ -505,6 +505,7 @@ def simulate_sea_trial(
     vessel: str = "cybership2",
     waves: Any = None,
     wind_input: str | None = "anemometer",
+    closed_loop: bool = False,
     **design_options: Any,
 ):
     """Simulate a multi-experiment CyberShip II sea trial and return its trial log.
@@ -559,6 +560,15 @@ def simulate_sea_trial(
         instruments; left in the equation error it biases every instrumental-variable
         estimate. ``"none"``/``None``: ``X, Y, N`` are the commands only (the wind load is
         an unmodelled disturbance).
+    closed_loop : bool
+        Run the trial under feedback instead of an open-loop force design: PI velocity
+        loops ``X → u``, ``Y → v``, ``N → r`` (:func:`closed_loop_trial_controller`) on the
+        speed log and the gyro, tracking random-step references with white force
+        dithers (:data:`CLOSED_LOOP_TRIAL`), in ``vesselid/Manoeuvring3DOF-v0``. The log
+        gets the columns ``u_ref, v_ref, r_ref, X_dither, Y_dither, N_dither`` and
+        ``metadata["closed_loop"]``, so that ``identify`` (``auto``) uses ``cl-iv``.
+        CyberShip II, ``aggregate="relative"`` (the loops control the speed-log
+        velocities the model identifies) and no ``design``; ``source`` is ignored.
 
     Returns
     -------
@@ -570,9 +580,17 @@ def simulate_sea_trial(
     """
     from vesselid.data.logs import TrialLog
 
-    key = _aggregate_key(aggregate)
+    key = aggregate_key(aggregate)
     root = np.random.SeedSequence(seed)
     design_seed, sim_seed = root.spawn(2)
+    if closed_loop:
+        return _closed_loop_sea_trial(
+            experiments, samples, seed, root, sim_seed, design=design, key=key,
+            current_speed=current_speed, current_direction=current_direction,
+            current_variation=current_variation, wind_speed=wind_speed,
+            wind_direction=wind_direction, wind_gust=wind_gust, force_noise=force_noise,
+            sensors=sensors, dt=dt, vessel=vessel, waves=waves, wind_input=wind_input,
+            design_options=design_options)
     if design is None or isinstance(design, str):
         design = _make_design(design, experiments, samples, dt, design_seed,
                               dict(design_options, vessel=vessel))
@@ -623,6 +641,59 @@ def simulate_sea_trial(
     meta["noise_order"] = SRIV_ORDER
     if design.plan is not None:
         meta["plan"] = design.plan.to_dict()
+    if waves is not None:
+        meta["waves"] = waves.to_dict()
+    return TrialLog(frame, meta)
+
+
+def _closed_loop_sea_trial(experiments: int, samples: int, seed: Any,
+                           root: np.random.SeedSequence, sim_seed: np.random.SeedSequence, *,
+                           design: Any, key: str, current_speed: float,
+                           current_direction: float, current_variation: float,
+                           wind_speed: float, wind_direction: float, wind_gust: float,
+                           force_noise: Sequence[float], sensors: Any, dt: float, vessel: str,
+                           waves: Any, wind_input: str | None,
+                           design_options: Mapping[str, Any]):
+    """:func:`simulate_sea_trial` with ``closed_loop=True``."""
+    from vesselid.data.logs import TrialLog
+    from vesselid.studies.planner import SRIV_ORDER
+
+    if design is not None or design_options:
+        raise SeaTrialError("a closed-loop sea trial has no open-loop force design: leave "
+                            "design and its options out")
+    if key != "relative":
+        raise SeaTrialError(f"a closed-loop sea trial needs aggregate='relative' (its loops "
+                            f"control the speed-log velocities), got {key!r}")
+    pid = closed_loop_trial_controller(dt, vessel)  # refuses other vessels
+    dist = _disturbances(current_speed, current_direction, wind_speed, wind_direction,
+                         current_variation, wind_gust, force_noise)
+    log = _simulate_env_closed_loop(experiments, samples, dt, dist, sensors, sim_seed, vessel)
+    frame = log.to_frame()
+    wind_key = _wind_input_key(wind_input)
+    if wind_key == "anemometer" and dist.wind_on:
+        _add_wind_input(frame, vessel)
+    if waves is not None:
+        _add_waves(frame, waves, dt, root.spawn(1)[0])
+    frame = frame.rename(columns={"u": "u_gnss", "v": "v_gnss"})
+    frame["u"] = frame["u_log"]
+    frame["v"] = frame["v_log"]
+    spec = seatrial_spec(dt, key, "merged", vessel=vessel)
+    meta = dict(log.metadata)
+    meta.update({
+        "spec": spec.to_dict(), "aggregate": key, "seed": seed, "source": "env",
+        "vessel": vessel, "design_name": "closed-loop", "structure": "merged",
+        "samples_per_experiment": samples, "experiments": experiments,
+        "wind_input": wind_key if dist.wind_on else "none", "noise_order": SRIV_ORDER,
+        "closed_loop_trial": {"controller": pid.to_dict(),
+                              "references": {"u": list(CLOSED_LOOP_TRIAL["u"]),
+                                             "v": list(CLOSED_LOOP_TRIAL["vr"]),
+                                             "r": list(CLOSED_LOOP_TRIAL["vr"]),
+                                             "hold_s": list(CLOSED_LOOP_TRIAL["hold"])},
+                              "dither_std": dict(CLOSED_LOOP_TRIAL["dither"])},
+    })
+    noise = _regressor_noise_std(key, (meta.get("system") or {}).get("sensors"))
+    if noise:
+        meta["sensor_noise_std"] = noise
     if waves is not None:
         meta["waves"] = waves.to_dict()
     return TrialLog(frame, meta)
@@ -788,6 +859,101 @@ def _simulate_env(design: SeaTrialDesign, dist, sensors, seed: np.random.SeedSeq
         fr["time"] = np.arange(len(fr)) * design.dt
         frames.append(fr)
         meta = env.to_log().metadata
+    env.close()
+    return TrialLog(pd.concat(frames, ignore_index=True), meta)
+
+
+#: The closed-loop sea trial's velocity loops (CyberShip II): PI gains, feed-forward surge
+#: force, reference levels (m/s, rad/s; held 5–30 s) and force dithers (N, N, N m). The
+#: sway and yaw references take the four sign combinations in turn over the experiments,
+#: so that every modulus term is excited (as :func:`vesselid.plant.closedloop.
+#: cybership2_velocity_design`).
+CLOSED_LOOP_TRIAL = {"kp": {"X": 30.0, "Y": 30.0, "N": 3.0}, "ki": {"X": 6.0, "Y": 6.0, "N": 0.6},
+                     "offset": {"X": 1.4}, "u": (0.5, 1.0), "vr": (0.05, 0.15),
+                     "hold": (5.0, 30.0), "dither": {"X": 0.3, "Y": 0.3, "N": 0.03}}
+
+
+def closed_loop_trial_controller(dt: float = 0.1, vessel: str = "cybership2"):
+    """The PI velocity loops ``X → u``, ``Y → v``, ``N → r`` of the closed-loop sea trial
+    (:data:`CLOSED_LOOP_TRIAL`), saturated at the vessel's force limits."""
+    from vesselid.plant.catalogue import vessel_module
+    from vesselid.plant.closedloop import PID
+
+    if vessel != "cybership2":
+        raise SeaTrialError(f"the closed-loop sea trial's velocity loops are tuned for "
+                            f"CyberShip II, not {vessel!r}")
+    fmax = tuple(float(f) for f in vessel_module(vessel).HULL.force_max)
+    c = CLOSED_LOOP_TRIAL
+    return PID(loops={"X": "u", "Y": "v", "N": "r"}, kp=c["kp"], ki=c["ki"],
+               offset=c["offset"], limits={j: (-f, f) for j, f in zip("XYN", fmax, strict=True)},
+               dt=dt)
+
+
+def _closed_loop_signals(rng: np.random.Generator, n: int, experiment: int, dt: float
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """References ``(n, 3)`` (u, v, r) and dithers ``(n, 3)`` (X, Y, N) of one experiment."""
+    c = CLOSED_LOOP_TRIAL
+    width = tuple(max(1, round(t / dt)) for t in c["hold"])
+    lo, hi = c["vr"]
+    sv, sr = [(1, 1), (1, -1), (-1, 1), (-1, -1)][experiment % 4]
+
+    def steps(a: float, b: float) -> np.ndarray:
+        n_seg = n // width[0] + 2
+        widths = rng.integers(width[0], width[1] + 1, n_seg)
+        return np.repeat(rng.uniform(a, b, n_seg), widths)[:n]
+
+    ref = np.column_stack([steps(*c["u"]), sv * steps(lo, hi), sr * steps(lo, hi)])
+    dith = rng.standard_normal((n, 3)) * np.array([c["dither"][j] for j in "XYN"])
+    return ref, dith
+
+
+def _simulate_env_closed_loop(experiments: int, samples: int, dt: float, dist, sensors,
+                              seed: np.random.SeedSequence, vessel: str):
+    """The closed-loop sea trial in ``vesselid/Manoeuvring3DOF-v0``: at every step the PI
+    loops of :func:`closed_loop_trial_controller` act on the speed log (``u``, ``v``
+    through the water) and the gyro (``r``), plus the dither; the recorder logs the
+    references and dithers and declares the loop."""
+    import gymnasium as gym
+
+    import vesselid.envs  # noqa: F401  (registers the environments)
+    from vesselid.data.logs import TrialLog
+    from vesselid.envs.recorder import TrialRecorder
+    from vesselid.plant.catalogue import vessel_module
+
+    pid = closed_loop_trial_controller(dt, vessel)
+    fmax = np.array(vessel_module(vessel).HULL.force_max, dtype=float)
+    env = TrialRecorder(gym.make(
+        "vesselid/Manoeuvring3DOF-v0", vessel=vessel, max_episode_steps=samples + 1, dt=dt,
+        current_speed=dist.current_speed, current_direction=dist.current_direction,
+        current_variation=dist.current_speed_std, wind_speed=dist.wind_speed,
+        wind_direction=dist.wind_direction, wind_gust=dist.gust_std,
+        force_noise=dist.force_noise_std, sensors=sensors, force_max=tuple(fmax)))
+    frames = []
+    env_seeds = seed.spawn(2)
+    seeds = env_seeds[0].generate_state(experiments)
+    rngs = [np.random.default_rng(s) for s in env_seeds[1].spawn(experiments)]
+    meta: dict[str, Any] = {}
+    for e in range(experiments):
+        ref, dith = _closed_loop_signals(rngs[e], samples, e, dt)
+        policy = pid.policy(env.model_spec)
+        env.clear()
+        env.declare_closed_loop(pid, reference={"u": "u_ref", "v": "v_ref", "r": "r_ref"},
+                                dither={"X": "X_dither", "Y": "Y_dither", "N": "N_dither"})
+        _, info = env.reset(seed=int(seeds[e]),
+                            options={"nu": [float(ref[0, 0]), 0.0, 0.0], "eta": [0.0, 0.0, 0.0]})
+        for k in range(samples):
+            y = [float(info["speed_log"][0]), float(info["speed_log"][1]),
+                 float(np.ravel(info["gyro"])[0])]
+            tau = policy(y, ref[k], dith[k])
+            env.annotate(u_ref=ref[k, 0], v_ref=ref[k, 1], r_ref=ref[k, 2],
+                         X_dither=dith[k, 0], Y_dither=dith[k, 1], N_dither=dith[k, 2])
+            _, _, _, _, info = env.step((np.asarray(tau) / fmax).astype(np.float32))
+        log = env.to_log()
+        fr = log.to_frame().iloc[:samples].reset_index(drop=True)
+        fr["experiment"] = e
+        fr["time"] = np.arange(len(fr)) * dt
+        frames.append(fr)
+        meta = log.metadata
     env.close()
     return TrialLog(pd.concat(frames, ignore_index=True), meta)
 
