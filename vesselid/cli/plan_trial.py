@@ -8,11 +8,11 @@ import json
 import math
 
 from vesselid.cli.common import finite_float, int_at_least
+from vesselid.studies.closed_loop_trial import plan_closed_loop_trial
 from vesselid.studies.planner import (
     PREDICTED_ESTIMATORS,
     DisturbanceLevels,
     PlannerError,
-    plan_closed_loop_trial,
     plan_trial,
 )
 

@@ -63,12 +63,7 @@ from vesselid.identify.results import IdentificationResult
 from vesselid.identify.stability import free_run_states, stability_report
 from vesselid.model.spec import ModelSpec
 
-__all__ = ["CLOSED_LOOP_ESTIMATOR", "TARGETS", "EquationDesign", "Estimator", "equation_rows"]
-
-#: The estimator ``auto`` hands a log that declares a simulable closed loop to (``cl-iv``,
-#: registered by :mod:`vesselid.identify.closedloop`, which subclasses :class:`Estimator`).
-CLOSED_LOOP_ESTIMATOR: dict[str, Any] = {}
-
+__all__ = ["TARGETS", "EquationDesign", "Estimator", "equation_rows"]
 
 #: The standard-error stopping rule of the refined iteration: where the relative residual
 #: rule (``tol``) is not reached because the iteration ran out of evaluations or stalled,
@@ -241,45 +236,6 @@ class Estimator:
     ) -> IdentificationResult:
         """Identify θ from a trial log (see :func:`vesselid.identify.identify`)."""
         from vesselid.identify import covariance_api
-
-        if self.name == "auto" and instruments is None and CLOSED_LOOP_ESTIMATOR:
-            # closed-loop hook: a log that declares its loop (controller, reference) is
-            # identified by the closed-loop estimator (vesselid.identify.closedloop)
-            from vesselid.identify.loop import closed_loop_route
-
-            signals = closed_loop_route(log, spec)
-            found = None
-            if signals is None:
-                # undeclared loop with a logged reference: feedback test, then the PID law
-                from vesselid.identify.loop import undeclared_closed_loop_route
-
-                route = undeclared_closed_loop_route(log, spec)
-                if route is not None:
-                    signals, found = route
-            if signals is not None:
-                opts = dict(combine=combine, target=target, cov_type=cov_type,
-                            cov_config=cov_config, theta_start=theta_start, max_iter=max_iter,
-                            tol=tol, eta=eta, design_threshold=design_threshold,
-                            weak_instrument_cond=weak_instrument_cond, min_samples=min_samples,
-                            sensor_noise=sensor_noise, noise_order=noise_order)
-                cl = CLOSED_LOOP_ESTIMATOR["cl-iv"].with_signals(signals)
-                res = cl.fit(log, spec, **opts)
-                if found is None:
-                    why = "cl-iv: the log declares closed loop (metadata['closed_loop'])"
-                else:
-                    from vesselid.errors import ClosedLoopWarning
-
-                    why = ("cl-iv: the log does not declare its loop, but the feedback test "
-                           f"rejects open loop (p = {found['feedback']['pvalue']:.2g}) and "
-                           f"it logs a reference; {found['sentence']}; instruments from the "
-                           "reference through the closed loop of that law — declare the "
-                           "controller in metadata['closed_loop'] to use the true one")
-                    res.diagnostics["closed_loop_detected"] = found
-                    res.diagnostics["warnings"] = [*res.diagnostics.get("warnings", []), why]
-                    warnings.warn(why, ClosedLoopWarning, stacklevel=5)
-                res.diagnostics["auto_choice"] = why
-                res.diagnostics["choice_reason"] = why
-                return res
 
         self.check_options(combine=combine)
         self.check_covariance(cov_type)

@@ -40,7 +40,6 @@ from typing import Any, ClassVar
 import numpy as np
 
 from vesselid.errors import IdentificationError
-from vesselid.identify import base
 from vesselid.identify.backend import kernels
 from vesselid.identify.base import Estimator, square_designs
 from vesselid.identify.data import RegressionData
@@ -160,4 +159,3 @@ class ClosedLoopIV(Estimator):
 
 #: ``auto`` hands a log that declares a simulable loop to this estimator
 #: (:meth:`Estimator.fit`; set here because the estimator subclasses the base class).
-base.CLOSED_LOOP_ESTIMATOR["cl-iv"] = ClosedLoopIV()

@@ -255,6 +255,10 @@ class InstrumentalGMM(Estimator):
             return super().fit(log, spec, **options)
         import warnings
 
+        routed = self._closed_loop_route(log, spec, options)
+        if routed is not None:
+            return routed
+
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             res = super().fit(log, spec, **options)
@@ -268,6 +272,45 @@ class InstrumentalGMM(Estimator):
         for w in out_caught:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         return out
+
+    def _closed_loop_route(self, log: Any, spec: ModelSpec | None, options: dict[str, Any]):
+        """``auto`` on a closed-loop log: a log that declares its loop (controller,
+        reference), or an undeclared one whose feedback test rejects and that logs a
+        reference (the PID law estimated), is identified by the closed-loop estimator
+        ``cl-iv`` (:mod:`vesselid.identify.closedloop`); None otherwise."""
+        import warnings
+
+        from vesselid.identify.loop import closed_loop_route
+
+        signals = closed_loop_route(log, spec)
+        found = None
+        if signals is None:
+            from vesselid.identify.loop import undeclared_closed_loop_route
+
+            route = undeclared_closed_loop_route(log, spec)
+            if route is not None:
+                signals, found = route
+        if signals is None:
+            return None
+        from vesselid.identify.closedloop import ClosedLoopIV
+
+        res = ClosedLoopIV().with_signals(signals).fit(log, spec, **options)
+        if found is None:
+            why = "cl-iv: the log declares closed loop (metadata['closed_loop'])"
+        else:
+            from vesselid.errors import ClosedLoopWarning
+
+            why = ("cl-iv: the log does not declare its loop, but the feedback test "
+                   f"rejects open loop (p = {found['feedback']['pvalue']:.2g}) and "
+                   f"it logs a reference; {found['sentence']}; instruments from the "
+                   "reference through the closed loop of that law — declare the "
+                   "controller in metadata['closed_loop'] to use the true one")
+            res.diagnostics["closed_loop_detected"] = found
+            res.diagnostics["warnings"] = [*res.diagnostics.get("warnings", []), why]
+            warnings.warn(why, ClosedLoopWarning, stacklevel=4)
+        res.diagnostics["auto_choice"] = why
+        res.diagnostics["choice_reason"] = why
+        return res
 
     # ------------------------------------------------------------------ core
     def _refine(self, data, spec, phi, lagged, theta, kind, order, keep, tol, steps=None,
