@@ -325,7 +325,8 @@ def _joint_start(best: dict[str, Any], model: str, n_par: int, scale: float) -> 
 def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *,
                max_iter: int = 100, tol: float = SCORING_TOL,
                models: tuple[str, ...] = DISTURBANCE_MODELS,
-               parallel: bool = True, joint: bool = False) -> dict[str, np.ndarray]:
+               parallel: bool = True, joint: bool = False,
+               details: bool = False) -> dict[str, np.ndarray]:
     """Fit every group of ``data`` from the rows of ``theta_start`` (G, P), each with
     every disturbance model; keep the model with the higher likelihood. ``joint``: then
     fit both processes at once from the better model and report that (module docstring)
@@ -355,6 +356,13 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
         "cov_sandwich": np.full((n_groups, n_par, n_par), np.nan),
         "lr_joint": np.full(n_groups, np.nan),
     }
+    if details:  # every candidate's fit (studies of the model choice)
+        for prefix in ("single_", "joint_"):
+            out[prefix + "theta"] = np.full((n_groups, n_par), np.nan)
+            out[prefix + "psi"] = np.full((n_groups, n_par + 7), np.nan)
+            out[prefix + "cov"] = np.full((n_groups, n_par, n_par), np.nan)
+            out[prefix + "cov_sandwich"] = np.full((n_groups, n_par, n_par), np.nan)
+        out["joint_converged"] = np.zeros(n_groups, dtype=bool)
     for g in range(n_groups):
         th0 = np.asarray(theta_start[g], dtype=float)
         if not np.all(np.isfinite(th0)):
@@ -393,10 +401,21 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
             out["vuong"][g] = _vuong(fits[0], fits[1], filt.count)
         out["model"][g] = models[best]
         iterations = sum(x["iterations"] for x in fits)
+        fj = None
         if joint and np.isfinite(ll[best]) and f["converged"]:
             fj = _scoring(filt, _joint_start(f, models[best], n_par, scale),
                           np.ones(n_par + 7, dtype=bool), min(max_iter, JOINT_ITER), tol)
             iterations += fj["iterations"]
+            if (fj["reason"] == MAX_ITER and fj["nll_terms"] is not None
+                    and np.sum(fj["nll_terms"]) < np.sum(f["nll_terms"])
+                    and max_iter > JOINT_ITER):
+                # already a better fit than the single process yet still climbing: a
+                # second process is there, so let the scoring finish
+                more = _scoring(filt, fj["psi"], np.ones(n_par + 7, dtype=bool),
+                                max_iter - JOINT_ITER, tol)
+                iterations += more["iterations"]
+                if more["nll_terms"] is not None:
+                    fj = more
             if fj["nll_terms"] is not None:
                 gain = float(np.sum(f["nll_terms"]) - np.sum(fj["nll_terms"]))
                 out["lr_joint"][g] = 2.0 * gain
@@ -406,19 +425,32 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
         out["converged"][g] = f["converged"]
         out["iterations"][g] = iterations
         out["reason"][g] = f["reason"]
-        if np.isfinite(ll[best]) and np.all(np.isfinite(f["psi"][:n_par])):
-            psi = f["psi"].copy()
-            psi[:n_par] /= tscale
-            ix = _layout(n_par)
-            psi[ix["mu_w"]] *= cx
-            for key in ("sigma_v", "sigma_c", "sigma_w", "sigma_e"):
-                psi[ix[key]] += math.log(cx)
-            out["theta"][g] = psi[:n_par]
-            out["psi"][g] = psi
-            out["cov"][g] = f["cov"][:n_par, :n_par] / np.outer(tscale, tscale)
-            out["cov_sandwich"][g] = (f["cov_sandwich"][:n_par, :n_par]
-                                      / np.outer(tscale, tscale))
+        if np.isfinite(ll[best]):
+            _store(out, "", g, f, tscale, cx, n_par)
+            if "single_theta" in out:
+                _store(out, "single_", g, fits[best], tscale, cx, n_par)
+                if fj is not None:
+                    _store(out, "joint_", g, fj, tscale, cx, n_par)
+                    out["joint_converged"][g] = fj["converged"]
     return out
+
+
+def _store(out: dict[str, np.ndarray], prefix: str, g: int, f: dict[str, Any],
+           tscale: np.ndarray, cx: float, n_par: int) -> None:
+    """Group ``g``'s fit ``f`` back in the log's units into ``out[prefix + key]``."""
+    if not np.all(np.isfinite(f["psi"][:n_par])):
+        return
+    psi = f["psi"].copy()
+    psi[:n_par] /= tscale
+    ix = _layout(n_par)
+    psi[ix["mu_w"]] *= cx
+    for key in ("sigma_v", "sigma_c", "sigma_w", "sigma_e"):
+        psi[ix[key]] += math.log(cx)
+    out[prefix + "theta"][g] = psi[:n_par]
+    out[prefix + "psi"][g] = psi
+    out[prefix + "cov"][g] = f["cov"][:n_par, :n_par] / np.outer(tscale, tscale)
+    out[prefix + "cov_sandwich"][g] = (f["cov_sandwich"][:n_par, :n_par]
+                                       / np.outer(tscale, tscale))
 
 
 class PredictionError(Estimator):
