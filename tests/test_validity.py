@@ -104,8 +104,32 @@ def test_auto_models_a_gm_current_and_says_why_in_one_sentence():
     assert res.diagnostics["choice"].startswith("pem-")
     reason = res.diagnostics["choice_reason"]
     assert reason.startswith("auto used the prediction-error estimator") and reason.count(". ") == 0
-    assert res.diagnostics["cov_type"] == "sandwich"
+    assert res.diagnostics["cov_type"] == "conservative"
     assert "quasi-ML sandwich" in res.summary()
+    sand, _ = _fit(_log(5, gm_current=0.1), InstrumentalGMM("auto", noise_order=4, refine=1,
+                                                             pem_fallback=True,
+                                                             pem_cov="sandwich"))
+    fisher, _ = _fit(_log(5, gm_current=0.1), InstrumentalGMM("auto", noise_order=4, refine=1,
+                                                              pem_fallback=True,
+                                                              pem_cov="fisher"))
+    np.testing.assert_array_equal(res.params, sand.params)
+    # the conservative covariance lies above both in the Loewner order
+    for other in (sand, fisher):
+        gap = np.linalg.eigvalsh(res.cov.to_numpy() - other.cov.to_numpy())
+        assert gap.min() >= -1e-12 * np.abs(res.cov.to_numpy()).max()
+
+
+def test_conservative_covariance_by_hand():
+    from vesselid.identify.pem import conservative_covariance
+
+    fisher = np.diag([4.0, 1.0])
+    sandwich = np.diag([2.0, 3.0])  # excess -2 (dropped) and +2 (kept)
+    np.testing.assert_allclose(conservative_covariance(fisher, sandwich), np.diag([4.0, 3.0]))
+    rot = np.array([[1.0, 1.0], [-1.0, 1.0]]) / np.sqrt(2.0)
+    np.testing.assert_allclose(conservative_covariance(rot @ fisher @ rot.T,
+                                                       rot @ sandwich @ rot.T),
+                               rot @ np.diag([4.0, 3.0]) @ rot.T, atol=1e-12)
+    assert np.isnan(conservative_covariance(fisher, np.full((2, 2), np.nan))).all()
 
 
 def test_pem_sandwich_and_fisher_agree_on_its_own_model():
@@ -122,6 +146,7 @@ def test_pem_sandwich_and_fisher_agree_on_its_own_model():
     (lambda: PredictionError(covariance="hc0"), "covariance must be one of"),
     (lambda: PredictionError(joint="yes"), "joint must be True or False"),
     (lambda: InstrumentalGMM("auto", pem_cov="robust"), "pem_cov must be one of"),
+    (lambda: PredictionError(covariance="largest"), "covariance must be one of"),
 ])
 def test_bad_options_one_line_reasons(make, msg):
     with pytest.raises(IdentificationError, match=msg) as err:
