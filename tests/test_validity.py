@@ -119,6 +119,18 @@ def test_auto_models_a_gm_current_and_says_why_in_one_sentence():
         assert gap.min() >= -1e-12 * np.abs(res.cov.to_numpy()).max()
 
 
+def test_weak_rejection_takes_sriv_and_says_why():
+    """The likelihood fallback needs the rejection at pem_level × the test's level; below
+    that auto takes SRIV and says so (pem_level so small that no rejection reaches it)."""
+    log = _log(5, gm_current=0.1)
+    strict, _ = _fit(log, InstrumentalGMM("auto", noise_order=4, refine=1, pem_fallback=True,
+                                          pem_level=1e-300))
+    assert strict.diagnostics["choice"] == "sriv"
+    assert "too weak" in strict.diagnostics["choice_reason"]
+    default, _ = _fit(log)
+    assert default.diagnostics["choice"].startswith("pem-")
+
+
 def test_conservative_covariance_by_hand():
     from vesselid.identify.pem import conservative_covariance
 
@@ -147,6 +159,8 @@ def test_pem_sandwich_and_fisher_agree_on_its_own_model():
     (lambda: PredictionError(joint="yes"), "joint must be True or False"),
     (lambda: InstrumentalGMM("auto", pem_cov="robust"), "pem_cov must be one of"),
     (lambda: PredictionError(covariance="largest"), "covariance must be one of"),
+    (lambda: InstrumentalGMM("auto", pem_level=0.0), "pem_level must be in"),
+    (lambda: InstrumentalGMM("auto", pem_level=True), "pem_level must be in"),
 ])
 def test_bad_options_one_line_reasons(make, msg):
     with pytest.raises(IdentificationError, match=msg) as err:
