@@ -27,6 +27,7 @@ how many runs raised or carried each warning). Writes ``docs/robustness.csv`` an
 
     nice -n 10 python scripts/robustness_study.py --runs 200 --samples 10000 --seed 2024
     python scripts/robustness_study.py --runs 30 --designs white telegraph
+    python scripts/robustness_study.py --methods auto --update   # rerun auto only
 """
 
 from __future__ import annotations
@@ -247,7 +248,10 @@ def markdown(summary: pd.DataFrame, ch: pd.DataFrame, df: pd.DataFrame,
              f"Robustness study: {args.runs} runs × {args.samples} samples per design "
              f"(short: 10³), seed {args.seed}; θ0 = (a, n, f) = {THETA0}. "
              "`python scripts/robustness_study.py "
-             f"--runs {args.runs} --samples {args.samples} --seed {args.seed}`", "",
+             f"--runs {args.runs} --samples {args.samples} --seed {args.seed}`"
+             + (f" (then `--methods {' '.join(args.methods)} --update`: those methods' "
+                "rows rerun on the same logs, the others' kept)"
+                if getattr(args, "update", False) else ""), "",
              "| design | method | param | coverage [Wilson 95 %] | bias z | median rel. err "
              "| SE / MC sd | raised |", "|---|---|---|---|---|---|---|---|"]
     for _, r in summary.iterrows():
@@ -280,6 +284,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="registered estimator names (default: %(default)s)")
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "docs")
     ap.add_argument("--raw", type=Path, default=None, help="also write every run's rows")
+    ap.add_argument("--update", action="store_true",
+                    help="keep the rows of the other methods from --out's robustness.csv "
+                         "(the tables of auto's choices and warnings need auto among "
+                         "--methods)")
     ap.add_argument("--from-raw", type=Path, default=None,
                     help="rebuild the tables from a file --raw wrote (no simulation)")
     args = ap.parse_args(argv)
@@ -322,6 +330,19 @@ def _report(df: pd.DataFrame, args: argparse.Namespace) -> int:
     df = df.assign(choice=df["choice"].fillna("").astype(str),
                    warnings=df["warnings"].fillna("").astype(str))
     summary = summarise(df)
+    old_csv = args.out / "robustness.csv"
+    if getattr(args, "update", False) and old_csv.is_file():
+        old = pd.read_csv(old_csv)
+        done = set(zip(summary["design"], summary["method"], strict=True))
+        keep = old[[(d, m) not in done for d, m in zip(old["design"], old["method"],
+                                                       strict=True)]]
+        summary = pd.concat([summary, keep], ignore_index=True)
+        order = {m: i for i, m in enumerate(METHODS)}
+        summary = summary.sort_values(
+            ["design", "method", "param"], kind="stable",
+            key=lambda c: c.map({d: i for i, d in enumerate(DESIGNS)}) if c.name == "design"
+            else c.map(order) if c.name == "method" else c.map(PARAMS.index)
+        ).reset_index(drop=True)
     ch = choices(df)
     pd.set_option("display.width", 200)
     print(summary.to_string(index=False, float_format=lambda x: f"{x:.4g}"))

@@ -158,3 +158,25 @@ def test_pem_bad_input_one_line_reasons(capsys, tmp_path):
     code = main(["identify", str(path), "--method", "pem", "--cov", "hac"])
     err = capsys.readouterr().err
     assert code == 2 and len(err.strip().splitlines()) == 1 and "Fisher" in err
+
+
+def test_joint_fit_that_gains_likelihood_is_scored_to_convergence(monkeypatch):
+    """A joint fit that already beats the single process when its first scoring budget
+    runs out is continued to convergence (and then reported), not dropped."""
+    from test_validity import SPEC as HEAVE
+    from test_validity import _log
+
+    from vesselid.identify import pem
+    from vesselid.identify.data import from_log
+    from vesselid.identify.estimators import estimate
+
+    data, spec = from_log(_log(11, gm_current=0.1, gm_sensor=0.1), HEAVE)
+    base = estimate(data, spec, "iv-zero-mean", combine="pooled")
+    full = pem.fit_groups(data, spec, base.theta, joint=True)
+    assert full["model"][0] == pem.JOINT and full["converged"][0]
+    monkeypatch.setattr(pem, "JOINT_ITER", 2)  # the first budget runs out at once
+    cut = pem.fit_groups(data, spec, base.theta, joint=True)
+    assert cut["model"][0] == pem.JOINT and cut["converged"][0]
+    assert cut["lr_joint"][0] > 0
+    se = np.sqrt(np.diag(full["cov"][0]))
+    assert np.all(np.abs(cut["theta"][0] - full["theta"][0]) < 0.05 * se)
