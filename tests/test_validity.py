@@ -192,8 +192,8 @@ def test_white_logs_rarely_take_the_likelihood_fit_and_coloured_currents_always_
     share of runs binomially plausible for 0.5 % (three binomial standard errors), against
     the tests' 4–6 % rejections at their own levels; on a Gauss–Markov current every run
     still takes it (the strict level keeps the power where pem matters)."""
-    from vesselid.calibration import _heave_batches, _heave_data, heave_scenario
     from vesselid.identify.registry import get_estimator
+    from vesselid.studies.calibration import _heave_batches, _heave_data, heave_scenario
 
     shares = {}
     for scenario, runs in (("table1-alternating", 200), ("gm-current-random", 60)):
