@@ -18,6 +18,7 @@ import vesselid.envs
 
 ROOT = Path(vesselid.__file__).parent
 ENVS = Path(vesselid.envs.__file__).parent  # installed as vesselid.envs (folder envs/)
+REPO = Path(__file__).resolve().parents[1]  # the checkout: pyproject.toml
 
 
 def _module_name(path: Path) -> str:
@@ -169,7 +170,7 @@ def _layers() -> list[list[str]]:
     """The layers contract of ``pyproject.toml``, top first, as full module prefixes."""
     import tomllib
 
-    text = (ROOT.parent / "pyproject.toml").read_text()
+    text = (REPO / "pyproject.toml").read_text()
     contracts = tomllib.loads(text)["tool"]["importlinter"]["contracts"]
     layers = next(c for c in contracts if c["type"] == "layers")
     (container,) = layers["containers"]
@@ -220,11 +221,11 @@ def test_nothing_outside_the_command_line_imports_it() -> None:
 
 
 def test_import_linter_contracts_hold() -> None:
-    """``lint-imports`` (the CI step) on the installed package."""
+    """``lint-imports`` (the CI step) from the checkout."""
     pytest.importorskip("importlinter")
     import subprocess
 
     run = subprocess.run([sys.executable, "-c", "from importlinter.cli import lint_imports_command;"
                           " lint_imports_command()"], capture_output=True, text=True,
-                         cwd=ROOT.parent)
+                         cwd=REPO)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
