@@ -6,6 +6,7 @@ import warnings
 import numpy as np
 import pandas as pd
 import pytest
+from _refine import refine_with_fixed_point_map
 
 from vesselid.data.logs import TrialLog
 from vesselid.errors import (
@@ -186,35 +187,10 @@ def test_batch_marks_only_failing_groups():
     assert res.converged[[0, 2]].all() and np.isfinite(res.theta[[0, 2]]).all()
 
 
-def _refine_with_fixed_point_map(monkeypatch, fixed_point_map, max_iter: int):
-    """Run :func:`refined_iv` on a small heave log with ``T(θ)`` replaced by
-    ``fixed_point_map(θ, θ0)``; returns the result and θ0."""
-    system = heave()
-    spec = system.identification_spec()
-    sim = system.simulate(500, n_runs=1, seed=0)
-    data = from_arrays(spec, sim.y, sim.u)
-    target = spec.theta0_vector()
-    seen = {}
-    real_compute = estimators.compute_moments
-
-    def fake_compute(data_, spec_, theta=None, **kw):
-        seen["theta"] = np.array(theta, copy=True)
-        return real_compute(data_, spec_, theta, **kw)
-
-    def fake_solve(mom, data_, spec_, *, active=None, **kw):
-        th = seen["theta"]
-        ok = np.ones(th.shape[0], dtype=bool) if active is None else active.copy()
-        return np.where(ok[:, None], fixed_point_map(th, target), np.nan), ok
-
-    monkeypatch.setattr(estimators, "compute_moments", fake_compute)
-    monkeypatch.setattr(estimators, "solve_moments", fake_solve)
-    return refined_iv(data, spec, target[None] + 0.01, max_iter=max_iter), target
-
-
 def test_period_two_oscillation_is_damped(monkeypatch):
     """A fixed-point map with eigenvalue −1.5 oscillates and diverges undamped; the step
     control halves the step and converges, reporting the oscillation."""
-    res, target = _refine_with_fixed_point_map(
+    res, target = refine_with_fixed_point_map(
         monkeypatch, lambda th, t0: t0 - 1.5 * (th - t0), max_iter=200)
     assert res.converged[0]
     assert res.oscillation[0]
@@ -234,7 +210,7 @@ def test_noisy_fixed_point_map_stalls_and_says_so(monkeypatch):
     iteration stops once its best residual has not improved for STALL_PATIENCE
     evaluations, reports the stall, and returns an estimate at that noise level."""
     jitter = np.random.default_rng(5)
-    res, target = _refine_with_fixed_point_map(
+    res, target = refine_with_fixed_point_map(
         monkeypatch,
         lambda th, t0: t0 + 0.5 * (th - t0) + 1e-6 * jitter.standard_normal(th.shape),
         max_iter=500)

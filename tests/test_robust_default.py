@@ -8,6 +8,7 @@ import warnings
 
 import numpy as np
 import pytest
+from _refine import refine_with_fixed_point_map
 
 from vesselid.errors import EstimationFailedError, FallbackWarning, NoUsableModelError
 from vesselid.identify import identify
@@ -226,35 +227,11 @@ def test_excitation_names_a_constant_input_and_the_lost_terms():
 def _noisy_map_refinement(monkeypatch, noise: float, average: bool):
     """:func:`refined_iv` on a heave log with ``T(θ) = θ0 + (θ − θ0)/2 + noise·N(0, 1)``
     (a stall: the residual cannot fall below the noise)."""
-    from vesselid.identify import estimators
-    from vesselid.identify.data import from_arrays
-    from vesselid.plant.systems import heave
-
-    system = heave()
-    spec = system.identification_spec()
-    sim = system.simulate(500, n_runs=1, seed=0)
-    data = from_arrays(spec, sim.y, sim.u)
-    target = spec.theta0_vector()
     jitter = np.random.default_rng(5)
-    seen = {}
-    real_compute = estimators.compute_moments
-
-    def fake_compute(data_, spec_, theta=None, **kw):
-        seen["theta"] = np.array(theta, copy=True)
-        return real_compute(data_, spec_, theta, **kw)
-
-    def fake_solve(mom, data_, spec_, *, active=None, **kw):
-        th = seen["theta"]
-        ok = np.ones(th.shape[0], dtype=bool) if active is None else active.copy()
-        t = target + 0.5 * (th - target) + noise * jitter.standard_normal(th.shape)
-        return np.where(ok[:, None], t, np.nan), ok
-
-    monkeypatch.setattr(estimators, "compute_moments", fake_compute)
-    monkeypatch.setattr(estimators, "solve_moments", fake_solve)
-    if average:
-        with estimators.stall_averaging():
-            return estimators.refined_iv(data, spec, target[None] + 0.01, max_iter=500), target
-    return estimators.refined_iv(data, spec, target[None] + 0.01, max_iter=500), target
+    return refine_with_fixed_point_map(
+        monkeypatch,
+        lambda th, t0: t0 + 0.5 * (th - t0) + noise * jitter.standard_normal(th.shape),
+        max_iter=500, average=average)
 
 
 def test_stall_averaging_locates_the_fixed_point(monkeypatch):
