@@ -149,9 +149,9 @@ def planner_plan() -> str:
 
 
 def _planner_vessel():
-    from vesselid.studies.manoeuvres import NominalVessel
+    from vesselid.plant.vessels import VesselModel, cybership2
 
-    return NominalVessel.cybership2()
+    return VesselModel(cybership2.HULL, dt=0.1)
 
 
 #: name -> (function, digest computed on main before the refactor)

@@ -44,7 +44,8 @@ def truth_columns(state: str) -> tuple[str, str, str]:
 
 @dataclass(frozen=True)
 class System:
-    """A simulated plant: model structure with θ0, disturbances, sensors and input design.
+    """A simulated plant (:class:`vesselid.plant.plant.Plant`): model structure with θ0,
+    disturbances, sensors and input design.
 
     Parameters
     ----------
@@ -264,7 +265,7 @@ class System:
         stack = self._draw_batch(run_seeds, n_samples)
         signs = np.array([self.sign(s) for s in self.spec.states], dtype=float)
         v = stack["q"] * signs
-        x0 = np.array([float(self.x0.get(s, 0.0)) for s in self.spec.states])
+        x0 = self._x0(None)
         x = simulate_states(self.spec, stack["u"], x0=x0, v=v, w=stack["w"], limit=limit)
         y = stack["e"]  # y = e + x in the sensor-noise buffer (not kept): no new array
         y += x
@@ -276,6 +277,38 @@ class System:
             entropy=[ss.entropy if isinstance(ss.entropy, int) else None for ss in run_seeds][:1],
             spawn_keys=[list(ss.spawn_key) for ss in run_seeds],
         )
+
+    def run(self, inputs: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
+        """Noise-free states ``x(0..n)`` ``(n + 1, n_states)`` for inputs ``(n, n_inputs)``
+        from ``x0`` (default the system's ``x0``): θ0 without current or noise."""
+        u = np.asarray(inputs, dtype=float)
+        return simulate_states(self.spec, np.vstack([u, u[-1:]]), x0=self._x0(x0))
+
+    def disturbed_paths(self, inputs: np.ndarray, x0: np.ndarray | None = None, *,
+                        paths: int, seed: int) -> np.ndarray:
+        """States ``(paths, n + 1, n_states)`` under random realisations of the process
+        disturbances (current ``q``, entering as ``v = sign · q``, then process noise
+        ``w``; states in spec order, as :meth:`simulate` draws them; no sensor noise),
+        from ``default_rng(seed)``."""
+        u = np.asarray(inputs, dtype=float)
+        u = np.vstack([u, u[-1:]])
+        n = u.shape[0]
+        rng = np.random.default_rng(seed)
+        zero = Zero()
+        signs = np.array([self.sign(s) for s in self.spec.states], dtype=float)
+        out = np.empty((int(paths), n, self.spec.n_states))
+        for j in range(int(paths)):
+            q = np.column_stack([self.current.get(s, zero).sample(rng, n)
+                                 for s in self.spec.states])
+            w = np.column_stack([self.process_noise.get(s, zero).sample(rng, n)
+                                 for s in self.spec.states])
+            out[j] = simulate_states(self.spec, u, x0=self._x0(x0), v=q * signs, w=w)
+        return out
+
+    def _x0(self, x0: np.ndarray | None) -> np.ndarray:
+        if x0 is not None:
+            return np.asarray(x0, dtype=float)
+        return np.array([float(self.x0.get(s, 0.0)) for s in self.spec.states])
 
 
 @dataclass

@@ -391,7 +391,6 @@ def planned_sea_trial_design(
     SeaTrialDesign
         With ``plan`` holding the :class:`~vesselid.studies.planner.TrialPlan`.
     """
-    from vesselid.studies.manoeuvres import NominalVessel
     from vesselid.studies.planner import plan_trial
 
     n_e, n_d = int(experiments), int(samples)
@@ -403,9 +402,9 @@ def planned_sea_trial_design(
     if plan is None:
         plan = plan_trial(n_e * n_d, n_e, levels=levels, dt=dt, warmup=n_warm)
     n_e, n_d, n_warm = plan.experiments, plan.samples, plan.warmup
-    vessel = NominalVessel.cybership2(dt)
-    forces = plan.forces(vessel)
-    nominal = np.stack([vessel.run(f, np.zeros(3))[n_warm:-1] for f in forces])
+    plant = plan.levels.plant(dt)
+    forces = plan.forces(plant)
+    nominal = np.stack([plant.run(f, np.zeros(3))[n_warm:-1] for f in forces])
     rows = []
     for e, prog in enumerate(plan.programmes):
         f = forces[e, n_warm:]
