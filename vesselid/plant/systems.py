@@ -195,14 +195,20 @@ class System:
         spec = self.spec
         for j, name in enumerate(spec.inputs):
             out["u"][r, :, j] = self.input_design(name, experiment).sample(rng, n)
-        for key, procs in (("q", self.current), ("w", self.process_noise),
-                           ("e", self.sensor_noise)):
-            for i, s in enumerate(spec.states):
-                proc = procs.get(s)
-                if proc is not None:
-                    _fill(proc, rng, out[key][r, :, i])
+        self._draw_states_into(rng, out, r, ("q", "w", "e"))
         for j, s in enumerate(self.sensor_states):
             _fill(self.current_sensor_noise[s], rng, out["e2"][r, :, j])
+
+    def _draw_states_into(self, rng: np.random.Generator, out: dict[str, np.ndarray], r: int,
+                          keys: Sequence[str]) -> None:
+        """Draw run ``r``'s state-wise disturbances ``keys`` (of ``q``, ``w``, ``e``, in
+        that order; states in spec order) into ``out[key][r]``."""
+        procs = {"q": self.current, "w": self.process_noise, "e": self.sensor_noise}
+        for key in keys:
+            for i, s in enumerate(self.spec.states):
+                proc = procs[key].get(s)
+                if proc is not None:
+                    _fill(proc, rng, out[key][r, :, i])
 
     def _draw_batch(
         self, run_seeds: Sequence[np.random.SeedSequence], n: int
@@ -288,22 +294,23 @@ class System:
                         paths: int, seed: int) -> np.ndarray:
         """States ``(paths, n + 1, n_states)`` under random realisations of the process
         disturbances (current ``q``, entering as ``v = sign · q``, then process noise
-        ``w``; states in spec order, as :meth:`simulate` draws them; no sensor noise),
-        from ``default_rng(seed)``."""
+        ``w``; no sensor noise), drawn from one ``default_rng(seed)``, path after path.
+
+        A path draws as :meth:`simulate` draws a run after its inputs, so with an input
+        design that draws nothing (:class:`~vesselid.plant.signals.ConstantInput`) the
+        first path's ``x(0..n−1)`` is run 0 of ``simulate(n, run_seeds=[SeedSequence(seed)])``.
+        """
         u = np.asarray(inputs, dtype=float)
-        u = np.vstack([u, u[-1:]])
-        n = u.shape[0]
+        n, n_st, m = u.shape[0], self.spec.n_states, int(paths)
         rng = np.random.default_rng(seed)
-        zero = Zero()
+        out = {"q": np.zeros((m, n + 1, n_st)), "w": np.zeros((m, n + 1, n_st))}
+        view = {k: v[:, :n] for k, v in out.items()}
+        for r in range(m):
+            self._draw_states_into(rng, view, r, ("q", "w"))
         signs = np.array([self.sign(s) for s in self.spec.states], dtype=float)
-        out = np.empty((int(paths), n, self.spec.n_states))
-        for j in range(int(paths)):
-            q = np.column_stack([self.current.get(s, zero).sample(rng, n)
-                                 for s in self.spec.states])
-            w = np.column_stack([self.process_noise.get(s, zero).sample(rng, n)
-                                 for s in self.spec.states])
-            out[j] = simulate_states(self.spec, u, x0=self._x0(x0), v=q * signs, w=w)
-        return out
+        u_pad = np.broadcast_to(np.vstack([u, u[-1:]]), (m, n + 1, u.shape[1]))
+        return simulate_states(self.spec, u_pad, x0=self._x0(x0), v=out["q"] * signs,
+                               w=out["w"])
 
     def _x0(self, x0: np.ndarray | None) -> np.ndarray:
         if x0 is not None:
