@@ -447,12 +447,16 @@ class VesselModel:
                   direction: np.ndarray | float) -> np.ndarray:
         """Blendermann load ``(n, 3)`` of a true wind (``speed``, going-to ``direction``,
         earth frame) on the vessel moving with ``states`` ``[u, v, r]`` at heading ``psi``:
-        apparent wind ``[u, v] − V_w [cos, sin](β_w − ψ)``, angle ``γ_rw = −atan2(v_rw,
-        u_rw)`` (:func:`~vesselid.plant.vessels.wind.blendermann_wind_force` with the
-        plant's wind model)."""
+        :meth:`apparent_wind_load` of ``[u, v] − V_w [cos, sin](β_w − ψ)``."""
         d = direction - psi
         urw = states[:, 0] - speed * np.cos(d)
         vrw = states[:, 1] - speed * np.sin(d)
+        return self.apparent_wind_load(urw, vrw)
+
+    def apparent_wind_load(self, urw: np.ndarray, vrw: np.ndarray) -> np.ndarray:
+        """Blendermann load ``(n, 3)`` of the body-frame air velocity ``[u_rw, v_rw] = ν −
+        ν_w`` (angle ``γ_rw = −atan2(v_rw, u_rw)``, 0: wind from ahead) with the plant's
+        wind model (:func:`~vesselid.plant.vessels.wind.blendermann_wind_force`)."""
         return blendermann_wind_force(-np.arctan2(vrw, urw), np.hypot(urw, vrw),
                                       self.wind_model)
 
