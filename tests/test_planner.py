@@ -306,3 +306,32 @@ def test_success_probability_matches_the_normal_model():
     assert diag.success_probability(tolerance=0.0) == 0.0
     assert diag.success_probability(tolerance=1e6) == 1.0
     assert 0.0 <= plan.success_probability() <= 1.0
+
+
+def test_the_planner_plans_on_the_default_sea_trial_plant():
+    """``DisturbanceLevels()`` is the sea trial's default plant in everything the planner
+    models: hull, unmodelled forces, wind, gusts and direction changes, the noise of the
+    speed log and gyro and its clipping."""
+    import inspect
+
+    from vesselid.plant.vessels import SENSOR_CHANNELS
+    from vesselid.studies import seatrial
+    from vesselid.studies.planner import DisturbanceLevels
+
+    p = {k: v.default
+         for k, v in inspect.signature(seatrial.simulate_sea_trial).parameters.items()}
+    dist = seatrial._disturbances(p["current_speed"], p["current_direction"], p["wind_speed"],
+                                  p["wind_direction"], p["current_variation"], p["wind_gust"],
+                                  p["force_noise"])
+    sea = seatrial._plant(p["vessel"], p["dt"], dist, p["sensors"])
+    planned = DisturbanceLevels().plant(p["dt"])
+    assert planned.hull is sea.hull
+    for name in ("wind_speed", "wind_direction", "gust_std", "gust_time_constant",
+                 "wind_direction_std", "wind_direction_time_constant", "force_noise_std",
+                 "force_noise_time_constant", "wind_on", "wind_model"):
+        assert getattr(planned.disturbances, name) == getattr(sea.disturbances, name), name
+    assert planned.wind_model == sea.wind_model
+    idx = [SENSOR_CHANNELS.index(c) for c in ("u_log", "v_log", "r")]
+    np.testing.assert_array_equal(planned.sensors.std_vector()[idx],
+                                  sea.sensors.std_vector()[idx])
+    assert planned.sensors.clip == sea.sensors.clip
