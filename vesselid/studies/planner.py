@@ -487,12 +487,13 @@ def design_information(
     dt = plant.dt
     dist = plant.disturbances
     x_init = np.zeros(3) if x0 is None else np.asarray(x0, float)
-    xs = plant.run(forces, x_init)[:-1]
+    x_nominal = plant.run(forces, x_init)
+    xs = x_nominal[:-1]
     psi = heading(xs, dt)
     x_paths = None
     if int(paths) > 0 and not acov_only:
         x_paths = plant.disturbed_paths(np.asarray(forces, float), x_init, paths=int(paths),
-                                        seed=seed)[:, warmup:-1]
+                                        seed=seed, nominal=x_nominal)[:, warmup:-1]
     xs, tau, psi = xs[warmup:], np.asarray(forces, float)[warmup:], psi[warmup:]
     spec = plant.spec if spec is None else spec
     codes = spec.codes

@@ -474,7 +474,8 @@ class VesselModel:
         return base, g_speed, g_dir
 
     def disturbed_paths(self, inputs: np.ndarray, x0: np.ndarray | None = None, *,
-                        paths: int, seed: int) -> np.ndarray:
+                        paths: int, seed: int,
+                        nominal: np.ndarray | None = None) -> np.ndarray:
         """States ``(paths, n + 1, 3)`` driven by ``inputs`` plus random realisations of
         the process disturbances (no sensor noise), from ``default_rng(seed)``.
 
@@ -487,7 +488,8 @@ class VesselModel:
         processes are taken Gaussian and unbounded (the linearisation the trial planner's
         covariance uses); their sum enters with the inputs. The states are the velocity
         through the water; current variations are not drawn. Every path starts from
-        ``x0`` (default at rest).
+        ``x0`` (default at rest). ``nominal``: the noise-free states :meth:`run` gives for
+        these inputs and ``x0``, when the caller has them (else they are simulated).
         """
         tau = np.asarray(inputs, dtype=float)
         n = tau.shape[0]
@@ -496,7 +498,7 @@ class VesselModel:
         rng = np.random.default_rng(seed)
         gains = []
         if d.wind_on:
-            xs = self.run(tau, x_init)[:-1]
+            xs = (self.run(tau, x_init) if nominal is None else nominal)[:-1]
             _, g_speed, g_dir = self.wind_linearisation(xs, heading(xs, self.dt))
             for g, std, tc in ((g_speed, d.gust_std, d.gust_time_constant),
                                (g_dir, d.wind_direction_std, d.wind_direction_time_constant)):
