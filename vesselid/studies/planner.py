@@ -82,6 +82,7 @@ from vesselid.plant.vessels.environment import (
     VesselSensors,
     clipped_variance,
 )
+from vesselid.plant.vessels.hull import Hull
 from vesselid.plant.vessels.kernel import VesselModel
 from vesselid.studies.manoeuvres import (
     FORCE_LIMITS,
@@ -167,7 +168,7 @@ class DisturbanceLevels:
     wind_input: str = "anemometer"
     components: tuple[DisturbanceComponent, ...] = ()
 
-    def plant(self, dt: float = 0.1, hull: Any = None) -> VesselModel:
+    def plant(self, dt: float = 0.1, hull: Hull | None = None) -> VesselModel:
         """The vessel plant of these levels: ``hull`` (default CyberShip II) with the
         unmodelled forces, wind and components as :class:`VesselDisturbances` and the
         speed log (``u, v``) and gyro (``r``) as :class:`VesselSensors`."""
