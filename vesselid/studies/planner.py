@@ -1174,9 +1174,10 @@ def predict_design(forces: np.ndarray, *, warmup: int = 0, dt: float = 0.1,
 #: colour and C tests reject the delayed instruments — the Gauss–Markov forces colour the
 #: equation error — and it falls back to SRIV, so it is predicted as SRIV).
 PREDICTED_ESTIMATORS = ("auto", "sriv", "iv-zero-mean")
-#: AR order of the SRIV noise model on a sea trial: ``vesselid sea-trial`` records it in
-#: the log (``metadata["noise_order"]``), and ``auto``'s fallback and ``sriv`` use it
-#: instead of their default 4. The equation error is the differenced white sensor noise
+#: AR order of the SRIV noise model on a sea trial, passed to identify explicitly
+#: (``noise_order``; ``vesselid identify --noise-order``, which ``vesselid sea-trial``
+#: prints): ``auto``'s fallback and ``sriv`` then use it instead of their default 4.
+#: The equation error is the differenced white sensor noise
 #: (an MA(1) whose root is near the unit circle: lag-1 correlation −0.5) plus 2-s
 #: Gauss–Markov forces, which a low-order AR model whitens poorly
 #: (``scripts/planner_study.py`` compares the orders on simulated trials).
