@@ -17,13 +17,8 @@ if TYPE_CHECKING:
 __all__ = ["DEFAULT_COMBINE", "asymptotic_covariance", "identify"]
 
 
-def identify(
-    log: Any,
-    spec: ModelSpec | None = None,
-    method: str | Estimator = DEFAULT_METHOD,
-    options: FitOptions | None = None,
-    **overrides: Any,
-) -> IdentificationResult:
+def identify(log: Any, spec: ModelSpec | None = None, method: str | Estimator = DEFAULT_METHOD,
+             options: FitOptions | None = None, **overrides: Any) -> IdentificationResult:
     """Identify the parameters of a second-order modulus model from a trial log.
 
     Parameters

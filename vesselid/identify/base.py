@@ -148,10 +148,10 @@ class _FitRun:
     residual_checks: dict[str, Any] = field(default_factory=dict)
     fit_one: dict[str, float] = field(default_factory=dict)
     fit_free: dict[str, float] = field(default_factory=dict)
-    stability: dict[str, Any] = field(default_factory=dict)
-    eta_used: dict[str, float] = field(default_factory=dict)
-    eta_source: str = ""
     design: Any = None
+    stability: dict[str, Any] = field(default_factory=dict)
+    eta_source: str = ""
+    eta_used: dict[str, float] = field(default_factory=dict)
     smoothness: dict[str, Any] = field(default_factory=dict)
 
 
