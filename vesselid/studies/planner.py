@@ -847,6 +847,8 @@ class TrialPlan:
                          f"AR({SRIV_ORDER}) prefilter",
                  "auto": "estimator auto = SRIV here: zero-mean simulated instruments, "
                          f"AR({SRIV_ORDER}) prefilter"}[self.estimator]
+        if self.estimator != "iv-zero-mean":
+            model += f"; identify with --noise-order {SRIV_ORDER}"
         if self.paths:
             model += (f"; instruments against the regressors of {self.paths} disturbed "
                       "paths")
