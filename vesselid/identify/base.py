@@ -329,8 +329,8 @@ class Estimator:
         legacy = legacy.get("noise_order") if isinstance(legacy, Mapping) else None
         if legacy is not None and opts.noise_order is None and _prefilters(self):
             run.warn(f"the log's metadata['noise_order'] ({legacy!r}) is not an estimator "
-                     "setting and is ignored; pass noise_order (vesselid identify "
-                     "--noise-order) to choose the AR order of the noise model",
+                     f"setting and is ignored; pass noise_order={legacy!r} (vesselid identify "
+                     f"--noise-order {legacy!r}) to use that AR order of the noise model",
                      FutureWarning)
         data, spec = from_log(log, spec, min_samples=opts.min_samples,
                               sensor_noise=opts.sensor_noise, noise_order=opts.noise_order)
