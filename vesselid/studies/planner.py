@@ -831,6 +831,8 @@ class TrialPlan:
                          f"AR({SRIV_ORDER}) prefilter",
                  "auto": "estimator auto = SRIV here: zero-mean simulated instruments, "
                          f"AR({SRIV_ORDER}) prefilter"}[self.estimator]
+        if self.estimator != "iv-zero-mean":
+            model += f"; identify with --noise-order {SRIV_ORDER}"
         if self.paths:
             model += (f"; instruments against the regressors of {self.paths} disturbed "
                       "paths")
@@ -1159,9 +1161,10 @@ def predict_design(forces: np.ndarray, *, warmup: int = 0, dt: float = 0.1,
 #: colour and C tests reject the delayed instruments — the Gauss–Markov forces colour the
 #: equation error — and it falls back to SRIV, so it is predicted as SRIV).
 PREDICTED_ESTIMATORS = ("auto", "sriv", "iv-zero-mean")
-#: AR order of the SRIV noise model on a sea trial: ``vesselid sea-trial`` records it in
-#: the log (``metadata["noise_order"]``), and ``auto``'s fallback and ``sriv`` use it
-#: instead of their default 4. The equation error is the differenced white sensor noise
+#: AR order of the SRIV noise model on a sea trial, passed to identify explicitly
+#: (``noise_order``; ``vesselid identify --noise-order``, which ``vesselid sea-trial``
+#: prints): ``auto``'s fallback and ``sriv`` then use it instead of their default 4.
+#: The equation error is the differenced white sensor noise
 #: (an MA(1) whose root is near the unit circle: lag-1 correlation −0.5) plus 2-s
 #: Gauss–Markov forces, which a low-order AR model whitens poorly
 #: (``scripts/planner_study.py`` compares the orders on simulated trials).

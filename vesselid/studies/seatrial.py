@@ -576,6 +576,14 @@ def simulate_sea_trial(
         wind_speed, wind_angle, true_*`` (with waves also ``true_wave_u, true_wave_v,
         true_wave_r, true_wave_psi``); metadata ``spec`` (identification spec with θ0 and
         the aggregate relation), ``design`` (the experiment table), ``system``, ``waves``.
+
+    Notes
+    -----
+    The log describes the trial, not how to identify it: ``sriv`` and ``auto``'s SRIV
+    fallback need an AR noise model of order :data:`vesselid.studies.planner.SRIV_ORDER`
+    (16) on this trial's equation error, given explicitly —
+    ``identify(log, noise_order=SRIV_ORDER)``, ``vesselid identify --noise-order 16``
+    (``vesselid sea-trial`` prints that command).
     """
     from vesselid.data.logs import TrialLog
 
@@ -634,11 +642,6 @@ def simulate_sea_trial(
     noise = _regressor_noise_std(key, (meta.get("system") or {}).get("sensors"))
     if noise:
         meta["sensor_noise_std"] = noise
-    # the AR order of the SRIV noise model (auto's fallback) this trial's equation error
-    # needs (the planner predicts with the same order)
-    from vesselid.studies.planner import SRIV_ORDER
-
-    meta["noise_order"] = SRIV_ORDER
     if design.plan is not None:
         meta["plan"] = design.plan.to_dict()
     if waves is not None:
@@ -656,7 +659,6 @@ def _closed_loop_sea_trial(experiments: int, samples: int, seed: Any,
                            design_options: Mapping[str, Any]):
     """:func:`simulate_sea_trial` with ``closed_loop=True``."""
     from vesselid.data.logs import TrialLog
-    from vesselid.studies.planner import SRIV_ORDER
 
     if design is not None or design_options:
         raise SeaTrialError("a closed-loop sea trial has no open-loop force design: leave "
@@ -683,7 +685,7 @@ def _closed_loop_sea_trial(experiments: int, samples: int, seed: Any,
         "spec": spec.to_dict(), "aggregate": key, "seed": seed, "source": "env",
         "vessel": vessel, "design_name": "closed-loop", "structure": "merged",
         "samples_per_experiment": samples, "experiments": experiments,
-        "wind_input": wind_key if dist.wind_on else "none", "noise_order": SRIV_ORDER,
+        "wind_input": wind_key if dist.wind_on else "none",
         "closed_loop_trial": {"controller": pid.to_dict(),
                               "references": {"u": list(CLOSED_LOOP_TRIAL["u"]),
                                              "v": list(CLOSED_LOOP_TRIAL["vr"]),
