@@ -36,6 +36,8 @@ N_NOISE = 7
 
 _SQ3 = np.sqrt(3.0)
 _TINY = 1e-300
+#: Directions of the tangent recursion advanced together in vector registers.
+_LANES = 16
 
 
 @njit(cache=True, nogil=True)
@@ -187,6 +189,10 @@ def gaussian_filter_tangent(psi, idx, y, u, starts, p_init, kind, fa, fb,
     n_u = u.shape[1]
     n_sig = 1 + n_u
     nd = idx.size
+    # the directions padded to a multiple of _LANES (padding: no parameter, derivatives
+    # zero): the compiled loop over directions runs in vector registers only from that
+    # many iterations on, and a padded pass costs less than an unpadded one
+    ndp = max(_LANES, ((nd + _LANES - 1) // _LANES) * _LANES)
     fv = np.empty(2 * n_sig + 1)
     fv[0] = 1.0
     fv[n_sig] = 1.0
@@ -202,17 +208,17 @@ def gaussian_filter_tangent(psi, idx, y, u, starts, p_init, kind, fa, fb,
     qv = sv2 * (1.0 - rv * rv)
     qc = sc2 * (1.0 - rc * rc)
     # per direction: the θ term it moves (-1: none) and the noise parameters' derivatives
-    term = np.full(nd, -1, dtype=np.int64)
-    tkind = np.zeros(nd, dtype=np.int64)
-    dmw = np.zeros(nd)
-    drv = np.zeros(nd)
-    dsv2 = np.zeros(nd)
-    drc = np.zeros(nd)
-    dsc2 = np.zeros(nd)
-    dsw2 = np.zeros(nd)
-    dse2 = np.zeros(nd)
-    dqv = np.zeros(nd)
-    dqc = np.zeros(nd)
+    term = np.full(ndp, -1, dtype=np.int64)
+    tkind = np.zeros(ndp, dtype=np.int64)
+    dmw = np.zeros(ndp)
+    drv = np.zeros(ndp)
+    dsv2 = np.zeros(ndp)
+    drc = np.zeros(ndp)
+    dsc2 = np.zeros(ndp)
+    dsw2 = np.zeros(ndp)
+    dse2 = np.zeros(ndp)
+    dqv = np.zeros(ndp)
+    dqc = np.zeros(ndp)
     for j in range(nd):
         p = idx[j]
         if p < n_par:
@@ -239,22 +245,22 @@ def gaussian_filter_tangent(psi, idx, y, u, starts, p_init, kind, fa, fb,
     coef = np.zeros(5)
     basis = np.empty((5, 3))
     # the direct effect of each direction on h at the three points (θ directions only)
-    dir0 = np.zeros(nd)
-    dir1 = np.zeros(nd)
-    dir2 = np.zeros(nd)
+    dir0 = np.zeros(ndp)
+    dir1 = np.zeros(ndp)
+    dir2 = np.zeros(ndp)
     n_theta = 0
     for j in range(nd):
         if term[j] >= 0:
             n_theta = j + 1
-    dm0 = np.empty(nd)
-    dm1 = np.empty(nd)
-    dm2 = np.empty(nd)
-    dp00 = np.empty(nd)
-    dp01 = np.empty(nd)
-    dp02 = np.empty(nd)
-    dp11 = np.empty(nd)
-    dp12 = np.empty(nd)
-    dp22 = np.empty(nd)
+    dm0 = np.empty(ndp)
+    dm1 = np.empty(ndp)
+    dm2 = np.empty(ndp)
+    dp00 = np.empty(ndp)
+    dp01 = np.empty(ndp)
+    dp02 = np.empty(ndp)
+    dp11 = np.empty(ndp)
+    dp12 = np.empty(ndp)
+    dp22 = np.empty(ndp)
     for s in range(starts.size - 1):
         a, b = starts[s], starts[s + 1]
         m0 = y[a]
@@ -266,7 +272,7 @@ def gaussian_filter_tangent(psi, idx, y, u, starts, p_init, kind, fa, fb,
         p11 = sv2
         p12 = 0.0
         p22 = sc2
-        for j in range(nd):
+        for j in range(ndp):
             dm0[j] = 0.0
             dm1[j] = 0.0
             dm2[j] = 0.0
@@ -356,7 +362,7 @@ def gaussian_filter_tangent(psi, idx, y, u, starts, p_init, kind, fa, fb,
             rvg = rv * gain
             rcg = rc * gain
             inv2 = inv * inv
-            for j in range(nd):
+            for j in range(ndp):
                 de = -dm0[j] - dm2[j]
                 dsk = s_live * (dp00[j] + 2.0 * dp02[j] + dp22[j] + dse2[j])
                 dh0 = dp00[j] + dp02[j]
