@@ -63,3 +63,20 @@ def test_tangent_matches_filter_and_differences(noise: list[float]) -> None:
         scale_e, scale_v = np.max(np.abs(fd_e)) + 1e-12, np.max(np.abs(fd_v)) + 1e-12
         assert np.max(np.abs(deps[:, j] - fd_e)) <= 1e-6 * scale_e, p
         assert np.max(np.abs(dvar[:, j] - fd_v)) <= 1e-6 * scale_v, p
+
+
+def test_bartlett_lagged_is_the_lag_sum() -> None:
+    from vesselid.identify._pemkernels import bartlett_lagged
+
+    rng = np.random.default_rng(3)
+    sc = rng.normal(size=(300, 4))
+    starts = np.array([0, 120, 121, 300], dtype=np.int64)  # one experiment of one sample
+    bw = 7
+    out = np.empty_like(sc)
+    bartlett_lagged(sc, starts, bw, out)
+    seg = np.repeat(np.arange(3), np.diff(starts))
+    want = np.zeros((4, 4))  # Σ_lag w Σ_k s(k) s(k−lag)ᵀ within experiments, by hand
+    for lag in range(1, bw + 1):
+        same = (seg[lag:] == seg[:-lag])[:, None]
+        want += (1.0 - lag / (bw + 1.0)) * ((sc[lag:] * same).T @ sc[:-lag])
+    np.testing.assert_allclose(sc.T @ out, want, rtol=1e-12, atol=1e-12)

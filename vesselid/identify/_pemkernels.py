@@ -29,7 +29,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["N_NOISE", "gaussian_filter", "gaussian_filter_tangent", "term_kinds"]
+__all__ = ["N_NOISE", "bartlett_lagged", "gaussian_filter", "gaussian_filter_tangent",
+           "term_kinds"]
 
 #: Noise parameters after θ in a parameter row (μ_w, ρ_v, σ_v, ρ_c, σ_c, σ_w, σ_e).
 N_NOISE = 7
@@ -415,6 +416,22 @@ def gaussian_filter_tangent(psi, idx, y, u, starts, p_init, kind, fa, fb,
         for j in range(nd):
             deps[a, j] = 0.0
             dvar[a, j] = 0.0
+
+@njit(cache=True, nogil=True)
+def bartlett_lagged(sc, starts, bw, out):  # pragma: no cover
+    """``out[k] = Σ_{l=1..bw} (1 − l/(bw+1)) sc[k − l]`` over lags within the experiment
+    of ``k`` (``starts``), for scores ``sc`` (T, d): the Bartlett long-run variance of
+    the scores is ``scᵀsc + C + Cᵀ`` with ``C = scᵀ out``."""
+    nd = sc.shape[1]
+    out[:, :] = 0.0
+    for s in range(starts.size - 1):
+        a, b = starts[s], starts[s + 1]
+        for k in range(a + 1, b):
+            for lag in range(1, min(bw, k - a) + 1):
+                w = 1.0 - lag / (bw + 1.0)
+                for j in range(nd):
+                    out[k, j] += w * sc[k - lag, j]
+
 
 def term_kinds(fac: np.ndarray, n_signals: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(kind, fa, fb)`` of the terms ``F[a] F[b]`` (:func:`vesselid.model.regressors.

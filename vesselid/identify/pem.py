@@ -208,7 +208,8 @@ def load_kernels() -> None:
     fac = np.array([[0, 4], [0, 2], [1, 4]], dtype=np.int64)  # heave: x, x|x|, u
     filt = _Filter(np.zeros(4), np.zeros((4, 1)), np.array([0, 4]), fac, parallel=False)
     filt.run(np.zeros((1, fac.shape[0] + 7)))
-    filt.tangent(np.zeros(fac.shape[0] + 7), np.arange(fac.shape[0] + 7))
+    _, _, je, js = filt.tangent(np.zeros(fac.shape[0] + 7), np.arange(fac.shape[0] + 7))
+    _score_hac(je, js, np.zeros(4), np.ones(4), filt.starts)
 
 
 def _nll_terms(eps: np.ndarray, var: np.ndarray) -> np.ndarray:
@@ -278,6 +279,7 @@ def _score_hac(je: np.ndarray | None, js: np.ndarray | None, eps: np.ndarray,
     """Bartlett HAC long-run variance of the per-sample scores
     ``s(k) = ∂ε/∂ψ ε/S + ½ ∂S/∂ψ (1/S − ε²/S²)`` (the meat of the quasi-ML sandwich;
     Newey–West bandwidth, lags not across experiment boundaries)."""
+    from vesselid.identify._pemkernels import bartlett_lagged
     from vesselid.identify.gmm import hac_lags
 
     if je is None or js is None:
@@ -285,19 +287,14 @@ def _score_hac(je: np.ndarray | None, js: np.ndarray | None, eps: np.ndarray,
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         inv_s = 1.0 / var
         sc = je * (eps * inv_s) + 0.5 * js * (inv_s - eps * eps * inv_s * inv_s)
-    sc = np.where(np.isfinite(sc), sc, 0.0)
-    bw = hac_lags(int(sc.shape[1]))
-    seg = np.zeros(sc.shape[1], dtype=np.int64)
-    seg[starts[1:-1]] = 1
-    seg = np.cumsum(seg)
+    sc = np.ascontiguousarray(np.where(np.isfinite(sc), sc, 0.0).T)  # (T, d)
     # Σ_lag w_lag Σ_k s(k) s(k−lag)ᵀ = Σ_k s(k) f(k)ᵀ with f(k) = Σ_lag w_lag s(k−lag)
     # (Bartlett weights, pairs within one experiment): one product instead of one a lag
-    lagged = np.zeros_like(sc)
-    for lag in range(1, bw + 1):
-        same = seg[lag:] == seg[:-lag]
-        lagged[:, lag:] += (1.0 - lag / (bw + 1.0)) * (sc[:, :-lag] * same)
-    c = sc @ lagged.T
-    out = sc @ sc.T + (c + c.T)
+    lagged = np.empty_like(sc)
+    bartlett_lagged(sc, np.ascontiguousarray(starts, dtype=np.int64),
+                    hac_lags(int(sc.shape[0])), lagged)
+    c = sc.T @ lagged
+    out = sc.T @ sc + (c + c.T)
     return out if np.all(np.isfinite(out)) else None
 
 

@@ -58,9 +58,13 @@ def _hac_iv(z: np.ndarray, phi: np.ndarray, y: np.ndarray, seg: np.ndarray
     m = z * (y - phi @ theta)[:, None]
     s = m.T @ m
     bw = hac_lags(m.shape[0])
+    one = seg.size == 0 or seg[0] == seg[-1]  # one segment (sorted): every pair counts
     for lag in range(1, bw + 1):
-        same = (seg[lag:] == seg[:-lag]).astype(float)[:, None]
-        c = (m[lag:] * same).T @ m[:-lag]
+        if one:
+            c = m[lag:].T @ m[:-lag]
+        else:
+            same = (seg[lag:] == seg[:-lag]).astype(float)[:, None]
+            c = (m[lag:] * same).T @ m[:-lag]
         s += (1.0 - lag / (bw + 1.0)) * (c + c.T)
     return theta, a_inv @ s @ a_inv.T
 
@@ -85,6 +89,14 @@ def _rows(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray, extra: b
     keep = np.all(np.isfinite(phi), axis=1) & np.all(np.isfinite(z), axis=1)
     seg = np.repeat(np.arange(starts.size - 1), np.diff(starts))
     for s in range(starts.size - 1):  # a constant per experiment: centre
+        a = int(starts[s])
+        kept = np.flatnonzero(keep[a:int(starts[s + 1])])
+        if kept.size and kept[-1] - kept[0] + 1 == kept.size:  # one run of rows: in place
+            r = slice(a + int(kept[0]), a + int(kept[-1]) + 1)
+            for arr in (phi, z, y):
+                rows = arr[r]
+                rows -= rows.mean(axis=0)
+            continue
         r = keep & (seg == s)
         for arr in (phi, z):
             arr[r] -= arr[r].mean(axis=0)
