@@ -47,10 +47,20 @@ def test_tangent_matches_filter_and_differences(noise: list[float]) -> None:
     idx = np.flatnonzero(np.isfinite(row)).astype(np.int64)
     eps, var = np.empty(y.size), np.empty(y.size)
     deps, dvar = np.empty((y.size, idx.size)), np.empty((y.size, idx.size))
-    gaussian_filter_tangent(row, idx, y, u, starts, p_init, *kinds, eps, var, deps, dvar)
+    grad, fisher, nll = np.empty(idx.size), np.empty((idx.size, idx.size)), np.empty(1)
+    gaussian_filter_tangent(row, idx, y, u, starts, p_init, *kinds, eps, var, deps, dvar,
+                            grad, fisher, nll)
     e0, v0 = _filter(row, y, u, starts, p_init, kinds)
     assert np.array_equal(eps, e0) and np.array_equal(var, v0)
     assert np.all(deps[starts[:-1]] == 0) and np.all(dvar[starts[:-1]] == 0)
+    # the scoring's sums: likelihood, gradient and Fisher information of the innovations
+    inv = 1.0 / var
+    np.testing.assert_allclose(nll[0], np.sum(0.5 * (np.log(var) + eps**2 * inv)),
+                               rtol=1e-12)
+    want_g = deps.T @ (eps * inv) + 0.5 * dvar.T @ (inv - eps**2 * inv**2)
+    want_f = (deps.T * inv) @ deps + 0.5 * (dvar.T * inv**2) @ dvar
+    np.testing.assert_allclose(grad, want_g, rtol=1e-9, atol=1e-9 * np.max(np.abs(want_g)))
+    np.testing.assert_allclose(fisher, want_f, rtol=1e-9, atol=1e-12 * np.max(np.abs(want_f)))
     for j, p in enumerate(idx):
         h = 1e-5 * max(abs(row[p]), 1.0)
         up, dn = row.copy(), row.copy()

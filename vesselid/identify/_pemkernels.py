@@ -179,13 +179,18 @@ def gaussian_filter(lo, hi, psi, y, u, starts, p_init, kind, fa, fb, eps, var): 
 
 @njit(cache=True, nogil=True)
 def gaussian_filter_tangent(psi, idx, y, u, starts, p_init, kind, fa, fb,
-                            eps, var, deps, dvar):  # pragma: no cover
+                            eps, var, deps, dvar, grad, fisher, nll):  # pragma: no cover
     """:func:`gaussian_filter` of the one row ``psi`` (P + 7,) into ``eps``/``var`` (T,)
     with the derivatives ``deps[k, j] = ∂ε(k)/∂ψ[idx[j]]`` and ``dvar[k, j] =
     ∂S(k)/∂ψ[idx[j]]`` (T, d): every line of the filter differentiated (forward mode),
     the directions advancing together sample by sample. Where a variance is clipped at
     its floor its derivative is taken as zero; ``|r|`` is differentiated as ``sign r``.
-    The first sample of every experiment holds no innovation: derivatives 0 there."""
+    The first sample of every experiment holds no innovation: derivatives 0 there.
+    Also the scoring's sums over the innovations (all but the first sample of each
+    experiment): the negative log-likelihood ``nll[0] = Σ ½ (log S + ε²/S)``, its
+    gradient ``grad[j] = Σ ∂ε_j ε/S + ½ ∂S_j (1/S − ε²/S²)`` and the Fisher information
+    ``fisher[i, j] = Σ ∂ε_i ∂ε_j / S + ½ ∂S_i ∂S_j / S²`` (d, d).
+    """
     n_par = kind.shape[0]
     n_u = u.shape[1]
     n_sig = 1 + n_u
@@ -262,6 +267,11 @@ def gaussian_filter_tangent(psi, idx, y, u, starts, p_init, kind, fa, fb,
     dp11 = np.empty(ndp)
     dp12 = np.empty(ndp)
     dp22 = np.empty(ndp)
+    cur_e = np.zeros(ndp)
+    cur_s = np.zeros(ndp)
+    acc_f = np.zeros((nd, ndp))
+    acc_g = np.zeros(nd)
+    acc_v = 0.0
     for s in range(starts.size - 1):
         a, b = starts[s], starts[s + 1]
         m0 = y[a]
@@ -303,9 +313,24 @@ def gaussian_filter_tangent(psi, idx, y, u, starts, p_init, kind, fa, fb,
                 s_live = 0.0
             eps[k] = e
             var[k] = sk
+            for j in range(ndp):
+                cur_e[j] = -dm0[j] - dm2[j]
+                cur_s[j] = s_live * (dp00[j] + 2.0 * dp02[j] + dp22[j] + dse2[j])
             for j in range(nd):
-                deps[k, j] = -dm0[j] - dm2[j]
-                dvar[k, j] = s_live * (dp00[j] + 2.0 * dp02[j] + dp22[j] + dse2[j])
+                deps[k, j] = cur_e[j]
+                dvar[k, j] = cur_s[j]
+            if k > a:  # an innovation: the scoring's sums
+                inv_k = 1.0 / sk
+                we = e * inv_k
+                ws = 0.5 * (inv_k - e * e * inv_k * inv_k)
+                acc_v += 0.5 * (np.log(sk) + e * e * inv_k)
+                half2 = 0.5 * inv_k * inv_k
+                for i in range(nd):
+                    acc_g[i] += cur_e[i] * we + cur_s[i] * ws
+                    ai = cur_e[i] * inv_k
+                    bi = cur_s[i] * half2
+                    for j in range(ndp):
+                        acc_f[i, j] += ai * cur_e[j] + bi * cur_s[j]
             if last:
                 continue
             h0, h1, h2 = p00 + p02, p01 + p12, p02 + p22
@@ -416,6 +441,11 @@ def gaussian_filter_tangent(psi, idx, y, u, starts, p_init, kind, fa, fb,
         for j in range(nd):
             deps[a, j] = 0.0
             dvar[a, j] = 0.0
+    nll[0] = acc_v
+    for i in range(nd):
+        grad[i] = acc_g[i]
+        for j in range(nd):
+            fisher[i, j] = acc_f[i, j]
 
 @njit(cache=True, nogil=True)
 def bartlett_lagged(sc, starts, bw, out):  # pragma: no cover

@@ -186,9 +186,12 @@ class _Filter:
 
 
     def tangent(self, psi: np.ndarray, idx: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Innovations ``ε``, variances ``S`` (T,) of the row ``psi`` and their exact
-        derivatives with respect to ``psi[idx]`` (d, T) in one compiled pass."""
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                           np.ndarray, float]:
+        """Innovations ``ε``, variances ``S`` (T,) of the row ``psi``, their exact
+        derivatives with respect to ``psi[idx]`` (d, T), and the negative
+        log-likelihood's gradient (d,), Fisher information (d, d) and value, in one
+        compiled pass."""
         from vesselid.identify._pemkernels import gaussian_filter_tangent
 
         psi = np.ascontiguousarray(psi, dtype=np.float64)
@@ -197,9 +200,12 @@ class _Filter:
         var = np.empty(self.n)
         deps = np.empty((self.n, idx.size))
         dvar = np.empty((self.n, idx.size))
+        grad = np.empty(idx.size)
+        fisher = np.empty((idx.size, idx.size))
+        nll = np.empty(1)
         gaussian_filter_tangent(psi, idx, self.y, self.u, self.starts, self.p_init,
-                                *self.terms, eps, var, deps, dvar)
-        return eps, var, deps.T, dvar.T
+                                *self.terms, eps, var, deps, dvar, grad, fisher, nll)
+        return eps, var, deps.T, dvar.T, grad, fisher, float(nll[0])
 
 
 def load_kernels() -> None:
@@ -208,7 +214,8 @@ def load_kernels() -> None:
     fac = np.array([[0, 4], [0, 2], [1, 4]], dtype=np.int64)  # heave: x, x|x|, u
     filt = _Filter(np.zeros(4), np.zeros((4, 1)), np.array([0, 4]), fac, parallel=False)
     filt.run(np.zeros((1, fac.shape[0] + 7)))
-    _, _, je, js = filt.tangent(np.zeros(fac.shape[0] + 7), np.arange(fac.shape[0] + 7))
+    _, _, je, js, *_ = filt.tangent(np.zeros(fac.shape[0] + 7),
+                                    np.arange(fac.shape[0] + 7))
     _score_hac(je, js, np.zeros(4), np.ones(4), filt.starts)
 
 
@@ -229,14 +236,10 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
     for it in range(1, max_iter + 1):  # noqa: B007 (reported)
         # the filter at ψ with its exact sensitivities (the accepted trial of the line
         # search was filtered without them: the same innovations, recomputed here)
-        eps0, var0, je, js = filt.tangent(psi, idx)
-        f0 = float(np.sum(_nll_terms(eps0, var0)))
+        eps0, var0, je, js, grad, fisher, f0 = filt.tangent(psi, idx)
         if not np.isfinite(f0):
             reason = "likelihood not finite"
             break
-        inv_s = 1.0 / var0
-        grad = je @ (eps0 * inv_s) + 0.5 * (js @ (inv_s - eps0 * eps0 * inv_s * inv_s))
-        fisher = (je * inv_s) @ je.T + 0.5 * ((js * (inv_s * inv_s)) @ js.T)
         if not (np.all(np.isfinite(grad)) and np.all(np.isfinite(fisher))):
             reason = "sensitivities not finite"
             break

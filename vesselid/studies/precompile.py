@@ -31,7 +31,7 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
     ("vesselid.identify._pemkernels", "gaussian_filter_tangent",
      "(float64[::1], int64[::1], float64[::1], float64[:, ::1], int64[::1], float64[::1], "
      "int64[::1], int64[::1], int64[::1], float64[::1], float64[::1], float64[:, ::1], "
-     "float64[:, ::1])"),
+     "float64[:, ::1], float64[::1], float64[:, ::1], float64[::1])"),
     ("vesselid.identify._pemkernels", "gaussian_filter",
      "(int64, int64, float64[:, ::1], float64[::1], float64[:, ::1], int64[::1], float64[::1], "
      "int64[::1], int64[::1], int64[::1], float64[:, ::1], float64[:, ::1])"),
