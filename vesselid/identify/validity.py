@@ -199,14 +199,19 @@ def parameter_stability(data: RegressionData, spec: ModelSpec,
     not finite. ``theta_start``: the whole log's estimate, a start of both halves'
     refined iterations that saves most of their steps.
     """
-    from vesselid.identify.estimators import estimate
+    from vesselid.identify.estimators import estimate, refined_iv
 
     if data.n_groups != 1 or spec.n_states != 1:
         return None
     halves = _halves(data)
     if halves is None:
         return None
-    it = estimate(halves, spec, "iv-zero-mean", combine="pooled", theta_start=theta_start)
+    if theta_start is None:
+        it = estimate(halves, spec, "iv-zero-mean", combine="pooled")
+    else:  # what ``estimate`` runs from a given start, without its unused LS estimate
+        start = np.array(np.broadcast_to(np.asarray(theta_start, dtype=float),
+                                         (halves.n_groups, spec.n_params)))
+        it = refined_iv(halves, spec, start, zero_mean=True, combine="pooled")
     if not np.all(np.isfinite(it.theta)):
         return None
     n_par = spec.n_params
