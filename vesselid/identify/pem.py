@@ -145,10 +145,10 @@ def _start(theta: np.ndarray, y: np.ndarray, u: np.ndarray, starts: np.ndarray,
     return psi, free, scale
 
 
-#: Below this many row-samples a filter pass runs in the calling thread: a pass of the
-#: perturbed rows on a 10⁴-sample log takes about a millisecond, less than waking the
-#: pool's threads and handing them the GIL back costs (each row is filtered on its
-#: own, so the split never changes a number).
+#: Below this many row-samples a pass of several filter rows runs in the calling thread:
+#: ten rows of a 10⁴-sample log take a few milliseconds, less than waking the pool's
+#: threads and handing them the GIL back costs (each row is filtered on its own, so the
+#: split never changes a number).
 PARALLEL_MIN_ROW_SAMPLES = 1_000_000
 
 
