@@ -86,7 +86,10 @@ def _rows(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray, extra: b
             prev[a + 1:b, 1] = np.abs(xhat[a:b - 1, 0])
         phi = np.column_stack([phi, prev[:, 0]])
         z = np.column_stack([z, prev[:, 1]])
-    keep = np.all(np.isfinite(phi), axis=1) & np.all(np.isfinite(z), axis=1)
+    keep = np.ones(y.size, dtype=bool)
+    for arr in (phi, z):  # column by column: the same mask as a row-wise all()
+        for j in range(arr.shape[1]):
+            keep &= np.isfinite(arr[:, j])
     seg = np.repeat(np.arange(starts.size - 1), np.diff(starts))
     for s in range(starts.size - 1):  # a constant per experiment: centre
         a = int(starts[s])
@@ -101,6 +104,10 @@ def _rows(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray, extra: b
         for arr in (phi, z):
             arr[r] -= arr[r].mean(axis=0)
         y[r] -= y[r].mean()
+    kept = np.flatnonzero(keep)
+    if kept.size and kept[-1] - kept[0] + 1 == kept.size:  # one run of rows: views
+        r = slice(int(kept[0]), int(kept[-1]) + 1)
+        return phi[r], z[r], y[r], seg[r]
     return phi[keep], z[keep], y[keep], seg[keep]
 
 
