@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -75,7 +77,7 @@ def test_local_chunks_taper_and_cover_every_run(monkeypatch):
     monkeypatch.setattr("vesselid.core.threads.n_threads", lambda: 2)
     chunks = mc._local_chunks(1000)
     assert chunks[0][0] == 0 and chunks[-1][1] == 1000
-    assert all(b == c for (_, b), (c, _) in zip(chunks, chunks[1:]))
+    assert all(b == c for (_, b), (c, _) in itertools.pairwise(chunks))
     sizes = [b - a for a, b in chunks]
     assert sizes[0] == mc.DEFAULT_BATCH_SIZE and sizes == sorted(sizes, reverse=True)
     assert min(sizes[:-1]) == mc.MIN_LOCAL_CHUNK and len(chunks) > 4
@@ -93,7 +95,7 @@ def test_study_seeds_are_the_root_seeds_children():
         got = study.run_seeds(a, b)
         assert [s.spawn_key for s in got] == [s.spawn_key for s in every[a:b]]
         assert all(np.array_equal(g.generate_state(4), e.generate_state(4))
-                   for g, e in zip(got, every[a:b]))
+                   for g, e in zip(got, every[a:b], strict=True))
 
 
 def test_a_run_depends_only_on_its_own_seed(reference):
