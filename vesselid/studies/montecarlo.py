@@ -36,6 +36,7 @@ its rows with ``estimate = NaN``, ``converged = False`` and the ``stop_reason``;
 
 from __future__ import annotations
 
+import gc
 import math
 import os
 import sys
@@ -418,12 +419,30 @@ def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[pd
     from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
 
     ctx = _fork_context()
+    frozen = False
     if ctx is not None:
         with serial_here():  # load (or compile) every kernel of the study here, once
             run_chunk(study, chunks[0][0], chunks[0][0] + 1)
+        # the objects alive now (modules, compiled kernels) leave the garbage collector's
+        # generations before the workers fork: a worker's collections then do not walk
+        # (and so copy-on-write every page of) the parent's heap; measured ~7 % of the
+        # workers' CPU on Table 1
+        gc.freeze()
+        frozen = True
         pool: Executor = ProcessPoolExecutor(workers, mp_context=ctx)
     else:
         pool = ThreadPoolExecutor(workers, thread_name_prefix="vesselid-chunk")
+    try:
+        return _gather(pool, study, chunks, bar)
+    finally:
+        if frozen:
+            gc.unfreeze()
+
+
+def _gather(pool: Any, study: Study, chunks: list[tuple[int, int]], bar: Any
+            ) -> list[pd.DataFrame]:
+    """Submit every chunk to ``pool`` (:func:`_serial_chunk`) and return their frames in
+    order, shutting the pool down."""
     with pool, warnings.catch_warnings():
         # Python ≥ 3.12 warns on fork() in a process with threads; the children run one
         # chunk each in their only thread and start no thread pool (serial kernels)
