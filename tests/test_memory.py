@@ -75,3 +75,23 @@ def test_large_log_paths_agree_with_the_whole_array_paths(monkeypatch) -> None:
     for test in ("endogeneity", "hansen_j"):
         if spec_ref.get(test, {}).get("stat") is not None:
             assert np.isclose(spec_got[test]["stat"], spec_ref[test]["stat"], rtol=1e-9)
+
+
+def test_gmm_hac_sums_in_blocks_equal_the_whole_array(monkeypatch) -> None:
+    """The GMM weight's Bartlett sums of a long experiment (blocks of rows) equal the
+    whole-array moving sums to rounding, with invalid rows among the valid ones."""
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import gmm
+
+    rng = np.random.default_rng(5)
+    n = 4000
+    z = rng.standard_normal((n, 5))
+    e = np.convolve(rng.standard_normal(n), np.ones(4), "same")
+    valid = np.ones(n, dtype=bool)
+    valid[[0, 1, 1700, 3999]] = False
+    starts = np.array([0, 2500, n])
+    ref = gmm.hac_sums(z, e, starts, valid, 23)
+    monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
+    monkeypatch.setattr(cv, "BLOCK_ROWS", 333)
+    got = gmm.hac_sums(z, e, starts, valid, 23)
+    assert np.max(np.abs(got - ref)) <= 1e-13 * np.max(np.abs(ref))

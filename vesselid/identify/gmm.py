@@ -45,6 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vesselid.identify import covariance as _covariance
 from vesselid.identify import linalg
 from vesselid.identify._fastkernels import specialised_combined
 from vesselid.identify.backend import ivk, kernels, numpy_active
@@ -357,6 +358,9 @@ def hac_sums(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: np.ndarray
     out = np.zeros((starts.size - 1, k_cols, k_cols))
     for s, a, b, _, _, g in _experiment_scores(z, e, starts, valid):
         lag = int(min(lags, b - a - 1))
+        if b - a > _covariance.LARGE_ROWS:  # the same sums in blocks (no K × (n + L) copy)
+            out[s] = _covariance._bartlett_blocks(g.T, lag, _covariance.BLOCK_ROWS)
+            continue
         h = moving_sums(g, lag)
         out[s] = (h @ h.T) / (lag + 1.0)
     return out
@@ -410,8 +414,11 @@ def hac_sums_derivative(z: np.ndarray, phi: np.ndarray, e: np.ndarray, starts: n
     for _, a, b, v, cnt in _valid_experiments(starts, valid):
         n = b - a
         # g = z e − mean_E(z e) on the valid rows is never formed: only uᵀg and gᵀ(·)
-        zv = np.where(v[:, None], z[a:b], 0.0)
-        ev = np.where(v, e[a:b], 0.0)
+        # every row valid (and the layout np.where would give): the rows themselves
+        every = (bool(v.all()) and z.dtype == np.float64 and z.flags.c_contiguous
+                 and e.dtype == np.float64 and e.flags.c_contiguous)
+        zv = z[a:b] if every else np.where(v[:, None], z[a:b], 0.0)
+        ev = e[a:b] if every else np.where(v, e[a:b], 0.0)
         ph = phi[a:b]
         zu = zv @ u
         g_mean = zv.T @ ev / cnt  # (K,)
