@@ -95,3 +95,30 @@ def test_gmm_hac_sums_in_blocks_equal_the_whole_array(monkeypatch) -> None:
     monkeypatch.setattr(cv, "BLOCK_ROWS", 333)
     got = gmm.hac_sums(z, e, starts, valid, 23)
     assert np.max(np.abs(got - ref)) <= 1e-13 * np.max(np.abs(ref))
+
+
+def test_gmm_weight_derivative_on_long_experiments(monkeypatch) -> None:
+    """The derivative of the GMM weight's sums on a long experiment with invalid rows
+    (taken out of the sums instead of zeroed in a copy) equals the zeroed-copy form."""
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import gmm
+
+    rng = np.random.default_rng(6)
+    n = 3000
+    z = rng.standard_normal((n, 4))
+    phi = rng.standard_normal((n, 2))
+    e = rng.standard_normal(n)
+    u = rng.standard_normal(4)
+    valid = np.ones(n, dtype=bool)
+    valid[[0, 1500, 1501]] = False
+    starts = np.array([0, 1500, n])
+    ref = gmm.hac_sums_derivative(z, phi, e, starts, valid, 9, u)
+    monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
+    got = gmm.hac_sums_derivative(z, phi, e, starts, valid, 9, u)
+    assert np.max(np.abs(got - ref)) <= 1e-12 * np.max(np.abs(ref))
+    z[[0, 1500]] = np.nan  # non-finite invalid rows: zeroed as before, never in a sum
+    monkeypatch.setattr(cv, "LARGE_ROWS", 1 << 17)
+    ref = gmm.hac_sums_derivative(z, phi, e, starts, valid, 9, u)
+    monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
+    got = gmm.hac_sums_derivative(z, phi, e, starts, valid, 9, u)
+    assert np.all(np.isfinite(got)) and np.array_equal(got, ref)

@@ -417,12 +417,24 @@ def hac_sums_derivative(z: np.ndarray, phi: np.ndarray, e: np.ndarray, starts: n
         # every row valid (and the layout np.where would give): the rows themselves
         every = (bool(v.all()) and z.dtype == np.float64 and z.flags.c_contiguous
                  and e.dtype == np.float64 and e.flags.c_contiguous)
-        zv = z[a:b] if every else np.where(v[:, None], z[a:b], 0.0)
+        bad = np.flatnonzero(~v)
+        # a long experiment whose few invalid rows hold finite instruments: the
+        # instruments themselves (no zeroed N × K copy), the invalid rows' share taken
+        # out of the sums below (ev and, after zu, the filtered series are zero there)
+        in_place = (not every and n > _covariance.LARGE_ROWS
+                    and bool(np.isfinite(z[a:b][bad]).all()))
+        zv = (z[a:b] if every or in_place else np.where(v[:, None], z[a:b], 0.0))
         ev = e[a:b] if every else np.where(v, e[a:b], 0.0)
         ph = phi[a:b]
-        zu = zv @ u
-        g_mean = zv.T @ ev / cnt  # (K,)
-        mean = zv.T @ ph / cnt  # (K, P): mean of z φ_j
+        if in_place:
+            zu = zv @ u
+            zu[bad] = 0.0
+            g_mean = zv.T @ ev / cnt
+            mean = (zv.T @ ph - zv[bad].T @ ph[bad]) / cnt
+        else:
+            zu = zv @ u
+            g_mean = zv.T @ ev / cnt  # (K,)
+            mean = zv.T @ ph / cnt  # (K, P): mean of z φ_j
         series = np.empty((1 + p_cols, n))
         series[0] = zu * ev - g_mean @ u  # uᵀ g
         series[1:] = (u @ mean)[:, None] - zu * ph.T  # uᵀ q_j
