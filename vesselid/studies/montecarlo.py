@@ -318,8 +318,9 @@ def run_study(
         Run the chunks as Dask tasks on this client (or on a client connected to
         this scheduler address, closed afterwards). Default: locally.
     batch_size : int, optional
-        Runs per chunk (default 250, evened out to a multiple of the local threads'
-        chunks; with Dask: enough chunks for every worker thread).
+        Runs per chunk (default: 250 on one thread; on several, a tapering schedule
+        from 250 down to :data:`MIN_LOCAL_CHUNK`, :func:`_local_chunks`; with Dask:
+        enough chunks for every worker thread).
     n_jobs : int, optional
         Local threads (default: all cores): several chunks run concurrently, one per
         thread, with serial kernels; a single chunk runs its kernels on all threads.
