@@ -297,16 +297,18 @@ def _run_measured(cmd: list[str]) -> tuple[float, float, float]:
 
 
 def bench_identify_memory(sizes: tuple[int, ...] = (100_000, 1_000_000, 4_000_000),
-                          repeats: int = 1) -> dict[str, Any]:
+                          repeats: int = 1, fmt: str = "parquet") -> dict[str, Any]:
     """Peak RSS and time of the whole ``vesselid identify LOG`` process (default
-    estimator) on one-state heave logs (CSV) of ``sizes`` samples."""
+    estimator) on one-state heave logs (``fmt``: Parquet, or CSV) of ``sizes``
+    samples; the growth per 10⁶ samples between the two largest logs and as the
+    least-squares slope over every size (linear growth: the two agree)."""
     from vesselid.plant.systems import heave
 
-    out: dict[str, Any] = {"sizes": list(sizes)}
+    out: dict[str, Any] = {"sizes": list(sizes), "format": fmt}
     exe = [sys.executable, "-m", "vesselid", "identify"]
     with tempfile.TemporaryDirectory() as tmp:
         for n in sizes:
-            path = Path(tmp) / f"heave_{n}.csv"
+            path = Path(tmp) / f"heave_{n}.{fmt}"
             heave().simulate(n, seed=0).to_log().save(path)
             runs = [_run_measured([*exe, str(path)]) for _ in range(repeats)]
             out[f"{n}_wall_s"] = statistics.median(r[0] for r in runs)
@@ -319,6 +321,12 @@ def bench_identify_memory(sizes: tuple[int, ...] = (100_000, 1_000_000, 4_000_00
         a, b = big[-2], big[-1]
         out["rss_mb_per_1e6_samples"] = ((out[f"{b}_peak_rss_mb"] - out[f"{a}_peak_rss_mb"])
                                          / ((b - a) / 1e6))
+    if len(sizes) >= 2:
+        x = np.array(sizes, dtype=float) / 1e6
+        y = np.array([out[f"{n}_peak_rss_mb"] for n in sizes])
+        slope, intercept = np.polyfit(x, y, 1)
+        out["rss_mb_per_1e6_samples_fit"] = float(slope)
+        out["rss_mb_intercept"] = float(intercept)
     return out
 
 
@@ -471,8 +479,8 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
             "## Memory of `vesselid identify`",
             "",
             "The whole `vesselid identify LOG` process (default estimator, every "
-            "diagnostic) on one-state heave logs (CSV), peak resident memory from "
-            "`wait4`.",
+            f"diagnostic) on one-state heave logs ({mem.get('format', 'csv')}), peak "
+            "resident memory from `wait4`.",
             "",
             "| samples | peak RSS (MB) | wall (s) | CPU (s) | load average |",
             "|---:|---:|---:|---:|---:|",
@@ -482,7 +490,11 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
                          f"| {mem[f'{n}_cpu_s']:.2f} | {mem[f'{n}_load_average']:.1f} |")
         if "rss_mb_per_1e6_samples" in mem:
             lines += ["", f"Growth between the two largest logs: "
-                          f"{mem['rss_mb_per_1e6_samples']:.0f} MB per 10⁶ samples."]
+                          f"{mem['rss_mb_per_1e6_samples']:.0f} MB per 10⁶ samples"
+                          + (f" (least-squares slope over every size "
+                             f"{mem['rss_mb_per_1e6_samples_fit']:.0f} MB per 10⁶ samples, "
+                             f"intercept {mem['rss_mb_intercept']:.0f} MB)."
+                             if "rss_mb_per_1e6_samples_fit" in mem else ".")]
         lines.append("")
     pem = results.get("pem_path")
     if pem:
@@ -559,7 +571,8 @@ BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
 
 
 def run_all(names: list[str] | None = None, *, memory_sizes: tuple[int, ...] | None = None,
-            mc_options: dict[str, Any] | None = None) -> dict[str, Any]:
+            mc_options: dict[str, Any] | None = None,
+            memory_format: str | None = None) -> dict[str, Any]:
     """Run the scaling benchmarks (all, or ``names``) and print their figures;
     ``mc_options``: keywords of :func:`bench_mc_threads` (``workers``, ``runs``,
     ``repeats``)."""
@@ -567,8 +580,9 @@ def run_all(names: list[str] | None = None, *, memory_sizes: tuple[int, ...] | N
     for name in names or list(BENCHES):
         print(f"[{name}] running ...", flush=True)
         kwargs: dict[str, Any] = {}
-        if name == "identify_memory" and memory_sizes:
-            kwargs = {"sizes": memory_sizes}
+        if name == "identify_memory":
+            kwargs = {k: v for k, v in (("sizes", memory_sizes), ("fmt", memory_format))
+                      if v}
         elif name == "mc_threads" and mc_options:
             kwargs = dict(mc_options)
         results[name] = BENCHES[name](**kwargs)
@@ -582,6 +596,8 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", nargs="*", choices=sorted(BENCHES))
     parser.add_argument("--memory-sizes", nargs="*", type=int)
+    parser.add_argument("--memory-format", choices=("parquet", "csv"),
+                        help="identify_memory: log format (parquet)")
     parser.add_argument("--workers", nargs="*", type=int,
                         help="mc_threads: worker counts (default 1 2; the first is the "
                              "baseline)")
@@ -597,7 +613,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.mc_repeats:
         mc["repeats"] = args.mc_repeats
     results = run_all(args.only, memory_sizes=tuple(args.memory_sizes or ()) or None,
-                      mc_options=mc or None)
+                      mc_options=mc or None, memory_format=args.memory_format)
     if args.docs:
         print(f"wrote {write_docs(results)}")
 

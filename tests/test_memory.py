@@ -28,3 +28,97 @@ def test_identify_refusal_names_stream(tmp_path, monkeypatch, capsys) -> None:
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1
     assert "would need" in err and "--stream" in err
+
+
+def test_bartlett_blocks_equal_the_whole_array_sums() -> None:
+    """The bounded-memory Bartlett long-run covariance (blocks of rows, carried running
+    sums) is the whole-array one to rounding, for block sizes below, at and above the
+    lag window and a block count that does not divide the rows."""
+    from vesselid.identify import covariance as cv
+
+    rng = np.random.default_rng(3)
+    n = 5003
+    g = rng.standard_normal((n, 4)) + 0.4
+    g[:, 0] += np.convolve(rng.standard_normal(n), np.ones(9), "same")  # coloured column
+    for lags, rows in ((7, 512), (71, 64), (300, 128), (12, n), (1, 1)):
+        ref = cv.bartlett_long_run(g, lags)
+        got = cv._bartlett_blocks(g, lags, rows)
+        assert np.max(np.abs(got - ref)) <= 1e-13 * np.max(np.abs(ref)), (lags, rows)
+    # the lag-by-lag definition as well
+    ref = cv.long_run_covariance(g, cv.kernel_weights("bartlett", 7, n))
+    got = cv._bartlett_blocks(g, 7, 700)
+    assert np.max(np.abs(got - ref)) <= 1e-12 * np.max(np.abs(ref))
+
+
+def test_large_log_paths_agree_with_the_whole_array_paths(monkeypatch) -> None:
+    """``identify`` on a log forced through the bounded-memory paths (taken above
+    ``LARGE_ROWS`` rows) gives the estimates, covariance and test statistics of the
+    whole-array paths to rounding."""
+    import warnings
+
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import identify
+    from vesselid.plant.systems import heave
+
+    log = heave().simulate(6000, seed=11).to_log()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ref = identify(log)
+        monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
+        monkeypatch.setattr(cv, "BLOCK_ROWS", 700)
+        got = identify(log)
+    np.testing.assert_allclose(got.params.to_numpy(), ref.params.to_numpy(), rtol=1e-12)
+    c_ref, c_got = ref.cov.to_numpy(), got.cov.to_numpy()
+    assert np.max(np.abs(c_got - c_ref)) <= 1e-11 * np.max(np.abs(c_ref))
+    spec_ref = ref.diagnostics["specification"]["w"]
+    spec_got = got.diagnostics["specification"]["w"]
+    for test in ("endogeneity", "hansen_j"):
+        if spec_ref.get(test, {}).get("stat") is not None:
+            assert np.isclose(spec_got[test]["stat"], spec_ref[test]["stat"], rtol=1e-9)
+
+
+def test_gmm_hac_sums_in_blocks_equal_the_whole_array(monkeypatch) -> None:
+    """The GMM weight's Bartlett sums of a long experiment (blocks of rows) equal the
+    whole-array moving sums to rounding, with invalid rows among the valid ones."""
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import gmm
+
+    rng = np.random.default_rng(5)
+    n = 4000
+    z = rng.standard_normal((n, 5))
+    e = np.convolve(rng.standard_normal(n), np.ones(4), "same")
+    valid = np.ones(n, dtype=bool)
+    valid[[0, 1, 1700, 3999]] = False
+    starts = np.array([0, 2500, n])
+    ref = gmm.hac_sums(z, e, starts, valid, 23)
+    monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
+    monkeypatch.setattr(cv, "BLOCK_ROWS", 333)
+    got = gmm.hac_sums(z, e, starts, valid, 23)
+    assert np.max(np.abs(got - ref)) <= 1e-13 * np.max(np.abs(ref))
+
+
+def test_gmm_weight_derivative_on_long_experiments(monkeypatch) -> None:
+    """The derivative of the GMM weight's sums on a long experiment with invalid rows
+    (taken out of the sums instead of zeroed in a copy) equals the zeroed-copy form."""
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import gmm
+
+    rng = np.random.default_rng(6)
+    n = 3000
+    z = rng.standard_normal((n, 4))
+    phi = rng.standard_normal((n, 2))
+    e = rng.standard_normal(n)
+    u = rng.standard_normal(4)
+    valid = np.ones(n, dtype=bool)
+    valid[[0, 1500, 1501]] = False
+    starts = np.array([0, 1500, n])
+    ref = gmm.hac_sums_derivative(z, phi, e, starts, valid, 9, u)
+    monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
+    got = gmm.hac_sums_derivative(z, phi, e, starts, valid, 9, u)
+    assert np.max(np.abs(got - ref)) <= 1e-12 * np.max(np.abs(ref))
+    z[[0, 1500]] = np.nan  # non-finite invalid rows: zeroed as before, never in a sum
+    monkeypatch.setattr(cv, "LARGE_ROWS", 1 << 17)
+    ref = gmm.hac_sums_derivative(z, phi, e, starts, valid, 9, u)
+    monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
+    got = gmm.hac_sums_derivative(z, phi, e, starts, valid, 9, u)
+    assert np.all(np.isfinite(got)) and np.array_equal(got, ref)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -65,6 +67,35 @@ def test_concurrent_chunks_bit_identical(reference, monkeypatch):
     assert mc._local_batch(200) == mc.DEFAULT_BATCH_SIZE  # one chunk: threaded kernels
     monkeypatch.setattr("vesselid.core.threads.n_threads", lambda: 1)
     assert mc._local_batch(750) == mc.DEFAULT_BATCH_SIZE
+
+
+def test_local_chunks_taper_and_cover_every_run(monkeypatch):
+    """Several workers: chunks cover every run once, in order, and taper from at most
+    the batch size down to the minimum; one worker: equal batches."""
+    from vesselid.studies import montecarlo as mc
+
+    monkeypatch.setattr("vesselid.core.threads.n_threads", lambda: 2)
+    chunks = mc._local_chunks(1000)
+    assert chunks[0][0] == 0 and chunks[-1][1] == 1000
+    assert all(b == c for (_, b), (c, _) in itertools.pairwise(chunks))
+    sizes = [b - a for a, b in chunks]
+    assert sizes[0] == mc.DEFAULT_BATCH_SIZE and sizes == sorted(sizes, reverse=True)
+    assert min(sizes[:-1]) == mc.MIN_LOCAL_CHUNK and len(chunks) > 4
+    assert mc._local_chunks(200) == [(0, 200)]
+    monkeypatch.setattr("vesselid.core.threads.n_threads", lambda: 1)
+    assert mc._local_chunks(1000) == mc._chunks(1000, mc.DEFAULT_BATCH_SIZE)
+
+
+def test_study_seeds_are_the_root_seeds_children():
+    from vesselid.core import seeds
+
+    study = Study(options={}, runs=30, samples=100, seed=4)
+    every = seeds.run_seeds(4, 30)
+    for a, b in ((0, 30), (7, 12), (29, 30)):
+        got = study.run_seeds(a, b)
+        assert [s.spawn_key for s in got] == [s.spawn_key for s in every[a:b]]
+        assert all(np.array_equal(g.generate_state(4), e.generate_state(4))
+                   for g, e in zip(got, every[a:b], strict=True))
 
 
 def test_a_run_depends_only_on_its_own_seed(reference):

@@ -824,7 +824,11 @@ def _read_parquet(path: Path) -> tuple[pd.DataFrame, dict]:
         table = pq.read_table(path, page_checksum_verification=True)
         raw = (table.schema.metadata or {}).get(PARQUET_METADATA_KEY)
         envelope = _read_envelope(raw, str(path)) if raw is not None else {}
-        data = table.to_pandas()
+        # one block per column, each Arrow buffer freed as soon as it is converted, and
+        # the pool's freed pages handed back: the frame is the only copy that stays
+        data = table.to_pandas(split_blocks=True, self_destruct=True)
+        del table
+        pa.default_memory_pool().release_unused()
     except LogValidationError:
         raise
     except (pa.ArrowException, OSError, ValueError, TypeError) as exc:

@@ -91,6 +91,10 @@ class RegressionData:
 
 
 def _aggregated(spec: ModelSpec, states: np.ndarray, sensors: dict[str, np.ndarray]):
+    if not any(s in spec.aggregate for s in spec.states):
+        # nothing aggregated: the regressors are built from the measured states
+        # themselves (one array serves both; nothing writes into either)
+        return states, np.zeros(states.shape)
     regsig = states.copy()
     sensor = np.zeros(states.shape)  # calloc: pages untouched where nothing is aggregated
     for i, s in enumerate(spec.states):

@@ -45,6 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vesselid.identify import covariance as _covariance
 from vesselid.identify import linalg
 from vesselid.identify._fastkernels import specialised_combined
 from vesselid.identify.backend import ivk, kernels, numpy_active
@@ -357,6 +358,9 @@ def hac_sums(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: np.ndarray
     out = np.zeros((starts.size - 1, k_cols, k_cols))
     for s, a, b, _, _, g in _experiment_scores(z, e, starts, valid):
         lag = int(min(lags, b - a - 1))
+        if b - a > _covariance.LARGE_ROWS:  # the same sums in blocks (no K × (n + L) copy)
+            out[s] = _covariance._bartlett_blocks(g.T, lag, _covariance.BLOCK_ROWS)
+            continue
         h = moving_sums(g, lag)
         out[s] = (h @ h.T) / (lag + 1.0)
     return out
@@ -410,12 +414,27 @@ def hac_sums_derivative(z: np.ndarray, phi: np.ndarray, e: np.ndarray, starts: n
     for _, a, b, v, cnt in _valid_experiments(starts, valid):
         n = b - a
         # g = z e − mean_E(z e) on the valid rows is never formed: only uᵀg and gᵀ(·)
-        zv = np.where(v[:, None], z[a:b], 0.0)
-        ev = np.where(v, e[a:b], 0.0)
+        # every row valid (and the layout np.where would give): the rows themselves
+        every = (bool(v.all()) and z.dtype == np.float64 and z.flags.c_contiguous
+                 and e.dtype == np.float64 and e.flags.c_contiguous)
+        bad = np.flatnonzero(~v)
+        # a long experiment whose few invalid rows hold finite instruments: the
+        # instruments themselves (no zeroed N × K copy), the invalid rows' share taken
+        # out of the sums below (ev and, after zu, the filtered series are zero there)
+        in_place = (not every and n > _covariance.LARGE_ROWS
+                    and bool(np.isfinite(z[a:b][bad]).all()))
+        zv = (z[a:b] if every or in_place else np.where(v[:, None], z[a:b], 0.0))
+        ev = e[a:b] if every else np.where(v, e[a:b], 0.0)
         ph = phi[a:b]
-        zu = zv @ u
-        g_mean = zv.T @ ev / cnt  # (K,)
-        mean = zv.T @ ph / cnt  # (K, P): mean of z φ_j
+        if in_place:
+            zu = zv @ u
+            zu[bad] = 0.0
+            g_mean = zv.T @ ev / cnt
+            mean = (zv.T @ ph - zv[bad].T @ ph[bad]) / cnt
+        else:
+            zu = zv @ u
+            g_mean = zv.T @ ev / cnt  # (K,)
+            mean = zv.T @ ph / cnt  # (K, P): mean of z φ_j
         series = np.empty((1 + p_cols, n))
         series[0] = zu * ev - g_mean @ u  # uᵀ g
         series[1:] = (u @ mean)[:, None] - zu * ph.T  # uᵀ q_j

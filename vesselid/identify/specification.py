@@ -205,7 +205,8 @@ def _first_stage(prep: _Prepared, names: list[str] | None,
         if b.shape[1] == 0:
             return a
         coef, *_ = np.linalg.lstsq(b, a, rcond=None)
-        return a - b @ coef
+        fit = b @ coef
+        return np.subtract(a, fit, out=fit)  # a − b·coef in the product's buffer
 
     x_t = resid_on(pp[:, endo], w)
     z_t = resid_on(zz[:, excl], w)

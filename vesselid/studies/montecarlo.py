@@ -36,6 +36,7 @@ its rows with ``estimate = NaN``, ``converged = False`` and the ``stop_reason``;
 
 from __future__ import annotations
 
+import gc
 import math
 import os
 import sys
@@ -178,7 +179,10 @@ class Study:
     def run_seeds(self, start: int = 0, stop: int | None = None) -> list[np.random.SeedSequence]:
         """Seeds of the experiments of runs ``start … stop−1`` (flattened, run-major)."""
         stop = int(self.runs) if stop is None else stop
-        children = seeds.run_seeds(int(self.seed), self.runs)[start:stop]
+        # run r's seed is the root's child r (seeds.run_seeds(seed, runs)[r]), made alone:
+        # a chunk pays for its own runs, not for spawning every run of the study
+        root = seeds.root(int(self.seed))
+        children = [seeds.child(root, r) for r in range(int(start), min(int(stop), self.runs))]
         e_count = int(self.experiments_per_run)
         if e_count == 1:
             return children
@@ -237,7 +241,9 @@ def run_chunk(study: Study, start: int, stop: int) -> pd.DataFrame:
               and isinstance(res.info.get("base"), IterationResult)):
             base = res.info["base"]
         frames.append(_tidy(res, method, spec, theta0, start))
-    return pd.concat(frames, ignore_index=True)
+    # one frame per chunk from the methods' columns (a frame per method costs more than
+    # the method's estimate on small chunks)
+    return pd.DataFrame({c: np.concatenate([f[c] for f in frames]) for c in frames[0]})
 
 
 def _is_zero_mean_iv(est: Any, study: Study) -> bool:
@@ -254,7 +260,10 @@ def _takes_base(est: Any, study: Study) -> bool:
     return isinstance(est, InstrumentalGMM | PredictionError) and study.combine == "pooled"
 
 
-def _tidy(res, method: str, spec: ModelSpec, theta0: np.ndarray, start: int) -> pd.DataFrame:
+def _tidy(res, method: str, spec: ModelSpec, theta0: np.ndarray, start: int
+          ) -> dict[str, np.ndarray]:
+    """The tidy columns of one method's estimates on a chunk (:func:`run_chunk` makes
+    the frame)."""
     n_runs, n_par = res.theta.shape
     equations = [eq for eq, _ in spec.param_index]
     terms = [term for _, term in spec.param_index]
@@ -264,7 +273,7 @@ def _tidy(res, method: str, spec: ModelSpec, theta0: np.ndarray, start: int) -> 
         err = normalized_error(est, th0)
     finite = np.all(np.isfinite(res.theta), axis=1)
     converged = np.asarray(res.converged, dtype=bool) & finite
-    return pd.DataFrame({
+    return {
         "run": np.repeat(np.arange(start, start + n_runs, dtype=np.int64), n_par),
         "method": np.full(n_runs * n_par, method, dtype=object),
         "equation": np.tile(np.asarray(equations, dtype=object), n_runs),
@@ -276,7 +285,7 @@ def _tidy(res, method: str, spec: ModelSpec, theta0: np.ndarray, start: int) -> 
         "iterations": np.repeat(np.asarray(res.iterations, dtype=np.int64), n_par),
         "stop_reason": np.repeat(np.asarray(res.reason, dtype=object).astype(str), n_par),
         "_p": np.tile(np.arange(n_par), n_runs),
-    })
+    }
 
 
 def _chunks(runs: int, batch_size: int) -> list[tuple[int, int]]:
@@ -309,8 +318,9 @@ def run_study(
         Run the chunks as Dask tasks on this client (or on a client connected to
         this scheduler address, closed afterwards). Default: locally.
     batch_size : int, optional
-        Runs per chunk (default 250, evened out to a multiple of the local threads'
-        chunks; with Dask: enough chunks for every worker thread).
+        Runs per chunk (default: 250 on one thread; on several, a tapering schedule
+        from 250 down to :data:`MIN_LOCAL_CHUNK`, :func:`_local_chunks`; with Dask:
+        enough chunks for every worker thread).
     n_jobs : int, optional
         Local threads (default: all cores): several chunks run concurrently, one per
         thread, with serial kernels; a single chunk runs its kernels on all threads.
@@ -331,12 +341,42 @@ def run_study(
         frames = _run_dask(study, client, batch_size, progress)
     else:
         with _threads(n_jobs), _progress(runs, progress, study.name or "runs") as bar:
-            size = _local_batch(runs) if batch_size is None else int(batch_size)
-            frames = _run_local(study, _chunks(runs, size), bar)
+            chunks = (_local_chunks(runs) if batch_size is None
+                      else _chunks(runs, int(batch_size)))
+            frames = _run_local(study, chunks, bar)
     df = pd.concat(frames, ignore_index=True)
     df = _order(df, study)
     df.attrs["study"] = study.describe()
     return df
+
+
+#: Smallest chunk of the tapering local schedule (:func:`_local_chunks`): below it a
+#: chunk's set-up (system, estimators, its frame) costs more than its runs' kernels gain.
+MIN_LOCAL_CHUNK = 20
+
+
+def _local_chunks(runs: int) -> list[tuple[int, int]]:
+    """The default local chunks. One thread, or runs for one chunk: chunks of
+    :func:`_local_batch` (one chunk's kernels threaded over its runs). Several threads
+    (the chunks run concurrently, one per worker, each taking the next chunk when it
+    finishes one): a tapering schedule, each chunk a ``1/(2·threads)`` share of the runs
+    left (at most :data:`DEFAULT_BATCH_SIZE`, at least :data:`MIN_LOCAL_CHUNK`), so the
+    first chunks are large (the batched kernels' efficiency) and the last small: a run
+    that costs many times the others (``auto``'s prediction-error fallback on a log
+    where both validity tests reject) leaves the workers at most a small chunk apart,
+    where equal chunks leave one worker a whole chunk behind."""
+    from vesselid.core.threads import n_threads
+
+    threads = n_threads()
+    if threads < 2 or runs <= DEFAULT_BATCH_SIZE:
+        return _chunks(runs, _local_batch(runs))
+    out, a = [], 0
+    while a < runs:
+        left = runs - a
+        size = min(DEFAULT_BATCH_SIZE, max(MIN_LOCAL_CHUNK, math.ceil(left / (2 * threads))))
+        out.append((a, min(a + size, runs)))
+        a += size
+    return out
 
 
 def _local_batch(runs: int) -> int:
@@ -380,12 +420,30 @@ def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[pd
     from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
 
     ctx = _fork_context()
+    frozen = False
     if ctx is not None:
         with serial_here():  # load (or compile) every kernel of the study here, once
             run_chunk(study, chunks[0][0], chunks[0][0] + 1)
+        # the objects alive now (modules, compiled kernels) leave the garbage collector's
+        # generations before the workers fork: a worker's collections then do not walk
+        # (and so copy-on-write every page of) the parent's heap; measured ~7 % of the
+        # workers' CPU on Table 1
+        gc.freeze()
+        frozen = True
         pool: Executor = ProcessPoolExecutor(workers, mp_context=ctx)
     else:
         pool = ThreadPoolExecutor(workers, thread_name_prefix="vesselid-chunk")
+    try:
+        return _gather(pool, study, chunks, bar)
+    finally:
+        if frozen:
+            gc.unfreeze()
+
+
+def _gather(pool: Any, study: Study, chunks: list[tuple[int, int]], bar: Any
+            ) -> list[pd.DataFrame]:
+    """Submit every chunk to ``pool`` (:func:`_serial_chunk`) and return their frames in
+    order, shutting the pool down."""
     with pool, warnings.catch_warnings():
         # Python ≥ 3.12 warns on fork() in a process with threads; the children run one
         # chunk each in their only thread and start no thread pool (serial kernels)
