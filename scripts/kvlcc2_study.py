@@ -305,7 +305,8 @@ def _cv_markdown(table: pd.DataFrame, dt: float) -> str:
         err = {k: (g[g.figure == k].value - g[g.figure == k].measured).astype(float).dropna()
                for k in ("first_overshoot_deg", "second_overshoot_deg")}
         e1, e2 = err["first_overshoot_deg"], err["second_overshoot_deg"]
-        lines.append(f"| {spec.removeprefix('cv ')} | {est} | {fit['du']:.1f} | {fit['v']:.1f} "
+        label = spec.removeprefix("cv ").replace("|", "\\|")  # a pipe would end the cell
+        lines.append(f"| {label} | {est} | {fit['du']:.1f} | {fit['v']:.1f} "
                      f"| {fit['r']:.1f} | {e1.abs().mean():.2f} | {e2.abs().mean():.2f} | "
                      f"{e2.abs().max():.2f} | {e2.mean():+.2f} |")
     base = cv[(cv.spec == "cv kvlcc2") & (cv.estimator == "ls")
