@@ -210,6 +210,17 @@ def main(argv: list[str] | None = None) -> int:
         for s in spec.states:
             rows.append({**base, "kind": "free_run_fit", "experiment": "pooled", "state": s,
                          "figure": "fit_percent", "value": rep.free_run_fit[s]})
+        # the same zig-zags with the switching angle read at the tank's own reversals
+        read = TrialLog(test.data, {k: v for k, v in test.metadata.items()
+                                    if k != "manoeuvres"})
+        for e in validate(read, spec.with_theta0(theta)).experiments:
+            if e.manoeuvre:
+                for key in ("first_overshoot_deg", "second_overshoot_deg"):
+                    rows.append({**base, "kind": "overshoot_read",
+                                 "experiment": _short(e.experiment), "state": "psi",
+                                 "figure": key, "measured": e.manoeuvre["measured"][key],
+                                 "value": e.manoeuvre["simulated"][key],
+                                 "psi_switch_deg": e.manoeuvre["psi_switch_deg"]})
     rows += _prefilter_orders(train, test, specs[0])
     table = pd.DataFrame(rows)
     out = Path(args.out)
@@ -385,6 +396,23 @@ def _markdown(table: pd.DataFrame, spec, dt: float) -> str:
                             f"{v.iloc[0]:.1f} ({v.iloc[0] - meas:+.1f})")
             which = "1st" if fig.startswith("first") else "2nd"
             lines.append(f"| {exp} | {which} | {meas:.1f} | " + " | ".join(sims) + " |")
+    rd = table[table.kind == "overshoot_read"]
+    if len(rd):
+        lines += ["", "The same zig-zags with the switching angle read from each run (the heading "
+                      "change at which the tank's rudder reversed, later than the nominal "
+                      "angle) for both the measured and the simulated overshoot (°):", "",
+                  "| experiment | switch | overshoot | measured | " + " | ".join(ests) + " |",
+                  "|" + "---|" * (4 + len(ests))]
+        for (exp, fig), grp in rd.groupby(["experiment", "figure"], sort=False):
+            meas = grp.measured.iloc[0]
+            sims = []
+            for e in ests:
+                v = grp[grp.estimator == e].value
+                sims.append("—" if v.empty or pd.isna(v.iloc[0]) else
+                            f"{v.iloc[0]:.1f} ({v.iloc[0] - meas:+.1f})")
+            which = "1st" if fig.startswith("first") else "2nd"
+            lines.append(f"| {exp} | {grp.psi_switch_deg.iloc[0]:.2f} | {which} | {meas:.1f} | "
+                         + " | ".join(sims) + " |")
     po = table[table.kind == "prefilter_order"]
     if len(po):
         lines += ["", "SRIV's held-out free-run fit (%, pooled) against the order of its AR "
@@ -394,7 +422,8 @@ def _markdown(table: pd.DataFrame, spec, dt: float) -> str:
         for est, grp in po.groupby("estimator", sort=False):
             cells = [f"{grp[grp.state == s].value.iloc[0]:.1f}" for s in spec.states]
             lines.append(f"| AR({est.removeprefix('sriv-ar')}) | " + " | ".join(cells) + " |")
-    st = table[table.kind != "prefilter_order"].drop_duplicates("estimator")
+    st = table[~table.kind.isin(("prefilter_order", "overshoot_read"))].drop_duplicates(
+        "estimator")
     lines += ["", "| estimator | method | instruments / noise model | converged | "
                   "spectral radius at U0 |", "|---|---|---|---|---|"]
     for _, r in st.iterrows():

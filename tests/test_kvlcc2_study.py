@@ -81,3 +81,28 @@ def test_cross_validation_scores_the_true_structure_exact(tmp_path, monkeypatch)
     assert len(os_) == 6 and os_.measured.notna().all()
     np.testing.assert_allclose(os_.value.astype(float), os_.measured.astype(float), atol=1e-6)
     assert "Training cross-validation" in study._cv_markdown(rows, truth.dt)
+
+
+def test_markdown_tables_of_one_spec():
+    """The held-out tables: free-run fits per run, overshoots at the nominal and at the read
+    switching angle, with the simulated-minus-measured difference in brackets."""
+    from vesselid.model.specs import load_spec
+
+    study = _study()
+    spec = load_spec("kvlcc2_vr")
+    base = {"spec": spec.name, "estimator": "ls", "method": "ls", "converged": True,
+            "spectral_radius": 1.01, "choice": "", "check_prefilter": float("nan"),
+            "check_levels": float("nan"), "check_critical": float("nan")}
+    fits = dict(zip(spec.states, (80, 90, 95), strict=True))
+    rows = [{**base, "kind": "free_run_fit", "experiment": "Z_15_05", "state": s,
+             "figure": "fit_percent", "value": v} for s, v in fits.items()]
+    rows += [{**base, "kind": "overshoot", "experiment": "Z_15_05", "state": "psi",
+              "figure": "second_overshoot_deg", "measured": 12.6, "value": 10.4},
+             {**base, "kind": "overshoot_read", "experiment": "Z_15_05", "state": "psi",
+              "figure": "second_overshoot_deg", "measured": 11.6, "value": 11.0,
+              "psi_switch_deg": 6.05}]
+    md = study._markdown(pd.DataFrame(rows), spec, 0.25)
+    assert "| Z_15_05 | 80.0 | 90.0 | 95.0 |" in md
+    assert "| Z_15_05 | 2nd | 12.6 | 10.4 (-2.2) |" in md
+    assert "| Z_15_05 | 6.05 | 2nd | 11.6 | 11.0 (-0.6) |" in md
+    assert "| ls | ls |  | True | 1.01000 |" in md
