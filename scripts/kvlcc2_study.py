@@ -14,8 +14,8 @@ The structure is chosen on the training runs only:
 * **leave-one-run-out cross-validation** over the nine training zig-zags of candidate
   structures (the shipped spec plus manoeuvring-practice terms: the cross terms ``v*|r|``,
   ``r*|v|`` in sway and yaw, surge ``v*v``, ``r*r``, rudder-lift saturation ``delta*|delta|``),
-  each fitted on eight runs by least squares and by refined IV (the default's choice on
-  these runs) and validated on the ninth: pooled free-run fit per state and the first and
+  each fitted on eight runs by least squares and by the default estimator and validated
+  on the ninth: pooled free-run fit per state and the first and
   second overshoot errors (``--no-cv`` skips it);
 * **term selection** (:func:`vesselid.selection.select_terms`, library ``vessel``, the
   shipped spec as base model) on the nine training runs; the selected structure is then
@@ -73,7 +73,7 @@ CANDIDATES = {
     "+vv,rr (surge), v|r|,r|v| (yaw)": {"du": ["v*v", "r*r"], "r": ["v*|r|", "r*|v|"]},
     "+δ|δ| (sway, yaw)": {"v": ["delta*|delta|"], "r": ["delta*|delta|"]},
 }
-CV_METHODS = (("ls", "ls"), ("iv", "iv"))
+CV_METHODS = (("ls", "ls"), ("default", None))
 _NAME = re.compile(r"Z_(\d+)_(\d+)")
 
 
@@ -253,7 +253,7 @@ def _cross_validate(train, base) -> list[dict]:
     but one, validated on that one (free-run fit pooled over the left-out runs, overshoot
     errors of each left-out zig-zag)."""
     from vesselid.data.logs import TrialLog
-    from vesselid.identify import identify
+    from vesselid.identify import DEFAULT_METHOD, identify
     from vesselid.validation.report import validate
 
     data = train.data
@@ -266,18 +266,20 @@ def _cross_validate(train, base) -> list[dict]:
         for est, method in CV_METHODS:
             num = dict.fromkeys(spec.states, 0.0)
             den = dict.fromkeys(spec.states, 0.0)
-            errs = []
+            errs, used = [], []
             for name in names:
                 fit_log = TrialLog(data[short != name].reset_index(drop=True), train.metadata)
                 val_log = TrialLog(data[short == name].reset_index(drop=True), train.metadata)
-                theta = np.asarray(identify(fit_log, spec, method=method).params, dtype=float)
+                res = identify(fit_log, spec, method=method or DEFAULT_METHOD)
+                used.append(str(res.method))
+                theta = np.asarray(res.params, dtype=float)
                 e = validate(val_log, spec.with_theta0(theta)).experiments[0]
                 for s in spec.states:
                     y, yh = e.series[f"measured_{s}"], e.series[f"simulated_{s}"]
                     num[s] += float(np.sum((y - yh) ** 2)) if np.all(np.isfinite(yh)) \
                         else float("inf")
                     den[s] += float(np.sum((y - np.mean(y)) ** 2))
-                row = {"spec": f"cv {label}", "estimator": est, "method": method,
+                row = {"spec": f"cv {label}", "estimator": est, "method": str(res.method),
                        "kind": "cv", "experiment": name, "state": "psi"}
                 for key in ("first_overshoot_deg", "second_overshoot_deg"):
                     meas = e.manoeuvre["measured"][key] if e.manoeuvre else None
@@ -287,14 +289,16 @@ def _cross_validate(train, base) -> list[dict]:
                     if sim is not None and meas is not None:
                         errs.append((key, sim - meas))
             for s in spec.states:
-                out.append({"spec": f"cv {label}", "estimator": est, "method": method,
+                out.append({"spec": f"cv {label}", "estimator": est,
+                            "method": "/".join(sorted(set(used))),
                             "kind": "cv", "experiment": "pooled", "state": s,
                             "figure": "fit_percent",
                             "value": 100.0 * (1.0 - math.sqrt(num[s] / den[s]))})
             e2 = [abs(v) for k, v in errs if k.startswith("second")]
             print(f"  {label:34s} {est:3s} free-run fit " + " / ".join(
                 f"{100.0 * (1.0 - math.sqrt(num[s] / den[s])):.1f}" for s in spec.states)
-                + f" %, mean |2nd overshoot error| {np.mean(e2):.2f}°", flush=True)
+                + f" %, mean |2nd overshoot error| {np.mean(e2):.2f}° (method "
+                f"{'/'.join(sorted(set(used)))})", flush=True)
     return out
 
 
@@ -311,6 +315,8 @@ def _cv_markdown(table: pd.DataFrame, dt: float) -> str:
              "| structure | estimator | fit du | fit v | fit r | 1st mean | 2nd mean | "
              "2nd largest | 2nd signed |", "|---|---|---|---|---|---|---|---|---|"]
     for (spec, est), g in cv.groupby(["spec", "estimator"], sort=False):
+        used = g[g.experiment == "pooled"].method.iloc[0]
+        est = est if used == est else f"{est} ({used})"
         fit = {s: g[(g.experiment == "pooled") & (g.state == s)].value.iloc[0]
                for s in ("du", "v", "r")}
         err = {k: (g[g.figure == k].value - g[g.figure == k].measured).astype(float).dropna()
