@@ -1,12 +1,25 @@
 """KVLCC2 free-running model tests (HSVA, SIMMAN 2008): ingest → identify → validate.
 
 Trains the shipped 3-DOF specs (:mod:`vesselid.model.specs`: ``kvlcc2.toml``, two-factor terms
-only, and ``kvlcc2_u2delta.toml``, rudder forces in ``u²δ`` as derived inputs) on nine of the
-thirteen HSVA zig-zags and validates on the four held out (one of each family: 10°/10°,
-15°/5°, 20°/10°, 25°/5°), with the package's default estimator, least squares, refined
-IV, IV_E{ζ}=0 and SRIV side by side (the last two separate the two reasons SRIV loses on
-these data: the per-experiment constants of the zero-mean instruments, and the AR
-prefilter, whose order is varied on the first spec):
+only, ``kvlcc2_u2delta.toml``, rudder forces in ``u²δ`` as derived inputs, and
+``kvlcc2_vr.toml``, the first with the yaw cross term ``v*|r|``) on nine of the thirteen HSVA
+zig-zags and validates on the four held out (one of each family: 10°/10°, 15°/5°, 20°/10°,
+25°/5°), with the package's default estimator, least squares, refined IV, IV_E{ζ}=0 and SRIV
+side by side on the first two (the last two separate the two reasons SRIV loses on these
+data: the per-experiment constants of the zero-mean instruments, and the AR prefilter, whose
+order is varied on the first spec), the default and least squares on the others.
+
+The structure is chosen on the training runs only:
+
+* **leave-one-run-out cross-validation** over the nine training zig-zags of candidate
+  structures (the shipped spec plus manoeuvring-practice terms: the cross terms ``v*|r|``,
+  ``r*|v|`` in sway and yaw, surge ``v*v``, ``r*r``, rudder-lift saturation ``delta*|delta|``),
+  each fitted on eight runs by least squares and by the default estimator and validated
+  on the ninth: pooled free-run fit per state and the first and
+  second overshoot errors (``--no-cv`` skips it);
+* **term selection** (:func:`vesselid.selection.select_terms`, library ``vessel``, the
+  shipped spec as base model) on the nine training runs; the selected structure is then
+  fitted and validated like the hand-written ones (``--no-select`` skips it).
 
 * per state, the free-run fit on every held-out run (``vesselid validate``);
 * the identified model's stability (spectral radius of the discrete map linearised at the
@@ -32,6 +45,7 @@ import os
 import re
 import sys
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +57,23 @@ METHODS = (("default", None), ("ls", "ls"), ("iv", "iv"), ("iv-zero-mean", "iv-z
            ("sriv", "sriv"))
 #: the estimators drawn in the figure (the others are in the tables)
 FIGURE = ("default", "ls", "iv")
+#: the shipped specs: every estimator of METHODS on the first two, the default and LS on the rest
+SHIPPED = ("kvlcc2", "kvlcc2_u2delta", "kvlcc2_vr")
+FULL_METHODS = ("kvlcc2", "kvlcc2-u2delta")
+SHORT_METHODS = (("default", None), ("ls", "ls"))
+#: candidate terms added to the shipped kvlcc2 spec in the cross-validation (equation: terms)
+CANDIDATES = {
+    "kvlcc2": {},
+    "+v|r|,r|v| (sway)": {"v": ["v*|r|", "r*|v|"]},
+    "+v|r|,r|v| (yaw)": {"r": ["v*|r|", "r*|v|"]},
+    "+v|r|,r|v| (sway, yaw)": {"v": ["v*|r|", "r*|v|"], "r": ["v*|r|", "r*|v|"]},
+    "+v|r| (yaw) = kvlcc2-vr": {"r": ["v*|r|"]},
+    "+r|v| (yaw)": {"r": ["r*|v|"]},
+    "+vv,rr (surge)": {"du": ["v*v", "r*r"]},
+    "+vv,rr (surge), v|r|,r|v| (yaw)": {"du": ["v*v", "r*r"], "r": ["v*|r|", "r*|v|"]},
+    "+δ|δ| (sway, yaw)": {"v": ["delta*|delta|"], "r": ["delta*|delta|"]},
+}
+CV_METHODS = (("ls", "ls"), ("default", None))
 _NAME = re.compile(r"Z_(\d+)_(\d+)")
 
 
@@ -78,6 +109,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--dt", type=float, default=None, help="sample time (default: the spec's)")
     p.add_argument("--out", default=str(ROOT / "docs"), help="folder for kvlcc2.csv/.md")
     p.add_argument("--figure", default=str(ROOT / "docs" / "_static" / "kvlcc2.png"))
+    p.add_argument("--no-cv", dest="cv", action="store_false",
+                   help="skip the leave-one-run-out cross-validation of candidate structures")
+    p.add_argument("--no-select", dest="select", action="store_false",
+                   help="skip term selection on the training runs")
+    p.add_argument("--bootstrap", type=int, default=20,
+                   help="bootstrap replicates of the selection probabilities (default 20)")
     args = p.parse_args(argv)
     if not args.data or not _files(Path(args.data)):
         print("KVLCC2 data not found: give --data DIR or set VESSELID_KVLCC2_DIR to the folder "
@@ -90,11 +127,9 @@ def main(argv: list[str] | None = None) -> int:
     from vesselid.model.specs import load_spec, path
     from vesselid.validation.report import validate
 
-    specs = [load_spec("kvlcc2"), load_spec("kvlcc2_u2delta")]
+    specs = [load_spec(n) for n in SHIPPED]
     dt = args.dt or specs[0].dt
     if args.dt:
-        from dataclasses import replace
-
         specs = [replace(sp, dt=float(args.dt)) for sp in specs]
     files = _files(Path(args.data))
     fmt = load_tank_format(path("kvlcc2_hsva_ingest"))
@@ -113,7 +148,18 @@ def main(argv: list[str] | None = None) -> int:
           f"{[_short(e) for e in train.experiment_ids]}, validating on "
           f"{[_short(e) for e in test.experiment_ids]}")
     rows, reports = [], {}
-    for spec, (label, method) in ((sp, lm) for sp in specs for lm in METHODS):
+    if args.cv:
+        rows += _cross_validate(train, specs[0])
+    if args.select:
+        from vesselid.selection import select_terms
+
+        sel = select_terms(train, specs[0], "vessel", n_boot=args.bootstrap)
+        print("\nterm selection on the training runs (library vessel, base model "
+              f"{specs[0].name}):\n{sel.summary()}")
+        specs.append(replace(sel.spec, name="kvlcc2-selected"))
+    runs = [(sp, lm) for sp in specs
+            for lm in (METHODS if sp.name in FULL_METHODS else SHORT_METHODS)]
+    for spec, (label, method) in runs:
         name = method or DEFAULT_METHOD
         res = identify(train, spec, method=name)
         theta = np.asarray(res.params, dtype=float)
@@ -164,6 +210,17 @@ def main(argv: list[str] | None = None) -> int:
         for s in spec.states:
             rows.append({**base, "kind": "free_run_fit", "experiment": "pooled", "state": s,
                          "figure": "fit_percent", "value": rep.free_run_fit[s]})
+        # the same zig-zags with the switching angle read at the tank's own reversals
+        read = TrialLog(test.data, {k: v for k, v in test.metadata.items()
+                                    if k != "manoeuvres"})
+        for e in validate(read, spec.with_theta0(theta)).experiments:
+            if e.manoeuvre:
+                for key in ("first_overshoot_deg", "second_overshoot_deg"):
+                    rows.append({**base, "kind": "overshoot_read",
+                                 "experiment": _short(e.experiment), "state": "psi",
+                                 "figure": key, "measured": e.manoeuvre["measured"][key],
+                                 "value": e.manoeuvre["simulated"][key],
+                                 "psi_switch_deg": e.manoeuvre["psi_switch_deg"]})
     rows += _prefilter_orders(train, test, specs[0])
     table = pd.DataFrame(rows)
     out = Path(args.out)
@@ -172,12 +229,113 @@ def main(argv: list[str] | None = None) -> int:
 
     atomic_write_text(out / "kvlcc2.csv", table.to_csv(index=False, float_format="%.6g"))
     atomic_write_text(out / "kvlcc2.md", "\n".join(
-        _markdown(table[table.spec == sp.name], sp, dt) for sp in specs))
+        [_cv_markdown(table, dt)]
+        + [_markdown(table[table.spec == sp.name], sp, dt) for sp in specs]))
     print(f"\nwrote {out / 'kvlcc2.csv'} and {out / 'kvlcc2.md'}")
     if reports:
         _figure(reports, Path(args.figure))
         print(f"wrote {args.figure} ({Path(args.figure).stat().st_size / 1e3:.0f} kB)")
     return 0
+
+
+def candidate_spec(base, add: dict[str, list[str]], label: str):
+    """``base`` with the terms ``add`` (equation -> terms) appended to its equations."""
+    from vesselid.model.spec import ModelSpec
+
+    eqs = {s: [str(t) for t in base.equations[s]] + list(add.get(s, ())) for s in base.states}
+    return ModelSpec(label, base.states, base.inputs, eqs, dt=base.dt,
+                     derived=dict(base.derived) or None)
+
+
+def _cross_validate(train, base) -> list[dict]:
+    """Leave-one-run-out cross-validation over the training runs of every candidate
+    structure (:data:`CANDIDATES`) and estimator (:data:`CV_METHODS`): fitted on all runs
+    but one, validated on that one (free-run fit pooled over the left-out runs, overshoot
+    errors of each left-out zig-zag)."""
+    from vesselid.data.logs import TrialLog
+    from vesselid.identify import DEFAULT_METHOD, identify
+    from vesselid.validation.report import validate
+
+    data = train.data
+    short = data["experiment"].map(_short)
+    names = list(dict.fromkeys(short))
+    out = []
+    print(f"\nleave-one-run-out cross-validation over {names}")
+    for label, add in CANDIDATES.items():
+        spec = candidate_spec(base, add, label)
+        for est, method in CV_METHODS:
+            num = dict.fromkeys(spec.states, 0.0)
+            den = dict.fromkeys(spec.states, 0.0)
+            errs, used = [], []
+            for name in names:
+                fit_log = TrialLog(data[short != name].reset_index(drop=True), train.metadata)
+                val_log = TrialLog(data[short == name].reset_index(drop=True), train.metadata)
+                res = identify(fit_log, spec, method=method or DEFAULT_METHOD)
+                used.append(str(res.method))
+                theta = np.asarray(res.params, dtype=float)
+                e = validate(val_log, spec.with_theta0(theta)).experiments[0]
+                for s in spec.states:
+                    y, yh = e.series[f"measured_{s}"], e.series[f"simulated_{s}"]
+                    num[s] += float(np.sum((y - yh) ** 2)) if np.all(np.isfinite(yh)) \
+                        else float("inf")
+                    den[s] += float(np.sum((y - np.mean(y)) ** 2))
+                row = {"spec": f"cv {label}", "estimator": est, "method": str(res.method),
+                       "kind": "cv", "experiment": name, "state": "psi"}
+                for key in ("first_overshoot_deg", "second_overshoot_deg"):
+                    meas = e.manoeuvre["measured"][key] if e.manoeuvre else None
+                    sim = e.manoeuvre["simulated"][key] if e.manoeuvre else None
+                    out.append({**row, "figure": key, "measured": meas,
+                                "value": np.nan if sim is None else sim})
+                    if sim is not None and meas is not None:
+                        errs.append((key, sim - meas))
+            for s in spec.states:
+                out.append({"spec": f"cv {label}", "estimator": est,
+                            "method": "/".join(sorted(set(used))),
+                            "kind": "cv", "experiment": "pooled", "state": s,
+                            "figure": "fit_percent",
+                            "value": 100.0 * (1.0 - math.sqrt(num[s] / den[s]))})
+            e2 = [abs(v) for k, v in errs if k.startswith("second")]
+            print(f"  {label:34s} {est:3s} free-run fit " + " / ".join(
+                f"{100.0 * (1.0 - math.sqrt(num[s] / den[s])):.1f}" for s in spec.states)
+                + f" %, mean |2nd overshoot error| {np.mean(e2):.2f}° (method "
+                f"{'/'.join(sorted(set(used)))})", flush=True)
+    return out
+
+
+def _cv_markdown(table: pd.DataFrame, dt: float) -> str:
+    cv = table[table.kind == "cv"]
+    if not len(cv):
+        return ""
+    names = [e for e in dict.fromkeys(cv.experiment) if e != "pooled"]
+    lines = ["<!-- generated by scripts/kvlcc2_study.py; do not edit -->",
+             f"Training cross-validation (leave one of the {len(names)} training runs out, "
+             f"dt = {dt:g} s): free-run fit pooled over the left-out runs (%), mean and "
+             "largest |simulated − measured| overshoot angle over the left-out zig-zags (°), "
+             "and the mean signed second-overshoot error:", "",
+             "| structure | estimator | fit du | fit v | fit r | 1st mean | 2nd mean | "
+             "2nd largest | 2nd signed |", "|---|---|---|---|---|---|---|---|---|"]
+    for (spec, est), g in cv.groupby(["spec", "estimator"], sort=False):
+        used = g[g.experiment == "pooled"].method.iloc[0]
+        est = est if used == est else f"{est} ({used})"
+        fit = {s: g[(g.experiment == "pooled") & (g.state == s)].value.iloc[0]
+               for s in ("du", "v", "r")}
+        err = {k: (g[g.figure == k].value - g[g.figure == k].measured).astype(float).dropna()
+               for k in ("first_overshoot_deg", "second_overshoot_deg")}
+        e1, e2 = err["first_overshoot_deg"], err["second_overshoot_deg"]
+        label = spec.removeprefix("cv ").replace("|", "\\|")  # a pipe would end the cell
+        lines.append(f"| {label} | {est} | {fit['du']:.1f} | {fit['v']:.1f} "
+                     f"| {fit['r']:.1f} | {e1.abs().mean():.2f} | {e2.abs().mean():.2f} | "
+                     f"{e2.abs().max():.2f} | {e2.mean():+.2f} |")
+    base = cv[(cv.spec == "cv kvlcc2") & (cv.estimator == "ls")
+              & (cv.figure == "second_overshoot_deg")]
+    if len(base):
+        lines += ["", "Second overshoot per left-out training run, measured and simulated "
+                      "(structure kvlcc2, least squares; °):", "",
+                  "| run | " + " | ".join(base.experiment) + " |",
+                  "|---|" + "---|" * len(base),
+                  "| measured | " + " | ".join(f"{v:.1f}" for v in base.measured) + " |",
+                  "| simulated | " + " | ".join(f"{v:.1f}" for v in base.value) + " |"]
+    return "\n".join(lines) + "\n"
 
 
 #: AR orders of the SRIV prefilter compared on the first spec (0: no prefilter)
@@ -209,9 +367,15 @@ def _prefilter_orders(train, test, spec) -> list[dict]:
 
 
 def _markdown(table: pd.DataFrame, spec, dt: float) -> str:
-    lines = ["<!-- generated by scripts/kvlcc2_study.py; do not edit -->",
-             f"Held-out free-run fit (%, 100 = perfect), spec `{spec.name}`, dt = {dt:g} s:",
-             ""]
+    lines = ["<!-- generated by scripts/kvlcc2_study.py; do not edit -->"]
+    if spec.name.endswith("-selected"):
+        lines += ["Structure selected on the training runs (`select_terms`, library `vessel`, "
+                  "base model `kvlcc2`):", ""]
+        lines += [f"* `{s}`: " + ", ".join(f"`{t}`" for t in spec.equations[s])
+                  for s in spec.states]
+        lines += [""]
+    lines += [f"Held-out free-run fit (%, 100 = perfect), spec `{spec.name}`, dt = {dt:g} s:",
+              ""]
     fr = table[(table.kind == "free_run_fit")]
     ests = list(dict.fromkeys(fr.estimator))
     head = "| experiment | " + " | ".join(f"{e} {s}" for e in ests for s in spec.states) + " |"
@@ -238,6 +402,23 @@ def _markdown(table: pd.DataFrame, spec, dt: float) -> str:
                             f"{v.iloc[0]:.1f} ({v.iloc[0] - meas:+.1f})")
             which = "1st" if fig.startswith("first") else "2nd"
             lines.append(f"| {exp} | {which} | {meas:.1f} | " + " | ".join(sims) + " |")
+    rd = table[table.kind == "overshoot_read"]
+    if len(rd):
+        lines += ["", "The same zig-zags with the switching angle read from each run (the heading "
+                      "change at which the tank's rudder reversed, later than the nominal "
+                      "angle) for both the measured and the simulated overshoot (°):", "",
+                  "| experiment | switch | overshoot | measured | " + " | ".join(ests) + " |",
+                  "|" + "---|" * (4 + len(ests))]
+        for (exp, fig), grp in rd.groupby(["experiment", "figure"], sort=False):
+            meas = grp.measured.iloc[0]
+            sims = []
+            for e in ests:
+                v = grp[grp.estimator == e].value
+                sims.append("—" if v.empty or pd.isna(v.iloc[0]) else
+                            f"{v.iloc[0]:.1f} ({v.iloc[0] - meas:+.1f})")
+            which = "1st" if fig.startswith("first") else "2nd"
+            lines.append(f"| {exp} | {grp.psi_switch_deg.iloc[0]:.2f} | {which} | {meas:.1f} | "
+                         + " | ".join(sims) + " |")
     po = table[table.kind == "prefilter_order"]
     if len(po):
         lines += ["", "SRIV's held-out free-run fit (%, pooled) against the order of its AR "
@@ -247,7 +428,8 @@ def _markdown(table: pd.DataFrame, spec, dt: float) -> str:
         for est, grp in po.groupby("estimator", sort=False):
             cells = [f"{grp[grp.state == s].value.iloc[0]:.1f}" for s in spec.states]
             lines.append(f"| AR({est.removeprefix('sriv-ar')}) | " + " | ".join(cells) + " |")
-    st = table[table.kind != "prefilter_order"].drop_duplicates("estimator")
+    st = table[~table.kind.isin(("prefilter_order", "overshoot_read"))].drop_duplicates(
+        "estimator")
     lines += ["", "| estimator | method | instruments / noise model | converged | "
                   "spectral radius at U0 |", "|---|---|---|---|---|"]
     for _, r in st.iterrows():

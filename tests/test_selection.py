@@ -173,3 +173,23 @@ def test_monte_carlo_heave_selection_and_coverage():
     cov_tol = 2.33 * math.sqrt(0.95 * 0.05 / total)
     assert abs(hits / total - 0.95) <= cov_tol
 
+
+
+def test_derived_state_kept_in_the_selected_spec(tmp_path):
+    """A base spec with a derived state (``dw = w - 0.2`` from the measured ``w``, as the
+    KVLCC2 spec's ``du``): the selected spec and the file it is saved to keep the
+    ``[derived]`` table, so identify and validate read the raw log with it."""
+    from vesselid.data.logs import TrialLog
+    from vesselid.identify import identify
+
+    log = _heave_log(3000, 1, noise=False)
+    raw = TrialLog(log.data, {})
+    base = ModelSpec("heave-d", ["dw"], ["tau"], {"dw": ["dw", "tau"]}, dt=log.spec.dt,
+                     derived={"dw": "w - 0.2"})
+    res = select_terms(raw, base, "vessel", n_boot=0)
+    assert {k: str(v) for k, v in res.spec.derived.items()} == {"dw": str(base.derived["dw"])}
+    res.save(tmp_path / "sel.toml")
+    again = ModelSpec.from_toml((tmp_path / "sel.toml").read_text())
+    assert set(again.derived) == {"dw"}
+    fit = identify(raw, again, method="ls")
+    assert np.all(np.isfinite(np.asarray(fit.params)))

@@ -82,7 +82,8 @@ def _spec_with(spec: ModelSpec, equations: dict[str, list[Term]], name: str | No
                ) -> ModelSpec:
     return ModelSpec(name or spec.name, spec.states, spec.inputs,
                      {s: list(equations[s]) for s in spec.states},
-                     aggregate=dict(spec.aggregate) or None, dt=spec.dt)
+                     aggregate=dict(spec.aggregate) or None, dt=spec.dt,
+                     derived=dict(spec.derived) or None)
 
 
 def _check_number(name: str, value: Any, lo: float, hi: float) -> float:

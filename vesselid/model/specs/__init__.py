@@ -8,6 +8,10 @@
 ``kvlcc2_u2delta.toml``
     The same with the rudder forces in ``u²δ`` and ``u²δ²`` as derived inputs computed from
     the measured speed (outside the IV consistency results: :mod:`vesselid.model.derived`).
+``kvlcc2_vr.toml``
+    ``kvlcc2.toml`` with the cross term ``v*|r|`` (``N_v|r|``) in the yaw moment, chosen by
+    leave-one-run-out cross-validation on the training zig-zags (``scripts/kvlcc2_study.py``):
+    closer second overshoot angles, free-run fit as good.
 ``kvlcc2_hsva_ingest.toml``
     The ``[tank]`` table (:mod:`vesselid.data.ingest.tank`) that reads the HSVA free-running
     KVLCC2 zig-zag tables of SIMMAN 2008 (whitespace ``.dat``, four header lines, angles in
