@@ -226,6 +226,18 @@ def solve_moments(
     act = np.ones(n_groups, dtype=bool) if active is None else active
     a_seg, b_seg = _segment_equations(mom, spec, zero_mean)
     blocks = _layout(spec)[0]
+    if n_groups == 1 and a_seg.shape[0] == 1 and act[0]:
+        # one group of one segment (a fit): its equations as they are, block by block,
+        # without the gathering of the general path (the refined iteration solves here
+        # at every evaluation of T)
+        theta = np.empty((1, spec.n_params))
+        good = True
+        for i in range(spec.n_states):
+            sl = slice(int(blocks[i]), int(blocks[i + 1]))
+            th_i, ok_i = _batched_solve(a_seg[:, sl, sl], b_seg[:, sl])
+            theta[:, sl] = th_i
+            good = good and bool(ok_i[0])
+        return theta, np.array([good])
     theta = np.full((n_groups, spec.n_params), np.nan)
     ok = np.ones(n_groups, dtype=bool)
     seg_counts = np.bincount(data.group, minlength=n_groups)
