@@ -194,7 +194,13 @@ def _segment_equations(mom: Moments, spec: ModelSpec, zero_mean: bool):
     """Per-segment ``A_s θ = b_s`` (block-diagonal A), centred if ``zero_mean``."""
     a = mom.zphi.copy()
     b = mom.zy.copy()
-    if zero_mean:
+    if zero_mean and a.shape[0] == 1:  # one segment: the same products and quotients
+        n = max(int(mom.count[0]), 1)
+        eq = spec.codes.equation
+        same = eq[:, None] == eq[None, :]
+        a[0] -= np.multiply.outer(mom.z[0], mom.phi[0]) / n * same
+        b[0] -= mom.z[0] * mom.y[0, eq] / n
+    elif zero_mean:
         n = np.maximum(mom.count, 1)[:, None]
         eq = spec.codes.equation
         same = eq[:, None] == eq[None, :]
@@ -397,7 +403,10 @@ def refined_iv(
 
     def evaluate(theta: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if moment_source is None:
-            compute_moments(data, spec, np.nan_to_num(theta), active=active, out=mom,
+            # a few finite parameters (a fit) need no cleaned copy
+            finite = theta.size <= 64 and all(math.isfinite(x) for x in theta.flat)
+            compute_moments(data, spec, theta if finite else np.nan_to_num(theta),
+                            active=active, out=mom,
                             limits=limits)
         else:  # moments summed elsewhere (streamed experiments, a Dask cluster)
             moment_source(theta, active, mom, limits)
