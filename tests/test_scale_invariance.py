@@ -112,6 +112,7 @@ def test_column_scaled_solve_is_bit_identical_to_plain_lu():
 
 
 def test_a_system_solves_alike_alone_in_a_few_and_in_a_stack():
+    import vesselid.identify._ivkernels  # noqa: F401  (the compiled bound's fast paths)
     from vesselid.identify import linalg
 
     rng = np.random.default_rng(3)
