@@ -111,6 +111,27 @@ def test_column_scaled_solve_is_bit_identical_to_plain_lu():
     assert np.array_equal(x, np.linalg.solve(a, b[..., None])[..., 0])
 
 
+def test_a_system_solves_alike_alone_in_a_few_and_in_a_stack():
+    import vesselid.identify._ivkernels  # noqa: F401  (the compiled bound's fast paths)
+    from vesselid.identify import linalg
+
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(12, 3, 3)) * 10.0 ** rng.integers(-6, 6, size=(12, 1, 3))
+    b = rng.normal(size=(12, 3))
+    a[2, :, 0] = 2.0 * a[2, :, 1]  # exactly singular
+    a[5, :, 0] = a[5, :, 1] * (1 + 1e-15)  # numerically singular
+    a[7, 1, 1] = np.inf  # not finite
+    x, ok = linalg.solve(a, b)  # the stacked path
+    assert not ok[[2, 5, 7]].any() and ok[[0, 1, 3, 4, 6, 8]].all()
+    for g in range(12):  # one system
+        x1, ok1 = linalg.solve(a[g:g + 1], b[g:g + 1])
+        assert ok1[0] == ok[g] and np.array_equal(x1[0], x[g], equal_nan=True)
+    for lo in range(0, 12, 3):  # a few systems
+        x3, ok3 = linalg.solve(a[lo:lo + 3], b[lo:lo + 3])
+        assert np.array_equal(ok3, ok[lo:lo + 3])
+        assert np.array_equal(x3, x[lo:lo + 3], equal_nan=True)
+
+
 def test_solve_and_rank_checks_do_not_depend_on_units():
     from vesselid.identify import linalg
 

@@ -21,6 +21,7 @@ Equations (paper):
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -193,7 +194,13 @@ def _segment_equations(mom: Moments, spec: ModelSpec, zero_mean: bool):
     """Per-segment ``A_s θ = b_s`` (block-diagonal A), centred if ``zero_mean``."""
     a = mom.zphi.copy()
     b = mom.zy.copy()
-    if zero_mean:
+    if zero_mean and a.shape[0] == 1:  # one segment: the same products and quotients
+        n = max(int(mom.count[0]), 1)
+        eq = spec.codes.equation
+        same = eq[:, None] == eq[None, :]
+        a[0] -= np.multiply.outer(mom.z[0], mom.phi[0]) / n * same
+        b[0] -= mom.z[0] * mom.y[0, eq] / n
+    elif zero_mean:
         n = np.maximum(mom.count, 1)[:, None]
         eq = spec.codes.equation
         same = eq[:, None] == eq[None, :]
@@ -226,6 +233,18 @@ def solve_moments(
     act = np.ones(n_groups, dtype=bool) if active is None else active
     a_seg, b_seg = _segment_equations(mom, spec, zero_mean)
     blocks = _layout(spec)[0]
+    if n_groups == 1 and a_seg.shape[0] == 1 and act[0]:
+        # one group of one segment (a fit): its equations as they are, block by block,
+        # without the gathering of the general path (the refined iteration solves here
+        # at every evaluation of T)
+        theta = np.empty((1, spec.n_params))
+        good = True
+        for i in range(spec.n_states):
+            sl = slice(int(blocks[i]), int(blocks[i + 1]))
+            th_i, ok_i = _batched_solve(a_seg[:, sl, sl], b_seg[:, sl])
+            theta[:, sl] = th_i
+            good = good and bool(ok_i[0])
+        return theta, np.array([good])
     theta = np.full((n_groups, spec.n_params), np.nan)
     ok = np.ones(n_groups, dtype=bool)
     seg_counts = np.bincount(data.group, minlength=n_groups)
@@ -384,7 +403,10 @@ def refined_iv(
 
     def evaluate(theta: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if moment_source is None:
-            compute_moments(data, spec, np.nan_to_num(theta), active=active, out=mom,
+            # a few finite parameters (a fit) need no cleaned copy
+            finite = theta.size <= 64 and all(math.isfinite(x) for x in theta.flat)
+            compute_moments(data, spec, theta if finite else np.nan_to_num(theta),
+                            active=active, out=mom,
                             limits=limits)
         else:  # moments summed elsewhere (streamed experiments, a Dask cluster)
             moment_source(theta, active, mom, limits)
@@ -420,46 +442,57 @@ def refined_iv(
     prev_dir = np.where(active[:, None], t_theta - theta, 0.0)
     history = [best_t.copy()] if keep_history else []
 
-    for _ in range(max_iter - 1):
-        done = active & (residual < tol)
-        converged |= done
-        reason[done] = STOP_CONVERGED
-        active &= ~done
-        stalled = active & (since_best >= STALL_PATIENCE) & (best_res < STALL_TOL)
-        reason[stalled] = STOP_STALLED
-        active &= ~stalled
-        if not active.any():
-            break
-        cand = theta + step[:, None] * np.where(active[:, None], t_theta - theta, 0.0)
-        t_cand, ok_c = evaluate(cand, active)
-        iterations += active
-        bad = active & ~ok_c
-        # reject diverging candidates: shorten the step and retry from the same θ
-        step[bad] *= 0.5
-        give_up = bad & (step < min_step)
-        reason[give_up] = STOP_DIVERGED
-        active &= ~give_up
-        good = active & ok_c
-        res_c = np.full(n_groups, np.inf)
-        res_c[good] = _rel(t_cand[good] - cand[good], cand[good])
-        direction = t_cand - cand
-        grew = good & (res_c > residual)
-        if grew.any():  # a sign reversal of successive steps with a growing residual
-            reversed_ = grew & (np.einsum("gp,gp->g", np.nan_to_num(direction), prev_dir) < 0)
-            oscillation |= reversed_
-        step[grew] = np.maximum(step[grew] * 0.5, min_step)
-        theta[good] = cand[good]
-        t_theta[good] = t_cand[good]
-        residual[good] = res_c[good]
-        prev_dir[good] = direction[good]
-        better = good & (res_c < best_res)
-        since_best += active
-        since_best[better] = 0
-        best_res[better] = res_c[better]
-        best_aux[better] = cand[better]
-        best_t[better] = t_cand[better]
-        if keep_history:
-            history.append(np.where(good[:, None], t_cand, np.nan))
+    if n_groups == 1:  # one group (a fit): the same steps in Python scalars
+        (act, res, b_res, best_aux, best_t, reason[0], iterations[0], oscillation[0],
+         converged[0]) = _iterate_one(evaluate, theta, t_theta, prev_dir, bool(active[0]),
+                                      float(residual[0]), float(best_res[0]), best_aux,
+                                      best_t, reason[0], int(iterations[0]),
+                                      history if keep_history else None, max_iter, tol,
+                                      min_step)
+        active = np.array([act])
+        residual = np.array([res])
+        best_res = np.array([b_res])
+    else:
+        for _ in range(max_iter - 1):
+            done = active & (residual < tol)
+            converged |= done
+            reason[done] = STOP_CONVERGED
+            active &= ~done
+            stalled = active & (since_best >= STALL_PATIENCE) & (best_res < STALL_TOL)
+            reason[stalled] = STOP_STALLED
+            active &= ~stalled
+            if not active.any():
+                break
+            cand = theta + step[:, None] * np.where(active[:, None], t_theta - theta, 0.0)
+            t_cand, ok_c = evaluate(cand, active)
+            iterations += active
+            bad = active & ~ok_c
+            # reject diverging candidates: shorten the step and retry from the same θ
+            step[bad] *= 0.5
+            give_up = bad & (step < min_step)
+            reason[give_up] = STOP_DIVERGED
+            active &= ~give_up
+            good = active & ok_c
+            res_c = np.full(n_groups, np.inf)
+            res_c[good] = _rel(t_cand[good] - cand[good], cand[good])
+            direction = t_cand - cand
+            grew = good & (res_c > residual)
+            if grew.any():  # a sign reversal of successive steps with a growing residual
+                reversed_ = grew & (np.einsum("gp,gp->g", np.nan_to_num(direction), prev_dir) < 0)
+                oscillation |= reversed_
+            step[grew] = np.maximum(step[grew] * 0.5, min_step)
+            theta[good] = cand[good]
+            t_theta[good] = t_cand[good]
+            residual[good] = res_c[good]
+            prev_dir[good] = direction[good]
+            better = good & (res_c < best_res)
+            since_best += active
+            since_best[better] = 0
+            best_res[better] = res_c[better]
+            best_aux[better] = cand[better]
+            best_t[better] = t_cand[better]
+            if keep_history:
+                history.append(np.where(good[:, None], t_cand, np.nan))
     done = active & (residual < tol)
     converged |= done
     reason[done] = STOP_CONVERGED
@@ -482,6 +515,54 @@ def refined_iv(
         history=history,
         info=info,
     )
+
+
+def _iterate_one(evaluate: Callable, theta: np.ndarray, t_theta: np.ndarray,
+                 prev_dir: np.ndarray, active: bool, residual: float, best_res: float,
+                 best_aux: np.ndarray, best_t: np.ndarray, reason: str, iterations: int,
+                 history: list | None, max_iter: int, tol: float, min_step: float) -> tuple:
+    """The iteration of :func:`refined_iv` for one group: the same steps, tests and
+    arithmetic on the same ``(1, P)`` arrays, with the per-group flags, counters, step
+    and residuals as Python scalars instead of masked length-1 arrays (a fit evaluates
+    ``T`` some twenty times, and the masking cost more than the evaluations' solves).
+
+    Returns ``(active, residual, best_res, best_aux, best_t, reason, iterations,
+    oscillation, converged)`` after the loop."""
+    inf = math.inf
+    step, since_best, oscillation, converged = 1.0, 0, False, False
+    mask = np.ones(1, dtype=bool)
+    for _ in range(max_iter - 1):
+        if active and residual < tol:
+            converged, reason, active = True, STOP_CONVERGED, False
+        if active and since_best >= STALL_PATIENCE and best_res < STALL_TOL:
+            reason, active = STOP_STALLED, False
+        if not active:
+            break
+        cand = theta + step * (t_theta - theta)
+        t_cand, ok_c = evaluate(cand, mask)
+        iterations += 1
+        ok = bool(ok_c[0])
+        if not ok:  # reject a diverging candidate: shorten the step, retry from θ
+            step *= 0.5
+            if step < min_step:
+                reason, active = STOP_DIVERGED, False
+        good = active and ok
+        res_c = float(_rel(t_cand - cand, cand)[0]) if good else inf
+        direction = t_cand - cand
+        if good and res_c > residual:  # a sign reversal with a growing residual
+            if np.einsum("gp,gp->g", np.nan_to_num(direction), prev_dir)[0] < 0:
+                oscillation = True
+            step = max(step * 0.5, min_step)
+        if good:
+            theta, t_theta, residual, prev_dir = cand, t_cand, res_c, direction
+        if active:
+            since_best += 1
+        if good and res_c < best_res:
+            since_best, best_res, best_aux, best_t = 0, res_c, cand, t_cand
+        if history is not None:
+            history.append(np.where(good, t_cand, np.nan))
+    return (active, residual, best_res, best_aux.copy(), best_t.copy(), reason, iterations,
+            oscillation, converged)
 
 
 def _average_stall(evaluate: Callable, stalled: np.ndarray, theta: np.ndarray,

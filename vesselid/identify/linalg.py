@@ -276,6 +276,10 @@ def solve(a: np.ndarray, b: np.ndarray, *, cond_max: float = COND_MAX
     b = np.asarray(b, dtype=float)
     if a.shape[0] == 1 and b.shape[0] == 1 and a.shape[1]:  # one system: fewer calls
         return _solve_one(a, b, cond_max)
+    if 1 < a.shape[0] <= 4 and b.shape[0] == a.shape[0] and a.shape[1]:  # a few: one by one
+        few = _solve_few(a, b, cond_max)
+        if few is not None:
+            return few
     ok = np.all(np.isfinite(a), axis=(1, 2)) & np.all(np.isfinite(b), axis=1)
     out = np.full(b.shape, np.nan)
     if not ok.any():
@@ -296,9 +300,12 @@ def solve(a: np.ndarray, b: np.ndarray, *, cond_max: float = COND_MAX
         out[ok] = y * col
     # numerically singular systems that solve() does not reject, judged on the
     # equilibrated matrix: units must not make a system singular (or regular)
-    cond = np.full(a.shape[0], np.inf)
-    cond[ok] = _equilibrated_cond(a[ok])
-    ok &= np.isfinite(cond) & (cond < cond_max) & np.all(np.isfinite(out), axis=1)
+    # (the systems proved regular by the compiled bound skip the exact computation)
+    if not _bounds_prove_regular(a[ok], cond_max):
+        cond = np.full(a.shape[0], np.inf)
+        cond[ok] = _equilibrated_cond(a[ok])
+        ok &= np.isfinite(cond) & (cond < cond_max)
+    ok &= np.all(np.isfinite(out), axis=1)
     out[~ok] = np.nan
     return out, ok
 
@@ -330,6 +337,16 @@ def _cond_below(a: np.ndarray, cond_max: float) -> bool:
     return math.isfinite(cond) and cond < cond_max
 
 
+def _bounds_prove_regular(a: np.ndarray, cond_max: float) -> bool:
+    """Whether :func:`_bound_proves_regular` (50 sweeps) proves every system of the stack
+    ``a`` (G, n, n) regular. The stacked :func:`_equilibrated_cond` sweeps until every
+    system's scales settle, so a system's scales there are its own converged ones up to
+    the tolerance 1e-9, as the compiled ones are: the argument of :func:`_cond_below`
+    holds system by system, and the decision ``cond < cond_max`` of each is the stack's.
+    False (the stack decides) at the first system without such a proof."""
+    return all(_bound_proves_regular(a[g], 50, cond_max) for g in range(a.shape[0]))
+
+
 def _bound_proves_regular(a: np.ndarray, sweeps: int, cond_max: float) -> bool:
     """Whether the compiled bound ``‖S‖_F ‖S⁻¹‖_F ≥ κ₂(S)`` of ``a`` (n, n) after
     ``sweeps`` equilibration sweeps (:func:`vesselid.identify._ivkernels.cond_bound`; inf
@@ -351,17 +368,52 @@ def _pow2_one(norm: float) -> float:
 
 
 def _solve_one(a: np.ndarray, b: np.ndarray, cond_max: float) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`solve` of one system ``a`` (1, P, P), ``b`` (1, P), bit-identical, with the
-    finiteness checks and the power-of-two column scales in Python floats (the column
-    norms are ``einsum``'s sequential sums of squares, ``frexp``/``ldexp`` are exact) and
-    the same LAPACK solve of the same scaled system and :func:`_cond_one`."""
-    rows = a[0].tolist()
+    """:func:`solve` of one system ``a`` (1, P, P), ``b`` (1, P), bit-identical
+    (:func:`_solve_system`, the singularity decision of :func:`_cond_below`)."""
+    x = _solve_system(a[0], b[0], cond_max, exact=True)
+    if x is None or x is False:
+        return np.full(b.shape, np.nan), np.zeros(1, dtype=bool)
+    return np.array([x]), np.ones(1, dtype=bool)
+
+
+def _solve_few(a: np.ndarray, b: np.ndarray, cond_max: float
+               ) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`solve` of a few systems one by one (:func:`_solve_system`; the stacked LAPACK
+    solve is one ``gesv`` per system, the column norms are sequential sums either way).
+    The singularity decision of the stack is its equilibrated condition numbers; a system
+    whose compiled bound proves it regular takes the stack's decision
+    (:func:`_bounds_prove_regular`). None — the stacked path decides — where a system
+    with a finite solution lacks that proof."""
+    xs = []
+    for g in range(a.shape[0]):
+        x = _solve_system(a[g], b[g], cond_max, exact=False)
+        if x is None:
+            return None
+        xs.append(x)
+    out = np.full(b.shape, np.nan)
+    ok = np.zeros(a.shape[0], dtype=bool)
+    for g, x in enumerate(xs):
+        if x is not False:
+            out[g] = x
+            ok[g] = True
+    return out, ok
+
+
+def _solve_system(a: np.ndarray, b: np.ndarray, cond_max: float, *, exact: bool
+                  ) -> list[float] | bool | None:
+    """One system ``a`` (P, P), ``b`` (P,) of :func:`solve`: the finiteness checks, the
+    power-of-two column scales (the column norms are ``einsum``'s sequential sums of
+    squares, ``frexp``/``ldexp`` are exact) and the products with them in Python floats
+    (IEEE products; an overflow gives ``inf`` silently, as under ``errstate``), and the
+    same LAPACK solve of the same scaled system. Returns the solution, False for a
+    singular, ill-conditioned or non-finite system, and — without ``exact`` — None where
+    only the exact condition number (:func:`_cond_one`) could decide."""
+    rows = a.tolist()
     isfinite = math.isfinite
     p = len(rows)
-    out = np.full(b.shape, np.nan)
-    if not (all(isfinite(x) for row in rows for x in row) and all(isfinite(x)
-                                                                 for x in b[0].tolist())):
-        return out, np.zeros(1, dtype=bool)
+    if not (all(isfinite(x) for row in rows for x in row)
+            and all(isfinite(x) for x in b.tolist())):
+        return False
     col = []
     for j in range(p):
         acc = 0.0
@@ -369,16 +421,16 @@ def _solve_one(a: np.ndarray, b: np.ndarray, cond_max: float) -> tuple[np.ndarra
             acc += row[j] * row[j]
         col.append(_pow2_one(math.sqrt(acc)))
     a_s = np.array([[[x * cj for x, cj in zip(row, col, strict=True)] for row in rows]])
-    with np.errstate(all="ignore"):
-        try:
-            y = np.linalg.solve(a_s, b[..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            y = np.full(b.shape, np.nan)
-        out = y * np.array(col)
-    ok = _cond_below(a[0], cond_max) and bool(np.all(np.isfinite(out)))
-    if not ok:
-        out[:] = np.nan
-    return out, np.array([ok])
+    try:
+        y = np.linalg.solve(a_s, b[None, :, None])[0, :, 0].tolist()
+    except np.linalg.LinAlgError:
+        return False
+    out = [x * cj for x, cj in zip(y, col, strict=True)]
+    if not all(isfinite(x) for x in out):
+        return False
+    if exact:
+        return out if _cond_below(a, cond_max) else False
+    return out if _bound_proves_regular(a, 50, cond_max) else None
 
 
 def inv_sym(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -27,6 +27,7 @@ import numpy as np
 
 from vesselid.errors import ControlError, IdentificationError
 from vesselid.identify.backend import kernels
+from vesselid.identify.covariance import column_means
 from vesselid.identify.data import RegressionData, block_starts
 from vesselid.identify.estimators import estimate
 from vesselid.model.spec import ModelSpec
@@ -222,7 +223,7 @@ def feedback_test_data(data: RegressionData, spec: ModelSpec, designs: list, *,
     uc = u.copy()
     for s in range(data.n_segments):
         sl = data.segment(s)
-        uc[sl] -= u[sl].mean(axis=0)
+        uc[sl] -= column_means(u[sl])
     scores = []
     keep = np.ones(n_rows, dtype=bool)
     for tau in range(lags):
@@ -247,7 +248,7 @@ def feedback_test_data(data: RegressionData, spec: ModelSpec, designs: list, *,
             scores.append(adj * d.resid[:, None])
     s = np.concatenate(scores, axis=1)[keep]
     n_eff = s.shape[0]
-    mean = s.mean(axis=0)
+    mean = column_means(s)
     cov = _newey_west(s - mean, hac_lags(n_eff))
     scale = np.sqrt(np.maximum(np.diag(cov), 1e-300))
     corr = cov / np.outer(scale, scale)
@@ -291,7 +292,7 @@ def reference_designs(data: RegressionData, spec: ModelSpec, it: Any = None) -> 
     zc = z.copy()
     for s in range(data.n_segments):
         sl = slice(int(data.starts[s]) + 1, int(data.starts[s + 1]))
-        zc[sl] -= zc[sl].mean(axis=0)
+        zc[sl] -= column_means(zc[sl])
     blocks = block_starts(spec)
     out = []
     for i in range(spec.n_states):

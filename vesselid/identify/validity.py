@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from vesselid.identify.backend import kernels
+from vesselid.identify.covariance import column_means
 from vesselid.identify.data import RegressionData
 from vesselid.identify.gmm import hac_lags
 from vesselid.model.spec import ModelSpec
@@ -96,13 +97,15 @@ def _rows(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray, extra: b
         kept = np.flatnonzero(keep[a:int(starts[s + 1])])
         if kept.size and kept[-1] - kept[0] + 1 == kept.size:  # one run of rows: in place
             r = slice(a + int(kept[0]), a + int(kept[-1]) + 1)
-            for arr in (phi, z, y):
+            for arr in (phi, z):
                 rows = arr[r]
-                rows -= rows.mean(axis=0)
+                rows -= column_means(rows)
+            rows = y[r]
+            rows -= rows.mean(axis=0)
             continue
         r = keep & (seg == s)
         for arr in (phi, z):
-            arr[r] -= arr[r].mean(axis=0)
+            arr[r] -= column_means(arr[r])
         y[r] -= y[r].mean()
     kept = np.flatnonzero(keep)
     if kept.size and kept[-1] - kept[0] + 1 == kept.size:  # one run of rows: views
