@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["STUDY_OFFSETS", "SeedLike", "child", "root", "run_seeds", "study_seed"]
+__all__ = ["STUDY_OFFSETS", "SeedLike", "child", "experiment_seed", "root", "run_seeds",
+           "study_seed"]
 
 SeedLike = int | np.random.SeedSequence | None
 
@@ -42,3 +43,10 @@ def child(seed: np.random.SeedSequence, key: int) -> np.random.SeedSequence:
 def study_seed(seed: int, study: str) -> int:
     """The root seed of ``study`` for the user's ``seed`` (:data:`STUDY_OFFSETS`)."""
     return int(seed) + STUDY_OFFSETS[study]
+
+
+def experiment_seed(seed: int, experiment: int) -> int:
+    """The integer seed of experiment ``experiment`` of a deterministic design evaluation
+    (the trial planner's disturbed paths of its experiment ``e``: ``seed + e``), so that
+    the experiments of one plan draw different paths and one plan is reproducible."""
+    return int(seed) + int(experiment)

@@ -70,6 +70,7 @@ import numpy as np
 import pandas as pd
 from scipy.fft import next_fast_len
 
+from vesselid.core import seeds
 from vesselid.errors import VesselidError
 from vesselid.model.regressors import evaluate as evaluate_regressors
 from vesselid.model.regressors import predict as predict_regressors
@@ -1191,7 +1192,8 @@ def _assembled_prediction(forces: list[np.ndarray], plant: VesselModel, spec: Mo
     # identify's refined-IV family (auto's SRIV fallback) corrects the square modulus
     # regressors for the sensor noise recorded in the sea-trial log; IV_E{ζ}=0 does not
     raw = [design_information(f, plant, spec=spec, waves=lv.waves, wind_input=lv.wind_input,
-                              warmup=warmup, prefilter=c, paths=paths, seed=seed + e,
+                              warmup=warmup, prefilter=c, paths=paths,
+                              seed=seeds.experiment_seed(seed, e),
                               sensor_noise_corrected=c is not None)
            for e, f in enumerate(forces)]
     info = None
