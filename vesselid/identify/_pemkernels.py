@@ -41,6 +41,26 @@ _TINY = 1e-300
 _LANES = 16
 
 
+@njit(inline="always")
+def _sigma_predict(mr, pr, c0, c1, c2, c3, c4):  # pragma: no cover
+    """The three-point (σ = √3) prediction of ``h(r) = c0 + c1 r + c2|r| + c3 r|r| + c4 r²``
+    through the relative speed ``r ~ N(mr, pr)``: the points ``r1, r2`` and their moduli,
+    the predicted mean ``eh``, the points' deviations ``d0, d1, d2`` from it, the variance
+    ``vh`` of ``h`` and the gain ``cov(h, r) / pr``."""
+    spread = _SQ3 * np.sqrt(pr)
+    r1 = mr + spread
+    r2 = mr - spread
+    a0, a1, a2 = abs(mr), abs(r1), abs(r2)
+    g0 = c0 + mr * (c1 + c3 * a0 + c4 * mr) + c2 * a0
+    g1 = c0 + r1 * (c1 + c3 * a1 + c4 * r1) + c2 * a1
+    g2 = c0 + r2 * (c1 + c3 * a2 + c4 * r2) + c2 * a2
+    eh = (4.0 * g0 + g1 + g2) / 6.0
+    d0, d1, d2 = g0 - eh, g1 - eh, g2 - eh
+    vh = (4.0 * d0 * d0 + d1 * d1 + d2 * d2) / 6.0
+    gain = (d1 - d2) * spread / (6.0 * pr)
+    return spread, r1, r2, a0, a1, a2, eh, d0, d1, d2, vh, gain
+
+
 @njit(cache=True, nogil=True)
 def gaussian_filter(lo, hi, psi, y, u, starts, p_init, kind, fa, fb, eps, var):  # pragma: no cover
     """Innovations ``eps[j, k]`` and their variances ``var[j, k]`` for the rows
@@ -153,19 +173,9 @@ def gaussian_filter(lo, hi, psi, y, u, starts, p_init, kind, fa, fb, eps, var): 
                 # predict x(k+1), v(k+1), c(k+1)
                 mr = x0 + x1
                 pr = max(q00 + 2.0 * q01 + q11, _TINY)
-                spread = _SQ3 * np.sqrt(pr)
-                c0, c1, c2 = coef[0, i], coef[1, i], coef[2, i]
-                c3, c4 = coef[3, i], coef[4, i]
-                r1 = mr + spread
-                r2 = mr - spread
-                a0, a1, a2 = abs(mr), abs(r1), abs(r2)
-                g0 = c0 + mr * (c1 + c3 * a0 + c4 * mr) + c2 * a0
-                g1 = c0 + r1 * (c1 + c3 * a1 + c4 * r1) + c2 * a1
-                g2 = c0 + r2 * (c1 + c3 * a2 + c4 * r2) + c2 * a2
-                eh = (4.0 * g0 + g1 + g2) / 6.0
-                d0, d1, d2 = g0 - eh, g1 - eh, g2 - eh
-                vh = (4.0 * d0 * d0 + d1 * d1 + d2 * d2) / 6.0
-                gain = (d1 - d2) * spread / (6.0 * pr)
+                pred = _sigma_predict(mr, pr, coef[0, i], coef[1, i], coef[2, i],
+                                      coef[3, i], coef[4, i])
+                eh, vh, gain = pred[6], pred[10], pred[11]
                 p00[i] = vh + sw2[i]
                 p01[i] = rv[i] * gain * (q01 + q11)
                 p02[i] = rc[i] * gain * (q02 + q12)
@@ -351,18 +361,9 @@ def gaussian_filter_tangent(psi, idx, y, u, starts, p_init, kind, fa, fb,
             if pr < _TINY:
                 pr = _TINY
                 r_live = 0.0
-            spread = _SQ3 * np.sqrt(pr)
             c0, c1, c2, c3, c4 = coef[0], coef[1], coef[2], coef[3], coef[4]
-            r1 = mr + spread
-            r2 = mr - spread
-            a0, a1, a2 = abs(mr), abs(r1), abs(r2)
-            g0 = c0 + mr * (c1 + c3 * a0 + c4 * mr) + c2 * a0
-            g1 = c0 + r1 * (c1 + c3 * a1 + c4 * r1) + c2 * a1
-            g2 = c0 + r2 * (c1 + c3 * a2 + c4 * r2) + c2 * a2
-            eh = (4.0 * g0 + g1 + g2) / 6.0
-            d0, d1, d2 = g0 - eh, g1 - eh, g2 - eh
-            vh = (4.0 * d0 * d0 + d1 * d1 + d2 * d2) / 6.0
-            gain = (d1 - d2) * spread / (6.0 * pr)
+            (spread, r1, r2, a0, a1, a2, eh, d0, d1, d2, vh,
+             gain) = _sigma_predict(mr, pr, c0, c1, c2, c3, c4)
             # slopes of h at the three points, and the direct effect of the θ directions
             s0 = c1 + c2 * np.sign(mr) + 2.0 * c3 * a0 + 2.0 * c4 * mr
             s1 = c1 + c2 * np.sign(r1) + 2.0 * c3 * a1 + 2.0 * c4 * r1
