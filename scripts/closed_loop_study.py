@@ -71,9 +71,30 @@ def _wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
     return c - h, c + h
 
 
+def _save_runs(path: Path, name: str, names: list[str], theta0: np.ndarray,
+               est: dict[str, list], ses: list) -> None:
+    """Every run's estimates (one row per run and estimator, ``cl-iv se`` its HAC
+    standard errors) as CSV, for looking at the Monte Carlo distribution itself."""
+    from vesselid.core.fileio import atomic_write_text
+
+    frames = []
+    for m, vals in [*est.items(), ("cl-iv se", ses)]:
+        f = pd.DataFrame(np.asarray(vals), columns=names)
+        f.insert(0, "run", np.arange(len(vals)))
+        f.insert(0, "estimator", m)
+        f.insert(0, "design", name)
+        frames.append(f)
+    f0 = pd.DataFrame([theta0], columns=names)
+    f0.insert(0, "run", -1)
+    f0.insert(0, "estimator", "theta0")
+    f0.insert(0, "design", name)
+    atomic_write_text(path, pd.concat([f0, *frames], ignore_index=True)
+                      .to_csv(index=False, float_format="%.9g"))
+
+
 def run_design(name: str, runs: int, seed: int, progress: bool = True,
                cov_config: dict[str, Any] | None = None, samples: int | None = None,
-               experiments: int | None = None
+               experiments: int | None = None, save_runs: str | Path | None = None
                ) -> tuple[pd.DataFrame, dict[str, float]]:
     opts = {k: v for k, v in (("samples", samples), ("experiments", experiments))
             if v is not None}
@@ -94,6 +115,8 @@ def run_design(name: str, runs: int, seed: int, progress: bool = True,
         if progress and (r + 1) % 20 == 0:
             print(f"  {name}: {r + 1}/{runs} runs ({time.perf_counter() - t0:.0f} s)",
                   flush=True)
+    if save_runs is not None:
+        _save_runs(Path(save_runs), name, names, theta0, est, ses)
     rows = []
     for m, vals in est.items():
         a = np.asarray(vals)
@@ -136,6 +159,9 @@ def main() -> None:
     ap.add_argument("--out", default="docs/closed_loop_study.csv",
                     help="table of every estimator and parameter (CSV); the warning "
                          "rates go to the same name with _warnings.csv")
+    ap.add_argument("--save-runs", default=None,
+                    help="also write every run's estimates to this CSV (one design: the "
+                         "name as given; both: <stem>_<design>.csv)")
     args = ap.parse_args()
     names = list(DESIGNS) if args.design == "both" else [args.design]
     tables, rates = [], []
@@ -143,8 +169,12 @@ def main() -> None:
         bw = args.bandwidth
         cov_config = None if bw is None else {
             "bandwidth": bw if bw in ("andrews", "newey-west") else float(bw)}
+        save = args.save_runs
+        if save is not None and len(names) > 1:
+            save = Path(save).with_name(f"{Path(save).stem}_{name}.csv")
         table, rate = run_design(name, args.runs, args.seed, cov_config=cov_config,
-                                 samples=args.samples, experiments=args.experiments)
+                                 samples=args.samples, experiments=args.experiments,
+                                 save_runs=save)
         tables.append(table)
         rates.append(rate)
     table = pd.concat(tables, ignore_index=True)

@@ -103,6 +103,14 @@ class ClosedLoopIV(Estimator):
         signals = closed_loop_signals(log, spec or log.spec)
         return Estimator.fit(self.with_signals(signals), log, spec, **options)
 
+    def instruments(self, data: RegressionData, spec: ModelSpec, theta: np.ndarray,
+                    limits: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The instruments of auxiliary model ``theta`` (rows as the regressor matrix; NaN
+        of a diverged simulation set to 0) and the per-segment status (0 ok, 1 diverged):
+        :func:`~vesselid.identify.loop.closed_loop_instruments` of the bound signals."""
+        z, status = closed_loop_instruments(data, spec, theta, self._require(), limits)
+        return np.where(np.isfinite(z), z, 0.0), status
+
     def _require(self) -> ClosedLoopSignals:
         if self._signals is None:
             raise IdentificationError("method 'cl-iv' needs the log's closed-loop signals "
@@ -113,15 +121,13 @@ class ClosedLoopIV(Estimator):
                             combine: str = "pooled", theta_start: np.ndarray | None = None,
                             max_iter: int = 100, tol: float = 1e-9,
                             keep_history: bool = False) -> IterationResult:
-        signals = self._require()
+        self._require()
         if data.n_groups != 1:
             raise IdentificationError("method 'cl-iv' estimates one parameter group at a time")
         phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
 
         def source(theta: np.ndarray, active: np.ndarray, out: Moments, limits) -> None:
-            z, status = closed_loop_instruments(data, spec, np.nan_to_num(theta[0]), signals,
-                                                limits)
-            z = np.where(np.isfinite(z), z, 0.0)
+            z, status = self.instruments(data, spec, np.nan_to_num(theta[0]), limits)
             mom = moments_from_matrices(data, spec, z, phi)
             for name in ("zphi", "zy", "z", "phi", "y", "count"):
                 getattr(out, name)[...] = getattr(mom, name)
@@ -145,8 +151,7 @@ class ClosedLoopIV(Estimator):
         return res
 
     def equation_designs(self, data, spec, it, phi, combine):
-        z, _ = closed_loop_instruments(data, spec, it.theta_aux[0], self._require())
-        z = np.where(np.isfinite(z), z, 0.0)
+        z, _ = self.instruments(data, spec, it.theta_aux[0])
         return square_designs(data, spec, z, phi, it.theta[0], zero_mean=True,
                               combine=combine)
 
