@@ -10,7 +10,10 @@ estimates it with ``cl-iv`` and with variants that each remove one candidate sou
 finite-sample bias, on the same log:
 
 * ``cl-iv`` — the estimator as shipped (refined iteration to the fixed point, instruments
-  simulated from θ̂ starting at each experiment's first measured state);
+  simulated from θ̂ starting at each experiment's first measured state, the modulus
+  regressors corrected for the sensor noise the log declares);
+* ``uncorrected`` — the same without the sensor-noise correction (``sensor_noise=False``);
+  the variants below are all uncorrected, each removing one other candidate source:
 * ``theta0`` — one IV step with the instruments simulated from the true θ0 (no
   instrument estimation: isolates the effect of estimating the auxiliary model);
 * ``theta0-true-start`` — as ``theta0`` with the simulation started at the true (noise-free)
@@ -50,7 +53,7 @@ from vesselid.plant.closedloop import DESIGNS, closed_loop_states
 
 __all__ = ["VARIANTS", "run"]
 
-VARIANTS = ("cl-iv", "theta0", "theta0-true-start", "reference-start", "cross-fit",
+VARIANTS = ("cl-iv", "uncorrected", "theta0", "theta0-true-start", "reference-start", "cross-fit",
             "jackknife")
 
 
@@ -125,14 +128,17 @@ def one_run(design, seed: np.random.SeedSequence, variants: tuple[str, ...]
     sim = design.simulate(seed=cl_seed)
     log = sim.to_log(aggregate=False)
     signals = closed_loop_signals(log, design.spec)
-    data, spec = from_log(log, design.spec, sensor_noise=False)
+    data_c, spec = from_log(log, design.spec)   # the log's sensor noise: corrected
+    data, _ = from_log(log, design.spec, sensor_noise=False)
     phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
     theta0 = spec.theta0_vector()
     out: dict[str, np.ndarray] = {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
+        out["cl-iv"] = (ClosedLoopIV().with_signals(signals)
+                        .estimate_parameters(data_c, spec).theta[0])
         full = ClosedLoopIV().with_signals(signals).estimate_parameters(data, spec).theta[0]
-        out["cl-iv"] = full
+        out["uncorrected"] = full
         if "theta0" in variants:
             out["theta0"] = _iv_step(data, spec, instruments(data, spec, theta0, signals), phi)
         if "theta0-true-start" in variants:

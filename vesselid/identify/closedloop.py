@@ -16,7 +16,17 @@ and the instruments are the model's own (modulus) regressors of that simulation,
 only, which are independent of the disturbances ``v``, ``w``, ``e``: (5b) holds term by
 term exactly as in the proof of Lemma 3.1 (the input now appears only among the
 regressors, whose noise the zero-mean instruments average out under A10), and (5a) holds
-as long as the reference and dither excite the loop. The estimate is iterated to the
+as long as the reference and dither excite the loop.
+
+Sensor noise in the modulus regressors: ``E[(x+e)|x+e| | x] = x|x| + σ²·sign(x)`` away
+from zero, a constant that the zero-mean instruments remove only while the sign of ``x``
+is fixed (A10). A loop that turns drives the sway velocity and the yaw rate through zero
+within an experiment (the sway–yaw coupling of a yaw-rate step), so ``σ²θ·sign(x(k))``
+correlates with the instruments and biases the estimate by an amount that does not
+shrink with the trial's length. When the log carries its sensor noise
+(``metadata["sensor_noise_std"]`` or ``identify(..., sensor_noise={...})``) the
+regressors are the corrected scores of :mod:`vesselid.identify.eiv` (``y|y| − σ²
+sign(y)``, ``y² − σ²``), which remove that term. The estimate is iterated to the
 fixed point ``θ = T(θ)`` with the step control of :func:`~vesselid.identify.estimators.
 refined_iv`, from least squares. Covariance: the package's ``cov_type`` (default HAC) on
 the final instruments, regressors and residuals.
@@ -43,6 +53,7 @@ from vesselid.errors import IdentificationError
 from vesselid.identify.backend import kernels
 from vesselid.identify.base import Estimator, square_designs
 from vesselid.identify.data import RegressionData
+from vesselid.identify.eiv import corrected_regressor_matrix
 from vesselid.identify.estimators import (
     STOP_START_DIVERGED,
     IterationResult,
@@ -80,6 +91,9 @@ class ClosedLoopIV(Estimator):
     plot_label: ClassVar[str] = "closed-loop IV"
     multi_experiment: ClassVar[tuple[str, ...]] = ("pooled", "stacked")
     open_loop: ClassVar[bool] = False
+    #: regressors with the corrected score of the modulus terms when the log carries its
+    #: sensor noise (module docstring: a loop drives sway and yaw through zero)
+    corrects_sensor_noise: ClassVar[bool] = True
 
     def __init__(self) -> None:
         super().__init__()
@@ -124,7 +138,7 @@ class ClosedLoopIV(Estimator):
         self._require()
         if data.n_groups != 1:
             raise IdentificationError("method 'cl-iv' estimates one parameter group at a time")
-        phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
+        phi = corrected_regressor_matrix(data, spec)
 
         def source(theta: np.ndarray, active: np.ndarray, out: Moments, limits) -> None:
             z, status = self.instruments(data, spec, np.nan_to_num(theta[0]), limits)
