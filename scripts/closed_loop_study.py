@@ -16,7 +16,9 @@ Designs (every run its own seeds, spawned from ``--seed``):
   that every modulus term is identifiable) and white dithers (0.3 N, 0.3 N, 0.03 N m).
 
 Per run: least squares and the open-loop IV_E{ζ}=0 (both biased under feedback), and the
-closed-loop refined IV ``cl-iv`` with its HAC 95 % intervals, on the closed-loop log; the
+closed-loop refined IV ``cl-iv`` with its HAC 95 % intervals (its modulus regressors
+corrected for the sensor noise the log declares; ``--no-sensor-noise-correction``: not),
+on the closed-loop log; the
 feedback test (open-loop warning) on the closed-loop log and on an open-loop log of the
 same system (the catalogue input design, same noise).
 
@@ -45,7 +47,8 @@ from vesselid.plant.closedloop import DESIGNS, ClosedLoopDesign
 __all__ = ["run_design"]
 
 def _one_run(d: ClosedLoopDesign, ss: np.random.SeedSequence,
-             cov_config: dict[str, Any] | None = None) -> dict[str, Any]:
+             cov_config: dict[str, Any] | None = None, correct: bool = True
+             ) -> dict[str, Any]:
     cl_seed, ol_seed = ss.spawn(2)
     log = d.simulate(seed=cl_seed).to_log(aggregate=False)
     data, spec = from_log(log, d.spec, sensor_noise=False)
@@ -54,7 +57,8 @@ def _one_run(d: ClosedLoopDesign, ss: np.random.SeedSequence,
         out[m] = estimate(data, spec, m).theta[0]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = identify(log, d.spec, "cl-iv", cov_config=cov_config)
+        res = identify(log, d.spec, "cl-iv", cov_config=cov_config,
+                       **({} if correct else {"sensor_noise": False}))
     out["cl-iv"] = res.params.to_numpy()
     out["cl-iv se"] = res.std_errors.to_numpy()
     out["fired closed"] = feedback_test(log, d.spec).rejects
@@ -71,10 +75,31 @@ def _wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
     return c - h, c + h
 
 
+def _save_runs(path: Path, name: str, names: list[str], theta0: np.ndarray,
+               est: dict[str, list], ses: list) -> None:
+    """Every run's estimates (one row per run and estimator, ``cl-iv se`` its HAC
+    standard errors) as CSV, for looking at the Monte Carlo distribution itself."""
+    from vesselid.core.fileio import atomic_write_text
+
+    frames = []
+    for m, vals in [*est.items(), ("cl-iv se", ses)]:
+        f = pd.DataFrame(np.asarray(vals), columns=names)
+        f.insert(0, "run", np.arange(len(vals)))
+        f.insert(0, "estimator", m)
+        f.insert(0, "design", name)
+        frames.append(f)
+    f0 = pd.DataFrame([theta0], columns=names)
+    f0.insert(0, "run", -1)
+    f0.insert(0, "estimator", "theta0")
+    f0.insert(0, "design", name)
+    atomic_write_text(path, pd.concat([f0, *frames], ignore_index=True)
+                      .to_csv(index=False, float_format="%.9g"))
+
+
 def run_design(name: str, runs: int, seed: int, progress: bool = True,
                cov_config: dict[str, Any] | None = None, samples: int | None = None,
-               experiments: int | None = None
-               ) -> tuple[pd.DataFrame, dict[str, float]]:
+               experiments: int | None = None, save_runs: str | Path | None = None,
+               correct: bool = True) -> tuple[pd.DataFrame, dict[str, float]]:
     opts = {k: v for k, v in (("samples", samples), ("experiments", experiments))
             if v is not None}
     d = DESIGNS[name](**opts)
@@ -85,7 +110,7 @@ def run_design(name: str, runs: int, seed: int, progress: bool = True,
     ses, fired_c, fired_o = [], 0, 0
     t0 = time.perf_counter()
     for r, ss in enumerate(seeds):
-        out = _one_run(d, ss, cov_config)
+        out = _one_run(d, ss, cov_config, correct)
         for m in est:
             est[m].append(out[m])
         ses.append(out["cl-iv se"])
@@ -94,6 +119,8 @@ def run_design(name: str, runs: int, seed: int, progress: bool = True,
         if progress and (r + 1) % 20 == 0:
             print(f"  {name}: {r + 1}/{runs} runs ({time.perf_counter() - t0:.0f} s)",
                   flush=True)
+    if save_runs is not None:
+        _save_runs(Path(save_runs), name, names, theta0, est, ses)
     rows = []
     for m, vals in est.items():
         a = np.asarray(vals)
@@ -136,6 +163,12 @@ def main() -> None:
     ap.add_argument("--out", default="docs/closed_loop_study.csv",
                     help="table of every estimator and parameter (CSV); the warning "
                          "rates go to the same name with _warnings.csv")
+    ap.add_argument("--no-sensor-noise-correction", dest="correct", action="store_false",
+                    help="cl-iv without the errors-in-variables correction of the modulus "
+                         "regressors (identify(..., sensor_noise=False))")
+    ap.add_argument("--save-runs", default=None,
+                    help="also write every run's estimates to this CSV (one design: the "
+                         "name as given; both: <stem>_<design>.csv)")
     args = ap.parse_args()
     names = list(DESIGNS) if args.design == "both" else [args.design]
     tables, rates = [], []
@@ -143,8 +176,12 @@ def main() -> None:
         bw = args.bandwidth
         cov_config = None if bw is None else {
             "bandwidth": bw if bw in ("andrews", "newey-west") else float(bw)}
+        save = args.save_runs
+        if save is not None and len(names) > 1:
+            save = Path(save).with_name(f"{Path(save).stem}_{name}.csv")
         table, rate = run_design(name, args.runs, args.seed, cov_config=cov_config,
-                                 samples=args.samples, experiments=args.experiments)
+                                 samples=args.samples, experiments=args.experiments,
+                                 save_runs=save, correct=args.correct)
         tables.append(table)
         rates.append(rate)
     table = pd.concat(tables, ignore_index=True)

@@ -4,7 +4,8 @@ Run ``python scripts/closedloop_covariance_study.py [--runs 200] [--samples 3000
 [--experiments 4] [--dither-scale 1] [--out docs/closed_loop_covariance.csv]``.
 
 Per run of the ``3dof`` design of :mod:`vesselid.plant.closedloop` (seeds as
-``scripts/closed_loop_study.py``: the same closed-loop logs), the ``cl-iv`` estimate and,
+``scripts/closed_loop_study.py``: the same closed-loop logs), the ``cl-iv`` estimate
+(its modulus regressors not corrected for the sensor noise: ``sensor_noise=False``) and,
 on its final instruments, regressors and residuals, the standard errors of several
 long-run covariance estimators of the scores ``z ε``:
 
@@ -87,7 +88,9 @@ def run(runs: int, seed: int = 2024, samples: int | None = None,
         cl_seed, _ = ss.spawn(2)  # the closed-loop log of scripts/closed_loop_study.py
         log = d.simulate(seed=cl_seed).to_log(aggregate=False)
         signals = closed_loop_signals(log, d.spec)
-        data, spec = from_log(log, d.spec)
+        # the modulus regressors uncorrected for the sensor noise (the covariance question
+        # is about the long-run variance of the scores, not the noise-mean correction)
+        data, spec = from_log(log, d.spec, sensor_noise=False)
         fit = ClosedLoopIV().with_signals(signals)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")

@@ -16,7 +16,17 @@ and the instruments are the model's own (modulus) regressors of that simulation,
 only, which are independent of the disturbances ``v``, ``w``, ``e``: (5b) holds term by
 term exactly as in the proof of Lemma 3.1 (the input now appears only among the
 regressors, whose noise the zero-mean instruments average out under A10), and (5a) holds
-as long as the reference and dither excite the loop. The estimate is iterated to the
+as long as the reference and dither excite the loop.
+
+Sensor noise in the modulus regressors: ``E[(x+e)|x+e| | x] = x|x| + σ²·sign(x)`` away
+from zero, a constant that the zero-mean instruments remove only while the sign of ``x``
+is fixed (A10). A loop that turns drives the sway velocity and the yaw rate through zero
+within an experiment (the sway–yaw coupling of a yaw-rate step), so ``σ²θ·sign(x(k))``
+correlates with the instruments and biases the estimate by an amount that does not
+shrink with the trial's length. When the log carries its sensor noise
+(``metadata["sensor_noise_std"]`` or ``identify(..., sensor_noise={...})``) the
+regressors are the corrected scores of :mod:`vesselid.identify.eiv` (``y|y| − σ²
+sign(y)``, ``y² − σ²``), which remove that term. The estimate is iterated to the
 fixed point ``θ = T(θ)`` with the step control of :func:`~vesselid.identify.estimators.
 refined_iv`, from least squares. Covariance: the package's ``cov_type`` (default HAC) on
 the final instruments, regressors and residuals.
@@ -44,6 +54,7 @@ from vesselid.errors import IdentificationError
 from vesselid.identify.backend import kernels
 from vesselid.identify.base import Estimator, square_designs
 from vesselid.identify.data import RegressionData
+from vesselid.identify.eiv import corrected_regressor_matrix
 from vesselid.identify.estimators import (
     STOP_START_DIVERGED,
     IterationResult,
@@ -82,6 +93,9 @@ class ClosedLoopIV(Estimator):
     plot_label: ClassVar[str] = "closed-loop IV"
     multi_experiment: ClassVar[tuple[str, ...]] = ("pooled", "stacked")
     open_loop: ClassVar[bool] = False
+    #: regressors with the corrected score of the modulus terms when the log carries its
+    #: sensor noise (module docstring: a loop drives sway and yaw through zero)
+    corrects_sensor_noise: ClassVar[bool] = True
 
     def __init__(self) -> None:
         super().__init__()
@@ -107,6 +121,14 @@ class ClosedLoopIV(Estimator):
         signals = closed_loop_signals(log, spec or log.spec)
         return Estimator.fit(self.with_signals(signals), log, spec, options)
 
+    def instruments(self, data: RegressionData, spec: ModelSpec, theta: np.ndarray,
+                    limits: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The instruments of auxiliary model ``theta`` (rows as the regressor matrix; NaN
+        of a diverged simulation set to 0) and the per-segment status (0 ok, 1 diverged):
+        :func:`~vesselid.identify.loop.closed_loop_instruments` of the bound signals."""
+        z, status = closed_loop_instruments(data, spec, theta, self._require(), limits)
+        return np.where(np.isfinite(z), z, 0.0), status
+
     def _require(self) -> ClosedLoopSignals:
         if self._signals is None:
             raise IdentificationError("method 'cl-iv' needs the log's closed-loop signals "
@@ -117,15 +139,13 @@ class ClosedLoopIV(Estimator):
                             combine: str = "pooled", theta_start: np.ndarray | None = None,
                             max_iter: int = 100, tol: float = 1e-9,
                             keep_history: bool = False) -> IterationResult:
-        signals = self._require()
+        self._require()
         if data.n_groups != 1:
             raise IdentificationError("method 'cl-iv' estimates one parameter group at a time")
-        phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
+        phi = corrected_regressor_matrix(data, spec)
 
         def source(theta: np.ndarray, active: np.ndarray, out: Moments, limits) -> None:
-            z, status = closed_loop_instruments(data, spec, np.nan_to_num(theta[0]), signals,
-                                                limits)
-            z = np.where(np.isfinite(z), z, 0.0)
+            z, status = self.instruments(data, spec, np.nan_to_num(theta[0]), limits)
             mom = moments_from_matrices(data, spec, z, phi)
             for name in ("zphi", "zy", "z", "phi", "y", "count"):
                 getattr(out, name)[...] = getattr(mom, name)
@@ -149,8 +169,7 @@ class ClosedLoopIV(Estimator):
         return res
 
     def equation_designs(self, data, spec, it, phi, combine):
-        z, _ = closed_loop_instruments(data, spec, it.theta_aux[0], self._require())
-        z = np.where(np.isfinite(z), z, 0.0)
+        z, _ = self.instruments(data, spec, it.theta_aux[0])
         return square_designs(data, spec, z, phi, it.theta[0], zero_mean=True,
                               combine=combine)
 

@@ -384,10 +384,28 @@ class ClosedLoopSimulation(Simulation):
 
     def to_log(self, *, aggregate: bool | None = None):
         log = super().to_log(aggregate=aggregate)
+        std = _white_sensor_noise(self.system)
+        if std and "sensor_noise_std" not in log.metadata:
+            log.metadata["sensor_noise_std"] = std
         log.metadata["closed_loop"] = closed_loop_metadata(
             self.controller, {s: f"{s}_ref" for s in self.ref_states},
             {j: f"{j}_dither" for j in self.system.spec.inputs})
         return log
+
+
+def _white_sensor_noise(system: System) -> dict[str, float]:
+    """``{state: σ}`` of a system whose state sensors carry zero-mean white Gaussian noise
+    (the log's ``metadata["sensor_noise_std"]``: the closed-loop estimator's
+    errors-in-variables correction); empty when any sensor noise is of another kind."""
+    from vesselid.plant.disturbances import Gaussian
+
+    out = {}
+    for state, proc in system.sensor_noise.items():
+        if type(proc) is not Gaussian or proc.mean_ != 0.0:
+            return {}
+        if proc.std_ > 0:
+            out[state] = float(proc.std_)
+    return out
 
 
 def _per_experiment(design: Any, experiment: int) -> Any:
