@@ -33,10 +33,10 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import robustness_study as rs  # noqa: E402
+import robustness_study as rs
 
-from vesselid.core.fileio import atomic_write_text  # noqa: E402
-from vesselid.identify import identify, pem  # noqa: E402
+from vesselid.core.fileio import atomic_write_text
+from vesselid.identify import identify, pem
 
 FITS = ("auto", "single", "joint", "local")
 DESIGNS = ("gm-current", "two-coloured", "telegraph")
