@@ -7,7 +7,11 @@ import pytest
 from _stats import binomial_ok, bonferroni_z
 from scipy import integrate, stats
 
-from vesselid.identify import from_arrays, get_estimator, pem
+from vesselid.errors import IdentificationError
+from vesselid.identify import from_arrays, identify, pem
+from vesselid.identify.efficient import InstrumentalGMM
+from vesselid.identify.registry import entry
+from vesselid.plant.systems import heave
 from vesselid.studies.calibration import heave_scenario
 
 THETA0 = np.array([0.99, -0.1, 1.0])
@@ -39,16 +43,16 @@ def test_selection_weights_are_fixed_numbers():
 
 @pytest.mark.slow
 def test_single_gauss_markov_current_unbiased_and_covered():
-    """A Gauss–Markov current alone (calibration scenario, random pulses): ``auto`` takes
-    the likelihood fallback; its estimate is within Bonferroni-corrected Monte Carlo
-    standard errors of θ0 on every parameter and its 95 % intervals cover at a rate a
-    binomial test accepts. The bounded joint fit on the same runs is reported beside it
-    (details) for the message."""
+    """A Gauss–Markov current alone (calibration scenario, random pulses): ``auto`` with
+    ``pem_boundary="unbounded"`` takes the likelihood fallback; its estimate is within
+    Bonferroni-corrected Monte Carlo standard errors of θ0 on every parameter and its
+    95 % intervals cover at a rate a binomial test accepts."""
     system, _, _ = heave_scenario("gm-current-random")
     spec = system.identification_spec(aggregate=False)
     runs = 80
     sim = system.simulate(10_000, n_runs=runs, seed=41)
-    it = get_estimator("auto").estimate_parameters(from_arrays(spec, sim.y, sim.u), spec)
+    est = InstrumentalGMM(**{**entry("auto").options, "pem_boundary": "unbounded"})
+    it = est.estimate_parameters(from_arrays(spec, sim.y, sim.u), spec)
     assert (it.info["instrument_set"] == "pem").all()
     assert np.isin(it.info["pem_model"], ["joint-local", "joint", "current"]).all()
     assert (it.info["pem_model"] == "joint-local").mean() > 0.5
@@ -58,3 +62,11 @@ def test_single_gauss_markov_current_unbiased_and_covered():
     se = np.sqrt(np.einsum("gii->gi", it.info["pem_cov_conservative"]))
     hits = (np.abs(err) <= 1.959964 * se).sum(0)
     assert all(binomial_ok(int(h), runs, 0.95) for h in hits), hits
+
+
+def test_bad_boundary_is_a_one_line_reason():
+    log = heave().simulate(500, seed=1).to_log()
+    with pytest.raises(IdentificationError, match="pem_boundary must be one of"):
+        identify(log, method=InstrumentalGMM("auto", pem_boundary="none"))
+    with pytest.raises(IdentificationError, match="boundary must be one of"):
+        pem.fit_groups(None, None, np.zeros((1, 3)), boundary="open")

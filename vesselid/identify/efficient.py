@@ -180,12 +180,7 @@ class InstrumentalGMM(Estimator):
         the modulus correlates with the input's past); the joint model does not, and it
         stays unbiased when the current and the sensor noise are coloured at once, where
         the single-current model is not (``scripts/robustness_study.py``,
-        ``docs/guide/choosing-an-estimator.md``). Where the likelihood does not establish
-        the sensor-noise process (likelihood ratio ≤ :data:`vesselid.identify.pem.LOCAL_LR`)
-        its variance is estimated without the bound at zero
-        (:data:`vesselid.identify.pem.JOINT_LOCAL`): under a single Gauss–Markov current
-        the bounded estimate fits a spurious sensor process in most runs and biases ``n``
-        by about 0.4 Monte Carlo sd.
+        ``docs/guide/choosing-an-estimator.md``).
     pem_level : float
         ``auto`` uses that likelihood fallback only where a test rejects at ``pem_level``
         times its level (C test below ``pem_level · alpha`` or colour test below
@@ -195,6 +190,16 @@ class InstrumentalGMM(Estimator):
         currents at 10⁴ samples: 100 % of runs at 0.1 × the levels), while white logs
         reach it in under 0.5 % of runs (rather than the levels' 4–6 %), which keeps the
         expensive fit off the paper's white designs.
+    pem_boundary : {"bounded", "unbounded"}
+        The joint model's sensor-noise variance: bounded at zero (default), or, where the
+        likelihood does not establish the sensor-noise process (likelihood ratio ≤
+        :data:`vesselid.identify.pem.LOCAL_LR`), estimated without the bound
+        (:data:`vesselid.identify.pem.JOINT_LOCAL`). Under a single Gauss–Markov current
+        the bounded estimate fits a spurious sensor process in most runs and biases ``n``
+        by about 0.4 Monte Carlo sd, which the unbounded one removes; on a telegraph
+        current, outside every model, the unbounded one is biased twice as much and
+        covers ``n`` in about 81 % (``scripts/pem_boundary_study.py``,
+        ``docs/guide/choosing-an-estimator.md``), so the default keeps the bound.
     pem_cov : {"conservative", "sandwich", "fisher"}
         Covariance of that fallback: the smallest covariance above both the quasi-ML
         sandwich and the inverse Fisher information (default,
@@ -212,11 +217,14 @@ class InstrumentalGMM(Estimator):
                  fallback_refine: int = 3, name: str | None = None, label: str | None = None,
                  short: str | None = None,
                  colour_order: int = 0, pem_fallback: bool = False,
-                 pem_cov: str = "conservative", pem_level: float = 0.1) -> None:
+                 pem_cov: str = "conservative", pem_level: float = 0.1,
+                 pem_boundary: str = "bounded") -> None:
         super().__init__(instruments=instruments, noise_order=noise_order, alpha=alpha,
                          colour_alpha=colour_alpha, refine=refine,
                          fallback_refine=fallback_refine, colour_order=colour_order,
-                         pem_fallback=pem_fallback, pem_cov=pem_cov, pem_level=pem_level)
+                         pem_fallback=pem_fallback, pem_cov=pem_cov, pem_level=pem_level,
+                         pem_boundary=pem_boundary)
+        self.pem_boundary = pem_boundary
         self.pem_fallback = bool(pem_fallback)
         self.pem_level = pem_level
         self.pem_cov = pem_cov
@@ -258,6 +266,10 @@ class InstrumentalGMM(Estimator):
             val = getattr(self, key)
             if not (isinstance(val, int | np.integer) and val >= 1):
                 raise IdentificationError(f"{key} must be a positive integer, got {val!r}")
+        if self.pem_boundary not in pem.BOUNDARIES:
+            raise IdentificationError(
+                f"pem_boundary must be one of {list(pem.BOUNDARIES)}, got "
+                f"{self.pem_boundary!r}")
         if self.pem_cov not in pem.COVARIANCES:
             raise IdentificationError(
                 f"pem_cov must be one of {list(pem.COVARIANCES)}, got {self.pem_cov!r}")
@@ -517,7 +529,8 @@ class InstrumentalGMM(Estimator):
         estimates; taken where its likelihood maximisation converged (in place; the
         others fall back to SRIV)."""
         sub = _subset(data, reject)
-        res = pem.fit_groups(sub, spec, theta0[reject], joint=True)
+        res = pem.fit_groups(sub, spec, theta0[reject], joint=True,
+                             boundary=self.pem_boundary)
         ok = res["converged"] & np.all(np.isfinite(res["theta"]), axis=1)
         idx = np.flatnonzero(reject)
         n = data.n_groups

@@ -37,14 +37,16 @@ within 0.3 sd, and under a single Gauss–Markov current it loses ~13 % in media
 the damping (``scripts/robustness_study.py``). The likelihood-ratio statistic of the
 joint model against the better single-process model is reported.
 
-When the current model is the better single-process model and the joint model gains
-little over it (likelihood ratio ≤ :data:`LOCAL_LR`), the joint model is reported as
-``joint-local`` instead: the sensor-noise variance estimated without its bound at zero,
-one scoring step from the current model (:func:`_local_joint`). Under a single
-Gauss–Markov current the bounded joint fit keeps a small spurious sensor-noise process
-in most runs, and that one-sided choice biased ``n`` by 0.4 Monte Carlo sd; the
-unbounded step is symmetric about θ0 there and stays the efficient joint estimate when
-a weak sensor-noise process is present (measured in ``scripts/robustness_study.py``).
+With ``boundary="unbounded"``, where the current model is the better single-process
+model and the joint model gains little over it (likelihood ratio ≤ :data:`LOCAL_LR`),
+the joint model is reported as ``joint-local`` instead: the sensor-noise variance
+estimated without its bound at zero, one scoring step from the current model
+(:func:`_local_joint`). Under a single Gauss–Markov current the bounded joint fit keeps
+a small spurious sensor-noise process in most runs, and that one-sided choice biases
+``n`` by 0.4 Monte Carlo sd; the unbounded step is symmetric about θ0 there and stays
+the efficient joint estimate when a weak sensor-noise process is present. On a telegraph
+current (outside every model) it is biased twice as much as the bounded fit, so the
+bound is the default (``scripts/pem_boundary_study.py``).
 
 The covariance is the inverse Fisher information of the chosen model (the θ block); with
 a correct model it is efficient. The quasi-ML sandwich ``F⁻¹ Ŝ F⁻¹`` (``Ŝ`` the Bartlett
@@ -72,8 +74,8 @@ from vesselid.identify.data import RegressionData
 from vesselid.identify.estimators import IterationResult, estimate
 from vesselid.model.spec import ModelSpec
 
-__all__ = ["COVARIANCES", "DISTURBANCE_MODELS", "JOINT", "JOINT_LOCAL", "PredictionError",
-           "assumption_text", "fit_groups", "load_kernels", "supports"]
+__all__ = ["BOUNDARIES", "COVARIANCES", "DISTURBANCE_MODELS", "JOINT", "JOINT_LOCAL",
+           "PredictionError", "assumption_text", "fit_groups", "load_kernels", "supports"]
 
 #: The disturbance models fitted (see module docstring).
 DISTURBANCE_MODELS = ("current", "sensor")
@@ -350,6 +352,9 @@ LOCAL_RHO_GRID = (0.3, 0.6, 0.8, 0.9, 0.95, 0.98)
 LOCAL_LR = 10.0
 #: The joint model estimated without the bound σ_c² ≥ 0 (:func:`_local_joint`).
 JOINT_LOCAL = "joint-local"
+#: How the joint model treats the sensor-noise variance's bound at zero
+#: (:func:`fit_groups`'s ``boundary``; the first is the default).
+BOUNDARIES = ("bounded", "unbounded")
 #: Normal draws of the quadrature of the selection term of :func:`_local_joint`'s
 #: covariance (a fixed set, the same for every log: a numerical integral, not a random
 #: result).
@@ -465,7 +470,7 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
                max_iter: int = 100, tol: float = SCORING_TOL,
                models: tuple[str, ...] = DISTURBANCE_MODELS,
                parallel: bool = True, joint: bool = False,
-               details: bool = False) -> dict[str, np.ndarray]:
+               details: bool = False, boundary: str = "bounded") -> dict[str, np.ndarray]:
     """Fit every group of ``data`` from the rows of ``theta_start`` (G, P), each with
     every disturbance model; keep the model with the higher likelihood. ``joint``: then
     fit both processes at once from the better model and report that (module docstring)
@@ -477,8 +482,18 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
     ``psi`` (G, P + 7), ``model`` (G,), ``converged``, ``iterations``, ``reason``,
     ``loglik`` (G, len(models)), ``vuong`` (G,; z of ``models[0]`` against
     ``models[1]``), ``lr_joint`` (G,; twice the joint model's log-likelihood gain over the
-    better single-process model, NaN without ``joint``).
+    better single-process model, NaN without ``joint``), ``local_z`` (G,; the z of the
+    unbounded sensor-noise variance step, :func:`_local_joint`, where computed).
+
+    ``boundary`` (with ``joint``): ``"bounded"`` reports the joint fit with σ_c ≥ 0;
+    ``"unbounded"`` reports :data:`JOINT_LOCAL` instead where the current model is the
+    better single process and the joint fit's likelihood ratio is at most
+    :data:`LOCAL_LR` (module docstring). The unbounded step is computed for ``details``
+    either way.
     """
+    if boundary not in BOUNDARIES:
+        raise IdentificationError(
+            f"boundary must be one of {list(BOUNDARIES)}, got {boundary!r}")
     codes = spec.codes
     fac = codes.factors
     n_par = spec.n_params
@@ -560,15 +575,18 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
                 iterations += more["iterations"]
                 if more["nll_terms"] is not None:
                     fj = more
-            local = (_local_joint(filt, f, n_par) if models[best] == "current" else None)
+            local = (_local_joint(filt, f, n_par)
+                     if models[best] == "current" and (boundary == "unbounded" or details)
+                     else None)
             if fj["nll_terms"] is not None:
                 gain = float(np.sum(f["nll_terms"]) - np.sum(fj["nll_terms"]))
                 out["lr_joint"][g] = 2.0 * gain
                 if (fj["converged"] and np.isfinite(gain) and gain >= 0
-                        and (local is None or 2.0 * gain > LOCAL_LR)):
+                        and (local is None or boundary == "bounded"
+                             or 2.0 * gain > LOCAL_LR)):
                     f = fj
                     out["model"][g] = JOINT
-            if local is not None and out["model"][g] != JOINT:
+            if local is not None and boundary == "unbounded" and out["model"][g] != JOINT:
                 f = local
                 out["model"][g] = JOINT_LOCAL
             if local is not None:
