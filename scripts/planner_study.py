@@ -27,6 +27,7 @@ def run(seeds: int, methods: list[str], sea_state: str | None, out: str | None,
         first: int = 0, wave_filter: float = 0.9) -> dict:
     from vesselid.identify import identify
     from vesselid.plant.waves import SEA_STATES, WaveConditions
+    from vesselid.studies.planner import SRIV_ORDER
     from vesselid.studies.seatrial import planned_sea_trial_design, simulate_sea_trial
 
     design = planned_sea_trial_design(6, 20000)
@@ -52,7 +53,7 @@ def run(seeds: int, methods: list[str], sea_state: str | None, out: str | None,
         for m in methods:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                r = identify(log, log.spec, method=m)
+                r = identify(log, log.spec, method=m, noise_order=SRIV_ORDER)
             rec[m]["params"].append(r.params.to_numpy().tolist())
             rec[m]["se"].append(r.std_errors.to_numpy().tolist())
             rec[m]["instruments"].append(str(r.diagnostics.get("instruments", "")))

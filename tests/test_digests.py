@@ -126,6 +126,34 @@ def identify_heave() -> str:
                   for m in ("ls", "iv", "iv-zero-mean"))
 
 
+def planner_prediction() -> str:
+    """(f) the trial planner's predicted covariance and wind bias of two scheduled
+    manoeuvres (``auto``: SRIV, cross moment over the disturbed paths)."""
+    from vesselid.studies.manoeuvres import Programme, TurningCircle, ZigZag
+    from vesselid.studies.planner import predict_design
+
+    progs = [Programme([ZigZag(thrust=1.5, rudder=20, heading=20)]),
+             Programme([TurningCircle(thrust=1.0, rudder=35.0, side=-1, turn=360.0)])]
+    forces = np.stack([p.schedule(_planner_vessel(), 1500, warmup=100) for p in progs])
+    pred = predict_design(forces, warmup=100, estimator="auto")
+    return digest([("forces", forces), ("cov", pred.cov.to_numpy()),
+                   ("bias", pred.bias.to_numpy())])
+
+
+def planner_plan() -> str:
+    """(f) a small ``plan_trial``: the chosen schedules and their predicted covariance."""
+    from vesselid.studies.planner import plan_trial
+
+    plan = plan_trial(8000, 2, block=2000, warmup=100, evaluate_block=2000, max_exchange=1)
+    return digest([("forces", plan.forces()), ("cov", plan.prediction.cov.to_numpy())])
+
+
+def _planner_vessel():
+    from vesselid.plant.vessels import VesselModel, cybership2
+
+    return VesselModel(cybership2.HULL, dt=0.1)
+
+
 #: name -> (function, digest computed on main before the refactor)
 PINS: dict[str, tuple[Callable[[], str], str]] = {
     "reproduce_table1": (lambda: reproduce_table(1),
@@ -148,6 +176,10 @@ PINS: dict[str, tuple[Callable[[], str], str]] = {
         "c96ab64b635296409c57fd10ab8d5f7c52be4efa2a513fe62ff0e7198be850f3"),
     "identify_heave": (identify_heave,
         "8e2f0e595c01e070fce96cec0fffa81fcd3b530be487721d4aea3e5e68a9c2e1"),
+    "planner_prediction": (planner_prediction,
+        "8c225c95990910cc648d56314ddef3c71dc55a3bd2897f2a7826f670a288e066"),
+    "planner_plan": (planner_plan,
+        "d38f38d707f9da68ea2f4ce6f72758c306fc722221ac8ab3a35d1c450f33afe3"),
 }
 
 

@@ -169,26 +169,31 @@ def test_sea_trial_records_the_regressor_noise():
     assert "sensor_noise_std" not in filtered.metadata
 
 
-def test_noise_order_from_the_log_or_the_option():
-    """`metadata["noise_order"]` (sea-trial writes the planner's SRIV order) or the
-    `noise_order` option sets SRIV's AR order; estimators without a prefilter ignore it;
-    a bad order is a clear error."""
-    from vesselid.studies.planner import SRIV_ORDER
-
+def test_noise_order_is_the_option_never_the_log():
+    """The `noise_order` option sets SRIV's AR order; a log's `metadata["noise_order"]`
+    is ignored, with a warning naming the option (estimators without a prefilter say
+    nothing); a bad order is a clear error; the sea trial writes none."""
     log = _toy_log(1, 0.02, n=1500, experiments=2)
     tagged = TrialLog(log.data, {"noise_order": 8})
-    a = _fit(tagged)
+    with pytest.warns(FutureWarning, match=r"metadata\['noise_order'\] \(8\).*ignored"):
+        a = identify(tagged, SPEC, method="sriv")
+    assert "AR(4)" in a.diagnostics["noise_model"]
+    assert any("noise_order" in w for w in a.diagnostics["warnings"])
+    np.testing.assert_array_equal(a.params.to_numpy(), _fit(log).params.to_numpy())
     b = _fit(log, noise_order=8)
-    np.testing.assert_array_equal(a.params.to_numpy(), b.params.to_numpy())
-    assert "AR(8)" in a.diagnostics["noise_model"]
-    assert "AR(4)" in _fit(log).diagnostics["noise_model"]
+    assert "AR(8)" in b.diagnostics["noise_model"]
     assert "AR(2)" in _fit(tagged, noise_order=2).diagnostics["noise_model"]
-    np.testing.assert_array_equal(_fit(tagged, "iv-zero-mean").params.to_numpy(),
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        identify(tagged, SPEC, method="sriv", noise_order=8)  # the option given: no note
+        zm = identify(tagged, SPEC, method="iv-zero-mean")  # no prefilter: no note either
+    assert not any("noise_order" in str(r.message) for r in record)
+    np.testing.assert_array_equal(zm.params.to_numpy(),
                                   _fit(log, "iv-zero-mean").params.to_numpy())
     for bad in (0, 51, 2.5, True):
         with pytest.raises(IdentificationError, match="noise_order"):
             _fit(log, noise_order=bad)
     from vesselid.studies.seatrial import simulate_sea_trial
 
-    assert simulate_sea_trial(2, 300, seed=0, design="static-offset"
-                              ).metadata["noise_order"] == SRIV_ORDER
+    assert "noise_order" not in simulate_sea_trial(2, 300, seed=0, design="static-offset"
+                                                   ).metadata

@@ -164,3 +164,56 @@ def test_a_registry_entry_must_name_its_class_right(registries) -> None:
     register(EstimatorEntry("bad-target", "vesselid.identify.methods"))
     with pytest.raises(IdentificationError, match="not 'module:Class'"):
         get_estimator("bad-target")
+
+
+def test_a_new_disturbance_reaches_every_user_of_the_plant(registries) -> None:
+    """A registered process kind, as a force on the vessel (``ProcessForce``), moves the
+    simulated trial and the trial planner's disturbed paths and prediction with no edit
+    of either; the settings round-trip through metadata. On a heave ``System`` the same
+    process as a current moves its disturbed paths."""
+    from vesselid.plant.catalogue import get_system
+    from vesselid.plant.disturbances import register_process
+    from vesselid.plant.plant import Plant
+    from vesselid.plant.vessels import ProcessForce, VesselDisturbances, simulate_vessel
+    from vesselid.studies.planner import DisturbanceLevels, predict_design
+
+    register_process("toy-telegraph", lambda d: Telegraph(d["level"], d["p"]))
+    force = ProcessForce(Telegraph(0.3, 0.01), gain=(0.0, 1.0, 0.2))
+    calm = DisturbanceLevels(force_noise_std=(0.0, 0.0, 0.0), wind_speed=0.0, gust_std=0.0,
+                             wind_direction_std=0.0)
+    levels = replace(calm, components=(force,))
+    plant = levels.plant()
+    assert isinstance(plant, Plant)
+    n = 800
+    forces = np.tile([1.5, 0.0, 0.0], (n, 1))
+    paths = plant.disturbed_paths(forces, paths=2, seed=4)
+    # the documented order: the three unmodelled forces (one block), then the component
+    rng = np.random.default_rng(4)
+    for path in paths:
+        rng.standard_normal((3, n))
+        rng.standard_normal(3)
+        tau = forces + force.draw(rng, n, plant.dt).force
+        np.testing.assert_array_equal(path, plant.run(tau))
+    assert np.abs(paths[:, :, 1]).max() > 1e-3  # the sway force moves the vessel
+    assert np.array_equal(calm.plant().disturbed_paths(forces, paths=1, seed=4)[0],
+                          plant.run(forces))
+    # the planner's prediction follows (cross moment over the disturbed paths)
+    sched = np.concatenate([forces, np.tile([1.5, 1.0, -0.5], (n, 1)),
+                            np.tile([1.0, -1.0, 0.5], (n, 1))])[None]
+    a = predict_design(sched, levels=calm, estimator="iv-zero-mean", paths=2)
+    b = predict_design(sched, levels=levels, estimator="iv-zero-mean", paths=2)
+    assert not np.allclose(a.cov.to_numpy(), b.cov.to_numpy(), rtol=1e-6, atol=0)
+    # the simulated trial: the same component among the vessel's disturbances
+    dist = VesselDisturbances(components=(force,))
+    sim = simulate_vessel(plant.hull, forces, seed=1, disturbances=dist)
+    meta = sim.to_log().metadata
+    rebuilt = ProcessForce.from_dict(meta["system"]["disturbances"]["components"][0])
+    assert isinstance(rebuilt.process, Telegraph) and rebuilt.gain == force.gain
+    again = ProcessForce.from_dict(levels.to_dict()["components"][0])
+    assert again.process.to_dict() == force.process.to_dict()
+    # a System: the same kind as a current on the heave vehicle
+    heave = replace(get_system("heave"), current={"w": Telegraph(0.05, 0.02)})
+    assert isinstance(heave, Plant)
+    u = np.full((500, 1), 0.2)
+    hp = heave.disturbed_paths(u, paths=1, seed=3)[0]
+    assert hp.shape == (501, 1) and not np.allclose(hp, heave.run(u))

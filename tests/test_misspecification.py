@@ -162,9 +162,11 @@ def test_correct_structure_keeps_sriv_end_to_end(tmp_path):
                  "4000", "--seed", "1", "--out", str(tmp_path / "st")]) == 0
     log = TrialLog.load(tmp_path / "st" / "seatrial.parquet")
     spec = ModelSpec.load(tmp_path / "st" / "cybership2.toml")
+    from vesselid.studies.planner import SRIV_ORDER
+
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        res = identify(log, spec)
+        res = identify(log, spec, noise_order=SRIV_ORDER)  # as sea-trial's command says
     assert res.method == "auto" and res.diagnostics["choice"] == "sriv"
     pre = res.diagnostics["specification_check"]["prefilter"]
     assert not pre["rejected"] and pre["statistic"] < pre["critical"]

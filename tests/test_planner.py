@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from vesselid.cli import main
+from vesselid.plant.vessels import VesselModel, cybership2
 from vesselid.studies.manoeuvres import (
     AccelerationStopping,
     ManoeuvreError,
-    NominalVessel,
     Programme,
     ThrusterSquare,
     TurningCircle,
@@ -81,10 +81,10 @@ def test_centring_of_summed_blocks_is_exact():
 
 
 def test_zigzag_switches_at_the_heading_and_small_rudder_is_reported():
-    v = NominalVessel.cybership2()
+    v = VesselModel(cybership2.HULL, dt=0.1)
     zz = ZigZag(thrust=2.0, rudder=35.0, heading=20.0)
     f = Programme([zz]).schedule(v, 3000, warmup=300)
-    assert f.shape == (3300, 3) and np.all(np.abs(f) <= np.array(v.limits) + 1e-12)
+    assert f.shape == (3300, 3) and np.all(np.abs(f) <= np.array(v.force_max) + 1e-12)
     x = v.run(f, np.zeros(3))
     psi = v.dt * np.concatenate([[0.0], np.cumsum(x[:-1, 2])])
     switch = np.flatnonzero(np.diff(f[:, 2]) != 0) + 1
@@ -103,7 +103,7 @@ def test_zigzag_switches_at_the_heading_and_small_rudder_is_reported():
 
 
 def test_acceleration_stopping_with_a_floor_keeps_u_positive():
-    v = NominalVessel.cybership2()
+    v = VesselModel(cybership2.HULL, dt=0.1)
     old = AccelerationStopping(thrust=2.0, astern=2.0, repeats=2)
     new = AccelerationStopping(thrust=2.0, astern=2.0, repeats=2, floor=0.05)
     x_old = v.run(Programme([old]).schedule(v, 4000, warmup=300), np.zeros(3))
@@ -117,10 +117,10 @@ def test_acceleration_stopping_with_a_floor_keeps_u_positive():
 
 
 def test_thruster_square_visits_all_sign_combinations():
-    v = NominalVessel.cybership2()
+    v = VesselModel(cybership2.HULL, dt=0.1)
     m = ThrusterSquare(thrust=1.4, hold_y=10.0, hold_n=7.0)
     f = Programme([m]).schedule(v, 3000, warmup=300)[300:]
-    assert f.shape == (3000, 3) and np.all(np.abs(f) <= np.array(v.limits) + 1e-12)
+    assert f.shape == (3000, 3) and np.all(np.abs(f) <= np.array(v.force_max) + 1e-12)
     combos = {(np.sign(y), np.sign(n)) for y, n in f[:, 1:]}
     assert combos == {(1, 1), (1, -1), (-1, 1), (-1, -1)}
     assert np.count_nonzero(np.diff(np.sign(f[:, 1]))) == 2999 // 100  # every 10 s
@@ -152,14 +152,14 @@ def test_equation_error_autocovariance_matches_a_simulated_trial():
     noise model) agree with those of θ0's residuals on a simulated trial of the plan,
     within 4 Bartlett standard errors of the sample autocorrelations."""
     from vesselid.model.regressors import predict
-    from vesselid.studies.planner import DisturbanceLevels, _Vessel, design_information
+    from vesselid.studies.planner import DisturbanceLevels, design_information
     from vesselid.studies.seatrial import planned_sea_trial_design, simulate_sea_trial
 
     plan = plan_trial(16000, 2, block=4000, evaluate_block=2000)
     assert plan.estimator == "auto"
-    vessel = _Vessel.cybership2()
-    acov = sum(design_information(f, vessel, DisturbanceLevels(), warmup=plan.warmup,
-                                  acov_only=True).acov for f in plan.forces())
+    plant = DisturbanceLevels().plant()
+    acov = sum(design_information(f, plant, warmup=plan.warmup, acov_only=True).acov
+               for f in plan.forces())
     rho_plan = acov[:, 1:] / acov[:, :1]
     log = simulate_sea_trial(2, 8000, seed=3, design=planned_sea_trial_design(plan=plan))
     fr, spec = log.to_frame(), log.spec
@@ -226,19 +226,19 @@ def test_disturbed_paths_weaken_the_instruments_as_in_a_simulated_trial():
     noise-free path (identical information)."""
     from vesselid.model.regressors import evaluate
     from vesselid.plant.simulate import simulate_states
-    from vesselid.studies.planner import DisturbanceLevels, _Vessel, design_information
+    from vesselid.studies.planner import DisturbanceLevels, design_information
     from vesselid.studies.seatrial import planned_sea_trial_design, simulate_sea_trial
 
     plan = plan_trial(16000, 2, block=4000, evaluate_block=2000)
-    vessel = _Vessel.cybership2()
-    spec, lv = vessel.ident, DisturbanceLevels()
+    plant = DisturbanceLevels().plant()
+    spec = plant.spec
     codes, th = spec.codes, spec.theta0_vector()
     forces = plan.forces()
 
     def centred(**kw):
         out = None
         for f in forces:
-            c = design_information(f, vessel, lv, warmup=plan.warmup, **kw).centred()
+            c = design_information(f, plant, warmup=plan.warmup, **kw).centred()
             out = c if out is None else out + c
         return out
 
@@ -272,8 +272,8 @@ def test_disturbed_paths_weaken_the_instruments_as_in_a_simulated_trial():
     assert np.all(np.abs(got[worst] - mean[worst]) <= 4 * sd[worst]), (got, mean, sd)
     calm = DisturbanceLevels(force_noise_std=(0.0, 0.0, 0.0), gust_std=0.0,
                              wind_direction_std=0.0)
-    a = design_information(forces[0], vessel, calm, warmup=plan.warmup)
-    b = design_information(forces[0], vessel, calm, warmup=plan.warmup, paths=2)
+    a = design_information(forces[0], calm.plant(), warmup=plan.warmup)
+    b = design_information(forces[0], calm.plant(), warmup=plan.warmup, paths=2)
     assert all(np.allclose(x, y, rtol=1e-12, atol=0) for x, y in zip(a.a, b.a, strict=True))
 
 
@@ -306,3 +306,32 @@ def test_success_probability_matches_the_normal_model():
     assert diag.success_probability(tolerance=0.0) == 0.0
     assert diag.success_probability(tolerance=1e6) == 1.0
     assert 0.0 <= plan.success_probability() <= 1.0
+
+
+def test_the_planner_plans_on_the_default_sea_trial_plant():
+    """``DisturbanceLevels()`` is the sea trial's default plant in everything the planner
+    models: hull, unmodelled forces, wind, gusts and direction changes, the noise of the
+    speed log and gyro and its clipping."""
+    import inspect
+
+    from vesselid.plant.vessels import SENSOR_CHANNELS
+    from vesselid.studies import seatrial
+    from vesselid.studies.planner import DisturbanceLevels
+
+    p = {k: v.default
+         for k, v in inspect.signature(seatrial.simulate_sea_trial).parameters.items()}
+    dist = seatrial._disturbances(p["current_speed"], p["current_direction"], p["wind_speed"],
+                                  p["wind_direction"], p["current_variation"], p["wind_gust"],
+                                  p["force_noise"])
+    sea = seatrial._plant(p["vessel"], p["dt"], dist, p["sensors"])
+    planned = DisturbanceLevels().plant(p["dt"])
+    assert planned.hull is sea.hull
+    for name in ("wind_speed", "wind_direction", "gust_std", "gust_time_constant",
+                 "wind_direction_std", "wind_direction_time_constant", "force_noise_std",
+                 "force_noise_time_constant", "wind_on", "wind_model"):
+        assert getattr(planned.disturbances, name) == getattr(sea.disturbances, name), name
+    assert planned.wind_model == sea.wind_model
+    idx = [SENSOR_CHANNELS.index(c) for c in ("u_log", "v_log", "r")]
+    np.testing.assert_array_equal(planned.sensors.std_vector()[idx],
+                                  sea.sensors.std_vector()[idx])
+    assert planned.sensors.clip == sea.sensors.clip

@@ -120,3 +120,20 @@ def test_bad_input() -> None:
     est = RecursiveEstimator(spec)
     with pytest.raises(IdentificationError, match="finite"):
         est.update([np.nan], [0.1], [1.0])
+
+
+def test_shared_gauss_jordan_inverts_with_either_pivot_row_arithmetic() -> None:
+    """The one Gauss–Jordan kernel behind cond_bound and the recursive estimator's small
+    inverses: partial pivoting (a zero leading entry is fine), [A | I] -> [I | A⁻¹] with
+    division or reciprocal scaling of the pivot row, and a refusal at the pivot floor."""
+    from vesselid.identify._ivkernels import gauss_jordan
+
+    a = np.array([[0.0, 2.0, 1.0], [1.0, -1.0, 0.5], [3.0, 0.0, -2.0]])
+    for reciprocal in (False, True):
+        m = np.hstack([a, np.eye(3)])
+        assert gauss_jordan(m, 3, 0.0, reciprocal)
+        np.testing.assert_allclose(m[:, :3], np.eye(3), atol=1e-15)
+        np.testing.assert_allclose(m[:, 3:] @ a, np.eye(3), atol=1e-14)
+    singular = np.array([[1.0, 2.0], [2.0, 4.0 + 1e-15]])
+    assert not gauss_jordan(np.hstack([singular, np.eye(2)]), 2, 1e-13 * 4.0, True)
+    assert gauss_jordan(np.hstack([singular, np.eye(2)]), 2, 0.0, False)  # exact floor 0

@@ -188,6 +188,12 @@ def test_cli_extra_rows(capsys):
     assert main([*base[:-2], "--extra", "sriv"]) == 0
     out = capsys.readouterr().out
     assert "(extra)" in out and "(default)" not in out
+    # the default extra named again, next to its fallback: each row once
+    assert main([*base, "--extra", "auto", "sriv", "auto"]) == 0
+    rows = [row["method"] for row in json.loads(capsys.readouterr().out)["tables"]["1"]]
+    counts = {m: rows.count(m) for m in rows}
+    assert set(counts) == {"ls", "iv", "iv-zero-mean", "auto", "sriv"}
+    assert len(set(counts.values())) == 1, counts  # one row per parameter, for every method
     for bad in (["bogus"], ["none", "sriv"]):
         assert main([*base, "--extra", *bad]) == 2
         err = capsys.readouterr().err

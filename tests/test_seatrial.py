@@ -178,6 +178,11 @@ def test_cli_end_to_end(tmp_path, capsys):
     assert code == 0
     text = capsys.readouterr().out
     assert "next: vesselid identify" in text
+    # the estimator setting the trial needs is handed to the user, not left in the log
+    assert "--noise-order 16" in text
+    from vesselid.data.logs import TrialLog
+
+    assert "noise_order" not in TrialLog.load(out / "seatrial.parquet").metadata
     # Parquet (metadata inside) is the default when pyarrow is there; CSV on request
     assert (out / "seatrial.parquet").exists() and not (out / "seatrial.csv").exists()
     assert (out / "cybership2.toml").exists()

@@ -112,3 +112,31 @@ def test_siso_example_keeps_margin():
     sim = siso_example(v_mean=0.1).simulate(5000, seed=0)
     assert sim.x.min() > 0.1 + 0.1 + 0.1 + 0.1  # A15 margin of §5
     assert get_system("siso").spec.name == "siso_example"
+
+
+def test_a_system_is_a_plant_whose_disturbed_paths_draw_as_simulate():
+    """``System.run`` is the noise-free simulation; ``System.disturbed_paths`` draws the
+    current and process noise as ``simulate`` draws a run, so with a constant input the
+    first path is that run's true state, bit for bit; more paths differ."""
+    from dataclasses import replace
+
+    from vesselid.plant.catalogue import get_system
+    from vesselid.plant.disturbances import GaussMarkov
+    from vesselid.plant.plant import Plant
+    from vesselid.plant.signals import ConstantInput
+
+    base = get_system("heave", current_mean=0.1)
+    system = replace(base, inputs={"tau": ConstantInput(0.2)},
+                     process_noise={"w": GaussMarkov(0.0, 0.02, 5.0, 1.0, 0.06)})
+    assert isinstance(system, Plant)
+    n = 400
+    sim = system.simulate(n, run_seeds=[np.random.SeedSequence(11)])
+    u = np.full((n, 1), 0.2)
+    paths = system.disturbed_paths(u, paths=3, seed=11)
+    assert paths.shape == (3, n + 1, 1)
+    np.testing.assert_array_equal(paths[0, :n], sim.x[0])
+    assert not np.allclose(paths[1], paths[0])
+    calm = replace(system, current={}, process_noise={})
+    np.testing.assert_array_equal(calm.disturbed_paths(u, paths=1, seed=0)[0], calm.run(u))
+    # steady state of w = 0.99 w − 0.1 w|w| + 0.2 (θ0 of the heave vehicle): 0.1 w² + 0.01 w = 0.2
+    np.testing.assert_allclose(calm.run(u)[-1], (-0.1 + np.sqrt(0.01 + 8.0)) / 2, rtol=1e-8)

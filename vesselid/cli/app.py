@@ -432,7 +432,8 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
                         "(written by sea-trial); 'none': no correction")
     p.add_argument("--noise-order", type=int_at_least(1), default=None,
                    help="AR order of the noise-model prefilter of sriv / auto's fallback "
-                        "(default 4, or the log's metadata noise_order: sea-trial writes 16)")
+                        "(default 4; a sea trial needs 16, which sea-trial prints; never read "
+                        "from the log)")
     p.add_argument("--json", metavar="PATH|-", help="write the result as JSON ('-' = stdout)")
     p.add_argument("--stream", action="store_true",
                    help="logs larger than memory: read the Parquet log(s) one experiment at a "

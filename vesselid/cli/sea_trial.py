@@ -176,7 +176,12 @@ def cmd_sea_trial(args: argparse.Namespace) -> int:
               "dithers X_dither, Y_dither, N_dither (metadata['closed_loop'])")
         print(f"next: vesselid identify {data} --model {spec_path}   (auto -> cl-iv)")
     else:
-        print(f"next: vesselid identify {data} --model {spec_path} --method iv-zero-mean")
+        from vesselid.studies.planner import SRIV_ORDER
+
+        print(f"next: vesselid identify {data} --model {spec_path} --noise-order "
+              f"{SRIV_ORDER}   (the default auto: its SRIV fallback needs an AR({SRIV_ORDER}) "
+              "noise model on this trial's equation error, as the planner assumes)")
+        print(f"  or: vesselid identify {data} --model {spec_path} --method iv-zero-mean")
     if getattr(args, "raw", None):
         from vesselid.data.rawexport import write_raw_streams
 

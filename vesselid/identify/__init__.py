@@ -26,6 +26,7 @@ __all__ = [
     "EquationDesign",
     "Estimator",
     "EstimatorEntry",
+    "FitOptions",
     "IdentificationResult",
     "RegressionData",
     "asymptotic_covariance",
@@ -41,7 +42,7 @@ __all__ = [
 # Imported on first use (PEP 562): ``vesselid.identify.registry`` (the estimator names and
 # capabilities the command line checks) loads without the compiled estimators.
 _LAZY = {
-    "COMBINE_MODES": "vesselid.identify.estimators",
+    "COMBINE_MODES": "vesselid.identify.options",
     "estimate": "vesselid.identify.estimators",
     "DEFAULT_COMBINE": "vesselid.identify.api",
     "asymptotic_covariance": "vesselid.identify.api",
@@ -54,7 +55,8 @@ _LAZY = {
     "get_estimator": "vesselid.identify.registry",
     "method_labels": "vesselid.identify.registry",
     "register": "vesselid.identify.registry",
-    "TARGETS": "vesselid.identify.base",
+    "TARGETS": "vesselid.identify.options",
+    "FitOptions": "vesselid.identify.options",
     "EquationDesign": "vesselid.identify.base",
     "Estimator": "vesselid.identify.base",
     "IdentificationResult": "vesselid.identify.results",

@@ -449,6 +449,18 @@ class _ColourCode:
     def _pairs(self) -> list[tuple[int, int]]:
         return [(c, c2) for c in range(self.k) for c2 in self.block[c] if c2 >= c]
 
+    def _sums(self) -> list[tuple[str, str]]:
+        """The first pass's sums and what each entering row adds to them (of the
+        differences ``d…`` from the reference values), in the order they are written."""
+        out: list[tuple[str, str]] = []
+        for c in range(self.k):
+            out += [(f"cb{c}", f"drv{c} * dry{self.ceq[c]}"), (f"cz{c}", f"drv{c}")]
+            out += [(f"ca{c}_{p}", f"drv{c} * drphi{p}") for p in self.own[c]]
+        out += [(f"cm{c}_{c2}", f"drv{c} * drv{c2}") for c, c2 in self._pairs()]
+        out += [(f"cphi{p}", f"drphi{p}") for p in range(self.n_par)]
+        out += [(f"cy{i}", f"dry{i}") for i in range(self.n_eq)]
+        return out
+
     def start(self, add: Callable[[str], None], ind: str, *, second: bool) -> None:
         # every name is bound whatever ``colour`` (numba types each once); the inputs of
         # the second pass are read only when the colour test runs
@@ -458,17 +470,8 @@ class _ColourCode:
         for j in range(len(self.terms)):
             add(f"{ind}ws{j} = 0.0")
         if not second:
-            for c in range(self.k):
-                add(f"{ind}cb{c} = 0.0")
-                add(f"{ind}cz{c} = 0.0")
-                for p in self.own[c]:
-                    add(f"{ind}ca{c}_{p} = 0.0")
-            for c, c2 in self._pairs():
-                add(f"{ind}cm{c}_{c2} = 0.0")
-            for p in range(self.n_par):
-                add(f"{ind}cphi{p} = 0.0")
-            for i in range(self.n_eq):
-                add(f"{ind}cy{i} = 0.0")
+            for name, _ in self._sums():
+                add(f"{ind}{name} = 0.0")
             for name in self._refs():
                 add(f"{ind}{name} = 0.0")
             return
@@ -516,17 +519,8 @@ class _ColourCode:
             for name, v in zip(self._refs(), values, strict=True):
                 add(f"{i3}d{name} = {v} - {name}")
             add(f"{i3}ccnt += 1")
-            for c in range(self.k):
-                add(f"{i3}cb{c} += drv{c} * dry{self.ceq[c]}")
-                add(f"{i3}cz{c} += drv{c}")
-                for p in self.own[c]:
-                    add(f"{i3}ca{c}_{p} += drv{c} * drphi{p}")
-            for c, c2 in self._pairs():
-                add(f"{i3}cm{c}_{c2} += drv{c} * drv{c2}")
-            for p in range(self.n_par):
-                add(f"{i3}cphi{p} += drphi{p}")
-            for i in range(self.n_eq):
-                add(f"{i3}cy{i} += dry{i}")
+            for name, increment in self._sums():
+                add(f"{i3}{name} += {increment}")
             return
         for i in range(self.n_eq):
             add(f"{i3}ec{i} = target[k, {i}] - cmy{i}")

@@ -673,6 +673,52 @@ def equilibrate_one(a, max_iter, tol):
     return r, c
 
 
+@njit(cache=True, inline="always")
+def gauss_jordan(m, n, floor, reciprocal):
+    """Gauss–Jordan elimination with partial pivoting of the augmented matrix
+    ``m[:n, :2n] = [A | I]``, in place, to ``[I | A⁻¹]``; False (``m`` left part-way) where
+    a pivot is not above ``floor``. ``reciprocal``: the pivot row is multiplied by
+    ``1 / pivot`` (one division), else each entry is divided by the pivot — the two
+    round differently, and each caller keeps its own arithmetic:
+    :func:`cond_bound` (``floor = 0``, division) and the recursive estimator's small
+    inverses (:func:`vesselid.identify.recursive._solve_small`: a pivot floor relative to
+    the largest entry, reciprocal).
+
+    Also inlined into :mod:`vesselid.identify.recursive`'s kernel, whose numba cache
+    tracks its own file only: a change here needs that module's cache files
+    (``__pycache__/recursive.*.nbi``/``.nbc``) removed.
+    """
+    for k in range(n):
+        piv = k
+        best = abs(m[k, k])
+        for i in range(k + 1, n):
+            if abs(m[i, k]) > best:
+                best = abs(m[i, k])
+                piv = i
+        if not best > floor:
+            return False
+        if piv != k:
+            for j in range(2 * n):
+                t = m[k, j]
+                m[k, j] = m[piv, j]
+                m[piv, j] = t
+        d = m[k, k]
+        if reciprocal:
+            inv = 1.0 / d
+            for j in range(2 * n):
+                m[k, j] *= inv
+        else:
+            for j in range(2 * n):
+                m[k, j] /= d
+        for i in range(n):
+            if i != k:
+                f = m[i, k]
+                if f != 0.0:
+                    for j in range(2 * n):
+                        m[i, j] -= f * m[k, j]
+    return True
+
+
 @njit(cache=True, error_model="numpy")
 def cond_bound(a, max_iter, tol):
     """An upper bound of the condition number of the equilibrated square matrix ``a``
@@ -711,29 +757,8 @@ def cond_bound(a, max_iter, tol):
             m[i, j] = v
             fro += v * v
             m[i, n + j] = 1.0 if i == j else 0.0
-    for k in range(n):
-        piv = k
-        best = abs(m[k, k])
-        for i in range(k + 1, n):
-            if abs(m[i, k]) > best:
-                best = abs(m[i, k])
-                piv = i
-        if not best > 0.0:
-            return np.inf
-        if piv != k:
-            for j in range(2 * n):
-                t = m[k, j]
-                m[k, j] = m[piv, j]
-                m[piv, j] = t
-        d = m[k, k]
-        for j in range(2 * n):
-            m[k, j] /= d
-        for i in range(n):
-            if i != k:
-                f = m[i, k]
-                if f != 0.0:
-                    for j in range(2 * n):
-                        m[i, j] -= f * m[k, j]
+    if not gauss_jordan(m, n, 0.0, False):
+        return np.inf
     fro_inv = 0.0
     for i in range(n):
         for j in range(n):

@@ -6,6 +6,7 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 from vesselid.identify.base import Estimator
+from vesselid.identify.options import DEFAULT_COMBINE, FitOptions
 from vesselid.identify.registry import DEFAULT_METHOD, get_estimator
 from vesselid.identify.results import IdentificationResult
 from vesselid.model.spec import ModelSpec
@@ -15,16 +16,9 @@ if TYPE_CHECKING:
 
 __all__ = ["DEFAULT_COMBINE", "asymptotic_covariance", "identify"]
 
-#: Default way to combine experiments (see docs/method-notes.md).
-DEFAULT_COMBINE = "pooled"
 
-
-def identify(
-    log: Any,
-    spec: ModelSpec | None = None,
-    method: str | Estimator = DEFAULT_METHOD,
-    **options: Any,
-) -> IdentificationResult:
+def identify(log: Any, spec: ModelSpec | None = None, method: str | Estimator = DEFAULT_METHOD,
+             options: FitOptions | None = None, **overrides: Any) -> IdentificationResult:
     """Identify the parameters of a second-order modulus model from a trial log.
 
     Parameters
@@ -37,9 +31,14 @@ def identify(
     method : str or Estimator
         A name in :data:`ESTIMATORS` (default :data:`DEFAULT_METHOD`) or an
         estimator object.
-    **options
-        Keyword-only options of :meth:`Estimator.fit`, passed on (an unknown name is a
-        ``TypeError``):
+    options : FitOptions, optional
+        The options of the estimation as one object
+        (:class:`~vesselid.identify.options.FitOptions`, validated when built); the
+        keywords below replace its fields.
+    **overrides
+        The fields of :class:`~vesselid.identify.options.FitOptions` by name (a bad value
+        is an :class:`~vesselid.errors.IdentificationError`, an unknown name a
+        ``TypeError``), and ``fallback`` and ``dt_tolerance``:
     combine : {"pooled", "stacked"}
         Multi-experiment form: ``"stacked"`` solves the ``p N_E`` equations (6)/(10)
         in the least-squares sense as the paper writes them; ``"pooled"`` sums the
@@ -77,8 +76,10 @@ def identify(
         ``False``: no correction.
     noise_order : int, optional
         AR order of the noise-model prefilter of the estimators that use one (``sriv``,
-        ``auto``'s fallback) instead of their default 4; default the log's
-        ``metadata["noise_order"]`` (``vesselid sea-trial`` writes 16).
+        ``auto``'s fallback) instead of their default 4 (an integer in 1..50). A setting
+        of the estimator, never read from the log: ``vesselid sea-trial`` prints the order
+        its trials need (:data:`vesselid.studies.planner.SRIV_ORDER`, 16); a
+        ``metadata["noise_order"]`` in a log is ignored with a ``FutureWarning``.
     fallback : bool, optional
         Run the fallback chain (:mod:`vesselid.identify.fallback`): when ``method`` fails
         on this log (no finite estimate, an unstable model, non-finite fit figures, no
@@ -121,17 +122,18 @@ def identify(
     ``"non-finite"``) before using an estimate: the last three are returned for
     inspection, never as a usable model (``vesselid identify`` exits 3 on them).
     """
-    _check_sampling(log, spec, options.pop("dt_tolerance", "default"))
-    fallback = options.pop("fallback", None)
+    _check_sampling(log, spec, overrides.pop("dt_tolerance", "default"))
+    fallback = overrides.pop("fallback", None)
+    fit_options = FitOptions.of(options, **overrides)
     if fallback is None:
         fallback = isinstance(method, str) and method == DEFAULT_METHOD
-    if fallback and options.get("instruments") is None:
+    if fallback and fit_options.instruments is None:
         from vesselid.identify.fallback import CHAIN, identify_with_fallback
 
         first = get_estimator(method)
         return identify_with_fallback(
-            log, spec, (first, *(m for m in CHAIN if m != first.name)), **options)
-    return get_estimator(method).fit(log, spec, **options)
+            log, spec, (first, *(m for m in CHAIN if m != first.name)), fit_options)
+    return get_estimator(method).fit(log, spec, fit_options)
 
 
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 import itertools
 import warnings
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 import numpy as np
@@ -59,11 +59,12 @@ from vesselid.identify.estimators import (
     stall_averaging,
 )
 from vesselid.identify.excitation import excitation_report
+from vesselid.identify.options import TARGETS, FitOptions
 from vesselid.identify.results import IdentificationResult
 from vesselid.identify.stability import free_run_states, stability_report
 from vesselid.model.spec import ModelSpec
 
-__all__ = ["TARGETS", "EquationDesign", "Estimator", "equation_rows"]
+__all__ = ["TARGETS", "EquationDesign", "Estimator", "FitOptions", "equation_rows"]
 
 #: The standard-error stopping rule of the refined iteration: where the relative residual
 #: rule (``tol``) is not reached because the iteration ran out of evaluations or stalled,
@@ -96,6 +97,67 @@ class EquationDesign:
     weight: np.ndarray | None = None
     zero_mean: bool = False
     weight_jacobian: np.ndarray | None = None
+
+
+class _Warner:
+    """The warnings of one ``fit``: each is issued at once, pointing at the caller of
+    :func:`~vesselid.identify.identify`, and listed in ``messages`` (the result's
+    ``diagnostics["warnings"]``). Called from the steps of ``fit`` only (the stack depth
+    below that caller is fixed: this call, the step, ``fit``, its two decorators — BLAS
+    threads and kernel choice — and ``identify``)."""
+
+    STACKLEVEL = 7
+
+    def __init__(self) -> None:
+        self.messages: list[str] = []
+
+    def __call__(self, msg: str, category: type[Warning]) -> None:
+        self.messages.append(msg)
+        warnings.warn(msg, category, stacklevel=self.STACKLEVEL)
+
+
+@dataclass
+class _FitRun:
+    """What the steps of :meth:`Estimator.fit` find, in the order they find it."""
+
+    opts: FitOptions
+    warn: _Warner
+    cov_name: str = ""
+    cov_fn: Any = None
+    data: RegressionData = None  # type: ignore[assignment]
+    spec: ModelSpec = None  # type: ignore[assignment]
+    phi: np.ndarray = None  # type: ignore[assignment]
+    rows: np.ndarray = None  # type: ignore[assignment]
+    blocks: np.ndarray = None  # type: ignore[assignment]
+    excitation: dict[str, Any] = field(default_factory=dict)
+    it: IterationResult = None  # type: ignore[assignment]
+    designs: list[EquationDesign] = field(default_factory=list)
+    feedback: dict[str, Any] = field(default_factory=dict)
+    pred: np.ndarray = None  # type: ignore[assignment]
+    resid: np.ndarray = None  # type: ignore[assignment]
+    cov: np.ndarray = None  # type: ignore[assignment]
+    cov_label: str = ""
+    own_cov: np.ndarray | None = None
+    cond: dict[str, float] = field(default_factory=dict)
+    converged: bool = False
+    stop_reason: str = ""
+    step_se: float = 0.0
+    own_step_se: float = 0.0
+    stall_info: dict[str, Any] | None = None
+    specification: dict[str, Any] = field(default_factory=dict)
+    residual_checks: dict[str, Any] = field(default_factory=dict)
+    fit_one: dict[str, float] = field(default_factory=dict)
+    fit_free: dict[str, float] = field(default_factory=dict)
+    design: Any = None
+    stability: dict[str, Any] = field(default_factory=dict)
+    eta_source: str = ""
+    eta_used: dict[str, float] = field(default_factory=dict)
+    smoothness: dict[str, Any] = field(default_factory=dict)
+
+
+def _prefilters(est: Any) -> bool:
+    """The estimator has an AR noise-model prefilter whose order ``noise_order`` sets."""
+    return bool(getattr(est, "noise_order", 0))
 
 
 def equation_rows(data: RegressionData) -> np.ndarray:
@@ -218,42 +280,65 @@ class Estimator:
         self,
         log: Any,
         spec: ModelSpec | None = None,
-        *,
-        combine: str = "pooled",
-        target: str = "measured",
-        cov_type: str | None = None,
-        cov_config: Mapping[str, Any] | None = None,
-        instruments: np.ndarray | None = None,
-        theta_start: Any | None = None,
-        max_iter: int = 100,
-        tol: float = 1e-9,
-        eta: Mapping[str, float] | None = None,
-        design_threshold: float = 0.01,
-        weak_instrument_cond: float = 1e6,
-        min_samples: int | None = None,
-        sensor_noise: Mapping[str, float] | bool | None = None,
-        noise_order: int | None = None,
+        options: FitOptions | Mapping[str, Any] | None = None,
+        **overrides: Any,
     ) -> IdentificationResult:
-        """Identify θ from a trial log (see :func:`vesselid.identify.identify`)."""
+        """Identify θ from a trial log (see :func:`vesselid.identify.identify`).
+
+        Parameters
+        ----------
+        log : TrialLog or DataFrame
+        spec : ModelSpec, optional
+            Default the log's spec.
+        options : FitOptions or mapping, optional
+            The options of the estimation (:class:`~vesselid.identify.options.FitOptions`).
+        **overrides
+            Fields of :class:`~vesselid.identify.options.FitOptions` by name (the
+            keywords of :func:`~vesselid.identify.identify`), replacing those of
+            ``options``.
+        """
+        run = _FitRun(FitOptions.of(options, **overrides), _Warner())
+        self._resolve(run)
+        self._regression(run, log, spec)
+        self._estimate(run)
+        self._feedback(run, log)
+        self._covariance(run)
+        self._convergence(run)
+        self._specification(run)
+        self._fit_quality(run)
+        self._estimator_warnings(run)
+        return self._result(run)
+
+    # The steps of ``fit``, in order. Each reads and fills ``run`` (:class:`_FitRun`); a
+    # warning goes through ``run.warn`` from the step itself (it points at the caller of
+    # identify() and is listed in ``diagnostics["warnings"]``).
+    def _resolve(self, run: _FitRun) -> None:
+        """The options this estimator can honour, and the covariance estimator."""
         from vesselid.identify import covariance_api
 
-        self.check_options(combine=combine)
-        self.check_covariance(cov_type)
-        cov_name, cov_fn = covariance_api.resolve(cov_type, cov_config)
-        if not (isinstance(max_iter, int | np.integer) and max_iter >= 1):
-            raise IdentificationError(f"max_iter must be a positive integer, got {max_iter!r}")
-        if not (np.isfinite(tol) and tol > 0):
-            raise IdentificationError(f"tol must be a positive number, got {tol!r}")
-        if target not in TARGETS:
-            raise IdentificationError(f"unknown target {target!r}; choose from {list(TARGETS)}")
-        data, spec = from_log(log, spec, min_samples=min_samples, sensor_noise=sensor_noise,
-                              noise_order=noise_order)
-        if target == "aggregated":
+        opts = run.opts
+        self.check_options(combine=opts.combine)
+        self.check_covariance(opts.cov_type)
+        run.cov_name, run.cov_fn = covariance_api.resolve(opts.cov_type, opts.cov_config)
+
+    def _regression(self, run: _FitRun, log: Any, spec: ModelSpec | None) -> None:
+        """The regression data, regressor matrix and identifiability of the log
+        (rank and excitation; refused with one line)."""
+        opts = run.opts
+        legacy = getattr(log, "metadata", None)
+        legacy = legacy.get("noise_order") if isinstance(legacy, Mapping) else None
+        if legacy is not None and opts.noise_order is None and _prefilters(self):
+            run.warn(f"the log's metadata['noise_order'] ({legacy!r}) is not an estimator "
+                     f"setting and is ignored; pass noise_order={legacy!r} (vesselid identify "
+                     f"--noise-order {legacy!r}) to use that AR order of the noise model",
+                     FutureWarning)
+        data, spec = from_log(log, spec, min_samples=opts.min_samples,
+                              sensor_noise=opts.sensor_noise, noise_order=opts.noise_order)
+        if opts.target == "aggregated":
             if not spec.aggregate:
                 raise IdentificationError("target 'aggregated' needs an [aggregate] relation "
                                           "in the spec (a disturbance sensor)")
             data = replace(data, target=data.regsig)
-        codes = spec.codes
         names = [f"{eq}: {term}" for eq, term in spec.param_index]
         blocks = block_starts(spec)
         if self.corrects_sensor_noise:
@@ -262,7 +347,7 @@ class Estimator:
             phi = corrected_regressor_matrix(data, spec)
             remember_regressors(data, spec, phi)  # the estimator's own rows (data is ours)
         else:
-            phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, codes.factors)
+            phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
         rows = equation_rows(data)
         # one experiment: every row but the first, as a view (no gathered copy)
         _check_rank(phi[1:] if data.n_segments == 1 else phi[rows], spec, blocks, names)
@@ -277,88 +362,101 @@ class Estimator:
                 f"{self.name}: not identifiable with a constant per experiment — {lost}"
                 f"{why}; drop the term(s) from the spec or vary the input within the "
                 "experiments")
+        run.data, run.spec, run.phi, run.rows, run.blocks = data, spec, phi, rows, blocks
+        run.excitation = excitation
 
-        warn_msgs: list[str] = []
-
-        def _warn(msg: str, category: type[Warning]) -> None:
-            warn_msgs.append(msg)
-            # _warn, fit, the two decorators (BLAS threads, kernel choice), identify():
-            # the warning points at the caller of identify()
-            warnings.warn(msg, category, stacklevel=6)
-
-        if instruments is not None:
+    def _estimate(self, run: _FitRun) -> None:
+        """The estimate (one IV solve with user instruments, else the estimator's
+        iteration) and its final estimating equations; no finite estimate is refused."""
+        opts, data, spec = run.opts, run.data, run.spec
+        if opts.instruments is not None:
             if not self.uses_instruments:
                 raise IdentificationError(f"instruments are not used by method {self.name!r}")
             if not isinstance(self, _UserInstrumentMixin):
                 raise IdentificationError(
                     f"method {self.name!r} builds its own instruments; use method 'iv' or "
                     "'iv-zero-mean' with user-supplied instruments")
-            it, designs = self._fit_user_instruments(data, spec, phi, instruments, combine)
-        else:
-            start = None if theta_start is None else spec.vector_from(theta_start)
-            with stall_averaging():  # a stall locates its fixed point by averaging
-                it = self.estimate_parameters(data, spec, combine=combine, theta_start=start,
-                                              max_iter=max_iter, tol=tol, keep_history=True)
-            if not np.all(np.isfinite(it.theta[0])) and not self.uses_instruments:
-                raise EstimationFailedError(
-                    f"{self.name}: {it.reason[0]}; the likelihood could not be maximised "
-                    "from the IV_E{ζ}=0 start — use longer or better-excited experiments, "
-                    "or method 'auto'")
-            if not np.all(np.isfinite(it.theta[0])):
-                tried = ("the LS estimate and basic IV with delayed measurements"
-                         if it.start is not None and it.start[0] == "lagged-iv"
-                         else "the given start" if theta_start is not None
-                         else "the LS estimate")
-                raise EstimationFailedError(
-                    f"{self.name}: {it.reason[0]} (starts tried: {tried}); no instrument could "
-                    "be formed — supply theta_start (a stable model) or instruments, or use "
-                    "longer or better-excited experiments"
-                )
-            designs = self.equation_designs(data, spec, it, phi, combine)
-        theta = it.theta[0]
-        feedback: dict[str, Any] = {}
-        if getattr(self, "open_loop", True):  # closed-loop check of open-loop estimators
-            from vesselid.errors import ClosedLoopWarning
-            from vesselid.identify.loop import feedback_check
+            run.it, run.designs = self._fit_user_instruments(data, spec, run.phi,
+                                                             opts.instruments, opts.combine)
+            return
+        start = None if opts.theta_start is None else spec.vector_from(opts.theta_start)
+        with stall_averaging():  # a stall locates its fixed point by averaging
+            it = self.estimate_parameters(data, spec, combine=opts.combine, theta_start=start,
+                                          max_iter=opts.max_iter, tol=opts.tol,
+                                          keep_history=True)
+        if not np.all(np.isfinite(it.theta[0])) and not self.uses_instruments:
+            raise EstimationFailedError(
+                f"{self.name}: {it.reason[0]}; the likelihood could not be maximised "
+                "from the IV_E{ζ}=0 start — use longer or better-excited experiments, "
+                "or method 'auto'")
+        if not np.all(np.isfinite(it.theta[0])):
+            tried = ("the LS estimate and basic IV with delayed measurements"
+                     if it.start is not None and it.start[0] == "lagged-iv"
+                     else "the given start" if opts.theta_start is not None
+                     else "the LS estimate")
+            raise EstimationFailedError(
+                f"{self.name}: {it.reason[0]} (starts tried: {tried}); no instrument could "
+                "be formed — supply theta_start (a stable model) or instruments, or use "
+                "longer or better-excited experiments"
+            )
+        run.it = it
+        run.designs = self.equation_designs(data, spec, it, run.phi, opts.combine)
 
-            own = designs if self.name == "iv-zero-mean" and instruments is None else None
-            first = it.info.get("base") if it.info else None  # IV_E{ζ}=0 first step
-            feedback, fb_msg = feedback_check(self.name, log, data, spec, own,
+    def _feedback(self, run: _FitRun, log: Any) -> None:
+        """The closed-loop check of an open-loop estimator (:mod:`vesselid.identify.loop`)."""
+        if not getattr(self, "open_loop", True):
+            return
+        from vesselid.errors import ClosedLoopWarning
+        from vesselid.identify.loop import feedback_check
+
+        it = run.it
+        own = run.designs if self.name == "iv-zero-mean" and run.opts.instruments is None else None
+        first = it.info.get("base") if it.info else None  # IV_E{ζ}=0 first step
+        run.feedback, fb_msg = feedback_check(self.name, log, run.data, run.spec, own,
                                               first if own is None else None)
-            if fb_msg:
-                _warn(fb_msg, ClosedLoopWarning)
+        if fb_msg:
+            run.warn(fb_msg, ClosedLoopWarning)
 
+    def _covariance(self, run: _FitRun) -> None:
+        """Residuals, the covariance of the estimate (the estimator's own, or ``cov_type``
+        on each equation's design) and the instrument condition per equation."""
+        spec, theta = run.spec, run.it.theta[0]
         weights = np.zeros((spec.n_params, spec.n_states))
-        weights[np.arange(spec.n_params), codes.equation] = theta
-        pred = phi @ weights
-        resid = data.target - pred
+        weights[np.arange(spec.n_params), spec.codes.equation] = theta
+        run.pred = run.phi @ weights
+        run.resid = run.data.target - run.pred
         cov = np.zeros((spec.n_params, spec.n_params))
-        cond: dict[str, float] = {}
-        cov_label = cov_name
-        own_cov = self.own_covariance(it)
-        if own_cov is not None:
-            cov = np.array(own_cov, dtype=float)
-            cov_name, cov_label = self.own_covariance_label(it)
+        run.cov_label = run.cov_name
+        run.own_cov = self.own_covariance(run.it)
+        if run.own_cov is not None:
+            cov = np.array(run.own_cov, dtype=float)
+            run.cov_name, run.cov_label = self.own_covariance_label(run.it)
         for i, s in enumerate(spec.states):
-            sl = slice(int(blocks[i]), int(blocks[i + 1]))
-            d = designs[i]
-            cond[s] = linalg.condition_number(d.z.T @ d.phi)
-            if own_cov is None:
-                cov[sl, sl], cov_label = cov_fn(d, combine=combine)
-            if self.uses_instruments and cond[s] > weak_instrument_cond:
-                _warn(f"weak instruments in equation {s!r}: cond(ZᵀΦ) = {cond[s]:.3g}",
-                      WeakInstrumentWarning)
+            sl = slice(int(run.blocks[i]), int(run.blocks[i + 1]))
+            d = run.designs[i]
+            run.cond[s] = linalg.condition_number(d.z.T @ d.phi)
+            if run.own_cov is None:
+                cov[sl, sl], run.cov_label = run.cov_fn(d, combine=run.opts.combine)
+            if self.uses_instruments and run.cond[s] > run.opts.weak_instrument_cond:
+                run.warn(f"weak instruments in equation {s!r}: cond(ZᵀΦ) = {run.cond[s]:.3g}",
+                         WeakInstrumentWarning)
+        run.cov = cov
+
+    def _convergence(self, run: _FitRun) -> None:
+        """Whether the iteration converged: the ``tol`` rule, or the standard-error rule
+        (``SE_TOL``) where ``tol`` was not reached (module constants)."""
+        it, cov, tol = run.it, run.cov, run.opts.tol
         # the last step T(θ) − θ of the refined iteration (for GMM/SRIV: of the IV_E{ζ}=0
         # iteration that supplied their instruments)
         src = it.info.get("base", it)
         step_se = _fixed_point_step_in_se((src.theta - src.theta_aux)[0], cov)
         converged, stop_reason = bool(it.converged[0]), str(it.reason[0])
         own_step_se = step_se
-        stall_info: dict[str, Any] | None = None
         if self.uses_instruments and not converged and stop_reason in SE_RULE_REASONS:
             # the iteration's step in its own estimator's standard errors (for GMM/SRIV/auto
             # the IV_E{ζ}=0 iteration that supplied their instruments)
-            cov_own = cov if src is it else _base_covariance(data, spec, src, cov_fn)
+            cov_own = cov if src is it else _base_covariance(run.data, run.spec, src,
+                                                            run.cov_fn)
             own_step_se = _fixed_point_step_in_se((src.theta - src.theta_aux)[0], cov_own)
             what = f"the last fixed-point step is {own_step_se:.2g} standard errors"
             avg = src.info.get("stall_average")
@@ -369,8 +467,8 @@ class Estimator:
                 what = (f"averaged over {avg['evaluations']} further steps of the stalled "
                         f"iteration, its mean step is {mean_se:.2g} and the fixed point is "
                         f"located to {sd_se:.2g} standard errors")
-                stall_info = {"evaluations": int(avg["evaluations"]),
-                              "mean_step_se": mean_se, "location_se": sd_se}
+                run.stall_info = {"evaluations": int(avg["evaluations"]),
+                                  "mean_step_se": mean_se, "location_se": sd_se}
             if own_step_se < SE_TOL:
                 # stopped moving within SE_TOL standard errors: converged in the units that
                 # matter for the estimate (SE_TOL)
@@ -379,57 +477,73 @@ class Estimator:
                                f"relative residual {it.residual[0]:.3g} above tol {tol:g} "
                                f"({stop_reason})")
         if self.reports_convergence and not bool(it.converged[0]):
-            _warn(f"{self.name}: the likelihood maximisation did not converge "
-                  f"({it.reason[0]}, {int(it.iterations[0])} iterations); returning the last "
-                  "iterate", ConvergenceWarning)
+            run.warn(f"{self.name}: the likelihood maximisation did not converge "
+                     f"({it.reason[0]}, {int(it.iterations[0])} iterations); returning the "
+                     "last iterate", ConvergenceWarning)
         elif self.uses_instruments and not converged:
             size = ("" if not np.isfinite(own_step_se) else
                     f"; its last fixed-point step is at most {own_step_se:.2g} standard errors "
                     "of any parameter")
-            _warn(f"refined IV did not converge ({it.reason[0]}, {int(it.iterations[0])} "
-                  f"iterations, fixed-point residual {it.residual[0]:.3g}); returning the IV "
-                  f"estimate of the best iterate{size}", ConvergenceWarning)
+            run.warn(f"refined IV did not converge ({it.reason[0]}, {int(it.iterations[0])} "
+                     f"iterations, fixed-point residual {it.residual[0]:.3g}); returning the "
+                     f"IV estimate of the best iterate{size}", ConvergenceWarning)
         if it.oscillation[0]:
-            _warn("the refined iteration oscillated; the step was damped", ConvergenceWarning)
-        # instrument strength, endogeneity and over-identification: not for a likelihood
-        specification = ({} if own_cov is not None else
-                         _specification_tests(spec, designs, theta, blocks, cov_name))
-        residual_checks = _residual_checks(spec, data, resid)
-        if not np.all(np.isfinite(cov)):
-            _warn("the covariance of the estimates could not be computed (singular "
-                  "instrument or moment matrix); standard errors are reported as null",
-                  WeakInstrumentWarning)
+            run.warn("the refined iteration oscillated; the step was damped", ConvergenceWarning)
+        run.converged, run.stop_reason = converged, stop_reason
+        run.step_se, run.own_step_se = step_se, own_step_se
 
-        fit_one = {s: nrmse_fit(data.target[rows, i], pred[rows, i])
-                   for i, s in enumerate(spec.states)}
+    def _specification(self, run: _FitRun) -> None:
+        """Instrument strength, endogeneity and over-identification (not for a
+        likelihood), and the residual checks."""
+        if run.own_cov is None:
+            run.specification = _specification_tests(run.spec, run.designs, run.it.theta[0],
+                                                     run.blocks, run.cov_name)
+        run.residual_checks = _residual_checks(run.spec, run.data, run.resid)
+        if not np.all(np.isfinite(run.cov)):
+            run.warn("the covariance of the estimates could not be computed (singular "
+                     "instrument or moment matrix); standard errors are reported as null",
+                     WeakInstrumentWarning)
+
+    def _fit_quality(self, run: _FitRun) -> None:
+        """One-step and free-run fit, stability, and the A10/A15 design and smoothness
+        checks of the estimated model."""
+        data, spec, theta, opts = run.data, run.spec, run.it.theta[0], run.opts
+        run.fit_one = {s: nrmse_fit(data.target[run.rows, i], run.pred[run.rows, i])
+                       for i, s in enumerate(spec.states)}
         sims = free_run_states(data, spec, theta)
-        fit_free, free_ok = _free_run_fit(data, spec, theta, sims)
+        run.fit_free, free_ok = _free_run_fit(data, spec, theta, sims)
         if not free_ok:
-            _warn("free-run simulation of the estimated model diverged", ConvergenceWarning)
-        stability = stability_report(data, spec, theta, sims)
-        if not stability["stable"]:
-            _warn(f"the identified model is {stability['sentence']}", UnstableModelWarning)
-
-        if eta is None:
-            resid_std = np.sqrt(np.nanmean(resid**2, axis=0))
-            eta_used = {s: 3.0 * float(resid_std[i]) for i, s in enumerate(spec.states)}
-            eta_source = "3 x std of one-step residuals"
+            run.warn("free-run simulation of the estimated model diverged", ConvergenceWarning)
+        run.stability = stability_report(data, spec, theta, sims)
+        if not run.stability["stable"]:
+            run.warn(f"the identified model is {run.stability['sentence']}",
+                     UnstableModelWarning)
+        if opts.eta is None:
+            resid_std = np.sqrt(np.nanmean(run.resid**2, axis=0))
+            run.eta_used = {s: 3.0 * float(resid_std[i]) for i, s in enumerate(spec.states)}
+            run.eta_source = "3 x std of one-step residuals"
         else:
-            eta_used = {s: float(eta.get(s, 0.0)) for s in spec.states}
-            eta_source = "given"
-        design_checks = design_rows(data.regsig, data.starts, spec, eta_used,
-                                    data.experiment_ids, threshold=design_threshold)
-        design = design_frame(design_checks)  # design_margins(...), worded from its rows
-        smoothness = smoothness_report(data, spec, theta, sims, design_checks, eta_used,
-                                       eta is None, cov, phi,
-                                       corrected=(self.corrects_sensor_noise
-                                                  and data.regressor_noise is not None))
-        for rep in smoothness.values():
+            run.eta_used = {s: float(opts.eta.get(s, 0.0)) for s in spec.states}
+            run.eta_source = "given"
+        design_checks = design_rows(data.regsig, data.starts, spec, run.eta_used,
+                                    data.experiment_ids, threshold=opts.design_threshold)
+        run.design = design_frame(design_checks)  # design_margins(...), worded from its rows
+        run.smoothness = smoothness_report(data, spec, theta, sims, design_checks,
+                                           run.eta_used, opts.eta is None, run.cov, run.phi,
+                                           corrected=(self.corrects_sensor_noise
+                                                      and data.regressor_noise is not None))
+        for rep in run.smoothness.values():
             if rep["matters"]:
-                _warn(rep["sentence"], ExperimentDesignWarning)
+                run.warn(rep["sentence"], ExperimentDesignWarning)
 
-        for msg, category in self.result_warnings(it):
-            _warn(msg, category)
+    def _estimator_warnings(self, run: _FitRun) -> None:
+        """The warnings of the estimator's own diagnostics (:meth:`result_warnings`)."""
+        for msg, category in self.result_warnings(run.it):
+            run.warn(msg, category)
+
+    def _result(self, run: _FitRun) -> IdentificationResult:
+        """The :class:`IdentificationResult` of the steps' findings."""
+        it, spec, opts = run.it, run.spec, run.opts
         index = spec.param_index
         history = None
         if it.history:
@@ -437,44 +551,44 @@ class Estimator:
             history = pd.DataFrame(steps, columns=index,
                                    index=pd.RangeIndex(steps.shape[0], name="iteration"))
         closed_note = None
-        if self.name == "auto" and feedback:
+        if self.name == "auto" and run.feedback:
             # auto stayed open loop on a log that is (or looks) closed loop: say so first
             from vesselid.identify.loop import closed_loop_note
 
-            closed_note = closed_loop_note(feedback)
+            closed_note = closed_loop_note(run.feedback)
         diagnostics: dict[str, Any] = {
-            "combine": combine,
-            "cov_type": cov_name,
-            "cov_label": cov_label,
-            "target": _target_rule(spec, target),
-            "instrument_condition": cond,
-            "fit_one_step": fit_one,
-            "fit_free_run": fit_free,
+            "combine": opts.combine,
+            "cov_type": run.cov_name,
+            "cov_label": run.cov_label,
+            "target": _target_rule(spec, opts.target),
+            "instrument_condition": run.cond,
+            "fit_one_step": run.fit_one,
+            "fit_free_run": run.fit_free,
             "fixed_point_residual": float(it.residual[0]),
-            "convergence_rule": (f"relative fixed-point residual < tol ({tol:g}); or, "
+            "convergence_rule": (f"relative fixed-point residual < tol ({opts.tol:g}); or, "
                                  f"where that is not reached, the last fixed-point step "
                                  f"< {SE_TOL:g} standard errors"
-                                 if self.uses_instruments and instruments is None
+                                 if self.uses_instruments and opts.instruments is None
                                  else "closed form"
                                  if it.reason[0] in ("closed form", STOP_FIXED)
                                  else "the estimator's own"),
-            "stability": stability,
-            "excitation": excitation,
-            "fixed_point_step_se": step_se,
-            "fixed_point_step_own_se": own_step_se,
-            **({"stall_average": stall_info} if stall_info else {}),
+            "stability": run.stability,
+            "excitation": run.excitation,
+            "fixed_point_step_se": run.step_se,
+            "fixed_point_step_own_se": run.own_step_se,
+            **({"stall_average": run.stall_info} if run.stall_info else {}),
             "oscillation": bool(it.oscillation[0]),
             "start": None if it.start is None else str(it.start[0]),
             **self.describe(it),
-            **({"specification": specification} if specification else {}),
-            "design": design,
-            "design_eta": eta_used,
-            "design_eta_source": eta_source,
-            "smoothness": smoothness,
+            **({"specification": run.specification} if run.specification else {}),
+            "design": run.design,
+            "design_eta": run.eta_used,
+            "design_eta_source": run.eta_source,
+            "smoothness": run.smoothness,
             "modulus_states": modulus_signals(spec),
-            **residual_checks,
-            **({"feedback": feedback} if feedback else {}),
-            "warnings": warn_msgs,
+            **run.residual_checks,
+            **({"feedback": run.feedback} if run.feedback else {}),
+            "warnings": run.warn.messages,
         }
         if closed_note is not None:
             prior = diagnostics.get("choice_reason")
@@ -482,14 +596,14 @@ class Estimator:
         results: dict[str, Any] = {
             "method": self.name,
             "spec": spec,
-            "params": pd.Series(theta, index=index, name="estimate"),
-            "cov": pd.DataFrame(cov, index=index, columns=index),
-            "residuals": pd.DataFrame(resid, columns=list(spec.states)),
-            "converged": converged,
+            "params": pd.Series(it.theta[0], index=index, name="estimate"),
+            "cov": pd.DataFrame(run.cov, index=index, columns=index),
+            "residuals": pd.DataFrame(run.resid, columns=list(spec.states)),
+            "converged": run.converged,
             "iterations": int(it.iterations[0]),
-            "stop_reason": stop_reason,
-            "n_samples": int(data.starts[-1]),
-            "n_experiments": data.n_segments,
+            "stop_reason": run.stop_reason,
+            "n_samples": int(run.data.starts[-1]),
+            "n_experiments": run.data.n_segments,
             "diagnostics": diagnostics,
             "history": history,
             "label": self.label,
@@ -567,8 +681,6 @@ def square_designs(data: RegressionData, spec: ModelSpec, z: np.ndarray, phi: np
     return out
 
 
-#: Regression targets (the left-hand side of (4)/(10)); see :func:`_target_rule`.
-TARGETS = ("measured", "aggregated")
 
 
 def _specification_tests(spec: ModelSpec, designs: list[EquationDesign], theta: np.ndarray,

@@ -35,6 +35,7 @@ correlated with past output errors; every open-loop estimator runs it in ``fit``
 from __future__ import annotations
 
 import copy
+from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
@@ -60,6 +61,7 @@ from vesselid.identify.loop import (
     closed_loop_signals,
     feedback_test,
 )
+from vesselid.identify.options import FitOptions
 from vesselid.model.spec import ModelSpec
 
 __all__ = ["ClosedLoopIV", "ClosedLoopSignals", "FeedbackTest", "closed_loop_signals",
@@ -91,17 +93,19 @@ class ClosedLoopIV(Estimator):
         est._signals = signals
         return est
 
-    def fit(self, log: Any, spec: ModelSpec | None = None, **options: Any):
+    def fit(self, log: Any, spec: ModelSpec | None = None,
+            options: FitOptions | Mapping[str, Any] | None = None, **overrides: Any):
+        options = FitOptions.of(options, **overrides)
         if self._signals is not None:
-            return Estimator.fit(self, log, spec, **options)
-        if options.get("instruments") is not None:
+            return Estimator.fit(self, log, spec, options)
+        if options.instruments is not None:
             raise IdentificationError("method 'cl-iv' builds its own instruments from the "
                                       "reference and dither")
         from vesselid.data.logs import TrialLog
 
         log = log if isinstance(log, TrialLog) else TrialLog(log)
         signals = closed_loop_signals(log, spec or log.spec)
-        return Estimator.fit(self.with_signals(signals), log, spec, **options)
+        return Estimator.fit(self.with_signals(signals), log, spec, options)
 
     def _require(self) -> ClosedLoopSignals:
         if self._signals is None:

@@ -46,9 +46,8 @@ class RegressionData:
     #: errors-in-variables correction of the square modulus regressors
     #: (:mod:`vesselid.identify.eiv`); ``None``: no correction
     regressor_noise: np.ndarray | None = None
-    #: AR order of the noise-model prefilter the log asks for (``metadata["noise_order"]``,
-    #: written by ``vesselid sea-trial``, or identify's ``noise_order``); ``None``: the
-    #: estimator's own. Used by the estimators that prefilter (SRIV, ``auto``'s fallback)
+    #: AR order of the noise-model prefilter identify's ``noise_order`` asks for; ``None``:
+    #: the estimator's own. Used by the estimators that prefilter (SRIV, ``auto``'s fallback)
     noise_order: int | None = None
 
     @property
@@ -114,8 +113,8 @@ def from_log(log, spec: ModelSpec | None = None, *, min_samples: int | None = No
     experiment); nothing is silently dropped. ``sensor_noise`` (``{state: σ}``, or
     ``False`` for none; default the log's ``metadata["sensor_noise_std"]``) sets
     ``regressor_noise`` (:func:`vesselid.identify.eiv.resolve_sensor_noise`);
-    ``noise_order`` (default the log's ``metadata["noise_order"]``) the AR order of the
-    noise-model prefilter (an integer in 1..50).
+    ``noise_order`` the AR order of the noise-model prefilter (an integer in 1..50; default
+    ``None``: the estimator's own; never read from the log).
 
     Returns
     -------
@@ -178,16 +177,15 @@ def from_log(log, spec: ModelSpec | None = None, *, min_samples: int | None = No
         sensor=sensor,
         lowpassed=bool((log.metadata or {}).get("wave_filter")),
         regressor_noise=noise,
-        noise_order=_noise_order(noise_order, log.metadata),
+        noise_order=_noise_order(noise_order),
     )
     data.check_lengths(spec, min_samples)
     return data, spec
 
 
-def _noise_order(option: Any, metadata: Any) -> int | None:
-    """The AR noise-model order asked for: the option, else ``metadata["noise_order"]``,
-    else ``None``; an integer in 1..50 (else :class:`IdentificationError`)."""
-    val = option if option is not None else (metadata or {}).get("noise_order")
+def _noise_order(val: Any) -> int | None:
+    """The AR noise-model order asked for, or ``None``; an integer in 1..50 (else
+    :class:`IdentificationError`)."""
     if val is None:
         return None
     if isinstance(val, bool) or not isinstance(val, int | np.integer) or not 1 <= val <= 50:

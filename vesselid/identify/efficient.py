@@ -34,6 +34,7 @@ constants (zero-mean instruments), and are batched over parameter groups.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
@@ -45,6 +46,7 @@ from vesselid.identify.base import EquationDesign, Estimator, square_designs
 from vesselid.identify.data import RegressionData
 from vesselid.identify.eiv import corrected_regressor_matrix
 from vesselid.identify.estimators import IterationResult, estimate
+from vesselid.identify.options import FitOptions
 from vesselid.model.spec import ModelSpec
 
 __all__ = ["InstrumentalGMM", "LaggedIV"]
@@ -278,14 +280,16 @@ class InstrumentalGMM(Estimator):
         super().check_options(combine=combine)
         self._validate()
 
-    def fit(self, log: Any, spec: ModelSpec | None = None, **options: Any):
+    def fit(self, log: Any, spec: ModelSpec | None = None,
+            options: FitOptions | Mapping[str, Any] | None = None, **overrides: Any):
         """:meth:`Estimator.fit`; for ``auto`` on a multi-state log whose choice is SRIV,
         followed by the specification check of
         :mod:`vesselid.identify.misspecification` (the result may then be the unfiltered
         IV_E{ζ}=0 or the plain refined IV, with ``choice_reason`` and a
         :class:`~vesselid.errors.MisspecificationWarning` saying why)."""
-        if self.instruments != "auto" or options.get("instruments") is not None:
-            return super().fit(log, spec, **options)
+        options = FitOptions.of(options, **overrides)
+        if self.instruments != "auto" or options.instruments is not None:
+            return super().fit(log, spec, options)
         import warnings
 
         routed = self._closed_loop_route(log, spec, options)
@@ -294,7 +298,7 @@ class InstrumentalGMM(Estimator):
 
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            res = super().fit(log, spec, **options)
+            res = super().fit(log, spec, options)
         out, out_caught = res, list(caught)
         if (res.method == self.name and res.spec.n_states > 1
                 and res.diagnostics.get("choice") == "sriv"
@@ -306,7 +310,7 @@ class InstrumentalGMM(Estimator):
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         return out
 
-    def _closed_loop_route(self, log: Any, spec: ModelSpec | None, options: dict[str, Any]):
+    def _closed_loop_route(self, log: Any, spec: ModelSpec | None, options: FitOptions):
         """``auto`` on a closed-loop log: a log that declares its loop (controller,
         reference), or an undeclared one whose feedback test rejects and that logs a
         reference (the PID law estimated), is identified by the closed-loop estimator
@@ -327,7 +331,7 @@ class InstrumentalGMM(Estimator):
             return None
         from vesselid.identify.closedloop import ClosedLoopIV
 
-        res = ClosedLoopIV().with_signals(signals).fit(log, spec, **options)
+        res = ClosedLoopIV().with_signals(signals).fit(log, spec, options)
         if found is None:
             why = "cl-iv: the log declares closed loop (metadata['closed_loop'])"
         else:
@@ -568,9 +572,9 @@ class InstrumentalGMM(Estimator):
         return 0 if data.lowpassed else self._ar_order(data)
 
     def _ar_order(self, data: RegressionData) -> int:
-        """The AR noise-model order: the estimator's ``noise_order``, or the order the log
-        asks for (``data.noise_order``: ``metadata["noise_order"]`` or identify's
-        ``noise_order``) when the estimator prefilters at all. The sea trial asks for
+        """The AR noise-model order: the estimator's ``noise_order``, or the order identify's
+        ``noise_order`` asks for (``data.noise_order``) when the estimator prefilters at
+        all. A sea trial needs
         :data:`vesselid.studies.planner.SRIV_ORDER`: its equation error is the differenced white
         sensor noise (an MA(1) with its root near the unit circle) plus 2-s Gauss–Markov
         forces, which a short AR model whitens poorly."""

@@ -36,6 +36,7 @@ from vesselid.identify.data import (
     block_starts,
     duplicate_blocks,
 )
+from vesselid.identify.options import COMBINE_MODES
 from vesselid.model.spec import ModelSpec
 
 __all__ = [
@@ -49,7 +50,6 @@ __all__ = [
     "solve_moments",
 ]
 
-COMBINE_MODES = ("pooled", "stacked")
 
 #: Reasons the refined iteration stops.
 STOP_CONVERGED = "converged"

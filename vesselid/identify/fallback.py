@@ -57,6 +57,7 @@ from vesselid.errors import (
     IdentificationError,
     NoUsableModelError,
 )
+from vesselid.identify.options import FitOptions
 from vesselid.identify.results import assess
 
 if TYPE_CHECKING:
@@ -83,12 +84,16 @@ CAVEATS = {
 
 
 def identify_with_fallback(log: Any, spec: Any, chain: tuple[Any, ...] = CHAIN,
-                           **options: Any) -> IdentificationResult:
-    """Run ``chain`` (registry names or estimator objects) on ``log`` and return the first
-    usable result, with ``diagnostics["fallback_chain"]`` (module docstring)."""
+                           options: FitOptions | None = None,
+                           **overrides: Any) -> IdentificationResult:
+    """Run ``chain`` (registry names or estimator objects) on ``log`` with the fit
+    ``options`` (``overrides`` by name) and return the first usable result, with
+    ``diagnostics["fallback_chain"]`` (module docstring)."""
     import warnings
 
     from vesselid.identify.registry import get_estimator
+
+    options = FitOptions.of(options, **overrides)
 
     tried: list[dict[str, str]] = []
     candidates: list[tuple[str, IdentificationResult, list]] = []
@@ -102,7 +107,7 @@ def identify_with_fallback(log: Any, spec: Any, chain: tuple[Any, ...] = CHAIN,
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:
-                res = est.fit(log, spec, **options)
+                res = est.fit(log, spec, options)
             except EstimationFailedError as exc:
                 tried.append(_entry(name, "raised", _one_line(exc)))
                 continue

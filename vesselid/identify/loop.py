@@ -238,10 +238,11 @@ def feedback_test_data(data: RegressionData, spec: ModelSpec, designs: list, *,
             a_inv = np.linalg.inv(a)
         except np.linalg.LinAlgError:
             a_inv = np.linalg.pinv(a)
+        phi_kept, n_kept = d.phi[keep], keep.sum()
         for tau in range(lags):
             idx = np.minimum(rows + tau, u.shape[0] - 1)
             ut = uc[idx]  # (n_rows, m)
-            mmat = ut[keep].T @ d.phi[keep] / keep.sum()  # (m, P)
+            mmat = uc[idx[keep]].T @ phi_kept / n_kept  # (m, P)
             adj = ut - d.z @ (mmat @ a_inv).T
             scores.append(adj * d.resid[:, None])
     s = np.concatenate(scores, axis=1)[keep]

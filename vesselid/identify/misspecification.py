@@ -102,7 +102,7 @@ def _usable(res: IdentificationResult | None) -> bool:
     return assess(res)[0] == "accepted"
 
 
-def _fit(method: str, log: Any, spec: Any, options: dict[str, Any]
+def _fit(method: str, log: Any, spec: Any, options: Any
          ) -> tuple[IdentificationResult | None, list, str]:
     from vesselid.errors import EstimationFailedError
     from vesselid.identify.methods import RefinedIV
@@ -113,7 +113,7 @@ def _fit(method: str, log: Any, spec: Any, options: dict[str, Any]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            res = estimator.fit(log, spec, **options)
+            res = estimator.fit(log, spec, options)
         except (EstimationFailedError, IdentificationError, np.linalg.LinAlgError,
                 FloatingPointError) as exc:
             return None, [], str(exc).splitlines()[0] if str(exc) else type(exc).__name__
@@ -121,7 +121,7 @@ def _fit(method: str, log: Any, spec: Any, options: dict[str, Any]
 
 
 def check_default(sriv: IdentificationResult, caught: list, log: Any, spec: Any,
-                  options: dict[str, Any]) -> tuple[IdentificationResult, list]:
+                  options: Any) -> tuple[IdentificationResult, list]:
     """The specification check of ``auto``'s SRIV result ``sriv`` (module docstring).
 
     ``caught``: the warnings of ``sriv``'s fit; ``options``: the fit options (passed on to
@@ -129,7 +129,9 @@ def check_default(sriv: IdentificationResult, caught: list, log: Any, spec: Any,
     chosen result's ``diagnostics["specification_check"]`` holds both tests, and where the
     choice is not SRIV, ``choice``, ``choice_reason`` and a leading warning say why.
     """
-    opts = {k: v for k, v in options.items() if k != "instruments"}
+    from vesselid.identify.options import FitOptions
+
+    opts = FitOptions.of(options, instruments=None)
     zm, zm_caught, zm_err = _fit("iv-zero-mean", log, spec, opts)
     if not _usable(zm):
         sriv.diagnostics["specification_check"] = {

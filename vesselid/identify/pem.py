@@ -12,8 +12,9 @@ log-likelihood of its innovations ``ε(k)`` with variances ``S(k)``,
 
     V(ψ) = Σ_k ½ (log S(k) + ε(k)² / S(k)),
 
-by Fisher scoring (forward-difference sensitivities of ``ε`` and ``S``; all perturbed
-filters in one compiled pass), started from the consistent IV_{E{ζ}=0} estimate.
+by Fisher scoring (exact sensitivities of ``ε`` and ``S`` from the filter's tangent
+recursion, in the same compiled pass as the filter), started from the consistent
+IV_{E{ζ}=0} estimate.
 
 Two disturbance models are fitted and the one with the higher likelihood is reported:
 
@@ -107,9 +108,6 @@ EXACT_FIT = 1e-12
 #: than 0.01 standard errors (measured against 1e-8: ≤ 0.01 SE, 30–45 % fewer steps).
 SCORING_TOL = 1e-4
 
-#: Forward-difference step of the sensitivities, relative to max(|ψ_i|, 1).
-_H = 1e-6
-
 
 def supports(spec: ModelSpec, data: RegressionData | None = None) -> bool:
     """Whether the estimator applies: one state, no disturbance sensor in the regressors
@@ -158,10 +156,10 @@ def _start(theta: np.ndarray, y: np.ndarray, u: np.ndarray, starts: np.ndarray,
     return psi, free, scale
 
 
-#: Below this many row-samples a filter pass runs in the calling thread: a pass of the
-#: perturbed rows on a 10⁴-sample log takes about a millisecond, less than waking the
-#: pool's threads and handing them the GIL back costs (each row is filtered on its
-#: own, so the split never changes a number).
+#: Below this many row-samples a pass of several filter rows runs in the calling thread:
+#: ten rows of a 10⁴-sample log take a few milliseconds, less than waking the pool's
+#: threads and handing them the GIL back costs (each row is filtered on its own, so the
+#: split never changes a number).
 PARALLEL_MIN_ROW_SAMPLES = 1_000_000
 
 
@@ -198,12 +196,38 @@ class _Filter:
         return eps, var
 
 
+    def tangent(self, psi: np.ndarray, idx: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                           np.ndarray, float]:
+        """Innovations ``ε``, variances ``S`` (T,) of the row ``psi``, their exact
+        derivatives with respect to ``psi[idx]`` (d, T), and the negative
+        log-likelihood's gradient (d,), Fisher information (d, d) and value, in one
+        compiled pass."""
+        from vesselid.identify._pemkernels import gaussian_filter_tangent
+
+        psi = np.ascontiguousarray(psi, dtype=np.float64)
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
+        eps = np.empty(self.n)
+        var = np.empty(self.n)
+        deps = np.empty((self.n, idx.size))
+        dvar = np.empty((self.n, idx.size))
+        grad = np.empty(idx.size)
+        fisher = np.empty((idx.size, idx.size))
+        nll = np.empty(1)
+        gaussian_filter_tangent(psi, idx, self.y, self.u, self.starts, self.p_init,
+                                *self.terms, eps, var, deps, dvar, grad, fisher, nll)
+        return eps, var, deps.T, dvar.T, grad, fisher, float(nll[0])
+
+
 def load_kernels() -> None:
     """Load (or compile, on first use) the filter kernel with the signature every fit
     calls it with (:mod:`vesselid.studies.precompile` compiles the same one)."""
     fac = np.array([[0, 4], [0, 2], [1, 4]], dtype=np.int64)  # heave: x, x|x|, u
     filt = _Filter(np.zeros(4), np.zeros((4, 1)), np.array([0, 4]), fac, parallel=False)
     filt.run(np.zeros((1, fac.shape[0] + 7)))
+    _, _, je, js, *_ = filt.tangent(np.zeros(fac.shape[0] + 7),
+                                    np.arange(fac.shape[0] + 7))
+    _score_hac(je, js, np.zeros(4), np.ones(4), filt.starts)
 
 
 def _nll_terms(eps: np.ndarray, var: np.ndarray) -> np.ndarray:
@@ -220,28 +244,13 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
     reason, converged, it = MAX_ITER, False, 0
     fisher = np.full((d, d), np.nan)
     eps0 = var0 = je = js = None
-    at = None  # the filter at ψ when the line search has run it (the accepted trial)
     for it in range(1, max_iter + 1):  # noqa: B007 (reported)
-        steps = _H * np.maximum(np.abs(psi[idx]), 1.0)
-        if at is None:
-            grid = np.repeat(psi[None], d + 1, axis=0)
-            grid[1 + np.arange(d), idx] += steps
-            eps, var = filt.run(grid)
-            eps0, var0, eps, var = eps[0], var[0], eps[1:], var[1:]
-        else:  # ψ itself was filtered by the line search: only the perturbed rows
-            grid = np.repeat(psi[None], d, axis=0)
-            grid[np.arange(d), idx] += steps
-            eps, var = filt.run(grid)
-            eps0, var0 = at
-        f0 = float(np.sum(_nll_terms(eps0, var0)))
+        # the filter at ψ with its exact sensitivities (the accepted trial of the line
+        # search was filtered without them: the same innovations, recomputed here)
+        eps0, var0, je, js, grad, fisher, f0 = filt.tangent(psi, idx)
         if not np.isfinite(f0):
             reason = "likelihood not finite"
             break
-        je = (eps - eps0) / steps[:, None]
-        js = (var - var0) / steps[:, None]
-        inv_s = 1.0 / var0
-        grad = je @ (eps0 * inv_s) + 0.5 * (js @ (inv_s - eps0 * eps0 * inv_s * inv_s))
-        fisher = (je * inv_s) @ je.T + 0.5 * ((js * (inv_s * inv_s)) @ js.T)
         if not (np.all(np.isfinite(grad)) and np.all(np.isfinite(fisher))):
             reason = "sensitivities not finite"
             break
@@ -263,7 +272,7 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
         else:
             reason = NO_DESCENT
             break
-        psi, at = trial, (e1[0], v1[0])
+        psi = trial
     cov = np.zeros((psi.size, psi.size))
     sand = np.zeros((psi.size, psi.size))
     if np.all(np.isfinite(fisher)):
@@ -284,6 +293,7 @@ def _score_hac(je: np.ndarray | None, js: np.ndarray | None, eps: np.ndarray,
     """Bartlett HAC long-run variance of the per-sample scores
     ``s(k) = ∂ε/∂ψ ε/S + ½ ∂S/∂ψ (1/S − ε²/S²)`` (the meat of the quasi-ML sandwich;
     Newey–West bandwidth, lags not across experiment boundaries)."""
+    from vesselid.identify._pemkernels import bartlett_lagged
     from vesselid.identify.gmm import hac_lags
 
     if je is None or js is None:
@@ -291,16 +301,14 @@ def _score_hac(je: np.ndarray | None, js: np.ndarray | None, eps: np.ndarray,
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         inv_s = 1.0 / var
         sc = je * (eps * inv_s) + 0.5 * js * (inv_s - eps * eps * inv_s * inv_s)
-    sc = np.where(np.isfinite(sc), sc, 0.0)
-    out = sc @ sc.T
-    bw = hac_lags(int(sc.shape[1]))
-    seg = np.zeros(sc.shape[1], dtype=np.int64)
-    seg[starts[1:-1]] = 1
-    seg = np.cumsum(seg)
-    for lag in range(1, bw + 1):
-        same = (seg[lag:] == seg[:-lag]).astype(float)
-        c = (sc[:, lag:] * same) @ sc[:, :-lag].T
-        out += (1.0 - lag / (bw + 1.0)) * (c + c.T)
+    sc = np.ascontiguousarray(np.where(np.isfinite(sc), sc, 0.0).T)  # (T, d)
+    # Σ_lag w_lag Σ_k s(k) s(k−lag)ᵀ = Σ_k s(k) f(k)ᵀ with f(k) = Σ_lag w_lag s(k−lag)
+    # (Bartlett weights, pairs within one experiment): one product instead of one a lag
+    lagged = np.empty_like(sc)
+    bartlett_lagged(sc, np.ascontiguousarray(starts, dtype=np.int64),
+                    hac_lags(int(sc.shape[0])), lagged)
+    c = sc.T @ lagged
+    out = sc.T @ sc + (c + c.T)
     return out if np.all(np.isfinite(out)) else None
 
 

@@ -54,6 +54,7 @@ from typing import Any
 import numpy as np
 
 from vesselid.errors import IdentificationError
+from vesselid.identify._ivkernels import gauss_jordan
 from vesselid.model.regressors import advance, fill_factors, kernel, regressors
 from vesselid.model.spec import ModelSpec
 
@@ -83,8 +84,10 @@ def check_forgetting(forgetting: Any) -> float:
 # ----------------------------------------------------------------------------- kernels
 @kernel(inline="always")
 def _solve_small(a, b, q, out):
-    """Gauss–Jordan inverse of ``a[:q, :q]`` into ``out`` (partial pivoting); False when
-    (numerically) singular. ``b`` is scratch of shape ≥ (q, 2q)."""
+    """Gauss–Jordan inverse of ``a[:q, :q]`` into ``out`` (partial pivoting,
+    :func:`~vesselid.identify._ivkernels.gauss_jordan`); False when (numerically) singular:
+    a pivot not above ``1e-13`` times the largest entry. ``b`` is scratch of shape ≥
+    (q, 2q)."""
     scale = 0.0
     for i in range(q):
         for j in range(q):
@@ -94,27 +97,8 @@ def _solve_small(a, b, q, out):
                 scale = abs(a[i, j])
     if not scale > 0.0:
         return False
-    for c in range(q):
-        piv, best = c, abs(b[c, c])
-        for r in range(c + 1, q):
-            if abs(b[r, c]) > best:
-                piv, best = r, abs(b[r, c])
-        if not best > 1e-13 * scale:
-            return False
-        if piv != c:
-            for j in range(2 * q):
-                tmp = b[c, j]
-                b[c, j] = b[piv, j]
-                b[piv, j] = tmp
-        inv = 1.0 / b[c, c]
-        for j in range(2 * q):
-            b[c, j] *= inv
-        for r in range(q):
-            if r != c:
-                fac = b[r, c]
-                if fac != 0.0:
-                    for j in range(2 * q):
-                        b[r, j] -= fac * b[c, j]
+    if not gauss_jordan(b, q, 1e-13 * scale, True):
+        return False
     for i in range(q):
         for j in range(q):
             out[i, j] = b[i, q + j]

@@ -58,9 +58,13 @@ def _hac_iv(z: np.ndarray, phi: np.ndarray, y: np.ndarray, seg: np.ndarray
     m = z * (y - phi @ theta)[:, None]
     s = m.T @ m
     bw = hac_lags(m.shape[0])
+    one = seg.size == 0 or seg[0] == seg[-1]  # one segment (sorted): every pair counts
     for lag in range(1, bw + 1):
-        same = (seg[lag:] == seg[:-lag]).astype(float)[:, None]
-        c = (m[lag:] * same).T @ m[:-lag]
+        if one:
+            c = m[lag:].T @ m[:-lag]
+        else:
+            same = (seg[lag:] == seg[:-lag]).astype(float)[:, None]
+            c = (m[lag:] * same).T @ m[:-lag]
         s += (1.0 - lag / (bw + 1.0)) * (c + c.T)
     return theta, a_inv @ s @ a_inv.T
 
@@ -82,13 +86,28 @@ def _rows(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray, extra: b
             prev[a + 1:b, 1] = np.abs(xhat[a:b - 1, 0])
         phi = np.column_stack([phi, prev[:, 0]])
         z = np.column_stack([z, prev[:, 1]])
-    keep = np.all(np.isfinite(phi), axis=1) & np.all(np.isfinite(z), axis=1)
+    keep = np.ones(y.size, dtype=bool)
+    for arr in (phi, z):  # column by column: the same mask as a row-wise all()
+        for j in range(arr.shape[1]):
+            keep &= np.isfinite(arr[:, j])
     seg = np.repeat(np.arange(starts.size - 1), np.diff(starts))
     for s in range(starts.size - 1):  # a constant per experiment: centre
+        a = int(starts[s])
+        kept = np.flatnonzero(keep[a:int(starts[s + 1])])
+        if kept.size and kept[-1] - kept[0] + 1 == kept.size:  # one run of rows: in place
+            r = slice(a + int(kept[0]), a + int(kept[-1]) + 1)
+            for arr in (phi, z, y):
+                rows = arr[r]
+                rows -= rows.mean(axis=0)
+            continue
         r = keep & (seg == s)
         for arr in (phi, z):
             arr[r] -= arr[r].mean(axis=0)
         y[r] -= y[r].mean()
+    kept = np.flatnonzero(keep)
+    if kept.size and kept[-1] - kept[0] + 1 == kept.size:  # one run of rows: views
+        r = slice(int(kept[0]), int(kept[-1]) + 1)
+        return phi[r], z[r], y[r], seg[r]
     return phi[keep], z[keep], y[keep], seg[keep]
 
 
@@ -187,14 +206,19 @@ def parameter_stability(data: RegressionData, spec: ModelSpec,
     not finite. ``theta_start``: the whole log's estimate, a start of both halves'
     refined iterations that saves most of their steps.
     """
-    from vesselid.identify.estimators import estimate
+    from vesselid.identify.estimators import estimate, refined_iv
 
     if data.n_groups != 1 or spec.n_states != 1:
         return None
     halves = _halves(data)
     if halves is None:
         return None
-    it = estimate(halves, spec, "iv-zero-mean", combine="pooled", theta_start=theta_start)
+    if theta_start is None:
+        it = estimate(halves, spec, "iv-zero-mean", combine="pooled")
+    else:  # what ``estimate`` runs from a given start, without its unused LS estimate
+        start = np.array(np.broadcast_to(np.asarray(theta_start, dtype=float),
+                                         (halves.n_groups, spec.n_params)))
+        it = refined_iv(halves, spec, start, zero_mean=True, combine="pooled")
     if not np.all(np.isfinite(it.theta)):
         return None
     n_par = spec.n_params

@@ -29,6 +29,7 @@ __all__ = [
     "TruncatedGaussian",
     "Uniform",
     "Zero",
+    "gauss_markov_rows",
     "process_from_dict",
     "register_process",
 ]
@@ -287,15 +288,7 @@ class GaussMarkov(Process):
     def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
         if self.std_ == 0:
             return np.full(n, self.mean_)
-        a = self.pole
-        innov = rng.normal(0.0, self.std_ * math.sqrt(1 - a * a), n)
-        innov[0] = rng.normal(0.0, self.std_)
-        # lazily; the compiled filter is scipy.signal.lfilter's recursion without its
-        # ~1.5 s import
-        from vesselid.core.filters import ar1_filter
-
-        # g(k) = a g(k-1) + innov(k), started from its stationary draw
-        g = ar1_filter(innov[None, :], a, np.zeros(1))[0]
+        g = gauss_markov_rows(rng, np.array([self.std_]), self.pole, n)[0]
         if math.isfinite(self.bound_):
             g = self.bound_ * np.tanh(g / self.bound_)
         return g + self.mean_
@@ -351,6 +344,27 @@ class Sum(Process):
 
     def to_dict(self) -> dict[str, Any]:
         return {"kind": "sum", "parts": [p.to_dict() for p in self.parts]}
+
+
+def gauss_markov_rows(rng: np.random.Generator, std: np.ndarray, pole: float,
+                      n: int) -> np.ndarray:
+    """``m`` independent zero-mean Gaussian Gauss–Markov processes with one pole, ``(m, n)``.
+
+    ``g(k) = a g(k−1) + √(1 − a²) σ ε(k)`` started in the stationary distribution
+    ``g(0) ~ N(0, σ²)``. Draws ``m × n`` standard normals (the innovations, row by row;
+    column 0 is replaced) and then ``m`` for the start: the one Gauss–Markov draw of
+    :class:`GaussMarkov` (``m = 1``) and of the plant's disturbed paths
+    (:meth:`vesselid.plant.vessels.kernel.VesselModel.disturbed_paths`).
+    """
+    # lazily; the compiled filter is scipy.signal.lfilter's recursion without its
+    # ~1.5 s import
+    from vesselid.core.filters import ar1_filter
+
+    std = np.asarray(std, dtype=float)
+    a = float(pole)
+    e = rng.standard_normal((std.size, int(n))) * (std * math.sqrt(1 - a * a))[:, None]
+    e[:, 0] = rng.standard_normal(std.size) * std
+    return ar1_filter(e, a, np.zeros(std.size))
 
 
 _KINDS = {

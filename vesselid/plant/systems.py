@@ -44,7 +44,8 @@ def truth_columns(state: str) -> tuple[str, str, str]:
 
 @dataclass(frozen=True)
 class System:
-    """A simulated plant: model structure with θ0, disturbances, sensors and input design.
+    """A simulated plant (:class:`vesselid.plant.plant.Plant`): model structure with θ0,
+    disturbances, sensors and input design.
 
     Parameters
     ----------
@@ -194,14 +195,20 @@ class System:
         spec = self.spec
         for j, name in enumerate(spec.inputs):
             out["u"][r, :, j] = self.input_design(name, experiment).sample(rng, n)
-        for key, procs in (("q", self.current), ("w", self.process_noise),
-                           ("e", self.sensor_noise)):
-            for i, s in enumerate(spec.states):
-                proc = procs.get(s)
-                if proc is not None:
-                    _fill(proc, rng, out[key][r, :, i])
+        self._draw_states_into(rng, out, r, ("q", "w", "e"))
         for j, s in enumerate(self.sensor_states):
             _fill(self.current_sensor_noise[s], rng, out["e2"][r, :, j])
+
+    def _draw_states_into(self, rng: np.random.Generator, out: dict[str, np.ndarray], r: int,
+                          keys: Sequence[str]) -> None:
+        """Draw run ``r``'s state-wise disturbances ``keys`` (of ``q``, ``w``, ``e``, in
+        that order; states in spec order) into ``out[key][r]``."""
+        procs = {"q": self.current, "w": self.process_noise, "e": self.sensor_noise}
+        for key in keys:
+            for i, s in enumerate(self.spec.states):
+                proc = procs[key].get(s)
+                if proc is not None:
+                    _fill(proc, rng, out[key][r, :, i])
 
     def _draw_batch(
         self, run_seeds: Sequence[np.random.SeedSequence], n: int
@@ -264,7 +271,7 @@ class System:
         stack = self._draw_batch(run_seeds, n_samples)
         signs = np.array([self.sign(s) for s in self.spec.states], dtype=float)
         v = stack["q"] * signs
-        x0 = np.array([float(self.x0.get(s, 0.0)) for s in self.spec.states])
+        x0 = self._x0(None)
         x = simulate_states(self.spec, stack["u"], x0=x0, v=v, w=stack["w"], limit=limit)
         y = stack["e"]  # y = e + x in the sensor-noise buffer (not kept): no new array
         y += x
@@ -276,6 +283,39 @@ class System:
             entropy=[ss.entropy if isinstance(ss.entropy, int) else None for ss in run_seeds][:1],
             spawn_keys=[list(ss.spawn_key) for ss in run_seeds],
         )
+
+    def run(self, inputs: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
+        """Noise-free states ``x(0..n)`` ``(n + 1, n_states)`` for inputs ``(n, n_inputs)``
+        from ``x0`` (default the system's ``x0``): θ0 without current or noise."""
+        u = np.asarray(inputs, dtype=float)
+        return simulate_states(self.spec, np.vstack([u, u[-1:]]), x0=self._x0(x0))
+
+    def disturbed_paths(self, inputs: np.ndarray, x0: np.ndarray | None = None, *,
+                        paths: int, seed: int) -> np.ndarray:
+        """States ``(paths, n + 1, n_states)`` under random realisations of the process
+        disturbances (current ``q``, entering as ``v = sign · q``, then process noise
+        ``w``; no sensor noise), drawn from one ``default_rng(seed)``, path after path.
+
+        A path draws as :meth:`simulate` draws a run after its inputs, so with an input
+        design that draws nothing (:class:`~vesselid.plant.signals.ConstantInput`) the
+        first path's ``x(0..n−1)`` is run 0 of ``simulate(n, run_seeds=[SeedSequence(seed)])``.
+        """
+        u = np.asarray(inputs, dtype=float)
+        n, n_st, m = u.shape[0], self.spec.n_states, int(paths)
+        rng = np.random.default_rng(seed)
+        out = {"q": np.zeros((m, n + 1, n_st)), "w": np.zeros((m, n + 1, n_st))}
+        view = {k: v[:, :n] for k, v in out.items()}
+        for r in range(m):
+            self._draw_states_into(rng, view, r, ("q", "w"))
+        signs = np.array([self.sign(s) for s in self.spec.states], dtype=float)
+        u_pad = np.broadcast_to(np.vstack([u, u[-1:]]), (m, n + 1, u.shape[1]))
+        return simulate_states(self.spec, u_pad, x0=self._x0(x0), v=out["q"] * signs,
+                               w=out["w"])
+
+    def _x0(self, x0: np.ndarray | None) -> np.ndarray:
+        if x0 is not None:
+            return np.asarray(x0, dtype=float)
+        return np.array([float(self.x0.get(s, 0.0)) for s in self.spec.states])
 
 
 @dataclass

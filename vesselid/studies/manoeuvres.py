@@ -14,15 +14,18 @@ generalised forces ``τ = [X, Y, N]`` of the identification model:
 * a **thruster test** (§2.2.13/2.2.14) applies sway force with little moment.
 
 Zig-zag, pull-out and spiral switch the rudder on heading or yaw rate. Here the
-switching instants are found **noise-free on the nominal model** (:class:`NominalVessel`,
-the θ0 of the plant's own regression model) and the resulting force schedule is then
-applied *open loop* at sea: the inputs stay independent of the noise, as the paper's
-assumption A4 needs for the instrumental-variable estimators. Every manoeuvre of an
-experiment is simulated from the state the previous one left, so a :class:`Programme`
-(sequence of manoeuvres) is one continuous run.
+switching instants are found **noise-free on the plant** (:meth:`VesselModel.run
+<vesselid.plant.vessels.kernel.VesselModel.run>`: the θ0 of the plant's own regression
+model in calm water) and the resulting force schedule is then applied *open loop* at
+sea: the inputs stay independent of the noise, as the paper's assumption A4 needs for
+the instrumental-variable estimators. Every manoeuvre of an experiment is simulated from
+the state the previous one left, so a :class:`Programme` (sequence of manoeuvres) is one
+continuous run.
 
->>> from vesselid.studies.manoeuvres import ZigZag, Programme, NominalVessel   # doctest: +SKIP
->>> forces = Programme([ZigZag(10, 10, thrust=1.5)]).schedule(NominalVessel.cybership2(), 20000)
+>>> from vesselid.plant.vessels import VesselModel, cybership2   # doctest: +SKIP
+>>> from vesselid.studies.manoeuvres import Programme, ZigZag
+>>> plant = VesselModel(cybership2.HULL, dt=0.1)
+>>> forces = Programme([ZigZag(thrust=1.5, rudder=10, heading=10)]).schedule(plant, 20000)
 """
 
 from __future__ import annotations
@@ -35,8 +38,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from vesselid.errors import VesselidError
-from vesselid.model.spec import ModelSpec
+from vesselid.plant.plant import heading
 from vesselid.plant.vessels.cybership2 import FORCE_MAX
+from vesselid.plant.vessels.kernel import VesselModel
 
 __all__ = [
     "FORCE_LIMITS",
@@ -46,7 +50,6 @@ __all__ = [
     "Crabbing",
     "Manoeuvre",
     "ManoeuvreError",
-    "NominalVessel",
     "Programme",
     "PullOut",
     "Spiral",
@@ -54,6 +57,7 @@ __all__ = [
     "TurningCircle",
     "ZigZag",
     "manoeuvre_from_dict",
+    "steer",
 ]
 
 #: Actuator limits ``(X, Y, N)`` (N, N, N m) of CyberShip II: its hull's ``force_max`` (the
@@ -69,53 +73,21 @@ class ManoeuvreError(VesselidError):
     """Bad manoeuvre parameters (unknown name, out of the actuator limits, ...)."""
 
 
-# ------------------------------------------------------------------------ nominal model
-@dataclass
-class NominalVessel:
-    """The nominal (noise-free, calm water) vessel used to find switching instants.
-
-    Parameters
-    ----------
-    spec : ModelSpec
-        Regression model with θ0 (states ``u, v, r``; inputs ``X, Y, N``).
-    dt : float
-        Sample time (s).
-    rudder : (float, float)
-        ``(Y_δ, N_δ)`` at full rudder (starboard).
-    limits : (float, float, float)
-        Actuator limits ``|X|, |Y|, |N|``.
-    """
-
-    spec: ModelSpec
-    dt: float = 0.1
-    rudder: tuple[float, float] = RUDDER
-    limits: tuple[float, float, float] = FORCE_LIMITS
-
-    @classmethod
-    def cybership2(cls, dt: float = 0.1, **kwargs: Any) -> NominalVessel:
-        """CyberShip II with its published coefficients (full physics, Euler at ``dt``)."""
-        from vesselid.plant.vessels import cybership2_spec
-
-        return cls(cybership2_spec(dt), float(dt), **kwargs)
-
-    def run(self, forces: np.ndarray, x0: np.ndarray) -> np.ndarray:
-        """States ``x(0..n)`` for ``forces`` ``(n, 3)`` from ``x0`` (``n + 1`` rows)."""
-        from vesselid.plant.simulate import simulate_states
-
-        u = np.vstack([forces, forces[-1:]])
-        return simulate_states(self.spec, u, x0=x0)
-
-    def steer(self, delta_deg: float) -> tuple[float, float]:
-        """``(Y, N)`` of rudder angle ``δ`` (degrees, + starboard)."""
-        f = float(delta_deg) / RUDDER_MAX_DEG
-        return f * self.rudder[0], f * self.rudder[1]
+def steer(delta_deg: float, rudder: tuple[float, float] = RUDDER) -> tuple[float, float]:
+    """``(Y, N)`` of rudder angle ``δ`` (degrees, + starboard) for full-rudder forces
+    ``rudder = (Y_δ, N_δ)``."""
+    f = float(delta_deg) / RUDDER_MAX_DEG
+    return f * rudder[0], f * rudder[1]
 
 
 @dataclass
 class _Track:
-    """Forces, states and heading accumulated while a programme is scheduled."""
+    """Forces, states and heading accumulated while a programme is scheduled on the
+    noise-free plant (:meth:`VesselModel.run`)."""
 
-    vessel: NominalVessel
+    plant: VesselModel
+    limits: tuple[float, float, float]
+    rudder: tuple[float, float]
     x: np.ndarray
     psi: float = 0.0
     forces: list[np.ndarray] = field(default_factory=list)
@@ -127,16 +99,15 @@ class _Track:
         """Apply constant ``tau`` for at most ``n`` samples, stopping after the first
         sample where ``until(states, psi)`` holds. Returns whether it stopped early."""
         tau = np.asarray(tau, dtype=float)
-        lim = np.asarray(self.vessel.limits)
+        lim = np.asarray(self.limits)
         if np.any(np.abs(tau) > lim + 1e-12):
             raise ManoeuvreError(f"forces {tau.round(3).tolist()} exceed the actuator limits "
-                                 f"{list(self.vessel.limits)}")
+                                 f"{list(self.limits)}")
         left = int(n)
-        dt = self.vessel.dt
         while left > 0:
             m = min(chunk, left)
-            xs = self.vessel.run(np.tile(tau, (m, 1)), self.x)
-            psi = self.psi + dt * np.concatenate([[0.0], np.cumsum(xs[:-1, 2])])
+            xs = self.plant.run(np.tile(tau, (m, 1)), self.x)
+            psi = self.psi + heading(xs, self.dt)
             stop = m
             if until is not None:
                 hit = np.flatnonzero(until(xs[1:], psi[1:]))
@@ -154,7 +125,15 @@ class _Track:
     def hold_for(self, tau: Sequence[float], seconds: float, n_max: int,
                  until: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> bool:
         """:meth:`hold` for ``seconds``, never past sample ``n_max``."""
-        return self.hold(tau, min(n_max - self.n, round(seconds / self.vessel.dt)), until)
+        return self.hold(tau, min(n_max - self.n, round(seconds / self.dt)), until)
+
+    @property
+    def dt(self) -> float:
+        return self.plant.dt
+
+    def steer(self, delta_deg: float) -> tuple[float, float]:
+        """``(Y, N)`` of rudder angle ``δ`` (degrees, + starboard)."""
+        return steer(delta_deg, self.rudder)
 
     def alternating(self, count: int, n_max: int, start: int = 1) -> Iterator[int]:
         """Signs ``start, −start, ...`` for ``count`` repetitions while samples remain."""
@@ -212,13 +191,13 @@ class TurningCircle(Manoeuvre):
 
     def apply(self, track: _Track, n_max: int) -> None:
         s = _side(self.side)
-        y, n = track.vessel.steer(s * self.rudder)
+        y, n = track.steer(s * self.rudder)
         start = track.psi
         goal = math.radians(self.turn)
         track.hold([self.thrust, y, n], n_max - track.n,
                    until=lambda x, psi: s * (psi - start) >= goal)
         # counter rudder until the yaw rate has reversed (ready for the next manoeuvre)
-        y, n = track.vessel.steer(-s * self.rudder)
+        y, n = track.steer(-s * self.rudder)
         track.hold([self.thrust, y, n], n_max - track.n, until=lambda x, psi: s * x[:, 2] <= 0)
 
     def label(self) -> str:
@@ -243,9 +222,9 @@ class ZigZag(Manoeuvre):
         s = _side(self.side)
         base = track.psi
         lim = math.radians(self.heading)
-        timeout = round(self.timeout / track.vessel.dt)
+        timeout = round(self.timeout / track.dt)
         for sg in track.alternating(2 * int(self.cycles), n_max, s):
-            y, n = track.vessel.steer(sg * self.rudder)
+            y, n = track.steer(sg * self.rudder)
             left = n_max - track.n
             hit = track.hold([self.thrust, y, n], min(left, timeout),
                              until=lambda x, psi, sg=sg: sg * (psi - base) >= lim)
@@ -274,10 +253,10 @@ class PullOut(Manoeuvre):
 
     def apply(self, track: _Track, n_max: int) -> None:
         s = _side(self.side)
-        dt = track.vessel.dt
+        dt = track.dt
         lag = max(1, round(5.0 / dt))
         for sg in track.alternating(self.repeats, n_max, s):
-            y, n = track.vessel.steer(sg * self.rudder)
+            y, n = track.steer(sg * self.rudder)
             hist: list[float] = []
 
             def steady(x: np.ndarray, psi: np.ndarray, hist: list[float] = hist) -> np.ndarray:
@@ -313,7 +292,7 @@ class Spiral(Manoeuvre):
         for d in np.concatenate([down, down[::-1][1:]]):
             if track.n >= n_max:
                 return
-            y, n = track.vessel.steer(float(d))
+            y, n = track.steer(float(d))
             track.hold_for([self.thrust, y, n], self.hold, n_max)
 
     def label(self) -> str:
@@ -346,7 +325,7 @@ class AccelerationStopping(Manoeuvre):
         if floor < 0:
             raise ManoeuvreError(f"acceleration/stopping: floor must be >= 0, got {floor:g}")
         for s in track.alternating(self.repeats, n_max):
-            y, n = track.vessel.steer(s * self.rudder)
+            y, n = track.steer(s * self.rudder)
             track.hold_for([self.thrust, y, n], self.ahead, n_max)
             track.hold_for([-self.astern, y, n], 300.0, n_max,
                            until=lambda x, psi: x[:, 0] <= floor)
@@ -414,7 +393,7 @@ class ThrusterSquare(Manoeuvre):
     low: float = 1.0
 
     def apply(self, track: _Track, n_max: int) -> None:
-        dt = track.vessel.dt
+        dt = track.dt
         ky = max(1, round(self.hold_y / dt))
         kn = max(1, round(self.hold_n / dt))
         kx = max(1, round(self.hold_x / dt))
@@ -478,15 +457,24 @@ class Programme:
         object.__setattr__(self, "manoeuvres", ms)
         object.__setattr__(self, "durations", durations)
 
-    def schedule(self, vessel: NominalVessel, n: int, *, warmup: int = 0,
-                 x0: Sequence[float] | None = None) -> np.ndarray:
+    def schedule(self, plant: VesselModel, n: int, *, warmup: int = 0,
+                 x0: Sequence[float] | None = None,
+                 limits: Sequence[float] | None = None,
+                 rudder: tuple[float, float] = RUDDER) -> np.ndarray:
         """Open-loop forces ``(warmup + n, 3)``: ``warmup`` samples of straight approach,
-        then the manoeuvres, switching instants found on the nominal ``vessel``."""
+        then the manoeuvres, switching instants found on the noise-free ``plant``
+        (:meth:`~vesselid.plant.vessels.kernel.VesselModel.run`, e.g.
+        ``VesselModel(cybership2.HULL, dt)``).
+
+        ``limits`` are the actuator limits ``|X|, |Y|, |N|`` (default the hull's
+        ``force_max``); ``rudder`` the full-rudder forces ``(Y_δ, N_δ)``."""
         if int(n) < 1:
             raise ManoeuvreError(f"need at least one sample, got {n}")
         n_tot = int(warmup) + int(n)
         x_start = np.zeros(3) if x0 is None else np.asarray(x0, dtype=float)
-        track = _Track(vessel, x_start)
+        lim = plant.force_max if limits is None else limits
+        track = _Track(plant, tuple(float(x) for x in lim),
+                       (float(rudder[0]), float(rudder[1])), x_start)
         if warmup:
             track.hold([self.manoeuvres[0].thrust, 0.0, 0.0], int(warmup))
         if self.durations is None:

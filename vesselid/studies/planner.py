@@ -63,7 +63,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -74,14 +74,22 @@ from vesselid.errors import VesselidError
 from vesselid.model.regressors import evaluate as evaluate_regressors
 from vesselid.model.regressors import predict as predict_regressors
 from vesselid.model.spec import ModelSpec
-from vesselid.plant.vessels.environment import clipped_variance
+from vesselid.plant.plant import heading
+from vesselid.plant.vessels.environment import (
+    SENSOR_CHANNELS,
+    DisturbanceComponent,
+    VesselDisturbances,
+    VesselSensors,
+    clipped_variance,
+)
+from vesselid.plant.vessels.hull import Hull
+from vesselid.plant.vessels.kernel import VesselModel
 from vesselid.studies.manoeuvres import (
     FORCE_LIMITS,
     AccelerationStopping,
     Crabbing,
     Manoeuvre,
     ManoeuvreError,
-    NominalVessel,
     Programme,
     PullOut,
     Spiral,
@@ -138,6 +146,12 @@ class DisturbanceLevels:
         from the anemometer per experiment) is part of the logged forces, so only the
         gusts and direction changes remain in the equation error; ``"none"``: the whole
         wind load does (its mean a bias).
+    components : tuple of DisturbanceComponent
+        Further process disturbances of the plant (e.g.
+        :class:`~vesselid.plant.vessels.environment.ProcessForce`): their forces move the
+        vessel's disturbed paths (:meth:`VesselModel.disturbed_paths`).
+
+    :meth:`plant` turns the levels into the vessel plant the planner works on.
     """
 
     sensor_std: tuple[float, float, float] = (0.005, 0.005, 0.002)
@@ -152,51 +166,60 @@ class DisturbanceLevels:
     wind_direction_time_constant: float = 30.0
     waves: Any = None
     wind_input: str = "anemometer"
+    components: tuple[DisturbanceComponent, ...] = ()
+
+    def plant(self, dt: float = 0.1, hull: Hull | None = None) -> VesselModel:
+        """The vessel plant of these levels: ``hull`` (default CyberShip II) with the
+        unmodelled forces, wind and components as :class:`VesselDisturbances` and the
+        speed log (``u, v``) and gyro (``r``) as :class:`VesselSensors`."""
+        if hull is None:
+            from vesselid.plant.vessels import cybership2
+
+            hull = cybership2.HULL
+        su, sv, sr = (float(x) for x in self.sensor_std)
+        disturbances = VesselDisturbances(
+            wind_speed=self.wind_speed, wind_direction=self.wind_direction,
+            gust_std=self.gust_std, gust_time_constant=self.gust_time_constant,
+            wind_direction_std=self.wind_direction_std,
+            wind_direction_time_constant=self.wind_direction_time_constant,
+            force_noise_std=self.force_noise_std,
+            force_noise_time_constant=self.force_noise_time_constant,
+            components=tuple(self.components))
+        sensors = VesselSensors(gnss=None, speed_log=(su, sv), current_meter=None,
+                                anemometer=None, gyro=sr, heading=None, clip=self.sensor_clip)
+        return VesselModel(hull=hull, dt=dt, disturbances=disturbances, sensors=sensors)
 
     def to_dict(self) -> dict[str, Any]:
-        d = {k: getattr(self, k) for k in self.__dataclass_fields__ if k != "waves"}
+        skip = ("waves", "components")
+        d = {k: getattr(self, k) for k in self.__dataclass_fields__ if k not in skip}
         d["waves"] = None if self.waves is None else self.waves.to_dict()
+        if self.components:
+            d["components"] = [{"name": c.name, **c.to_dict()} for c in self.components]
         return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
 
 
-# ------------------------------------------------------------------- vessel glue
-@dataclass
-class _Vessel:
-    """What the planner needs from a vessel: the physics spec, the identification
-    spec, dt M⁻¹ and the wind load."""
+# ------------------------------------------------------------------- the plant
+def _planner_plant(dt: float, structure: str,
+                   levels: DisturbanceLevels) -> tuple[VesselModel, ModelSpec]:
+    """CyberShip II as the plant of ``levels`` and its identification spec for
+    ``structure`` (merged: :data:`~vesselid.plant.vessels.cybership2.TRIAL_MERGES`)."""
+    from vesselid.plant.vessels import cybership2
 
-    nominal: NominalVessel
-    ident: ModelSpec
-    dt_minv: np.ndarray
-    wind_force: Any
-
-    @classmethod
-    def cybership2(cls, dt: float = 0.1, structure: str = "full") -> _Vessel:
-        from vesselid.plant.vessels import blendermann_wind_force, cybership2
-
-        if structure not in STRUCTURES:
-            raise PlannerError(f"unknown structure {structure!r}; choose from {STRUCTURES}")
-        ident = cybership2.HULL.spec(dt)
-        if structure == "merged":
-            for keep, drop, factor in cybership2.TRIAL_MERGES:
-                ident = ident.merge_terms(keep, drop, factor)
-        return cls(NominalVessel.cybership2(dt), ident,
-                   dt * cybership2.HULL.mass_matrix_inverse(), blendermann_wind_force)
+    if structure not in STRUCTURES:
+        raise PlannerError(f"unknown structure {structure!r}; choose from {STRUCTURES}")
+    plant = levels.plant(dt, cybership2.HULL)
+    ident = plant.spec
+    if structure == "merged":
+        for keep, drop, factor in cybership2.TRIAL_MERGES:
+            ident = ident.merge_terms(keep, drop, factor)
+    return plant, ident
 
 
-def _apparent_wind(x: np.ndarray, psi: np.ndarray, speed: float,
-                   direction: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
-    """Apparent wind angle ``γ_rw`` and speed along states ``x`` and heading ``psi``."""
-    d = direction - psi
-    urw = x[:, 0] - speed * np.cos(d)
-    vrw = x[:, 1] - speed * np.sin(d)
-    return -np.arctan2(vrw, urw), np.hypot(urw, vrw)
-
-
-def _wind_load(vessel: _Vessel, x: np.ndarray, psi: np.ndarray, speed: float,
-               direction: np.ndarray | float) -> np.ndarray:
-    """Wind force ``(N, 3)`` along states ``x`` and heading ``psi``."""
-    return vessel.wind_force(*_apparent_wind(x, psi, speed, direction))
+def _regressor_noise_std(sensors: VesselSensors) -> np.ndarray:
+    """Noise std of the measured ``u, v, r`` (speed log, else GNSS; gyro)."""
+    std = sensors.std_vector()
+    uv = ("u_log", "v_log") if sensors.speed_log is not None else ("u", "v")
+    return std[[SENSOR_CHANNELS.index(c) for c in (*uv, "r")]]
 
 
 # ----------------------------------------------------------------- information
@@ -399,57 +422,13 @@ def _modulus_bias(factors: np.ndarray, sig: np.ndarray, std: np.ndarray,
     return out
 
 
-def _disturbed_paths(forces: np.ndarray, x0: np.ndarray, xs: np.ndarray, psi: np.ndarray,
-                     vessel: _Vessel, levels: DisturbanceLevels, paths: int,
-                     seed: int) -> np.ndarray:
-    """States ``(paths, warmup + N, 3)`` of the physics model driven by ``forces`` plus
-    random realisations of the process disturbances of ``levels``.
-
-    The unmodelled forces are Gauss–Markov (``force_noise_std``, time constant
-    ``force_noise_time_constant``), as in the simulation; the gusts and wind-direction
-    changes enter through the gain of the Blendermann load along the noise-free path
-    ``xs``/``psi`` (the linearisation the meat uses). Each path starts from ``x0``.
-    Sensor noise and waves are not process disturbances and do not move the vessel.
-    """
-    from vesselid.core.filters import ar1_filter
-
-    rng = np.random.default_rng(seed)
-    nom = vessel.nominal
-    dt = nom.dt
-    n = forces.shape[0]
-
-    def gauss_markov(std: np.ndarray, tc: float) -> np.ndarray:
-        a = math.exp(-dt / tc)
-        e = rng.standard_normal((std.size, n)) * (std * math.sqrt(1 - a * a))[:, None]
-        e[:, 0] = rng.standard_normal(std.size) * std  # stationary start
-        return ar1_filter(e, a, np.zeros(std.size)).T
-
-    fn = np.asarray(levels.force_noise_std, float)
-    gains = []
-    if levels.wind_speed > 0 or levels.gust_std > 0:
-        base = _wind_load(vessel, xs, psi, levels.wind_speed, levels.wind_direction)
-        dv = 1e-4
-        for var, std, tc in ((0, levels.gust_std, levels.gust_time_constant),
-                             (1, levels.wind_direction_std,
-                              levels.wind_direction_time_constant)):
-            if std > 0:
-                load = _wind_load(vessel, xs, psi, levels.wind_speed + (dv if var == 0 else 0.0),
-                                  levels.wind_direction + (dv if var == 1 else 0.0))
-                gains.append(((load - base) / dv, float(std), float(tc)))
-    out = np.empty((paths, n, 3))
-    for j in range(paths):
-        w = gauss_markov(fn, levels.force_noise_time_constant)
-        for g, std, tc in gains:
-            w = w + g * gauss_markov(np.array([std]), tc)
-        out[j] = nom.run(forces + w, x0)[:-1]
-    return out
-
-
 def design_information(
     forces: np.ndarray,
-    vessel: _Vessel,
-    levels: DisturbanceLevels,
+    plant: VesselModel,
     *,
+    spec: ModelSpec | None = None,
+    waves: Any = None,
+    wind_input: str = "anemometer",
     warmup: int = 0,
     x0: Sequence[float] | None = None,
     prefilter: Sequence[np.ndarray] | None = None,
@@ -465,10 +444,16 @@ def design_information(
     ----------
     forces : ndarray (warmup + N, 3)
         Open-loop input schedule.
-    vessel : _Vessel
-        Vessel glue (physics, identification spec, dt M⁻¹, wind load).
-    levels : DisturbanceLevels
-        Disturbances assumed.
+    plant : VesselModel
+        The vessel plant (physics, its disturbances and sensors, e.g.
+        :meth:`DisturbanceLevels.plant`): the nominal path, the disturbed paths, the
+        wind load and its gains, ``dt M⁻¹`` and the noise levels all come from it.
+    spec : ModelSpec, optional
+        Identification spec (default the plant's physics spec).
+    waves : vesselid.plant.waves.WaveConditions, optional
+        Sea state (first-order wave-induced motion on the measurements).
+    wind_input : {"anemometer", "none"}
+        Whether the mean wind's load is a known input (:class:`DisturbanceLevels`).
     warmup : int
         Leading samples simulated and discarded (the experiment starts after them).
     x0 : sequence of float, optional
@@ -486,7 +471,7 @@ def design_information(
         Only the autocovariance (no moments): the first pass of SRIV.
     paths : int
         Disturbed realisations of the vessel's path for the cross moment
-        ``A = Σ ζ φᵀ`` (:func:`_disturbed_regressors`; 0: the regressors of the
+        ``A = Σ ζ φᵀ`` (:meth:`VesselModel.disturbed_paths`; 0: the regressors of the
         noise-free path, i.e. instruments that track the vessel exactly).
     seed : int
         Seed of those realisations (``np.random.default_rng``; the planner is
@@ -500,17 +485,18 @@ def design_information(
     -------
     Information
     """
-    nom = vessel.nominal
-    dt = nom.dt
+    dt = plant.dt
+    dist = plant.disturbances
     x_init = np.zeros(3) if x0 is None else np.asarray(x0, float)
-    xs = nom.run(forces, x_init)[:-1]
-    psi = dt * np.concatenate([[0.0], np.cumsum(xs[:-1, 2])])
+    x_nominal = plant.run(forces, x_init)
+    xs = x_nominal[:-1]
+    psi = heading(xs, dt)
     x_paths = None
     if int(paths) > 0 and not acov_only:
-        x_paths = _disturbed_paths(np.asarray(forces, float), x_init, xs, psi, vessel, levels,
-                                   int(paths), seed)[:, warmup:]
+        x_paths = plant.disturbed_paths(np.asarray(forces, float), x_init, paths=int(paths),
+                                        seed=seed, nominal=x_nominal)[:, warmup:-1]
     xs, tau, psi = xs[warmup:], np.asarray(forces, float)[warmup:], psi[warmup:]
-    spec = vessel.ident
+    spec = plant.spec if spec is None else spec
     codes = spec.codes
     n_k = xs.shape[0]
     if n_k < 3:
@@ -534,14 +520,15 @@ def design_information(
     jac = _jacobian(codes.factors, codes.equation, spec.theta0_vector(), sig_t[:-1],
                     spec.n_states)
     # deterministic equation error: the structure's misspecification (merged terms)
-    full = nom.spec
+    full = plant.spec
     pred_full = predict_regressors(full.codes, full.theta0_vector(), sig_t[:-1])
     eps_det = pred_full - predict_regressors(codes, spec.theta0_vector(), sig_t[:-1])
     # errors in variables at the zero crossings: E|x + e| ≠ |x| for |x| of a few σ, so the
     # measured modulus regressors are biased there (what A10/A15 exclude) and the
     # noise-free instruments do not remove it
-    sig_std = (np.asarray(levels.sensor_std, float)
-               * math.sqrt(clipped_variance(levels.sensor_clip)))
+    noise_std = _regressor_noise_std(plant.sensors)
+    clip = plant.sensors.clip
+    sig_std = noise_std * math.sqrt(clipped_variance(clip))
     if x_paths is None:
         d_phi = _modulus_bias(codes.factors, sig_t[:-1], sig_std, sensor_noise_corrected)
     else:  # where the vessel's states are near zero: along its disturbed paths
@@ -553,37 +540,33 @@ def design_information(
         cols = np.flatnonzero(codes.equation == i)
         eps_det[:, i] -= d_phi[:, cols] @ theta_id[cols]
     # wind: mean load (deterministic bias) and gains of gust / direction changes
-    wind_on = levels.wind_speed > 0 or levels.gust_std > 0
-    if levels.wind_input not in ("anemometer", "none"):
-        raise PlannerError(f"unknown wind input {levels.wind_input!r}; choose 'anemometer' "
+    wind_on = dist.wind_on
+    if wind_input not in ("anemometer", "none"):
+        raise PlannerError(f"unknown wind input {wind_input!r}; choose 'anemometer' "
                            "or 'none'")
+    dt_minv = plant.dt_minv
     if wind_on:
-        base = _wind_load(vessel, xs[:-1], psi[:-1], levels.wind_speed, levels.wind_direction)
-        dv = 1e-4
-        g_speed = (_wind_load(vessel, xs[:-1], psi[:-1], levels.wind_speed + dv,
-                              levels.wind_direction) - base) / dv
-        g_dir = (_wind_load(vessel, xs[:-1], psi[:-1], levels.wind_speed,
-                            levels.wind_direction + dv) - base) / dv
-        if levels.wind_input == "none":
+        base, g_speed, g_dir = plant.wind_linearisation(xs[:-1], psi[:-1])
+        if wind_input == "none":
             # the mean load is a deterministic equation error (a bias); with the load
             # of the anemometer's mean wind as a known input only the variations remain
-            eps_det = eps_det + base @ vessel.dt_minv.T
-        g_speed = g_speed @ vessel.dt_minv.T
-        g_dir = g_dir @ vessel.dt_minv.T
-    sig = np.asarray(levels.sensor_std, float) ** 2 * clipped_variance(levels.sensor_clip)
-    fn = np.asarray(levels.force_noise_std, float)
-    w_var = (vessel.dt_minv**2) @ (fn**2)
-    a_fn = math.exp(-dt / levels.force_noise_time_constant)
-    a_g = math.exp(-dt / levels.gust_time_constant)
-    a_d = math.exp(-dt / levels.wind_direction_time_constant)
+            eps_det = eps_det + base @ dt_minv.T
+        g_speed = g_speed @ dt_minv.T
+        g_dir = g_dir @ dt_minv.T
+    sig = noise_std ** 2 * clipped_variance(clip)
+    fn = np.asarray(dist.force_noise_std, float)
+    w_var = (dt_minv**2) @ (fn**2)
+    a_fn = math.exp(-dt / dist.force_noise_time_constant)
+    a_g = math.exp(-dt / dist.gust_time_constant)
+    a_d = math.exp(-dt / dist.wind_direction_time_constant)
     wave_lines = None
-    if levels.waves is not None and levels.waves.height > 0:
+    if waves is not None and waves.height > 0:
         from vesselid.plant.waves import velocity_lines
 
         c, sn = np.cos(psi), np.sin(psi)
         north = dt * np.concatenate([[0.0], np.cumsum(c * xs[:, 0] - sn * xs[:, 1])[:-1]])
         east = dt * np.concatenate([[0.0], np.cumsum(sn * xs[:, 0] + c * xs[:, 1])[:-1]])
-        g = velocity_lines(levels.waves, dt, psi, north, east)
+        g = velocity_lines(waves, dt, psi, north, east)
         wave_lines = g[:, 1:, :] - g[:, :-1, :]  # ε(row k) ≈ ξ(k+1) − ξ(k)
     # autocovariance of ε_i summed over samples (lags 0..L), for the SRIV noise model
     acov = np.zeros((spec.n_states, int(acov_lags) + 1))
@@ -595,8 +578,8 @@ def design_information(
             acov[i, 1] -= float(np.sum(jac[1:, i, i])) * sig[i]
         acov[i] += w_var[i] * m_k * a_fn**lags
         if wind_on:
-            acov[i] += levels.gust_std**2 * float(np.sum(g_speed[:, i] ** 2)) * a_g**lags
-            acov[i] += (levels.wind_direction_std**2 * float(np.sum(g_dir[:, i] ** 2))
+            acov[i] += dist.gust_std**2 * float(np.sum(g_speed[:, i] ** 2)) * a_g**lags
+            acov[i] += (dist.wind_direction_std**2 * float(np.sum(g_dir[:, i] ** 2))
                         * a_d**lags)
         if wave_lines is not None:
             wl = wave_lines[i]
@@ -635,10 +618,10 @@ def design_information(
             meat += w_var[i] * ar_cache[key]
         b = z.T @ eps_det[:, i]
         if wind_on:
-            if levels.gust_std > 0:
-                meat += levels.gust_std**2 * _ar1_meat(z * g_speed[:, i:i + 1], a_g)
-            if levels.wind_direction_std > 0:
-                meat += levels.wind_direction_std**2 * _ar1_meat(z * g_dir[:, i:i + 1], a_d)
+            if dist.gust_std > 0:
+                meat += dist.gust_std**2 * _ar1_meat(z * g_speed[:, i:i + 1], a_g)
+            if dist.wind_direction_std > 0:
+                meat += dist.wind_direction_std**2 * _ar1_meat(z * g_dir[:, i:i + 1], a_d)
         if wave_lines is not None:
             # random-phase lines: E[(Σ z ε)(Σ z ε)ᵀ] = ½ Re(W Wᴴ), W = Σ_k z_k ε-lines
             w = z.T @ wave_lines[i]
@@ -803,9 +786,10 @@ class TrialPlan:
         lim = float(tolerance) * t["theta0"].abs().to_numpy()[keep]
         return float(np.mean(np.all(np.abs(err) <= lim, axis=1)))
 
-    def forces(self, vessel: NominalVessel | None = None) -> np.ndarray:
-        """Input schedule ``(N_E, warmup + N, 3)`` of the planned experiments."""
-        v = vessel or NominalVessel.cybership2(self.dt)
+    def forces(self, plant: VesselModel | None = None) -> np.ndarray:
+        """Input schedule ``(N_E, warmup + N, 3)`` of the planned experiments (switching
+        instants on ``plant``, default the plan's: :meth:`DisturbanceLevels.plant`)."""
+        v = plant or self.levels.plant(self.dt)
         return np.stack([p.schedule(v, self.samples, warmup=self.warmup)
                          for p in self.programmes])
 
@@ -847,6 +831,8 @@ class TrialPlan:
                          f"AR({SRIV_ORDER}) prefilter",
                  "auto": "estimator auto = SRIV here: zero-mean simulated instruments, "
                          f"AR({SRIV_ORDER}) prefilter"}[self.estimator]
+        if self.estimator != "iv-zero-mean":
+            model += f"; identify with --noise-order {SRIV_ORDER}"
         if self.paths:
             model += (f"; instruments against the regressors of {self.paths} disturbed "
                       "paths")
@@ -1042,9 +1028,8 @@ def plan_trial(
     n_paths = DISTURBED_PATHS if paths is None else int(paths)
     if n_paths < 0:
         raise PlannerError(f"paths must be non-negative, got {paths}")
-    vessel = _Vessel.cybership2(dt, structure)
-    vessel.nominal = replace(vessel.nominal, limits=tuple(float(x) for x in limits))
-    spec = vessel.ident
+    plant, spec = _planner_plant(dt, structure, lv)
+    lims = tuple(float(x) for x in limits)
     theta0 = spec.theta0_vector()
     relevant = np.abs(theta0) >= relevance
     cands = list(candidates) if candidates is not None else candidate_library(limits)
@@ -1053,8 +1038,10 @@ def plan_trial(
     n_eval = min(blk, int(evaluate_block))
     for m in cands:
         try:
-            f = Programme([m]).schedule(vessel.nominal, n_eval, warmup=warmup)
-            info = design_information(f, vessel, lv, warmup=warmup, paths=n_paths, seed=seed)
+            f = Programme([m]).schedule(plant, n_eval, warmup=warmup, limits=lims)
+            info = design_information(f, plant, spec=spec, waves=lv.waves,
+                                      wind_input=lv.wind_input, warmup=warmup, paths=n_paths,
+                                      seed=seed)
             infos.append(info.scaled(blk / n_eval))
             rows.append({"label": m.label(), "feasible": True, "reason": ""})
         except (ManoeuvreError, VesselidError) as exc:
@@ -1131,8 +1118,8 @@ def plan_trial(
         durs[-1] += n_d - sum(durs)
         programmes.append(Programme([cands[i] for i in uniq], durs))
     # exact evaluation of the assembled design
-    forces = [p.schedule(vessel.nominal, n_d, warmup=warmup) for p in programmes]
-    pred = _assembled_prediction(forces, vessel, lv, warmup, estimator, n_paths, seed)
+    forces = [p.schedule(plant, n_d, warmup=warmup, limits=lims) for p in programmes]
+    pred = _assembled_prediction(forces, plant, spec, lv, warmup, estimator, n_paths, seed)
     with np.errstate(invalid="ignore"):  # a negative variance is a non-finite SE below
         worst = np.sqrt(np.diag(pred.cov.to_numpy()))[relevant]
     if candidates is None and not np.all(np.isfinite(worst)):
@@ -1161,9 +1148,9 @@ def predict_design(forces: np.ndarray, *, warmup: int = 0, dt: float = 0.1,
     if estimator not in PREDICTED_ESTIMATORS:
         raise PlannerError(f"unknown estimator {estimator!r}; choose from "
                            f"{list(PREDICTED_ESTIMATORS)}")
-    vessel = _Vessel.cybership2(dt, structure)
     lv = levels or DisturbanceLevels()
-    return _assembled_prediction(list(np.asarray(forces, float)), vessel, lv, warmup,
+    plant, spec = _planner_plant(dt, structure, lv)
+    return _assembled_prediction(list(np.asarray(forces, float)), plant, spec, lv, warmup,
                                  estimator, DISTURBED_PATHS if paths is None else int(paths),
                                  seed)
 
@@ -1174,37 +1161,41 @@ def predict_design(forces: np.ndarray, *, warmup: int = 0, dt: float = 0.1,
 #: colour and C tests reject the delayed instruments — the Gauss–Markov forces colour the
 #: equation error — and it falls back to SRIV, so it is predicted as SRIV).
 PREDICTED_ESTIMATORS = ("auto", "sriv", "iv-zero-mean")
-#: AR order of the SRIV noise model on a sea trial: ``vesselid sea-trial`` records it in
-#: the log (``metadata["noise_order"]``), and ``auto``'s fallback and ``sriv`` use it
-#: instead of their default 4. The equation error is the differenced white sensor noise
+#: AR order of the SRIV noise model on a sea trial, passed to identify explicitly
+#: (``noise_order``; ``vesselid identify --noise-order``, which ``vesselid sea-trial``
+#: prints): ``auto``'s fallback and ``sriv`` then use it instead of their default 4.
+#: The equation error is the differenced white sensor noise
 #: (an MA(1) whose root is near the unit circle: lag-1 correlation −0.5) plus 2-s
 #: Gauss–Markov forces, which a low-order AR model whitens poorly
 #: (``scripts/planner_study.py`` compares the orders on simulated trials).
 SRIV_ORDER = 16
-#: Disturbed path realisations per design evaluation (:func:`_disturbed_paths`): the
+#: Disturbed path realisations per design evaluation (:meth:`VesselModel.disturbed_paths`): the
 #: instrument–regressor cross moment is averaged over them.
 DISTURBED_PATHS = 4
 
 
-def _assembled_prediction(forces: list[np.ndarray], vessel: _Vessel, lv: DisturbanceLevels,
-                          warmup: int, estimator: str, paths: int = 0,
-                          seed: int = 0) -> Prediction:
+def _assembled_prediction(forces: list[np.ndarray], plant: VesselModel, spec: ModelSpec,
+                          lv: DisturbanceLevels, warmup: int, estimator: str,
+                          paths: int = 0, seed: int = 0) -> Prediction:
     """Covariance of the assembled experiments (each simulated continuously, instruments
     centred per experiment) for ``estimator``; SRIV evaluates the design twice: the
     pooled equation-error autocovariance gives the AR noise model, then the prefiltered
     moments."""
     c = None
     if estimator != "iv-zero-mean":
-        acov = sum(design_information(f, vessel, lv, warmup=warmup, acov_lags=SRIV_ORDER,
-                                      acov_only=True).acov for f in forces)
+        acov = sum(design_information(f, plant, spec=spec, waves=lv.waves,
+                                      wind_input=lv.wind_input, warmup=warmup,
+                                      acov_lags=SRIV_ORDER, acov_only=True).acov
+                   for f in forces)
         c = sriv_prefilter(acov)
     # identify's refined-IV family (auto's SRIV fallback) corrects the square modulus
     # regressors for the sensor noise recorded in the sea-trial log; IV_E{ζ}=0 does not
-    raw = [design_information(f, vessel, lv, warmup=warmup, prefilter=c, paths=paths,
-                              seed=seed + e, sensor_noise_corrected=c is not None)
+    raw = [design_information(f, plant, spec=spec, waves=lv.waves, wind_input=lv.wind_input,
+                              warmup=warmup, prefilter=c, paths=paths, seed=seed + e,
+                              sensor_noise_corrected=c is not None)
            for e, f in enumerate(forces)]
     info = None
     for r in raw:
         e = r.centred()
         info = e if info is None else info + e
-    return predict_covariance(info, vessel.ident)
+    return predict_covariance(info, spec)

@@ -26,6 +26,12 @@ from typing import Any
 #: ``warm_up`` (so that the helper and the main process meet last, if at all).
 #: ``tests/test_precompile.py`` checks these against what ``warm_up`` compiles.
 KERNELS: tuple[tuple[str, str, str], ...] = (
+    ("vesselid.identify._pemkernels", "bartlett_lagged",
+     "(float64[:, ::1], int64[::1], int64, float64[:, ::1])"),
+    ("vesselid.identify._pemkernels", "gaussian_filter_tangent",
+     "(float64[::1], int64[::1], float64[::1], float64[:, ::1], int64[::1], float64[::1], "
+     "int64[::1], int64[::1], int64[::1], float64[::1], float64[::1], float64[:, ::1], "
+     "float64[:, ::1], float64[::1], float64[:, ::1], float64[::1])"),
     ("vesselid.identify._pemkernels", "gaussian_filter",
      "(int64, int64, float64[:, ::1], float64[::1], float64[:, ::1], int64[::1], float64[::1], "
      "int64[::1], int64[::1], int64[::1], float64[:, ::1], float64[:, ::1])"),

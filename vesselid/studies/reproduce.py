@@ -150,7 +150,7 @@ def table_study(
     unknown = [m for m in extras if m not in ESTIMATORS]
     if unknown:
         raise VesselidError(f"unknown extra methods {unknown}; choose from {list(ESTIMATORS)}")
-    methods = METHODS + tuple(m for m in extras if m not in METHODS)
+    methods = METHODS + tuple(dict.fromkeys(m for m in extras if m not in METHODS))
     return Study(
         system="heave", options=options, methods=methods, runs=int(runs), samples=int(samples),
         seed=seeds.study_seed(seed, "table2") if table == 2 else int(seed),
@@ -333,7 +333,8 @@ def warm_up(tables: tuple[int, ...] = (1, 2), runs: int | None = None,
     # runs of every paper-size chunk but by none of a tiny study; loading its kernels
     # there cost ≈ 0.5 s of CPU inside the first chunk
     extras = EXTRA_METHODS if extra_methods is None else tuple(extra_methods)
-    extras = (*extras, "sriv") if "auto" in extras else extras
+    if "auto" in extras and "sriv" not in extras:
+        extras = (*extras, "sriv")
     # first run (cold caches) with two idle cores: the explicit-matrix kernels compile
     # in a helper process meanwhile (vesselid.studies.precompile)
     from vesselid.studies.precompile import start, stop

@@ -391,7 +391,6 @@ def planned_sea_trial_design(
     SeaTrialDesign
         With ``plan`` holding the :class:`~vesselid.studies.planner.TrialPlan`.
     """
-    from vesselid.studies.manoeuvres import NominalVessel
     from vesselid.studies.planner import plan_trial
 
     n_e, n_d = int(experiments), int(samples)
@@ -403,9 +402,9 @@ def planned_sea_trial_design(
     if plan is None:
         plan = plan_trial(n_e * n_d, n_e, levels=levels, dt=dt, warmup=n_warm)
     n_e, n_d, n_warm = plan.experiments, plan.samples, plan.warmup
-    vessel = NominalVessel.cybership2(dt)
-    forces = plan.forces(vessel)
-    nominal = np.stack([vessel.run(f, np.zeros(3))[n_warm:-1] for f in forces])
+    plant = plan.levels.plant(dt)
+    forces = plan.forces(plant)
+    nominal = np.stack([plant.run(f, np.zeros(3))[n_warm:-1] for f in forces])
     rows = []
     for e, prog in enumerate(plan.programmes):
         f = forces[e, n_warm:]
@@ -577,6 +576,14 @@ def simulate_sea_trial(
         wind_speed, wind_angle, true_*`` (with waves also ``true_wave_u, true_wave_v,
         true_wave_r, true_wave_psi``); metadata ``spec`` (identification spec with θ0 and
         the aggregate relation), ``design`` (the experiment table), ``system``, ``waves``.
+
+    Notes
+    -----
+    The log describes the trial, not how to identify it: ``sriv`` and ``auto``'s SRIV
+    fallback need an AR noise model of order :data:`vesselid.studies.planner.SRIV_ORDER`
+    (16) on this trial's equation error, given explicitly —
+    ``identify(log, noise_order=SRIV_ORDER)``, ``vesselid identify --noise-order 16``
+    (``vesselid sea-trial`` prints that command).
     """
     from vesselid.data.logs import TrialLog
 
@@ -599,16 +606,17 @@ def simulate_sea_trial(
     dist = _disturbances(current_speed, current_direction, wind_speed, wind_direction,
                          current_variation, wind_gust, force_noise)
     spec = seatrial_spec(design.dt, key, design.structure, vessel=design.vessel)
+    plant = _plant(design.vessel, design.dt, dist, sensors)
     if source == "batch":
-        log = _simulate_batch(design, dist, sensors, sim_seed)
+        log = _simulate_batch(design, plant, sim_seed)
     elif source == "env":
-        log = _simulate_env(design, dist, sensors, sim_seed)
+        log = _simulate_env(design, plant, sensors, sim_seed)
     else:
         raise SeaTrialError(f"source must be 'batch' or 'env', got {source!r}")
     frame = log.to_frame()
     wind_key = _wind_input_key(wind_input)
     if wind_key == "anemometer" and dist.wind_on:
-        _add_wind_input(frame, design.vessel)
+        _add_wind_input(frame, plant)
     if waves is not None:
         _add_waves(frame, waves, design.dt, root.spawn(1)[0])
     if key == "relative":
@@ -634,11 +642,6 @@ def simulate_sea_trial(
     noise = _regressor_noise_std(key, (meta.get("system") or {}).get("sensors"))
     if noise:
         meta["sensor_noise_std"] = noise
-    # the AR order of the SRIV noise model (auto's fallback) this trial's equation error
-    # needs (the planner predicts with the same order)
-    from vesselid.studies.planner import SRIV_ORDER
-
-    meta["noise_order"] = SRIV_ORDER
     if design.plan is not None:
         meta["plan"] = design.plan.to_dict()
     if waves is not None:
@@ -656,7 +659,6 @@ def _closed_loop_sea_trial(experiments: int, samples: int, seed: Any,
                            design_options: Mapping[str, Any]):
     """:func:`simulate_sea_trial` with ``closed_loop=True``."""
     from vesselid.data.logs import TrialLog
-    from vesselid.studies.planner import SRIV_ORDER
 
     if design is not None or design_options:
         raise SeaTrialError("a closed-loop sea trial has no open-loop force design: leave "
@@ -671,7 +673,7 @@ def _closed_loop_sea_trial(experiments: int, samples: int, seed: Any,
     frame = log.to_frame()
     wind_key = _wind_input_key(wind_input)
     if wind_key == "anemometer" and dist.wind_on:
-        _add_wind_input(frame, vessel)
+        _add_wind_input(frame, _plant(vessel, dt, dist, sensors))
     if waves is not None:
         _add_waves(frame, waves, dt, root.spawn(1)[0])
     frame = frame.rename(columns={"u": "u_gnss", "v": "v_gnss"})
@@ -683,7 +685,7 @@ def _closed_loop_sea_trial(experiments: int, samples: int, seed: Any,
         "spec": spec.to_dict(), "aggregate": key, "seed": seed, "source": "env",
         "vessel": vessel, "design_name": "closed-loop", "structure": "merged",
         "samples_per_experiment": samples, "experiments": experiments,
-        "wind_input": wind_key if dist.wind_on else "none", "noise_order": SRIV_ORDER,
+        "wind_input": wind_key if dist.wind_on else "none",
         "closed_loop_trial": {"controller": pid.to_dict(),
                               "references": {"u": list(CLOSED_LOOP_TRIAL["u"]),
                                              "v": list(CLOSED_LOOP_TRIAL["vr"]),
@@ -739,21 +741,19 @@ def _wind_input_key(wind_input: str | None) -> str:
     return key
 
 
-def _add_wind_input(frame: pd.DataFrame, vessel: str) -> None:
+def _add_wind_input(frame: pd.DataFrame, plant: Any) -> None:
     """Wind load of the measured mean wind added to the force columns ``X, Y, N``.
 
     Per experiment the true wind (earth frame) is the mean of apparent wind
     (anemometer) plus ground velocity (GNSS) rotated with the heading; the load at each
-    sample is the vessel's wind model (:func:`~vesselid.plant.vessels.wind.blendermann_wind_force`)
-    at the apparent wind of that mean wind and the measured velocity and heading. Using
+    sample is the plant's wind load
+    (:meth:`~vesselid.plant.vessels.kernel.VesselModel.apparent_wind_load`) at the
+    apparent wind of that mean wind and the measured velocity and heading. Using
     the mean wind rather than each anemometer reading keeps the sensor noise out of the
     force columns (which are their own instruments: noise there biases the input
     coefficients); gusts stay an unmodelled zero-mean disturbance. Commands are kept in
     ``X_cmd, Y_cmd, N_cmd``, the load in ``X_wind, Y_wind, N_wind``.
     """
-    from vesselid.plant.catalogue import vessel_module
-    from vesselid.plant.vessels.wind import blendermann_wind_force
-
     need = ("wind_speed", "wind_angle", "u", "v", "psi")
     missing = [c for c in need if c not in frame]
     if missing:
@@ -774,8 +774,7 @@ def _add_wind_input(frame: pd.DataFrame, vessel: str) -> None:
     east = (np.bincount(inv, east) / count)[inv]
     urw = u - (c * north + s * east)
     vrw = v - (-s * north + c * east)
-    load = blendermann_wind_force(-np.arctan2(vrw, urw), np.hypot(urw, vrw),
-                                  vessel_module(vessel).HULL.wind)
+    load = plant.apparent_wind_load(urw, vrw)
     for j, name in enumerate(("X", "Y", "N")):
         cmd = frame[name].to_numpy()
         frame[f"{name}_cmd"] = cmd
@@ -810,13 +809,18 @@ def _add_waves(frame: pd.DataFrame, waves: Any, dt: float, seed: np.random.SeedS
         frame[f"true_wave_{c}"] = cols[c]
 
 
-def _simulate_batch(design: SeaTrialDesign, dist, sensors, seed: np.random.SeedSequence):
-    from vesselid.data.logs import TrialLog
+def _plant(vessel: str, dt: float, dist: Any, sensors: Any):
+    """The sea trial's plant: the catalogue vessel in its sea with its sensors."""
     from vesselid.plant.catalogue import vessel_module
-    from vesselid.plant.vessels import simulate_vessel
+    from vesselid.plant.vessels import VesselModel
 
-    sim = simulate_vessel(vessel_module(design.vessel).HULL, design.warmup_inputs(),
-                          seed=seed, dt=design.dt, disturbances=dist, sensors=sensors)
+    return VesselModel(vessel_module(vessel).HULL, dt=dt, disturbances=dist, sensors=sensors)
+
+
+def _simulate_batch(design: SeaTrialDesign, plant: Any, seed: np.random.SeedSequence):
+    from vesselid.data.logs import TrialLog
+
+    sim = plant.simulate(design.warmup_inputs(), seed=seed)
     log = sim.to_log()
     frame = log.to_frame()
     n_tot = design.warmup + design.n_samples
@@ -826,15 +830,18 @@ def _simulate_batch(design: SeaTrialDesign, dist, sensors, seed: np.random.SeedS
     return TrialLog(frame, log.metadata)
 
 
-def _simulate_env(design: SeaTrialDesign, dist, sensors, seed: np.random.SeedSequence):
+def _simulate_env(design: SeaTrialDesign, plant: Any, sensors: Any,
+                  seed: np.random.SeedSequence):
+    """The design through the environment built with the plant's disturbances and the
+    given ``sensors`` settings."""
     import gymnasium as gym
 
     import vesselid.envs  # noqa: F401  (registers the environments)
     from vesselid.data.logs import TrialLog
     from vesselid.envs.recorder import TrialRecorder
-    from vesselid.plant.catalogue import vessel_module
 
-    fmax = np.array(vessel_module(design.vessel).HULL.force_max)
+    dist = plant.disturbances
+    fmax = np.array(plant.force_max)
     if np.any(np.abs(design.inputs) > fmax + 1e-12):
         raise SeaTrialError(f"the design exceeds the vessel's force limits {tuple(fmax)}")
     env = TrialRecorder(gym.make(

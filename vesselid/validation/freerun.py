@@ -68,6 +68,15 @@ def _step(x, urow, rawrow, inv_state, inv_a, inv_c, d_slot, mono_d, mono_coef, m
     one_step(eq, theta, phi, nxt)
 
 
+@kernel(inline="always")
+def _scratch(n, m, n_raw, n_phi):
+    """The scratch buffers of :func:`_step` for ``n`` states, ``m`` inputs, ``n_raw``
+    measured columns and ``n_phi`` regressors: ``s, env, fenv, f, phi, nxt``."""
+    n_env = n + m + n_raw
+    return (np.empty(n + m), np.empty(n_env), np.empty(2 * n_env + 1),
+            np.empty(2 * (n + m) + 1), np.empty(n_phi), np.empty(n))
+
+
 @kernel(nogil=True)
 def _simulate(x0, u, raw, inv_state, inv_a, inv_c, d_slot, mono_d, mono_coef, mono_fac,
               fac, eq, theta, limit, zz_on, zz_k, zz_idx, zz_delta0, zz_psi_s, zz_rate,
@@ -76,13 +85,7 @@ def _simulate(x0, u, raw, inv_state, inv_a, inv_c, d_slot, mono_d, mono_coef, mo
     sample (or -1)."""
     n_samples, n = x_out.shape
     m = u.shape[1]
-    n_env = n + m + raw.shape[1]
-    s = np.empty(n + m)
-    env = np.empty(n_env)
-    fenv = np.empty(2 * n_env + 1)
-    f = np.empty(2 * (n + m) + 1)
-    phi = np.empty(fac.shape[0])
-    nxt = np.empty(n)
+    s, env, fenv, f, phi, nxt = _scratch(n, m, raw.shape[1], fac.shape[0])
     urow = np.empty(m)
     x = x0.copy()
     psi = 0.0
@@ -137,14 +140,7 @@ def _k_step(y, u, raw, horizon, inv_state, inv_a, inv_c, d_slot, mono_d, mono_co
             fac, eq, theta, out):
     """``out[k + horizon]``: the ``horizon``-step prediction from the measured ``y[k]``."""
     n_samples, n = y.shape
-    m = u.shape[1]
-    n_env = n + m + raw.shape[1]
-    s = np.empty(n + m)
-    env = np.empty(n_env)
-    fenv = np.empty(2 * n_env + 1)
-    f = np.empty(2 * (n + m) + 1)
-    phi = np.empty(fac.shape[0])
-    nxt = np.empty(n)
+    s, env, fenv, f, phi, nxt = _scratch(n, u.shape[1], raw.shape[1], fac.shape[0])
     x = np.empty(n)
     for k in range(n_samples):
         for i in range(n):

@@ -19,77 +19,100 @@ from vesselid.data.ingest.pipeline import ingest
 __all__ = ["IngestError", "ingest", "summary"]
 
 
+#: Optional notes of a record (a source or a column of the quality report): ``(key,
+#: template)``, the template filled from the record where ``record[key]`` is set.
+Notes = tuple[tuple[str, str], ...]
+
+#: appended to an NMEA source's line
+_NMEA_SUFFIX: Notes = (
+    ("invalid", ", not used (void, empty or of another kind) {invalid}"),
+)
+#: lines below an NMEA source's line (after its unusable sentence kinds)
+_NMEA_LINES: Notes = (
+    ("xdr_unmapped", "  XDR transducers not mapped in [nmea] xdr (not read): {xdr_unmapped}"),
+    ("time_outliers", "  {time_outliers} fix(es) with an outlying clock dropped"),
+)
+#: appended to a mapped CSV source's line
+_CSV_SUFFIX: Notes = (
+    ("bad_time", ", {bad_time} rows without a usable time dropped"),
+    ("bad_values", ", empty/unparsable cells skipped {bad_values}"),
+)
+#: a column's notes, joined by "; " after its head
+_COLUMN_NOTES: Notes = (
+    ("duplicate_times", "{duplicate_times} duplicate-time samples dropped"),
+    ("non_finite", "{non_finite} empty/non-finite samples dropped"),
+    ("time_interpolated", "{time_interpolated} sample times interpolated between fixes"),
+    ("quantisation_deg", "quantised to {quantisation_deg:g} deg (noise std "
+                         "{quantisation_noise_std_rad:.4f} rad)"),
+    ("magnetic", "magnetic, variation from {variation_from}"),
+    ("heading_offset_deg", "heading offset {heading_offset_deg:g} deg removed"),
+    ("renamed_from", "from NMEA channel {renamed_from!r}"),
+)
+
+
+class _Record(dict):
+    """A quality record for ``str.format_map``: a field it lacks reads as ``None``."""
+
+    def __missing__(self, key: str) -> None:
+        return None
+
+
+def _notes(record: dict[str, Any], notes: Notes) -> list[str]:
+    """The notes of ``record`` whose key is set, filled in, in table order."""
+    rec = _Record(record)
+    return [template.format_map(rec) for key, template in notes if record.get(key)]
+
+
+def _source_lines(s: dict[str, Any]) -> list[str]:
+    """What one source (file or bag) gave: one line, and for NMEA the unused parts."""
+    kind = s.get("type")
+    if kind == "nmea0183":
+        line = (f"{s['file']}: {s['lines']} lines, {s['sentences']} sentences ok, "
+                f"{s['bad_checksum']} bad checksums, {s['corrupt']} corrupt, "
+                f"{s.get('clock_jumps', 0)} clock jumps, "
+                f"unsupported {s.get('unsupported', {})}")
+        return ([line + "".join(_notes(s, _NMEA_SUFFIX))]
+                + [f"  unused {k}: {why}" for k, why in s.get("unusable", {}).items()]
+                + _notes(s, _NMEA_LINES))
+    if kind == "csv":
+        line = (f"{s.get('file')}: csv ({s.get('kind')}), {s.get('rows')} rows"
+                + "".join(_notes(s, _CSV_SUFFIX)))
+        if s.get("time_rebuilt"):
+            tr = s["time_rebuilt"]
+            line += (f"; time axis rebuilt at {tr['sample_rate_hz']:g} Hz "
+                     f"({tr['duplicate_times']} duplicated stamps, max shift "
+                     f"{tr['max_shift_s']:.3g} s)")
+        return [line]
+    if kind == "tank":
+        yc = s.get("yaw_rate_check", {})
+        check = (f"r vs dψ/dt misfit {yc['relative_misfit']:.3f}" if yc.get("checked")
+                 else f"yaw rate not checked ({yc.get('why')})")
+        return [f"{s['file']}: {s['rows']} rows at {s['dt_file']:g} s, {check}; "
+                f"{'; '.join(s['conversions']) or 'no conversion'}; resampling "
+                f"{s.get('resampling', 'none')}"]
+    return [f"{s.get('file', s.get('bag'))}: {s.get('type')}"
+            + (f", topics {s['topics']}" if s.get("topics") else "")]
+
+
+def _column_line(name: str, c: dict[str, Any]) -> str:
+    """One column: where it came from, its rate and every sample dropped or re-timed."""
+    if "derived" in c:
+        return f"  {name:<10} derived: {c['derived']}"
+    rate = c.get("rate_hz")
+    head = f"  {name:<10} {c.get('source', '')}"
+    if rate:
+        head += (f": {rate:.2f} Hz, {c.get('dropouts', 0)} dropouts, interpolated "
+                 f"{100 * c['interpolated_fraction']:.2f} %, {c.get('resampling')}")
+    extra = _notes(c, _COLUMN_NOTES)
+    return head + ("; " + "; ".join(extra) if extra else "")
+
+
 def summary(log: Any) -> str:
     """The quality report in a few lines: per source what was read and what was not,
     per column the rate and every dropped, interpolated or re-timed sample."""
     q = log.metadata.get("quality", {})
-    lines = []
-    for s in q.get("sources", []):
-        if s.get("type") == "nmea0183":
-            line = (f"{s['file']}: {s['lines']} lines, {s['sentences']} sentences ok, "
-                    f"{s['bad_checksum']} bad checksums, {s['corrupt']} corrupt, "
-                    f"{s.get('clock_jumps', 0)} clock jumps, "
-                    f"unsupported {s.get('unsupported', {})}")
-            if s.get("invalid"):
-                line += f", not used (void, empty or of another kind) {s['invalid']}"
-            lines.append(line)
-            for kind, why in s.get("unusable", {}).items():
-                lines.append(f"  unused {kind}: {why}")
-            if s.get("xdr_unmapped"):
-                lines.append(f"  XDR transducers not mapped in [nmea] xdr (not read): "
-                             f"{s['xdr_unmapped']}")
-            if s.get("time_outliers"):
-                lines.append(f"  {s['time_outliers']} fix(es) with an outlying clock dropped")
-        elif s.get("type") == "csv":
-            line = f"{s.get('file')}: csv ({s.get('kind')}), {s.get('rows')} rows"
-            if s.get("bad_time"):
-                line += f", {s['bad_time']} rows without a usable time dropped"
-            if s.get("bad_values"):
-                line += f", empty/unparsable cells skipped {s['bad_values']}"
-            if s.get("time_rebuilt"):
-                tr = s["time_rebuilt"]
-                line += (f"; time axis rebuilt at {tr['sample_rate_hz']:g} Hz "
-                         f"({tr['duplicate_times']} duplicated stamps, max shift "
-                         f"{tr['max_shift_s']:.3g} s)")
-            lines.append(line)
-        elif s.get("type") == "tank":
-            yc = s.get("yaw_rate_check", {})
-            check = (f"r vs dψ/dt misfit {yc['relative_misfit']:.3f}" if yc.get("checked")
-                     else f"yaw rate not checked ({yc.get('why')})")
-            lines.append(f"{s['file']}: {s['rows']} rows at {s['dt_file']:g} s, {check}; "
-                         f"{'; '.join(s['conversions']) or 'no conversion'}; resampling "
-                         f"{s.get('resampling', 'none')}")
-        else:
-            lines.append(f"{s.get('file', s.get('bag'))}: {s.get('type')}"
-                         + (f", topics {s['topics']}" if s.get("topics") else ""))
-    for name, c in q.get("columns", {}).items():
-        if "derived" in c:
-            lines.append(f"  {name:<10} derived: {c['derived']}")
-            continue
-        rate = c.get("rate_hz")
-        head = f"  {name:<10} {c.get('source', '')}"
-        if rate:
-            head += (f": {rate:.2f} Hz, {c.get('dropouts', 0)} dropouts, interpolated "
-                     f"{100 * c['interpolated_fraction']:.2f} %, {c.get('resampling')}")
-        extra = []
-        if c.get("duplicate_times"):
-            extra.append(f"{c['duplicate_times']} duplicate-time samples dropped")
-        if c.get("non_finite"):
-            extra.append(f"{c['non_finite']} empty/non-finite samples dropped")
-        if c.get("time_interpolated"):
-            extra.append(f"{c['time_interpolated']} sample times interpolated between fixes")
-        if c.get("quantisation_deg"):
-            extra.append(f"quantised to {c['quantisation_deg']:g} deg (noise std "
-                         f"{c['quantisation_noise_std_rad']:.4f} rad)")
-        if c.get("magnetic"):
-            extra.append(f"magnetic, variation from {c.get('variation_from')}")
-        if c.get("heading_offset_deg"):
-            extra.append(f"heading offset {c['heading_offset_deg']:g} deg removed")
-        if c.get("renamed_from"):
-            extra.append(f"from NMEA channel {c['renamed_from']!r}")
-        if extra:
-            head += "; " + "; ".join(extra)
-        lines.append(head)
+    lines = [line for s in q.get("sources", []) for line in _source_lines(s)]
+    lines += [_column_line(name, c) for name, c in q.get("columns", {}).items()]
     if q.get("lever_arm_m"):
         lines.append(f"  lever arm {q['lever_arm_m']} m applied to "
                      f"{', '.join(q.get('lever_arm_applied_to', [])) or 'nothing'}")

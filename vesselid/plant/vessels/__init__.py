@@ -26,6 +26,7 @@ from vesselid.plant.vessels.environment import (
     SENSOR_GROUPS,
     ComponentDraw,
     DisturbanceComponent,
+    ProcessForce,
     VesselDisturbances,
     VesselSensors,
 )
@@ -52,6 +53,7 @@ __all__ = [
     "CyberShip2Coefficients",
     "DisturbanceComponent",
     "Hull",
+    "ProcessForce",
     "VesselBatch",
     "VesselDisturbances",
     "VesselModel",

@@ -21,7 +21,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from vesselid.errors import VesselidError
-from vesselid.plant.disturbances import GaussMarkov
+from vesselid.plant.disturbances import GaussMarkov, Process, process_from_dict
 from vesselid.plant.vessels.wind import BlendermannWind
 
 __all__ = [
@@ -29,6 +29,7 @@ __all__ = [
     "SENSOR_GROUPS",
     "ComponentDraw",
     "DisturbanceComponent",
+    "ProcessForce",
     "VesselDisturbances",
     "VesselSensors",
     "clipped_variance",
@@ -67,6 +68,52 @@ class DisturbanceComponent(Protocol):
     def draw(self, rng: np.random.Generator, n: int, dt: float) -> ComponentDraw: ...
 
     def to_dict(self) -> dict[str, Any]: ...
+
+
+@dataclass(frozen=True)
+class ProcessForce:
+    """A :class:`~vesselid.plant.disturbances.Process` acting as a body-frame force: the
+    :class:`DisturbanceComponent` ``τ(k) = p(k) · gain``.
+
+    Any process kind works, including one added with
+    :func:`~vesselid.plant.disturbances.register_process` (which also makes the component
+    rebuildable from log metadata, :meth:`from_dict`). The force enters every user of the
+    plant: :func:`~vesselid.plant.vessels.kernel.simulate_vessel` (sea trials) and
+    :meth:`~vesselid.plant.vessels.kernel.VesselModel.disturbed_paths` (the trial planner).
+
+    Parameters
+    ----------
+    process : Process
+        The scalar disturbance ``p``.
+    gain : (float, float, float)
+        Force ``[X, Y, N]`` (N, N, N m) per unit of ``p``.
+    name : str
+        Name in the log metadata.
+    """
+
+    process: Process
+    gain: tuple[float, float, float] = (1.0, 0.0, 0.0)
+    name: str = "process_force"
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.process, Process):
+            raise VesselidError(f"ProcessForce needs a Process, got {type(self.process)}")
+        gain = tuple(float(x) for x in np.ravel(self.gain))
+        if len(gain) != 3 or not all(math.isfinite(x) for x in gain):
+            raise VesselidError(f"ProcessForce gain needs three finite values, got {self.gain!r}")
+        object.__setattr__(self, "gain", gain)
+
+    def draw(self, rng: np.random.Generator, n: int, dt: float) -> ComponentDraw:
+        return ComponentDraw(force=np.outer(self.process.sample(rng, n), self.gain))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"process": self.process.to_dict(), "gain": list(self.gain)}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> ProcessForce:
+        """Rebuild from :meth:`to_dict` output (the ``name`` entry of the metadata too)."""
+        return cls(process_from_dict(dict(data["process"])), tuple(data["gain"]),
+                   str(data.get("name", "process_force")))
 
 
 @dataclass(frozen=True)

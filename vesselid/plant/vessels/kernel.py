@@ -29,8 +29,10 @@ from vesselid.core.filters import ar1_filter
 from vesselid.errors import SimulationDivergedError, VesselidError
 from vesselid.model.regressors import advance, kernel
 from vesselid.model.spec import ModelSpec
+from vesselid.plant.disturbances import gauss_markov_rows
+from vesselid.plant.plant import heading
 from vesselid.plant.result import SimulationResult
-from vesselid.plant.simulate import DEFAULT_DIVERGENCE_LIMIT
+from vesselid.plant.simulate import DEFAULT_DIVERGENCE_LIMIT, simulate_states
 from vesselid.plant.vessels.environment import (
     N_SENSOR_CHANNELS,
     SENSOR_CHANNELS,
@@ -40,7 +42,7 @@ from vesselid.plant.vessels.environment import (
     coerce,
 )
 from vesselid.plant.vessels.hull import Hull
-from vesselid.plant.vessels.wind import N_WIND_PAR, wind_load
+from vesselid.plant.vessels.wind import N_WIND_PAR, blendermann_wind_force, wind_load
 
 __all__ = [
     "LAYOUT",
@@ -350,10 +352,14 @@ def _env_observe(st, dist, j, par, obs_idx, obs, mask):
 # ------------------------------------------------------------------------ vessel model
 @dataclass
 class VesselModel:
-    """Compiled-kernel parameters of one hull in one sea (shared by all users).
+    """A hull in a sea: the vessel plant (:class:`vesselid.plant.plant.Plant`).
 
-    Builds the identification spec (:meth:`Hull.spec`), θ0, the term codes and the packed
-    parameter vector of the kernels, and draws the disturbance rows.
+    Builds the physics spec (:meth:`Hull.spec`), θ0, the term codes and the packed
+    parameter vector of the compiled kernels, and draws the disturbance rows. Every vessel
+    user goes through it: :meth:`simulate` (:func:`simulate_vessel`: offline and sea
+    trials), :class:`VesselBatch` (the environments), :meth:`run` (manoeuvre switching
+    instants, the trial planner's nominal path) and :meth:`disturbed_paths` (the trial
+    planner's instrument–regressor cross moment).
     """
 
     hull: Hull
@@ -401,6 +407,116 @@ class VesselModel:
         return {"name": self.hull.name, "dt": self.dt,
                 "coefficients": dict(self.hull.parameters),
                 "disturbances": self.disturbances.to_dict(), "sensors": self.sensors.to_dict()}
+
+    # -- the plant (simulations, noise-free runs, disturbed paths, wind loads) --
+    def simulate(
+        self,
+        inputs: np.ndarray,
+        *,
+        n_runs: int | None = None,
+        seed: int | np.random.SeedSequence | None = None,
+        run_seeds: Sequence[np.random.SeedSequence] | None = None,
+        nu0: np.ndarray | None = None,
+        eta0: np.ndarray | None = None,
+        current_direction: np.ndarray | float | None = None,
+        wind_direction: np.ndarray | float | None = None,
+    ) -> VesselSimulation:
+        """Trials of this plant with its disturbances and sensors (:func:`simulate_vessel`,
+        whose parameters these are)."""
+        return _simulate(self, inputs, n_runs, seed, run_seeds, nu0, eta0,
+                         current_direction, wind_direction)
+
+    # -- noise-free runs, disturbed paths, wind loads ----------------------------
+    @property
+    def dt_minv(self) -> np.ndarray:
+        """``dt M⁻¹``: how a body-frame force ``[X, Y, N]`` enters the velocity in a step."""
+        return self.dt * self.hull.mass_matrix_inverse()
+
+    @property
+    def force_max(self) -> tuple[float, float, float]:
+        """Actuator limits ``|X|, |Y|, |N|`` of the hull."""
+        return self.hull.force_max
+
+    def run(self, inputs: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
+        """Noise-free states ``x(0..n)`` ``(n + 1, 3)`` for forces ``(n, 3)`` from ``x0``
+        (default at rest): the spec's θ0 in calm water (no current, wind or noise)."""
+        tau = np.asarray(inputs, dtype=float)
+        return simulate_states(self.spec, np.vstack([tau, tau[-1:]]), x0=x0, limit=self.limit)
+
+    def wind_load(self, states: np.ndarray, psi: np.ndarray, speed: float,
+                  direction: np.ndarray | float) -> np.ndarray:
+        """Blendermann load ``(n, 3)`` of a true wind (``speed``, going-to ``direction``,
+        earth frame) on the vessel moving with ``states`` ``[u, v, r]`` at heading ``psi``:
+        :meth:`apparent_wind_load` of ``[u, v] − V_w [cos, sin](β_w − ψ)``."""
+        d = direction - psi
+        urw = states[:, 0] - speed * np.cos(d)
+        vrw = states[:, 1] - speed * np.sin(d)
+        return self.apparent_wind_load(urw, vrw)
+
+    def apparent_wind_load(self, urw: np.ndarray, vrw: np.ndarray) -> np.ndarray:
+        """Blendermann load ``(n, 3)`` of the body-frame air velocity ``[u_rw, v_rw] = ν −
+        ν_w`` (angle ``γ_rw = −atan2(v_rw, u_rw)``, 0: wind from ahead) with the plant's
+        wind model (:func:`~vesselid.plant.vessels.wind.blendermann_wind_force`)."""
+        return blendermann_wind_force(-np.arctan2(vrw, urw), np.hypot(urw, vrw),
+                                      self.wind_model)
+
+    def wind_linearisation(self, states: np.ndarray, psi: np.ndarray,
+                           step: float = 1e-4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The mean wind's load along ``states``/``psi`` and its derivatives with respect
+        to the wind speed and direction (forward differences of ``step``): the gains
+        through which gusts and direction changes act near that path."""
+        d = self.disturbances
+        base = self.wind_load(states, psi, d.wind_speed, d.wind_direction)
+        g_speed = (self.wind_load(states, psi, d.wind_speed + step, d.wind_direction)
+                   - base) / step
+        g_dir = (self.wind_load(states, psi, d.wind_speed, d.wind_direction + step)
+                 - base) / step
+        return base, g_speed, g_dir
+
+    def disturbed_paths(self, inputs: np.ndarray, x0: np.ndarray | None = None, *,
+                        paths: int, seed: int,
+                        nominal: np.ndarray | None = None) -> np.ndarray:
+        """States ``(paths, n + 1, 3)`` driven by ``inputs`` plus random realisations of
+        the process disturbances (no sensor noise), from ``default_rng(seed)``.
+
+        Per path, in this order: the unmodelled forces (the three Gauss–Markov processes
+        of :class:`VesselDisturbances`, one block, :func:`gauss_markov_rows`), the wind
+        gusts and then the direction changes (each a Gauss–Markov process through the
+        gain of the Blendermann load along the noise-free path, :meth:`wind_linearisation`;
+        drawn when its std is positive and the plant computes wind loads), then the force
+        of every plug-in component (:class:`DisturbanceComponent`, in order). The
+        processes are taken Gaussian and unbounded (the linearisation the trial planner's
+        covariance uses); their sum enters with the inputs. The states are the velocity
+        through the water; current variations are not drawn. Every path starts from
+        ``x0`` (default at rest). ``nominal``: the noise-free states :meth:`run` gives for
+        these inputs and ``x0``, when the caller has them (else they are simulated).
+        """
+        tau = np.asarray(inputs, dtype=float)
+        n = tau.shape[0]
+        x_init = np.zeros(3) if x0 is None else np.asarray(x0, dtype=float)
+        d = self.disturbances
+        rng = np.random.default_rng(seed)
+        gains = []
+        if d.wind_on:
+            xs = (self.run(tau, x_init) if nominal is None else nominal)[:-1]
+            _, g_speed, g_dir = self.wind_linearisation(xs, heading(xs, self.dt))
+            for g, std, tc in ((g_speed, d.gust_std, d.gust_time_constant),
+                               (g_dir, d.wind_direction_std, d.wind_direction_time_constant)):
+                if std > 0:
+                    gains.append((g, np.array([float(std)]), math.exp(-self.dt / tc)))
+        fn = np.asarray(d.force_noise_std, dtype=float)
+        a_f = math.exp(-self.dt / d.force_noise_time_constant)
+        out = np.empty((int(paths), n + 1, 3))
+        for j in range(int(paths)):
+            w = gauss_markov_rows(rng, fn, a_f, n).T
+            for g, std, pole in gains:
+                w = w + g * gauss_markov_rows(rng, std, pole, n).T
+            for comp in d.components:
+                drawn = comp.draw(rng, n, self.dt)
+                if drawn.force is not None:
+                    w = w + np.asarray(drawn.force, dtype=float).reshape(n, 3)
+            out[j] = self.run(tau + w, x_init)
+        return out
 
     # -- disturbance draws ---------------------------------------------------
     def draw_run(self, rng: np.random.Generator, n: int) -> np.ndarray:
@@ -662,6 +778,26 @@ def simulate_vessel(
     SimulationDivergedError
         If a run becomes non-finite or exceeds ``limit``.
     """
+    model = VesselModel(hull=hull, dt=dt, disturbances=disturbances, sensors=sensors,
+                        limit=limit)
+    return model.simulate(inputs, n_runs=n_runs, seed=seed, run_seeds=run_seeds, nu0=nu0,
+                          eta0=eta0, current_direction=current_direction,
+                          wind_direction=wind_direction)
+
+
+def _simulate(
+    model: VesselModel,
+    inputs: np.ndarray,
+    n_runs: int | None,
+    seed: int | np.random.SeedSequence | None,
+    run_seeds: Sequence[np.random.SeedSequence] | None,
+    nu0: np.ndarray | None,
+    eta0: np.ndarray | None,
+    current_direction: np.ndarray | float | None,
+    wind_direction: np.ndarray | float | None,
+) -> VesselSimulation:
+    """The body of :meth:`VesselModel.simulate`."""
+    hull, limit = model.hull, model.limit
     tau = np.asarray(inputs, dtype=np.float64)
     if tau.ndim == 2:
         tau = tau[None]
@@ -683,8 +819,6 @@ def simulate_vessel(
     if not np.all(np.isfinite(tau)):
         raise VesselidError("inputs hold non-finite values")
     tau = np.ascontiguousarray(np.broadcast_to(tau, (n_r, n_k, 3)))
-    model = VesselModel(hull=hull, dt=dt, disturbances=disturbances, sensors=sensors,
-                        limit=limit)
     if run_seeds is None:
         run_seeds = seeds.run_seeds(seed, n_r)
     dist = np.empty((n_r, n_k, N_DIST))
