@@ -395,7 +395,8 @@ def _local_joint(filt: _Filter, single: dict[str, Any], n_par: int,
     from the converged current-model fit ``single`` in its free parameters and the
     stationary variance ``q`` of Gauss–Markov sensor noise (correlation ρ_c fixed), the
     derivatives in ``q`` taken at ``q = 0`` (forward differences; the likelihood is smooth
-    in ``q`` through zero). At each ρ_c of ``grid`` the step's ``q`` gets a z-value (the
+    in ``q`` through zero; the free parameters' derivatives exact, from the filter's
+    tangent recursion). At each ρ_c of ``grid`` the step's ``q`` gets a z-value (the
     efficient score of ``q``, standardised); the ρ_c with the largest ``|z|`` is kept.
 
     Why: under a single Gauss–Markov current the true ``q`` is zero, on the boundary of
@@ -421,22 +422,18 @@ def _local_joint(filt: _Filter, single: dict[str, Any], n_par: int,
     free[[ix["rho_c"], ix["sigma_c"]]] = False
     idx = np.flatnonzero(free)
     d = idx.size
-    steps = _H * np.maximum(np.abs(psi0[idx]), 1.0)
-    rows = np.repeat(psi0[None], 1 + d + len(grid), axis=0)
-    rows[1 + np.arange(d), idx] += steps
-    v_start = None
+    _, _, je_s, js_s, *_ = filt.tangent(psi0, idx)  # exact, in the free parameters
+    rows = np.repeat(psi0[None], 1 + len(grid), axis=0)
     eps0, var0 = filt.run(rows[:1])
     if not (np.all(np.isfinite(eps0)) and np.all(np.isfinite(var0))):
         return None
-    v_start = float(np.mean(var0[0]))
-    h = 1e-6 * v_start  # the sensor-noise variance of the q-rows
-    rows[1 + d:, ix["rho_c"]] = np.arctanh(np.asarray(grid, dtype=float))
-    rows[1 + d:, ix["sigma_c"]] = 0.5 * math.log(h)
-    eps, var = filt.run(rows[1:])
+    h = 1e-6 * float(np.mean(var0[0]))  # the sensor-noise variance of the q-rows
+    rows[1:, ix["rho_c"]] = np.arctanh(np.asarray(grid, dtype=float))
+    rows[1:, ix["sigma_c"]] = 0.5 * math.log(h)
+    eq, vq = filt.run(rows[1:])
     e0, v0 = eps0[0], var0[0]
-    dh = np.concatenate([steps, np.full(len(grid), h)])[:, None]
-    je = (eps - e0) / dh
-    js = (var - v0) / dh
+    je = np.vstack([je_s, (eq - e0) / h])
+    js = np.vstack([js_s, (vq - v0) / h])
     inv_s = 1.0 / v0
     grad = je @ (e0 * inv_s) + 0.5 * (js @ (inv_s - e0 * e0 * inv_s * inv_s))
     fisher = (je * inv_s) @ je.T + 0.5 * ((js * (inv_s * inv_s)) @ js.T)
