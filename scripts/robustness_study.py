@@ -28,6 +28,9 @@ how many runs raised or carried each warning). Writes ``docs/robustness.csv`` an
     nice -n 10 python scripts/robustness_study.py --runs 200 --samples 10000 --seed 2024
     python scripts/robustness_study.py --runs 30 --designs white telegraph
     python scripts/robustness_study.py --methods auto --update   # rerun auto only
+    python scripts/robustness_study.py --methods auto-unbounded --update  # add a variant
+
+``--methods`` also takes the study's variants (:data:`VARIANTS`).
 """
 
 from __future__ import annotations
@@ -50,6 +53,12 @@ from vesselid.model.spec import ModelSpec
 #: The study's own true parameters (a, n, f): not the paper's.
 THETA0 = (0.9, -0.2, 0.8)
 METHODS = ("auto", "iv-zero-mean", "pem", "lagged-2sls")
+#: Study variants beyond the registry (``--methods``): ``auto`` with the joint model's
+#: sensor-noise variance estimated without its bound at zero where the likelihood does
+#: not establish it (``pem_boundary="unbounded"``, ``scripts/pem_boundary_study.py``).
+VARIANTS = ("auto-unbounded",)
+#: The methods whose choices are tabulated.
+AUTOS = ("auto", "auto-unbounded")
 PARAMS = ("a", "n", "f")
 SPEC = ModelSpec(name="heave-robustness", states=["w"], inputs=["tau"],
                  equations={"w": ["w", "w*|w|", "tau"]},
@@ -146,6 +155,16 @@ def simulate(design: Design, rng: np.random.Generator, n: int) -> pd.DataFrame:
     return pd.DataFrame({"time": np.arange(n, dtype=float), "w": w + e, "tau": tau})
 
 
+def estimator(method: str):
+    """The registered estimator ``method``, or a study variant (:data:`VARIANTS`)."""
+    if method == "auto-unbounded":
+        from vesselid.identify.efficient import InstrumentalGMM
+        from vesselid.identify.registry import entry
+
+        return InstrumentalGMM(**{**entry("auto").options, "pem_boundary": "unbounded"})
+    return method
+
+
 def one_run(design: Design, seed: np.random.SeedSequence, n: int,
             methods: tuple[str, ...] = METHODS) -> list[dict]:
     """Every method on one log: estimate, SE, choice, warnings (one row per parameter)."""
@@ -157,7 +176,7 @@ def one_run(design: Design, seed: np.random.SeedSequence, n: int,
         try:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
-                res = identify(log, SPEC, method)
+                res = identify(log, SPEC, estimator(method))
         except Exception as exc:
             for p, th in zip(PARAMS, THETA0, strict=True):
                 rows.append({**base, "param": p, "theta0": th, "estimate": np.nan,
@@ -218,15 +237,17 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def choices(df: pd.DataFrame) -> pd.DataFrame:
-    a = df[(df["method"] == "auto") & (df["param"] == PARAMS[0])]
-    tab = a.groupby(["design", "choice"], sort=False).size().rename("runs").reset_index()
-    return tab
+    a = df[df["method"].isin(AUTOS) & (df["param"] == PARAMS[0])]
+    return a.groupby(["method", "design", "choice"], sort=False).size().rename(
+        "runs").reset_index()
 
 
 def warning_shares(df: pd.DataFrame) -> pd.DataFrame:
     """Per design: share of ``auto``'s runs carrying each diagnostic's warning, and the
     coverage of the current's mean by the mean-current interval (that design)."""
-    a = df[(df["method"] == "auto") & (df["param"] == PARAMS[0])]
+    # the diagnostics come from the IV_E{ζ}=0 start: the same for every auto variant
+    present = [m for m in AUTOS if (df["method"] == m).any()]
+    a = df[(df["method"] == (present[0] if present else "auto")) & (df["param"] == PARAMS[0])]
     out = []
     for design, g in a.groupby("design", sort=False):
         row = {"design": design, "runs": len(g)}
@@ -258,9 +279,10 @@ def markdown(summary: pd.DataFrame, ch: pd.DataFrame, df: pd.DataFrame,
         lines.append(f"| {r.design} | {r.method} | {r.param} | {100 * r.coverage:.1f} % "
                      f"[{100 * r.wilson_lo:.1f}, {100 * r.wilson_hi:.1f}] | {r.bias_z:+.2f} | "
                      f"{r.median_rel_err:.4f} | {r.se_over_sd:.2f} | {r.raised} |")
-    lines += ["", "`auto`'s choices:", "", "| design | choice | runs |", "|---|---|---|"]
+    lines += ["", "`auto`'s choices:", "", "| method | design | choice | runs |",
+              "|---|---|---|---|"]
     for _, r in ch.iterrows():
-        lines.append(f"| {r.design} | {r.choice} | {r.runs} |")
+        lines.append(f"| {r.method} | {r.design} | {r.choice} | {r.runs} |")
     ws = warning_shares(df)
     lines += ["", "Share of `auto`'s runs with each diagnostic's warning (and, on the mean-"
               "current design, how often the reported interval of the current's mean "
@@ -281,7 +303,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=2024)
     ap.add_argument("--designs", nargs="+", default=list(DESIGNS))
     ap.add_argument("--methods", nargs="+", default=list(METHODS),
-                    help="registered estimator names (default: %(default)s)")
+                    help="registered estimator names or the study's variants "
+                         f"{list(VARIANTS)} (default: %(default)s)")
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "docs")
     ap.add_argument("--raw", type=Path, default=None, help="also write every run's rows")
     ap.add_argument("--update", action="store_true",
@@ -300,7 +323,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"unknown designs {unknown}; choose from {list(DESIGNS)}")
     from vesselid.identify.registry import METHODS as registered
 
-    bad = sorted(set(args.methods) - set(registered))
+    bad = sorted(set(args.methods) - set(registered) - set(VARIANTS))
     if bad:
         ap.error(f"unknown methods {bad}; choose from {list(registered)}")
     if args.from_raw is not None:
@@ -337,13 +360,18 @@ def _report(df: pd.DataFrame, args: argparse.Namespace) -> int:
         keep = old[[(d, m) not in done for d, m in zip(old["design"], old["method"],
                                                        strict=True)]]
         summary = pd.concat([summary, keep], ignore_index=True)
-        order = {m: i for i, m in enumerate(METHODS)}
+        order = {m: i for i, m in enumerate(METHODS + VARIANTS)}
         summary = summary.sort_values(
             ["design", "method", "param"], kind="stable",
             key=lambda c: c.map({d: i for i, d in enumerate(DESIGNS)}) if c.name == "design"
             else c.map(order) if c.name == "method" else c.map(PARAMS.index)
         ).reset_index(drop=True)
     ch = choices(df)
+    old_ch = args.out / "robustness_choices.csv"
+    if getattr(args, "update", False) and old_ch.is_file():
+        prev = pd.read_csv(old_ch)
+        ch = pd.concat([prev[~prev["method"].isin(ch["method"].unique())], ch],
+                       ignore_index=True)
     pd.set_option("display.width", 200)
     print(summary.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
     print(ch.to_string(index=False))
@@ -351,6 +379,7 @@ def _report(df: pd.DataFrame, args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(args.out / "robustness.csv", summary.to_csv(index=False,
                                                                   float_format="%.5g"))
+    atomic_write_text(args.out / "robustness_choices.csv", ch.to_csv(index=False))
     atomic_write_text(args.out / "robustness.md", markdown(summary, ch, df, args))
     return 0
 

@@ -192,6 +192,16 @@ class InstrumentalGMM(Estimator):
         currents at 10⁴ samples: 100 % of runs at 0.1 × the levels), while white logs
         reach it in under 0.5 % of runs (rather than the levels' 4–6 %), which keeps the
         expensive fit off the paper's white designs.
+    pem_boundary : {"bounded", "unbounded"}
+        The joint model's sensor-noise variance: bounded at zero (default), or, where the
+        likelihood does not establish the sensor-noise process (likelihood ratio ≤
+        :data:`vesselid.identify.pem.LOCAL_LR`), estimated without the bound
+        (:data:`vesselid.identify.pem.JOINT_LOCAL`). Under a single Gauss–Markov current
+        the bounded estimate fits a spurious sensor process in most runs and biases ``n``
+        by about 0.4 Monte Carlo sd, which the unbounded one removes; on a telegraph
+        current, outside every model, the unbounded one is biased twice as much and
+        covers ``n`` in about 81 % (``scripts/pem_boundary_study.py``,
+        ``docs/guide/choosing-an-estimator.md``), so the default keeps the bound.
     pem_cov : {"conservative", "sandwich", "fisher"}
         Covariance of that fallback: the smallest covariance above both the quasi-ML
         sandwich and the inverse Fisher information (default,
@@ -209,11 +219,14 @@ class InstrumentalGMM(Estimator):
                  fallback_refine: int = 3, name: str | None = None, label: str | None = None,
                  short: str | None = None,
                  colour_order: int = 0, pem_fallback: bool = False,
-                 pem_cov: str = "conservative", pem_level: float = 0.1) -> None:
+                 pem_cov: str = "conservative", pem_level: float = 0.1,
+                 pem_boundary: str = "bounded") -> None:
         super().__init__(instruments=instruments, noise_order=noise_order, alpha=alpha,
                          colour_alpha=colour_alpha, refine=refine,
                          fallback_refine=fallback_refine, colour_order=colour_order,
-                         pem_fallback=pem_fallback, pem_cov=pem_cov, pem_level=pem_level)
+                         pem_fallback=pem_fallback, pem_cov=pem_cov, pem_level=pem_level,
+                         pem_boundary=pem_boundary)
+        self.pem_boundary = pem_boundary
         self.pem_fallback = bool(pem_fallback)
         self.pem_level = pem_level
         self.pem_cov = pem_cov
@@ -255,6 +268,10 @@ class InstrumentalGMM(Estimator):
             val = getattr(self, key)
             if not (isinstance(val, int | np.integer) and val >= 1):
                 raise IdentificationError(f"{key} must be a positive integer, got {val!r}")
+        if self.pem_boundary not in pem.BOUNDARIES:
+            raise IdentificationError(
+                f"pem_boundary must be one of {list(pem.BOUNDARIES)}, got "
+                f"{self.pem_boundary!r}")
         if self.pem_cov not in pem.COVARIANCES:
             raise IdentificationError(
                 f"pem_cov must be one of {list(pem.COVARIANCES)}, got {self.pem_cov!r}")
@@ -516,12 +533,13 @@ class InstrumentalGMM(Estimator):
         estimates; taken where its likelihood maximisation converged (in place; the
         others fall back to SRIV)."""
         sub = _subset(data, reject)
-        res = pem.fit_groups(sub, spec, theta0[reject], joint=True)
+        res = pem.fit_groups(sub, spec, theta0[reject], joint=True,
+                             boundary=self.pem_boundary)
         ok = res["converged"] & np.all(np.isfinite(res["theta"]), axis=1)
         idx = np.flatnonzero(reject)
         n = data.n_groups
         for key in ("psi", "cov", "cov_sandwich", "cov_conservative", "loglik", "vuong",
-                    "model", "lr_joint"):
+                    "model", "lr_joint", "local_z"):
             arr = res[key]
             full = (np.full(n, "", dtype=object) if arr.dtype == object else
                     np.full((n, *arr.shape[1:]), np.nan))
@@ -637,9 +655,14 @@ class InstrumentalGMM(Estimator):
             cov = {"sandwich": "quasi-ML sandwich", "fisher": "inverse Fisher",
                    "conservative": "larger of the quasi-ML sandwich and inverse Fisher"
                    }[self.pem_cov]
+            local = ("" if str(info["pem_model"][0]) != pem.JOINT_LOCAL else
+                     " (the sensor-noise variance estimated without its bound at zero, "
+                     "one scoring step from the current-only fit, since the likelihood "
+                     "does not establish a sensor-noise process: a bounded estimate "
+                     "would bias the parameters whenever there is none)")
             return (f"auto used the prediction-error estimator with a Gauss–Markov current "
-                    f"and Gauss–Markov sensor noise as filter states because the {why} "
-                    "rejected white disturbances, and on a one-state log without a "
+                    f"and Gauss–Markov sensor noise as filter states{local} because the "
+                    f"{why} rejected white disturbances, and on a one-state log without a "
                     "disturbance sensor a coloured current biases every instrument built "
                     f"from the input; its intervals are the {cov} ones.")
         strong = info.get("pem_strong")
