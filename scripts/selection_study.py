@@ -94,7 +94,28 @@ def _cybership_system(current_u, current_v) -> System:
                   x0=base.x0, model=base.model)
 
 
-SYSTEMS = ("heave", "cybership2")
+def _viknes_system(current_u, current_v) -> System:
+    """The catalogue's Viknes 830 (random pulses on static offsets, starboard and port
+    turns in alternate experiments) with a current inside the modulus on ``u`` and ``v``."""
+    from vesselid.plant.vessels.viknes830 import system as viknes830_system
+
+    base = viknes830_system()
+    return System(spec=base.spec, inputs=base.inputs,
+                  current={"u": current_u, "v": current_v},
+                  process_noise=base.process_noise, sensor_noise=base.sensor_noise,
+                  x0=base.x0, model=base.model)
+
+
+SYSTEMS = ("heave", "cybership2", "viknes830")
+
+
+def system_key(design: str) -> str:
+    """The ``--system`` name of a design."""
+    if design.startswith("CyberShip"):
+        return "cybership2"
+    if design.startswith("Viknes"):
+        return "viknes830"
+    return "heave"
 
 
 def designs(quick: bool, samples: int | None = None, experiments: int | None = None
@@ -107,6 +128,7 @@ def designs(quick: bool, samples: int | None = None, experiments: int | None = N
     dt = 0.1
     n_h = 3000 if quick else 30000
     n_c = int(samples) if samples else (1000 if quick else 5000)
+    n_v = int(samples) if samples else (1000 if quick else 2500)
     k_c = int(experiments) if experiments else 4
     return {
         "heave, white current": (_heave_system(Gaussian(0.0, 0.1)), n_h, 1, "vessel"),
@@ -118,6 +140,11 @@ def designs(quick: bool, samples: int | None = None, experiments: int | None = N
         "CyberShip II, Gauss-Markov current": (
             _cybership_system(GaussMarkov(0.0, 0.002, 1.0, dt, 0.006),
                               GaussMarkov(0.0, 0.002, 1.0, dt, 0.006)), n_c, k_c, "vessel"),
+        "Viknes 830, white current": (
+            _viknes_system(Gaussian(0.0, 0.05), Gaussian(0.0, 0.05)), n_v, k_c, "vessel"),
+        "Viknes 830, Gauss-Markov current": (
+            _viknes_system(GaussMarkov(0.0, 0.02, 1.0, dt, 0.06),
+                           GaussMarkov(0.0, 0.02, 1.0, dt, 0.06)), n_v, k_c, "vessel"),
     }
 
 
@@ -413,7 +440,7 @@ def main(argv=None) -> int:
         loaded["base"] = loaded["base"].fillna("linear").astype(str).str.lower()
     for d_i, (name, (system, n, k, library)) in enumerate(
             designs(args.quick, args.samples, args.experiments).items()):
-        key = "cybership2" if name.startswith("CyberShip") else "heave"
+        key = system_key(name)
         if args.system and key not in args.system:
             continue
         if args.design and not any(s in name for s in args.design):
