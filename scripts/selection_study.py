@@ -202,7 +202,7 @@ def _stlsq(phi: np.ndarray, y: np.ndarray) -> np.ndarray | None:
 
 # --------------------------------------------------------------------------------- run
 def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = True,
-            base: str = "linear") -> list[dict]:
+            base: str = "linear", first: str = "base") -> list[dict]:
     sim = system.simulate(n, k, seed=seed)
     log = sim.to_log(aggregate=False)
     truth = system.model if system.model is not None else system.spec
@@ -213,7 +213,7 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = select_terms(log, base, lib, n_boot=0)
+        res = select_terms(log, base, lib, n_boot=0, first_model=first)
     secs = time.perf_counter() - t0
     tab = res.table
     rep = {(r.equation, r.term): (r.represented_by or r.term) for r in tab.itertuples()}
@@ -424,6 +424,10 @@ def main(argv=None) -> int:
                     help="base model of the selection (its first auxiliary model): every "
                          "equation linear in the states and inputs (default), or the true "
                          "structure (a user who knows the vessel's usual structure)")
+    ap.add_argument("--first", choices=("base", "library"), default="base",
+                    help="auxiliary model of the first pass (select_terms' first_model): "
+                         "the base model, or every candidate fitted by IV from the base "
+                         "model's instruments")
     ap.add_argument("--from-csv", type=Path, action="append",
                     help="summarise the per-run table(s) written by --out instead of "
                          "simulating")
@@ -458,16 +462,17 @@ def main(argv=None) -> int:
         else:
             seeds = np.random.SeedSequence([args.seed, d_i]).spawn(args.runs)
             rows = []
+            base_label = args.base if args.first == "base" else f"{args.base}+library"
             for r, ss in enumerate(seeds):
                 for row in one_run(system, n, k, library, ss, oracle=r < args.oracle_runs,
-                                   base=args.base):
-                    row.update(design=name, run=r, base=args.base)
+                                   base=args.base, first=args.first):
+                    row.update(design=name, run=r, base=base_label)
                     rows.append(row)
                 if (r + 1) % 10 == 0:
                     print(f"  {name}: {r + 1} runs, {time.perf_counter() - t0:.0f} s",
                           file=sys.stderr, flush=True)
             df = pd.DataFrame(rows)
-            print(f"{name}: {args.runs} runs, {k} x {n} samples, base {args.base}, "
+            print(f"{name}: {args.runs} runs, {k} x {n} samples, base {base_label}, "
                   f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
         frames.append(df)
         powers.append(report(df, name, truth))
