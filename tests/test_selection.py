@@ -168,6 +168,10 @@ def test_cli_select_then_identify(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "unknown signal 'nope'" in err[0]
     assert not (tmp_path / "x.toml").exists()
+    lib_out = tmp_path / "lib.toml"
+    assert main(["select", str(path), "--library", "vessel", "--out", str(lib_out),
+                 "--bootstrap", "0", "--first-model", "library"]) == 0
+    assert lib_out.exists()
 
 
 def test_seeded_bootstrap_reproducible():
