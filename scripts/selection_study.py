@@ -50,6 +50,7 @@ from vesselid.identify import identify
 from vesselid.model.spec import ModelSpec
 from vesselid.model.terms import Term
 from vesselid.plant.disturbances import Gaussian, GaussMarkov
+from vesselid.plant.signals import InputSignal
 from vesselid.plant.systems import System, heave
 from vesselid.selection import select_terms
 from vesselid.selection.engine import library_factors, regressors
@@ -94,6 +95,60 @@ def _cybership_system(current_u, current_v) -> System:
                   x0=base.x0, model=base.model)
 
 
+class _Schedule(InputSignal):
+    """A fixed force schedule (one experiment of a planned trial) as an input design."""
+
+    def __init__(self, values: np.ndarray, label: str) -> None:
+        self.values = np.asarray(values, dtype=float)
+        self.label = label
+
+    def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        if n > self.values.size:
+            raise ValueError(f"the schedule has {self.values.size} samples, {n} asked for")
+        return self.values[:n].copy()
+
+    def to_dict(self) -> dict:
+        return {"kind": "schedule", "programme": self.label, "samples": int(self.values.size)}
+
+
+def planned_programmes(samples: int, experiments: int) -> list:
+    """The trial planner's manoeuvres for CyberShip II (:func:`vesselid.studies.planner.
+    plan_trial`: blocks of half an experiment chosen to minimise the worst relative
+    standard error of the full structure's parameters; thruster squares whose surge force
+    alternates ahead/astern, so ``u``, ``v`` and ``r`` all change sign)."""
+    from vesselid.studies.planner import plan_trial
+
+    block = samples // 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        plan = plan_trial(samples=samples * experiments, experiments=experiments,
+                          block=block, evaluate_block=block, paths=0)
+    return plan.programmes
+
+
+def _cybership_planned_system(current_u, current_v, samples: int, experiments: int
+                              ) -> System:
+    """CyberShip II driven open loop by the planner's manoeuvres. ``u``, ``v`` and ``r``
+    change sign within every experiment, so ``v*|r|`` and ``r*|v|`` are distinct in the
+    logs: the true structure is the hull's full one (25 terms), not the merged one of
+    steady turns."""
+    from vesselid.plant.vessels.cybership2 import cybership2_system
+    from vesselid.studies.manoeuvres import NominalVessel
+
+    base = cybership2_system()
+    x0 = [base.x0[s] for s in base.spec.states]
+    vessel = NominalVessel.cybership2()
+    forces = [prog.schedule(vessel, samples, x0=x0)
+              for prog in planned_programmes(samples, experiments)]
+    inputs = {name: tuple(_Schedule(f[:, j], prog_label) for f, prog_label in
+                          zip(forces, (f"experiment {e}" for e in range(experiments)),
+                              strict=True))
+              for j, name in enumerate(base.spec.inputs)}
+    return System(spec=base.spec, inputs=inputs, current={"u": current_u, "v": current_v},
+                  process_noise=base.process_noise, sensor_noise=base.sensor_noise,
+                  x0=base.x0)
+
+
 def _viknes_system(current_u, current_v) -> System:
     """The catalogue's Viknes 830 (random pulses on static offsets, starboard and port
     turns in alternate experiments) with a current inside the modulus on ``u`` and ``v``."""
@@ -106,11 +161,13 @@ def _viknes_system(current_u, current_v) -> System:
                   x0=base.x0, model=base.model)
 
 
-SYSTEMS = ("heave", "cybership2", "viknes830")
+SYSTEMS = ("heave", "cybership2", "cybership2-planned", "viknes830")
 
 
 def system_key(design: str) -> str:
     """The ``--system`` name of a design."""
+    if design.startswith("CyberShip II planned"):
+        return "cybership2-planned"
     if design.startswith("CyberShip"):
         return "cybership2"
     if design.startswith("Viknes"):
@@ -118,8 +175,8 @@ def system_key(design: str) -> str:
     return "heave"
 
 
-def designs(quick: bool, samples: int | None = None, experiments: int | None = None
-            ) -> dict:
+def designs(quick: bool, samples: int | None = None, experiments: int | None = None,
+            planned: bool = False) -> dict:
     """name -> (system, samples per experiment, experiments, library).
 
     ``samples``/``experiments`` override the CyberShip II log length (default 4 × 5 000
@@ -130,7 +187,7 @@ def designs(quick: bool, samples: int | None = None, experiments: int | None = N
     n_c = int(samples) if samples else (1000 if quick else 5000)
     n_v = int(samples) if samples else (1000 if quick else 2500)
     k_c = int(experiments) if experiments else 4
-    return {
+    out = {
         "heave, white current": (_heave_system(Gaussian(0.0, 0.1)), n_h, 1, "vessel"),
         "heave, Gauss-Markov current": (
             _heave_system(GaussMarkov(0.0, 0.05, 5.0, 1.0, 0.15)), n_h, 1, "vessel"),
@@ -146,6 +203,16 @@ def designs(quick: bool, samples: int | None = None, experiments: int | None = N
             _viknes_system(GaussMarkov(0.0, 0.02, 1.0, dt, 0.06),
                            GaussMarkov(0.0, 0.02, 1.0, dt, 0.06)), n_v, k_c, "vessel"),
     }
+    if planned:  # the planner runs only when these designs are asked for
+        n_p = int(samples) if samples else (1000 if quick else 2500)
+        out["CyberShip II planned, white current"] = (
+            _cybership_planned_system(Gaussian(0.0, 0.005), Gaussian(0.0, 0.005), n_p, k_c),
+            n_p, k_c, "vessel")
+        out["CyberShip II planned, Gauss-Markov current"] = (
+            _cybership_planned_system(GaussMarkov(0.0, 0.002, 1.0, dt, 0.006),
+                                      GaussMarkov(0.0, 0.002, 1.0, dt, 0.006), n_p, k_c),
+            n_p, k_c, "vessel")
+    return out
 
 
 def linear_base(spec: ModelSpec) -> ModelSpec:
@@ -443,7 +510,9 @@ def main(argv=None) -> int:
             loaded["base"] = "linear"
         loaded["base"] = loaded["base"].fillna("linear").astype(str).str.lower()
     for d_i, (name, (system, n, k, library)) in enumerate(
-            designs(args.quick, args.samples, args.experiments).items()):
+            designs(args.quick, args.samples, args.experiments,
+                    planned=bool(args.system and "cybership2-planned" in args.system)
+                    ).items()):
         key = system_key(name)
         if args.system and key not in args.system:
             continue
