@@ -171,7 +171,41 @@ def _viknes_system(current_u, current_v) -> System:
                   x0=base.x0, model=base.model)
 
 
-SYSTEMS = ("heave", "cybership2", "cybership2-planned", "viknes830")
+#: Viknes 830 thruster-square programmes, one per experiment: ``(hold_y, hold_n, hold_x)``
+#: seconds of the sway-force, yaw-moment and ahead/astern engine reversals
+#: (:class:`vesselid.studies.manoeuvres.ThrusterSquare`, full sway force and yaw moment,
+#: engine ±6 kN).
+VIKNES_SQUARES = ((10.0, 7.0, 30.0), (7.0, 10.0, 15.0), (5.0, 3.5, 30.0), (10.0, 7.0, 15.0))
+
+
+def _viknes_manoeuvre_system(current_u, current_v, samples: int, experiments: int
+                             ) -> System:
+    """Viknes 830 driven open loop by thruster squares (:data:`VIKNES_SQUARES`): ``u``,
+    ``v`` and ``r`` change sign within every experiment and the yaw moment reverses
+    faster than the yaw rate settles, so ``r`` and ``N`` (and their products with ``u``)
+    differ in the logs."""
+    from vesselid.plant.vessels.viknes830 import HULL
+    from vesselid.plant.vessels.viknes830 import system as viknes830_system
+    from vesselid.studies.manoeuvres import NominalVessel, Programme, ThrusterSquare
+
+    base = viknes830_system()
+    x0 = [base.x0[s] for s in base.spec.states]
+    vessel = NominalVessel(HULL.spec(base.spec.dt), base.spec.dt,
+                           limits=tuple(HULL.force_max))
+    forces = []
+    for e in range(experiments):
+        hy, hn, hx = VIKNES_SQUARES[e % len(VIKNES_SQUARES)]
+        prog = Programme([ThrusterSquare(thrust=6000.0, sway=600.0, moment=2500.0,
+                                         hold_y=hy, hold_n=hn, hold_x=hx, low=-1.0)])
+        forces.append((prog.schedule(vessel, samples, x0=x0), prog.label()))
+    inputs = {name: tuple(_Schedule(f[:, j], label) for f, label in forces)
+              for j, name in enumerate(base.spec.inputs)}
+    return System(spec=base.spec, inputs=inputs, current={"u": current_u, "v": current_v},
+                  process_noise=base.process_noise, sensor_noise=base.sensor_noise,
+                  x0=base.x0)
+
+
+SYSTEMS = ("heave", "cybership2", "cybership2-planned", "viknes830", "viknes830-manoeuvres")
 
 
 def system_key(design: str) -> str:
@@ -180,13 +214,15 @@ def system_key(design: str) -> str:
         return "cybership2-planned"
     if design.startswith("CyberShip"):
         return "cybership2"
+    if design.startswith("Viknes 830 manoeuvres"):
+        return "viknes830-manoeuvres"
     if design.startswith("Viknes"):
         return "viknes830"
     return "heave"
 
 
 def designs(quick: bool, samples: int | None = None, experiments: int | None = None,
-            planned: bool = False) -> dict:
+            planned: bool = False, manoeuvres: bool = False) -> dict:
     """name -> (system, samples per experiment, experiments, library).
 
     ``samples``/``experiments`` override the CyberShip II log length (default 4 × 5 000
@@ -222,6 +258,14 @@ def designs(quick: bool, samples: int | None = None, experiments: int | None = N
             _cybership_planned_system(GaussMarkov(0.0, 0.002, 1.0, dt, 0.006),
                                       GaussMarkov(0.0, 0.002, 1.0, dt, 0.006), n_p, k_c),
             n_p, k_c, "vessel")
+    if manoeuvres:
+        out["Viknes 830 manoeuvres, white current"] = (
+            _viknes_manoeuvre_system(Gaussian(0.0, 0.05), Gaussian(0.0, 0.05), n_v, k_c),
+            n_v, k_c, "vessel")
+        out["Viknes 830 manoeuvres, Gauss-Markov current"] = (
+            _viknes_manoeuvre_system(GaussMarkov(0.0, 0.02, 1.0, dt, 0.06),
+                                     GaussMarkov(0.0, 0.02, 1.0, dt, 0.06), n_v, k_c),
+            n_v, k_c, "vessel")
     return out
 
 
@@ -531,7 +575,8 @@ def main(argv=None) -> int:
         loaded["base"] = loaded["base"].fillna("linear").astype(str).str.lower()
     for d_i, (name, (system, n, k, library)) in enumerate(
             designs(args.quick, args.samples, args.experiments,
-                    planned=bool(args.system and "cybership2-planned" in args.system)
+                    planned=bool(args.system and "cybership2-planned" in args.system),
+                    manoeuvres=bool(args.system and "viknes830-manoeuvres" in args.system)
                     ).items()):
         key = system_key(name)
         if args.system and key not in args.system:
@@ -560,16 +605,26 @@ def main(argv=None) -> int:
                 if (r + 1) % 10 == 0:
                     print(f"  {name}: {r + 1} runs, {time.perf_counter() - t0:.0f} s",
                           file=sys.stderr, flush=True)
+                    if args.out:  # the runs so far, so that a long study can be cut short
+                        _write_csv(pd.concat([*frames, pd.DataFrame(rows)],
+                                             ignore_index=True), args.out)
             df = pd.DataFrame(rows)
             print(f"{name}: {args.runs} runs, {k} x {n} samples, base {base_label}, "
                   f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
         frames.append(df)
         powers.append(report(df, name, truth))
     if args.out and frames and loaded is None:
-        pd.concat(frames, ignore_index=True).to_csv(args.out, index=False)
+        _write_csv(pd.concat(frames, ignore_index=True), args.out)
     if args.power_out and powers:
         pd.concat(powers, ignore_index=True).to_csv(args.power_out, index=False)
     return 0
+
+
+def _write_csv(df: pd.DataFrame, path: Path) -> None:
+    """Write ``df`` to ``path`` whole or not at all (temporary file, then rename)."""
+    tmp = path.with_name(path.name + ".tmp")
+    df.to_csv(tmp, index=False)
+    tmp.replace(path)
 
 
 def _from_table(df: pd.DataFrame, oracle_rows: pd.DataFrame) -> pd.DataFrame:

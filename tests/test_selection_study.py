@@ -132,6 +132,7 @@ def test_design_names_and_viknes_truth(study):
         "u": ["u", "u*|u|", "v*r", "X"], "v": ["v", "v*|v|", "u*r", "Y"], "r": ["r", "N"]}
     assert set(system.current) == {"u", "v"} and (n, k, library) == (1000, 4, "vessel")
     assert study.system_key("CyberShip II planned, white current") == "cybership2-planned"
+    assert study.system_key("Viknes 830 manoeuvres, white current") == "viknes830-manoeuvres"
 
 
 def test_schedule_input_is_the_fixed_schedule(study):
@@ -141,6 +142,22 @@ def test_schedule_input_is_the_fixed_schedule(study):
     assert sched.to_dict() == {"kind": "schedule", "programme": "experiment 0", "samples": 10}
     with pytest.raises(ValueError, match="10 samples"):
         sched.sample(rng, 11)
+
+
+def test_viknes_manoeuvres_change_signs(study):
+    """The thruster-square design: u, v and r change sign within every experiment."""
+    d = study.designs(True, manoeuvres=True)
+    system, n, k, _ = d["Viknes 830 manoeuvres, white current"]
+    log = system.simulate(n, k, seed=0).to_log(aggregate=False)
+    for _, g in log.data.groupby("experiment"):
+        for s in ("u", "v", "r"):
+            assert g[s].min() < 0 < g[s].max()
+
+
+def test_partial_csv_is_whole(study, tmp_path):
+    out = tmp_path / "runs.csv"
+    study._write_csv(pd.DataFrame({"a": [1, 2]}), out)
+    assert pd.read_csv(out)["a"].tolist() == [1, 2] and not (tmp_path / "runs.csv.tmp").exists()
 
 
 @pytest.mark.slow
