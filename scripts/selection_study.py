@@ -559,6 +559,9 @@ def main(argv=None) -> int:
                     help="auxiliary model of the first pass (select_terms' first_model): "
                          "the base model, or every candidate fitted by IV from the base "
                          "model's instruments")
+    ap.add_argument("--first-run", type=int, default=0,
+                    help="skip the runs before this one (continue a study cut short: "
+                         "the same seeds; summarise both tables with --from-csv)")
     ap.add_argument("--from-csv", type=Path, action="append",
                     help="summarise the per-run table(s) written by --out instead of "
                          "simulating")
@@ -598,6 +601,8 @@ def main(argv=None) -> int:
             rows = []
             base_label = args.base if args.first == "base" else f"{args.base}+library"
             for r, ss in enumerate(seeds):
+                if r < args.first_run:
+                    continue
                 for row in one_run(system, n, k, library, ss, oracle=r < args.oracle_runs,
                                    base=args.base, first=args.first):
                     row.update(design=name, run=r, base=base_label)
