@@ -390,10 +390,15 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
             for t in truth.equations[s]:  # each true term, through its representative
                 row[f"tkeep|{s}|{t}"] = rep[(s, str(canonical(t)))] in picked[s]
         no_false = all(picked[s] <= true_rep[s] for s in truth.states)
+        fit = None
         if method == "ivsel" and no_false:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                fit = identify(log, res.spec, "iv-zero-mean")
+                try:
+                    fit = identify(log, res.spec, "iv-zero-mean")
+                except ValueError:  # the selected structure cannot be fitted: no intervals
+                    row["fit_failed"] = True
+        if fit is not None:
             se = np.sqrt(np.diag(fit.cov))
             hits = 0
             total = 0
