@@ -662,7 +662,7 @@ def report(df: pd.DataFrame, name: str, truth: ModelSpec) -> pd.DataFrame:
     summary["detectable_structure"] = summary["method"].map(det)
     oc = [c for c in iv.columns if c.startswith("oracle_cover|")]
     if oc:
-        hits = iv[oc].stack().astype(float)
+        hits = iv[oc].stack().dropna().astype(float)
         summary.loc[summary.method == "ivsel", "oracle_coverage"] = float(hits.mean())
         summary.loc[summary.method == "ivsel", "oracle_intervals"] = int(hits.size)
     with pd.option_context("display.width", 250):
