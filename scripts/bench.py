@@ -265,6 +265,7 @@ BENCHES: dict[str, Callable[[], Callable | None]] = {
     "mc_threads": lambda: _load("bench_scaling", "bench_mc_threads"),
     "identify_memory": lambda: _load("bench_scaling", "bench_identify_memory"),
     "pem_path": lambda: _load("bench_scaling", "bench_pem_path"),
+    "select": lambda: _load("bench_select", "bench_select"),
 }
 
 #: The benchmarks of the generated performance page (``--docs``).

@@ -19,19 +19,29 @@ true term, the largest share of runs keeping any one zero-coefficient candidate,
 share of runs with the *detectable* structure (every true term whose test has at least
 95 % power at this length kept, no zero-coefficient candidate kept), and for ``ivsel``
 the coverage of the 95 % intervals of ``identify(method="iv-zero-mean")`` on the
-selected spec (runs with the true structure; HAC covariance) and of the same intervals
-on the true structure (the oracle, first ``--oracle-runs`` runs). A comparator that is
+selected spec (runs with the true structure; HAC covariance; and, as
+``coverage_no_zero_term``, over the kept true terms of every run that keeps no
+zero-coefficient candidate) and of the same intervals on the true structure (the
+oracle, first ``--oracle-runs`` runs). A comparator that is
 not installed is skipped. Per true term: its keep rate by every method, the median
 ``|t|`` and the noncentrality ``|θ0|/SE`` of the oracle fit, the power of the
 selection's test at this length and the log length at which it reaches 95 %.
 
-Systems (``--system``): ``heave`` (1 × 30 000 samples) and ``cybership2`` (the
+Systems (``--system``): ``heave`` (1 × 30 000 samples); ``cybership2`` (the
 catalogue's CyberShip II model with the pulse design :data:`CYBERSHIP_LEVELS`; length
-``--experiments`` × ``--samples``, default 4 × 5 000).
+``--experiments`` × ``--samples``, default 4 × 5 000); ``cybership2-planned`` (the same
+vessel driven open loop by the trial planner's manoeuvres, :func:`planned_programmes`;
+default 4 × 2 500); ``viknes830`` (the catalogue's Viknes 830 with its pulse design,
+default 4 × 2 500). ``--first library`` starts the selection from the library model
+(``select_terms(first_model="library")``).
 
     nice -n 10 python scripts/selection_study.py --runs 200 --system heave
     OMP_NUM_THREADS=1 nice -n 10 python scripts/selection_study.py --runs 200 \
         --system cybership2 --samples 2500 --oracle-runs 50 --power-out power.csv
+    OMP_NUM_THREADS=1 nice -n 10 python scripts/selection_study.py --runs 200 \
+        --system viknes830 --oracle-runs 50
+    OMP_NUM_THREADS=1 nice -n 10 python scripts/selection_study.py --runs 200 \
+        --system cybership2-planned --first library --oracle-runs 50
 """
 
 from __future__ import annotations
@@ -50,6 +60,7 @@ from vesselid.identify import identify
 from vesselid.model.spec import ModelSpec
 from vesselid.model.terms import Term
 from vesselid.plant.disturbances import Gaussian, GaussMarkov
+from vesselid.plant.signals import InputSignal
 from vesselid.plant.systems import System, heave
 from vesselid.selection import select_terms
 from vesselid.selection.engine import library_factors, regressors
@@ -94,11 +105,124 @@ def _cybership_system(current_u, current_v) -> System:
                   x0=base.x0, model=base.model)
 
 
-SYSTEMS = ("heave", "cybership2")
+class _Schedule(InputSignal):
+    """A fixed force schedule (one experiment of a planned trial) as an input design."""
+
+    def __init__(self, values: np.ndarray, label: str) -> None:
+        self.values = np.asarray(values, dtype=float)
+        self.label = label
+
+    def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        if n > self.values.size:
+            raise ValueError(f"the schedule has {self.values.size} samples, {n} asked for")
+        return self.values[:n].copy()
+
+    def to_dict(self) -> dict:
+        return {"kind": "schedule", "programme": self.label, "samples": int(self.values.size)}
 
 
-def designs(quick: bool, samples: int | None = None, experiments: int | None = None
-            ) -> dict:
+def planned_programmes(samples: int, experiments: int) -> list:
+    """The trial planner's manoeuvres for CyberShip II (:func:`vesselid.studies.planner.
+    plan_trial`: blocks of half an experiment chosen to minimise the worst relative
+    standard error of the full structure's parameters; thruster squares whose surge force
+    alternates ahead/astern, so ``u``, ``v`` and ``r`` all change sign)."""
+    from vesselid.studies.planner import plan_trial
+
+    block = samples // 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        plan = plan_trial(samples=samples * experiments, experiments=experiments,
+                          block=block, evaluate_block=block, paths=0)
+    return plan.programmes
+
+
+def _cybership_planned_system(current_u, current_v, samples: int, experiments: int
+                              ) -> System:
+    """CyberShip II driven open loop by the planner's manoeuvres. ``u``, ``v`` and ``r``
+    change sign within every experiment, so ``v*|r|`` and ``r*|v|`` are distinct in the
+    logs: the true structure is the hull's full one (25 terms), not the merged one of
+    steady turns."""
+    from vesselid.plant.vessels.cybership2 import cybership2_system
+    from vesselid.studies.manoeuvres import NominalVessel
+
+    base = cybership2_system()
+    x0 = [base.x0[s] for s in base.spec.states]
+    vessel = NominalVessel.cybership2()
+    forces = [prog.schedule(vessel, samples, x0=x0)
+              for prog in planned_programmes(samples, experiments)]
+    inputs = {name: tuple(_Schedule(f[:, j], prog_label) for f, prog_label in
+                          zip(forces, (f"experiment {e}" for e in range(experiments)),
+                              strict=True))
+              for j, name in enumerate(base.spec.inputs)}
+    return System(spec=base.spec, inputs=inputs, current={"u": current_u, "v": current_v},
+                  process_noise=base.process_noise, sensor_noise=base.sensor_noise,
+                  x0=base.x0)
+
+
+def _viknes_system(current_u, current_v) -> System:
+    """The catalogue's Viknes 830 (random pulses on static offsets, starboard and port
+    turns in alternate experiments) with a current inside the modulus on ``u`` and ``v``."""
+    from vesselid.plant.vessels.viknes830 import system as viknes830_system
+
+    base = viknes830_system()
+    return System(spec=base.spec, inputs=base.inputs,
+                  current={"u": current_u, "v": current_v},
+                  process_noise=base.process_noise, sensor_noise=base.sensor_noise,
+                  x0=base.x0, model=base.model)
+
+
+#: Viknes 830 thruster-square programmes, one per experiment: ``(hold_y, hold_n, hold_x)``
+#: seconds of the sway-force, yaw-moment and ahead/astern engine reversals
+#: (:class:`vesselid.studies.manoeuvres.ThrusterSquare`, full sway force and yaw moment,
+#: engine ±6 kN).
+VIKNES_SQUARES = ((10.0, 7.0, 30.0), (7.0, 10.0, 15.0), (5.0, 3.5, 30.0), (10.0, 7.0, 15.0))
+
+
+def _viknes_manoeuvre_system(current_u, current_v, samples: int, experiments: int
+                             ) -> System:
+    """Viknes 830 driven open loop by thruster squares (:data:`VIKNES_SQUARES`): ``u``,
+    ``v`` and ``r`` change sign within every experiment and the yaw moment reverses
+    faster than the yaw rate settles, so ``r`` and ``N`` (and their products with ``u``)
+    differ in the logs."""
+    from vesselid.plant.vessels.viknes830 import HULL
+    from vesselid.plant.vessels.viknes830 import system as viknes830_system
+    from vesselid.studies.manoeuvres import NominalVessel, Programme, ThrusterSquare
+
+    base = viknes830_system()
+    x0 = [base.x0[s] for s in base.spec.states]
+    vessel = NominalVessel(HULL.spec(base.spec.dt), base.spec.dt,
+                           limits=tuple(HULL.force_max))
+    forces = []
+    for e in range(experiments):
+        hy, hn, hx = VIKNES_SQUARES[e % len(VIKNES_SQUARES)]
+        prog = Programme([ThrusterSquare(thrust=6000.0, sway=600.0, moment=2500.0,
+                                         hold_y=hy, hold_n=hn, hold_x=hx, low=-1.0)])
+        forces.append((prog.schedule(vessel, samples, x0=x0), prog.label()))
+    inputs = {name: tuple(_Schedule(f[:, j], label) for f, label in forces)
+              for j, name in enumerate(base.spec.inputs)}
+    return System(spec=base.spec, inputs=inputs, current={"u": current_u, "v": current_v},
+                  process_noise=base.process_noise, sensor_noise=base.sensor_noise,
+                  x0=base.x0)
+
+
+SYSTEMS = ("heave", "cybership2", "cybership2-planned", "viknes830", "viknes830-manoeuvres")
+
+
+def system_key(design: str) -> str:
+    """The ``--system`` name of a design."""
+    if design.startswith("CyberShip II planned"):
+        return "cybership2-planned"
+    if design.startswith("CyberShip"):
+        return "cybership2"
+    if design.startswith("Viknes 830 manoeuvres"):
+        return "viknes830-manoeuvres"
+    if design.startswith("Viknes"):
+        return "viknes830"
+    return "heave"
+
+
+def designs(quick: bool, samples: int | None = None, experiments: int | None = None,
+            planned: bool = False, manoeuvres: bool = False) -> dict:
     """name -> (system, samples per experiment, experiments, library).
 
     ``samples``/``experiments`` override the CyberShip II log length (default 4 × 5 000
@@ -107,8 +231,9 @@ def designs(quick: bool, samples: int | None = None, experiments: int | None = N
     dt = 0.1
     n_h = 3000 if quick else 30000
     n_c = int(samples) if samples else (1000 if quick else 5000)
+    n_v = int(samples) if samples else (1000 if quick else 2500)
     k_c = int(experiments) if experiments else 4
-    return {
+    out = {
         "heave, white current": (_heave_system(Gaussian(0.0, 0.1)), n_h, 1, "vessel"),
         "heave, Gauss-Markov current": (
             _heave_system(GaussMarkov(0.0, 0.05, 5.0, 1.0, 0.15)), n_h, 1, "vessel"),
@@ -118,7 +243,30 @@ def designs(quick: bool, samples: int | None = None, experiments: int | None = N
         "CyberShip II, Gauss-Markov current": (
             _cybership_system(GaussMarkov(0.0, 0.002, 1.0, dt, 0.006),
                               GaussMarkov(0.0, 0.002, 1.0, dt, 0.006)), n_c, k_c, "vessel"),
+        "Viknes 830, white current": (
+            _viknes_system(Gaussian(0.0, 0.05), Gaussian(0.0, 0.05)), n_v, k_c, "vessel"),
+        "Viknes 830, Gauss-Markov current": (
+            _viknes_system(GaussMarkov(0.0, 0.02, 1.0, dt, 0.06),
+                           GaussMarkov(0.0, 0.02, 1.0, dt, 0.06)), n_v, k_c, "vessel"),
     }
+    if planned:  # the planner runs only when these designs are asked for
+        n_p = int(samples) if samples else (1000 if quick else 2500)
+        out["CyberShip II planned, white current"] = (
+            _cybership_planned_system(Gaussian(0.0, 0.005), Gaussian(0.0, 0.005), n_p, k_c),
+            n_p, k_c, "vessel")
+        out["CyberShip II planned, Gauss-Markov current"] = (
+            _cybership_planned_system(GaussMarkov(0.0, 0.002, 1.0, dt, 0.006),
+                                      GaussMarkov(0.0, 0.002, 1.0, dt, 0.006), n_p, k_c),
+            n_p, k_c, "vessel")
+    if manoeuvres:
+        out["Viknes 830 manoeuvres, white current"] = (
+            _viknes_manoeuvre_system(Gaussian(0.0, 0.05), Gaussian(0.0, 0.05), n_v, k_c),
+            n_v, k_c, "vessel")
+        out["Viknes 830 manoeuvres, Gauss-Markov current"] = (
+            _viknes_manoeuvre_system(GaussMarkov(0.0, 0.02, 1.0, dt, 0.06),
+                                     GaussMarkov(0.0, 0.02, 1.0, dt, 0.06), n_v, k_c),
+            n_v, k_c, "vessel")
+    return out
 
 
 def linear_base(spec: ModelSpec) -> ModelSpec:
@@ -175,7 +323,7 @@ def _stlsq(phi: np.ndarray, y: np.ndarray) -> np.ndarray | None:
 
 # --------------------------------------------------------------------------------- run
 def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = True,
-            base: str = "linear") -> list[dict]:
+            base: str = "linear", first: str = "base") -> list[dict]:
     sim = system.simulate(n, k, seed=seed)
     log = sim.to_log(aggregate=False)
     truth = system.model if system.model is not None else system.spec
@@ -186,7 +334,7 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = select_terms(log, base, lib, n_boot=0)
+        res = select_terms(log, base, lib, n_boot=0, first_model=first)
     secs = time.perf_counter() - t0
     tab = res.table
     rep = {(r.equation, r.term): (r.represented_by or r.term) for r in tab.itertuples()}
@@ -241,10 +389,16 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
                 row[f"true|{s}|{cand}"] = cand in true_rep[s]
             for t in truth.equations[s]:  # each true term, through its representative
                 row[f"tkeep|{s}|{t}"] = rep[(s, str(canonical(t)))] in picked[s]
-        if method == "ivsel" and exact:
+        no_false = all(picked[s] <= true_rep[s] for s in truth.states)
+        fit = None
+        if method == "ivsel" and no_false:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                fit = identify(log, res.spec, "iv-zero-mean")
+                try:
+                    fit = identify(log, res.spec, "iv-zero-mean")
+                except ValueError:  # the selected structure cannot be fitted: no intervals
+                    row["fit_failed"] = True
+        if fit is not None:
             se = np.sqrt(np.diag(fit.cov))
             hits = 0
             total = 0
@@ -258,7 +412,10 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
                 sign = _sign(Term.parse(term), true_terms[0], log, s)
                 hits += int(abs(est - sign * th0) <= 1.959964 * sd)
                 total += 1
-            row["covered"], row["intervals"] = hits, total
+            if exact:
+                row["covered"], row["intervals"] = hits, total
+            # every kept term true (true terms below the power bound may be missing)
+            row["covered_kept"], row["intervals_kept"] = hits, total
         if t_oracle is not None and method == "ivsel":
             for (s, term), tv in t_oracle.items():
                 row[f"oracle_t|{s}|{term}"] = float(tv)
@@ -308,6 +465,12 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
             row["coverage"] = cov
             row["coverage_se"] = math.sqrt(cov * (1 - cov) / g["intervals"].sum())
             row["intervals"] = int(g["intervals"].sum())
+        if "covered_kept" in g and g["intervals_kept"].sum() > 0:
+            cov = g["covered_kept"].sum() / g["intervals_kept"].sum()
+            row["coverage_no_zero_term"] = cov
+            row["coverage_no_zero_term_se"] = math.sqrt(cov * (1 - cov)
+                                                        / g["intervals_kept"].sum())
+            row["intervals_no_zero_term"] = int(g["intervals_kept"].sum())
         if method == "ivsel":
             row["median_seconds"] = float(g["seconds"].median())
         out.append(row)
@@ -397,6 +560,13 @@ def main(argv=None) -> int:
                     help="base model of the selection (its first auxiliary model): every "
                          "equation linear in the states and inputs (default), or the true "
                          "structure (a user who knows the vessel's usual structure)")
+    ap.add_argument("--first", choices=("base", "library"), default="base",
+                    help="auxiliary model of the first pass (select_terms' first_model): "
+                         "the base model, or every candidate fitted by IV from the base "
+                         "model's instruments")
+    ap.add_argument("--first-run", type=int, default=0,
+                    help="skip the runs before this one (continue a study cut short: "
+                         "the same seeds; summarise both tables with --from-csv)")
     ap.add_argument("--from-csv", type=Path, action="append",
                     help="summarise the per-run table(s) written by --out instead of "
                          "simulating")
@@ -412,8 +582,11 @@ def main(argv=None) -> int:
             loaded["base"] = "linear"
         loaded["base"] = loaded["base"].fillna("linear").astype(str).str.lower()
     for d_i, (name, (system, n, k, library)) in enumerate(
-            designs(args.quick, args.samples, args.experiments).items()):
-        key = "cybership2" if name.startswith("CyberShip") else "heave"
+            designs(args.quick, args.samples, args.experiments,
+                    planned=bool(args.system and "cybership2-planned" in args.system),
+                    manoeuvres=bool(args.system and "viknes830-manoeuvres" in args.system)
+                    ).items()):
+        key = system_key(name)
         if args.system and key not in args.system:
             continue
         if args.design and not any(s in name for s in args.design):
@@ -431,24 +604,37 @@ def main(argv=None) -> int:
         else:
             seeds = np.random.SeedSequence([args.seed, d_i]).spawn(args.runs)
             rows = []
+            base_label = args.base if args.first == "base" else f"{args.base}+library"
             for r, ss in enumerate(seeds):
+                if r < args.first_run:
+                    continue
                 for row in one_run(system, n, k, library, ss, oracle=r < args.oracle_runs,
-                                   base=args.base):
-                    row.update(design=name, run=r, base=args.base)
+                                   base=args.base, first=args.first):
+                    row.update(design=name, run=r, base=base_label)
                     rows.append(row)
                 if (r + 1) % 10 == 0:
                     print(f"  {name}: {r + 1} runs, {time.perf_counter() - t0:.0f} s",
                           file=sys.stderr, flush=True)
+                    if args.out:  # the runs so far, so that a long study can be cut short
+                        _write_csv(pd.concat([*frames, pd.DataFrame(rows)],
+                                             ignore_index=True), args.out)
             df = pd.DataFrame(rows)
-            print(f"{name}: {args.runs} runs, {k} x {n} samples, base {args.base}, "
+            print(f"{name}: {args.runs} runs, {k} x {n} samples, base {base_label}, "
                   f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
         frames.append(df)
         powers.append(report(df, name, truth))
     if args.out and frames and loaded is None:
-        pd.concat(frames, ignore_index=True).to_csv(args.out, index=False)
+        _write_csv(pd.concat(frames, ignore_index=True), args.out)
     if args.power_out and powers:
         pd.concat(powers, ignore_index=True).to_csv(args.power_out, index=False)
     return 0
+
+
+def _write_csv(df: pd.DataFrame, path: Path) -> None:
+    """Write ``df`` to ``path`` whole or not at all (temporary file, then rename)."""
+    tmp = path.with_name(path.name + ".tmp")
+    df.to_csv(tmp, index=False)
+    tmp.replace(path)
 
 
 def _from_table(df: pd.DataFrame, oracle_rows: pd.DataFrame) -> pd.DataFrame:
@@ -476,7 +662,7 @@ def report(df: pd.DataFrame, name: str, truth: ModelSpec) -> pd.DataFrame:
     summary["detectable_structure"] = summary["method"].map(det)
     oc = [c for c in iv.columns if c.startswith("oracle_cover|")]
     if oc:
-        hits = iv[oc].stack().astype(float)
+        hits = iv[oc].stack().dropna().astype(float)
         summary.loc[summary.method == "ivsel", "oracle_coverage"] = float(hits.mean())
         summary.loc[summary.method == "ivsel", "oracle_intervals"] = int(hits.size)
     with pd.option_context("display.width", 250):

@@ -83,6 +83,42 @@ def test_noisy_heave_selects_true_terms_and_groups_collinear():
     assert res.spec.theta0 is None and res.spec.aggregate == {}
 
 
+def test_noisy_heave_library_first_model():
+    """The library model as the first auxiliary model: a linear base, the same true
+    structure as from the true base, the instruments' source reported."""
+    log = _heave_log(30000, 3)
+    base = ModelSpec("heave", ["w"], ["tau"], {"w": ["w", "tau"]}, dt=1.0)
+    res = select_terms(log, base, "vessel", n_boot=0, first_model="library")
+    assert res.selected == {"w": ["w", "w*|w|", "tau"]}
+    assert res.aux_source.startswith(("library model", "selected model"))
+
+
+def test_stepwise_ends_at_a_fixed_point_with_a_near_copy():
+    """Forward-backward search on exact instruments (z = φ, independent noise): the
+    final model is the true one, and no candidate left out would pass the test when
+    added to it (the search ends at a fixed point, whatever it dropped on the way)."""
+    from vesselid.selection.engine import _added_t, critical_value, stepwise
+
+    rng = np.random.default_rng(7)
+    n, nb = 20000, 50
+    x1, x2, x4 = rng.standard_normal((3, n))
+    x3 = x1 + 0.3 * x2 + 0.05 * rng.standard_normal(n)  # near-copy of the true pair's sum
+    phi = np.column_stack([x3, x1, x2, x4])
+    y = x1 + 0.3 * x2 + 0.2 * rng.standard_normal(n)
+    m_mat = np.stack([b.T @ b for b in np.split(phi, nb)])
+    m_vec = np.stack([b.T @ yy for b, yy in zip(np.split(phi, nb), np.split(y, nb),
+                                                 strict=True)])
+    crit = critical_value(0.01, 4, n)
+    c = np.ones(nb)
+    keep, theta, _, _ = stepwise(m_mat, m_vec, c, crit)
+    assert np.flatnonzero(keep).tolist() == [1, 2]
+    assert np.allclose(theta[[1, 2]], [1.0, 0.3], atol=0.02)
+    out = [j for j in range(4) if not keep[j]]
+    added = _added_t(m_mat.sum(0), m_vec.sum(0), m_mat, m_vec, c, float(nb),
+                     np.flatnonzero(keep).tolist(), out)
+    assert np.all(added < crit)
+
+
 @pytest.mark.parametrize("library, match", [
     ("", "empty"),
     ("w, q", "unknown signal 'q'"),
@@ -104,7 +140,8 @@ def test_library_larger_than_data():
 
 
 @pytest.mark.parametrize("kw", [{"alpha": 0.0}, {"alpha": float("nan")}, {"n_boot": -1},
-                                {"passes": 0}, {"block_length": 1}])
+                                {"passes": 0}, {"block_length": 1},
+                                {"first_model": "lasso"}])
 def test_bad_options(kw):
     log = _heave_log(400, 0)
     with pytest.raises(VesselidError):
@@ -131,6 +168,10 @@ def test_cli_select_then_identify(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "unknown signal 'nope'" in err[0]
     assert not (tmp_path / "x.toml").exists()
+    lib_out = tmp_path / "lib.toml"
+    assert main(["select", str(path), "--library", "vessel", "--out", str(lib_out),
+                 "--bootstrap", "0", "--first-model", "library"]) == 0
+    assert lib_out.exists()
 
 
 def test_seeded_bootstrap_reproducible():

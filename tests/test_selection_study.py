@@ -119,3 +119,55 @@ def test_frols_one_pass_criterion_matches_sysidentpy(study):
     old[np.asarray(piv[:n_terms], dtype=int)] = True
     assert np.array_equal(new, old)
     assert new[[0, 1]].all()
+
+
+def test_design_names_and_viknes_truth(study):
+    """Every design maps to its ``--system`` name; the Viknes 830 designs carry the
+    catalogue's structure (10 terms) with the current inside the modulus on u and v."""
+    d = study.designs(True)
+    assert {study.system_key(n) for n in d} == {"heave", "cybership2", "viknes830"}
+    system, n, k, library = d["Viknes 830, Gauss-Markov current"]
+    truth = (system.model or system.spec).with_aggregate(None)
+    assert {s: [str(t) for t in truth.equations[s]] for s in truth.states} == {
+        "u": ["u", "u*|u|", "v*r", "X"], "v": ["v", "v*|v|", "u*r", "Y"], "r": ["r", "N"]}
+    assert set(system.current) == {"u", "v"} and (n, k, library) == (1000, 4, "vessel")
+    assert study.system_key("CyberShip II planned, white current") == "cybership2-planned"
+    assert study.system_key("Viknes 830 manoeuvres, white current") == "viknes830-manoeuvres"
+
+
+def test_schedule_input_is_the_fixed_schedule(study):
+    sched = study._Schedule(np.arange(10.0), "experiment 0")
+    rng = np.random.default_rng(0)
+    assert np.array_equal(sched.sample(rng, 4), np.arange(4.0))
+    assert sched.to_dict() == {"kind": "schedule", "programme": "experiment 0", "samples": 10}
+    with pytest.raises(ValueError, match="10 samples"):
+        sched.sample(rng, 11)
+
+
+def test_viknes_manoeuvres_change_signs(study):
+    """The thruster-square design: u, v and r change sign within every experiment."""
+    d = study.designs(True, manoeuvres=True)
+    system, n, k, _ = d["Viknes 830 manoeuvres, white current"]
+    log = system.simulate(n, k, seed=0).to_log(aggregate=False)
+    for _, g in log.data.groupby("experiment"):
+        for s in ("u", "v", "r"):
+            assert g[s].min() < 0 < g[s].max()
+
+
+def test_partial_csv_is_whole(study, tmp_path):
+    out = tmp_path / "runs.csv"
+    study._write_csv(pd.DataFrame({"a": [1, 2]}), out)
+    assert pd.read_csv(out)["a"].tolist() == [1, 2] and not (tmp_path / "runs.csv.tmp").exists()
+
+
+@pytest.mark.slow
+def test_planned_cybership_design_changes_signs(study):
+    """The planner's manoeuvres make u, v and r change sign within every experiment, so
+    the planned design's truth is the hull's full 25-term structure."""
+    d = study.designs(True, planned=True)
+    system, n, k, _ = d["CyberShip II planned, white current"]
+    assert (n, k) == (1000, 4) and sum(len(v) for v in system.spec.equations.values()) == 25
+    log = system.simulate(n, k, seed=0).to_log(aggregate=False)
+    for _, g in log.data.groupby("experiment"):
+        for s in ("u", "v", "r"):
+            assert g[s].min() < 0 < g[s].max()

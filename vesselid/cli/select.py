@@ -34,6 +34,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--block-length", type=int_at_least(2), default=None,
                    help="samples per block of the HAC estimator and the bootstrap")
     p.add_argument("--seed", type=int, default=0, help="bootstrap seed")
+    p.add_argument("--first-model", choices=("base", "library"), default="base",
+                   help="auxiliary model of the first pass's instruments: the base model "
+                        "(default) or every candidate of the library fitted by IV from "
+                        "the base model's instruments")
     p.set_defaults(func=cmd_select)
 
 
@@ -60,7 +64,8 @@ def cmd_select(args: argparse.Namespace) -> int:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = select_terms(log, spec, library, alpha=args.alpha, n_boot=args.bootstrap,
-                           block_length=args.block_length, seed=args.seed)
+                           block_length=args.block_length, seed=args.seed,
+                           first_model=args.first_model)
     res.save(args.out)
     if args.json:
         write_json(args.json, _json.dumps(res.to_dict(), indent=2))

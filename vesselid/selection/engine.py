@@ -403,8 +403,10 @@ def stepwise(m_mat: np.ndarray, m_vec: np.ndarray, counts: np.ndarray, crit: flo
 
     From ``start`` (default empty), add the candidate with the largest HAC ``|t|`` when
     added to the current model while that ``|t|`` reaches ``crit``; after every addition
-    drop the term with the smallest ``|t|`` while it is below ``crit`` (a dropped term is
-    not added again). Only small models are ever fitted, so a large library with nearly
+    drop the term with the smallest ``|t|`` while it is below ``crit``. A dropped term may
+    come back when the model it left has changed (a near-copy that displaced it was itself
+    dropped); a model already visited is never entered again, so the search cannot cycle.
+    Only small models are ever fitted, so a large library with nearly
     collinear candidates never enters one ill-conditioned fit. An equation keeps at least
     one term (its strongest candidate), as in :func:`eliminate`.
 
@@ -420,28 +422,37 @@ def stepwise(m_mat: np.ndarray, m_vec: np.ndarray, counts: np.ndarray, crit: flo
     b_full = c @ mv
     n_eff = float(c.sum())
     model: list[int] = [] if start is None else [int(j) for j in start]
-    banned: set[int] = set()
+    visited: set[frozenset[int]] = {frozenset(model)}
+    singular: set[int] = set()  # candidates whose addition makes the moment matrix singular
     t_try = np.zeros(p)
     for _ in range(4 * p + 4):
-        cands = [j for j in range(p) if j not in model and j not in banned]
+        cands = [j for j in range(p) if j not in model and j not in singular]
         if not cands:
             break
         tj = _added_t(a_full, b_full, mm, mv, c, n_eff, model, cands)
         t_try[cands] = tj
-        q = int(np.argmax(tj))
-        best, best_t = cands[q], float(tj[q])
-        if best_t < crit:
+        order = np.argsort(-tj, kind="stable")
+        best = None
+        for q in order:
+            if tj[q] < crit:
+                break
+            if frozenset([*model, cands[q]]) not in visited:
+                best = cands[int(q)]
+                break
+        if best is None:
             break
         model.append(best)
+        visited.add(frozenset(model))
         while len(model) > 1:
             fit = _iv_fit(a_full, b_full, mm, mv, c, n_eff, model)
             if fit is None:
-                banned.add(model.pop())
+                singular.add(model.pop())
                 continue
             k = int(np.argmin(np.abs(fit[2])))
             if abs(fit[2][k]) >= crit:
                 break
-            banned.add(model.pop(k))
+            model.pop(k)
+            visited.add(frozenset(model))
     if not model:  # an equation needs a term: its strongest candidate, as elimination keeps
         model = [int(np.argmax(t_try))]
     keep = np.zeros(p, dtype=bool)

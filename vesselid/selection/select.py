@@ -78,6 +78,56 @@ def _refined_iv(data, spec: ModelSpec, *, max_iter: int = 30, tol: float = 1e-8
     return theta
 
 
+def _library_model(data, spec: ModelSpec, union: list[Term], keep_idx: dict[str, np.ndarray],
+                   z: np.ndarray, segs, phi_c: np.ndarray, y_c: np.ndarray,
+                   iterations: int = 3) -> tuple[np.ndarray, ModelSpec] | None:
+    """Every represented candidate, fitted by IV with zero-mean instruments ``z`` (those
+    of the base model) and refined ``iterations`` times with the instruments it simulates
+    itself: a consistent model of the whole library whose simulation tracks the vessel
+    where a base model with few terms does not. When that first fit is singular or its
+    simulation diverges, the library model is fitted by refined IV from least squares
+    instead. Returns the instruments of the last refinement whose simulation stays
+    bounded and that model, or ``None`` when neither start gives a bounded simulation."""
+    full = _spec_with(spec, {s: [union[j] for j in keep_idx[s]] for s in spec.states},
+                      name=f"{spec.name} (library)")
+    z_new = _iv_start(data, full, union, keep_idx, z, segs, phi_c, y_c)
+    if z_new is None:  # refined IV of the library model from least squares
+        theta_ls = _refined_iv(data, full, max_iter=int(iterations))
+        if theta_ls is None:
+            return None
+        try:
+            return engine.instruments(data, union, full, theta_ls), full
+        except SelectionError:
+            return None
+    for _ in range(int(iterations) - 1):
+        z_next = _iv_start(data, full, union, keep_idx, z_new, segs, phi_c, y_c)
+        if z_next is None:
+            break
+        z_new = z_next
+    return z_new, full
+
+
+def _iv_start(data, full, union, keep_idx, z, segs, phi_c, y_c) -> np.ndarray | None:
+    """Instruments simulated by the library model fitted by IV with instruments ``z``;
+    ``None`` when that fit is singular or its simulation diverges."""
+    z_c = engine.centred(z, segs)
+    theta = []
+    for i, s in enumerate(full.states):
+        sub = keep_idx[s]
+        try:
+            theta.append(np.linalg.solve(z_c[:, sub].T @ phi_c[:, sub],
+                                         z_c[:, sub].T @ y_c[:, i]))
+        except np.linalg.LinAlgError:
+            return None
+    theta_v = np.concatenate(theta)
+    if not np.all(np.isfinite(theta_v)):
+        return None
+    try:
+        return engine.instruments(data, union, full, theta_v)
+    except SelectionError:
+        return None
+
+
 def _spec_with(spec: ModelSpec, equations: dict[str, list[Term]], name: str | None = None
                ) -> ModelSpec:
     return ModelSpec(name or spec.name, spec.states, spec.inputs,
@@ -109,6 +159,7 @@ def select_terms(
     passes: int = 3,
     near: float = 0.999,
     seed: int = 0,
+    first_model: str = "base",
 ) -> SelectionResult:
     """Select the terms of every state equation from a candidate library.
 
@@ -140,6 +191,14 @@ def select_terms(
         a near alternative of a selected one.
     seed : int
         Seed of the bootstrap.
+    first_model : {"base", "library"}
+        Auxiliary model of the first pass's instruments: the base model's refined-IV fit
+        (``"base"``), or (``"library"``) every represented candidate of the library
+        fitted by IV with the base model's instruments and refined three times with its
+        own simulated instruments (falls back to the base model when that fit is singular
+        or its simulation diverges). The library model tracks a vessel whose base model
+        is too simple (e.g. linear) far better, which strengthens the instruments of
+        every test.
 
     Returns
     -------
@@ -153,6 +212,8 @@ def select_terms(
     LogValidationError
         Missing columns, NaN/inf, non-increasing time.
     """
+    if first_model not in ("base", "library"):
+        raise SelectionError(f"first_model must be 'base' or 'library', got {first_model!r}")
     alpha = _check_number("alpha", alpha, 0.0, 1.0)
     tol = _check_number("tol", tol, 0.0, 1.0)
     near = _check_number("near", near, 0.0, 1.0 + 1e-12)
@@ -227,6 +288,12 @@ def select_terms(
         raise SelectionError("the base model cannot be fitted to this log or its simulation "
                              "diverges, so no instruments can be formed; give a stable base "
                              "model (--model) whose equations hold the dominant terms")
+
+    if first_model == "library":
+        lib_model = _library_model(data, spec, union, keep_idx, z, segs, phi_c, y_c)
+        if lib_model is not None:
+            z = lib_model[0]
+            aux_source = "library model (IV from the base model's instruments, refined)"
 
     history: list[dict[str, list[str]]] = []
     fits: dict[str, tuple] = {}
