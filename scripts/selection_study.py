@@ -142,13 +142,14 @@ def _cybership_planned_system(current_u, current_v, samples: int, experiments: i
     change sign within every experiment, so ``v*|r|`` and ``r*|v|`` are distinct in the
     logs: the true structure is the hull's full one (25 terms), not the merged one of
     steady turns."""
-    from vesselid.plant.vessels.cybership2 import cybership2_system
-    from vesselid.studies.manoeuvres import NominalVessel
+    from vesselid.plant.vessels.cybership2 import HULL, cybership2_system
+    from vesselid.plant.vessels.kernel import VesselModel
+    from vesselid.studies.manoeuvres import FORCE_LIMITS
 
     base = cybership2_system()
     x0 = [base.x0[s] for s in base.spec.states]
-    vessel = NominalVessel.cybership2()
-    forces = [prog.schedule(vessel, samples, x0=x0)
+    vessel = VesselModel(HULL, base.spec.dt)
+    forces = [prog.schedule(vessel, samples, x0=x0, limits=FORCE_LIMITS)
               for prog in planned_programmes(samples, experiments)]
     inputs = {name: tuple(_Schedule(f[:, j], prog_label) for f, prog_label in
                           zip(forces, (f"experiment {e}" for e in range(experiments)),
@@ -186,12 +187,12 @@ def _viknes_manoeuvre_system(current_u, current_v, samples: int, experiments: in
     differ in the logs."""
     from vesselid.plant.vessels.viknes830 import HULL
     from vesselid.plant.vessels.viknes830 import system as viknes830_system
-    from vesselid.studies.manoeuvres import NominalVessel, Programme, ThrusterSquare
+    from vesselid.plant.vessels.kernel import VesselModel
+    from vesselid.studies.manoeuvres import Programme, ThrusterSquare
 
     base = viknes830_system()
     x0 = [base.x0[s] for s in base.spec.states]
-    vessel = NominalVessel(HULL.spec(base.spec.dt), base.spec.dt,
-                           limits=tuple(HULL.force_max))
+    vessel = VesselModel(HULL, base.spec.dt)
     forces = []
     for e in range(experiments):
         hy, hn, hx = VIKNES_SQUARES[e % len(VIKNES_SQUARES)]
