@@ -185,9 +185,9 @@ def _viknes_manoeuvre_system(current_u, current_v, samples: int, experiments: in
     ``v`` and ``r`` change sign within every experiment and the yaw moment reverses
     faster than the yaw rate settles, so ``r`` and ``N`` (and their products with ``u``)
     differ in the logs."""
+    from vesselid.plant.vessels.kernel import VesselModel
     from vesselid.plant.vessels.viknes830 import HULL
     from vesselid.plant.vessels.viknes830 import system as viknes830_system
-    from vesselid.plant.vessels.kernel import VesselModel
     from vesselid.studies.manoeuvres import Programme, ThrusterSquare
 
     base = viknes830_system()
