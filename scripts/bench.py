@@ -272,6 +272,22 @@ BENCHES: dict[str, Callable[[], Callable | None]] = {
 DOCS_BENCHES = ("single_envs", "mc_threads", "identify_memory", "pem_path", "kernel_paths")
 
 
+def _each_in_own_process(names: list[str]) -> dict:
+    """The figures of ``names``, each benchmark run by ``python bench.py --only NAME`` in
+    a process of its own (its console lines pass through)."""
+    import subprocess
+    import tempfile
+
+    results: dict = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in names:
+            out = Path(tmp) / f"{name}.json"
+            subprocess.run([sys.executable, __file__, "--only", name, "--json", str(out)],
+                           check=True)
+            results.update(json.loads(out.read_text()))
+    return results
+
+
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description="vesselid benchmarks (medians)")
     parser.add_argument("--only", nargs="*", choices=sorted(BENCHES), help="subset to run")
@@ -287,6 +303,12 @@ def main(argv: list[str] | None = None) -> dict:
         return results
     results: dict = {}
     names = args.only or (list(DOCS_BENCHES) if args.docs else list(BENCHES))
+    if args.docs and len(names) > 1:
+        # every figure of the page from a fresh process, as a user's command starts: one
+        # benchmark's objects (environments, large logs) would otherwise weigh on the
+        # next (a forked Monte Carlo worker copies the pages its parent's heap touches)
+        results = _each_in_own_process(names)
+        names = []
     for name in names:
         fn = BENCHES[name]()
         if fn is None:
