@@ -351,7 +351,7 @@ def _joint_start(best: dict[str, Any], model: str, n_par: int, scale: float) -> 
 
 #: Stationary correlations ρ_c of the sensor-noise process at which the unbounded
 #: one-step estimate of the joint model is computed (:func:`_local_joint`): the one with
-#: the largest |z| of the sensor-noise variance is kept.
+#: the largest ``|z|`` of the sensor-noise variance is kept.
 LOCAL_RHO_GRID = (0.3, 0.6, 0.8, 0.9, 0.95, 0.98)
 #: Twice the log-likelihood gain of the fitted joint model over the current model above
 #: which the joint fit itself is reported (its sensor-noise process is then far from
@@ -379,7 +379,7 @@ def _normals(k: int) -> np.ndarray:
 
 def _selection_weights(corr: np.ndarray) -> np.ndarray:
     """``w_j = E[Z_J² 1{J = j}]`` for ``Z ~ N(0, corr)`` and ``J = argmax_j |Z_j|``: the
-    variance the choice of the largest |z| over the grid adds (``Σ_j w_j ≥ 1``; one grid
+    variance the choice of the largest ``|z|`` over the grid adds (``Σ_j w_j ≥ 1``; one grid
     point: 1)."""
     lam, vec = np.linalg.eigh(0.5 * (corr + corr.T))
     root = vec * np.sqrt(np.maximum(lam, 0.0))

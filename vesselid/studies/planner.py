@@ -126,7 +126,8 @@ class DisturbanceLevels:
     """Disturbance levels the planner assumes (model scale, SI units).
 
     Defaults are those of ``vesselid sea-trial``
-    (:func:`vesselid.studies.seatrial.simulate_sea_trial`).
+    (:func:`vesselid.studies.seatrial.simulate_sea_trial`); :meth:`plant` turns the
+    levels into the vessel plant the planner works on.
 
     Parameters
     ----------
@@ -151,8 +152,6 @@ class DisturbanceLevels:
         Further process disturbances of the plant (e.g.
         :class:`~vesselid.plant.vessels.environment.ProcessForce`): their forces move the
         vessel's disturbed paths (:meth:`VesselModel.disturbed_paths`).
-
-    :meth:`plant` turns the levels into the vessel plant the planner works on.
     """
 
     sensor_std: tuple[float, float, float] = (0.005, 0.005, 0.002)
