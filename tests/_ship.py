@@ -49,3 +49,16 @@ def zigzag_log(spec: ModelSpec, n: int = 600, delta0: float = 0.35, psi_s: float
     psi, north, east = integrate_track(uu, x[:, 1], x[:, 2], spec.dt)
     return pd.DataFrame({"time": np.arange(n) * spec.dt, "u": uu, "v": x[:, 1], "r": x[:, 2],
                          "psi": psi, "north": north, "east": east, "delta": u_used[:, 0]})
+
+
+def write_hsva(path, g: pd.DataFrame) -> None:
+    """A zig-zag of :func:`zigzag_log` written as an HSVA table (``.dat``): four header
+    lines, then time, x0, y0, ψ (deg), the earth-fixed u and v, r (deg/s), p, δ (deg), rpm
+    (constant), thrust and torque."""
+    c, s = np.cos(g["psi"]), np.sin(g["psi"])
+    cols = [g["time"], g["north"], g["east"], np.degrees(g["psi"]),
+            c * g["u"] - s * g["v"], s * g["u"] + c * g["v"], np.degrees(g["r"]),
+            np.zeros(len(g)), np.degrees(g["delta"]), np.full(len(g), 10.2295),
+            np.zeros(len(g)), np.zeros(len(g))]
+    body = "\n".join(" ".join(f"{x:.12e}" for x in row) for row in np.column_stack(cols))
+    path.write_text("a\nb\nc\nd\n" + body + "\n", encoding="latin-1")

@@ -4,14 +4,12 @@ scripts/closed_loop_study.py reproduces its summary."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from _scripts import load_script
 
 from vesselid.identify.backend import kernels
 from vesselid.identify.closedloop import ClosedLoopIV
@@ -19,20 +17,10 @@ from vesselid.identify.data import from_log
 from vesselid.identify.loop import closed_loop_signals
 from vesselid.plant.closedloop import DESIGNS
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _load(name: str):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[name] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
 
 @pytest.fixture(scope="module")
 def bias_study():
-    return _load("closed_loop_bias_study")
+    return load_script("closed_loop_bias_study")
 
 
 @pytest.fixture(scope="module")
@@ -101,7 +89,7 @@ def test_one_run_variants(bias_study, small_log) -> None:
 
 
 def test_study_per_run_table_reproduces_summary(tmp_path) -> None:
-    study = _load("closed_loop_study")
+    study = load_script("closed_loop_study")
     path = tmp_path / "runs.csv"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

@@ -193,7 +193,7 @@ def test_cli_ingest_and_one_line_refusal(tmp_path):
 def test_shipped_kvlcc2_config_and_spec_end_to_end(tmp_path):
     """HSVA-format files of a known model in the shipped spec's structure → ingest with the
     shipped configuration → LS recovers the parameters exactly → validate fits 100 %."""
-    from _ship import zigzag_log
+    from _ship import write_hsva, zigzag_log
 
     from vesselid.identify import identify
     from vesselid.model.specs import load_spec, path
@@ -207,14 +207,7 @@ def test_shipped_kvlcc2_config_and_spec_end_to_end(tmp_path):
     u0 = 1.177
     for i, (d0, ps, first) in enumerate([(0.17, 0.17, 1), (0.35, 0.09, -1), (0.26, 0.17, -1)]):
         g = zigzag_log(spec, n=500, delta0=d0, psi_s=ps, first=first, u0=u0)
-        c, s = np.cos(g["psi"]), np.sin(g["psi"])
-        cols = [g["time"], g["north"], g["east"], np.degrees(g["psi"]),
-                c * g["u"] - s * g["v"], s * g["u"] + c * g["v"], np.degrees(g["r"]),
-                np.zeros(len(g)), np.degrees(g["delta"]), np.full(len(g), 10.2295),
-                np.zeros(len(g)), np.zeros(len(g))]
-        body = "\n".join(" ".join(f"{x:.12e}" for x in row) for row in np.column_stack(cols))
-        (tmp_path / f"HSVA_CPMC_KVLCC2_Z_{i}.dat").write_text("a\nb\nc\nd\n" + body + "\n",
-                                                              encoding="latin-1")
+        write_hsva(tmp_path / f"HSVA_CPMC_KVLCC2_Z_{i}.dat", g)
     log = ingest(tmp_path, spec.dt, config=path("kvlcc2_hsva_ingest"))
     res = identify(log, load_spec("kvlcc2"), method="ls")
     np.testing.assert_allclose(np.asarray(res.params), spec.theta0_vector(), atol=1e-7)

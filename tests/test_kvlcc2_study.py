@@ -5,25 +5,17 @@ structure missing a term as worse."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
-
-ROOT = Path(__file__).resolve().parent.parent
+from _scripts import load_script
 
 
 def _study():
-    spec = importlib.util.spec_from_file_location("kvlcc2_study",
-                                                  ROOT / "scripts" / "kvlcc2_study.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["kvlcc2_study"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("kvlcc2_study")
 
 
 def test_skips_cleanly_without_data(monkeypatch, capsys, tmp_path):
@@ -38,19 +30,13 @@ def test_skips_cleanly_without_data(monkeypatch, capsys, tmp_path):
 def _write_runs(folder: Path, spec, runs) -> dict:
     """Noise-free zig-zags of ``spec`` written as HSVA tables (earth-fixed velocities,
     degrees); returns the nominal manoeuvres for the log's metadata."""
-    from _ship import zigzag_log
+    from _ship import write_hsva, zigzag_log
 
     nominal = {}
     for i, (d0, ps, first) in enumerate(runs):
         g = zigzag_log(spec, n=640, delta0=d0, psi_s=ps, first=first, u0=1.177)
-        c, s = np.cos(g["psi"]), np.sin(g["psi"])
-        cols = [g["time"], g["north"], g["east"], np.degrees(g["psi"]),
-                c * g["u"] - s * g["v"], s * g["u"] + c * g["v"], np.degrees(g["r"]),
-                np.zeros(len(g)), np.degrees(g["delta"]), np.full(len(g), 10.2295),
-                np.zeros(len(g)), np.zeros(len(g))]
-        body = "\n".join(" ".join(f"{x:.12e}" for x in row) for row in np.column_stack(cols))
         stem = f"HSVA_CPMC_KVLCC2_Z_{i + 10:02d}_05"
-        (folder / f"{stem}.dat").write_text("a\nb\nc\nd\n" + body + "\n", encoding="latin-1")
+        write_hsva(folder / f"{stem}.dat", g)
         nominal[stem] = {"psi_switch_deg": math.degrees(ps)}
     return nominal
 

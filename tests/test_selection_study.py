@@ -3,30 +3,21 @@ structure, and the FROLS comparator's one-pass information criterion."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 from statistics import NormalDist
 
 import numpy as np
 import pandas as pd
 import pytest
+from _scripts import load_script
 
 from vesselid.model.spec import ModelSpec
 from vesselid.selection.engine import critical_value
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 @pytest.fixture(scope="module")
 def study():
-    spec = importlib.util.spec_from_file_location("selection_study",
-                                                  ROOT / "scripts" / "selection_study.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["selection_study"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("selection_study")
 
 
 def _truth() -> ModelSpec:
