@@ -218,22 +218,30 @@ def parameter_stability(data: RegressionData, spec: ModelSpec,
         return None
     if theta_start is None:
         it = estimate(halves, spec, "iv-zero-mean", combine="pooled")
+        theta, theta_aux = it.theta, it.theta_aux
+        subs = [_group(halves, g) for g in (0, 1)]
     else:  # what ``estimate`` runs from a given start, without its unused LS estimate
-        start = np.array(np.broadcast_to(np.asarray(theta_start, dtype=float),
-                                         (halves.n_groups, spec.n_params)))
-        it = refined_iv(halves, spec, start, zero_mean=True, combine="pooled")
-    if not np.all(np.isfinite(it.theta)):
+        # each half on its own: the groups' iterations are independent (per-group steps,
+        # residuals and stopping), and one group's takes the scalar path of the refined
+        # iteration instead of masked two-group arrays at every step (the same numbers;
+        # a half that stops early no longer carries the other's)
+        start = np.asarray(theta_start, dtype=float).reshape(1, spec.n_params)
+        subs = [_group(halves, g) for g in (0, 1)]
+        its = [refined_iv(sub, spec, start.copy(), zero_mean=True, combine="pooled")
+               for sub in subs]
+        theta = np.vstack([i.theta for i in its])
+        theta_aux = np.vstack([i.theta_aux for i in its])
+    if not np.all(np.isfinite(theta)):
         return None
     n_par = spec.n_params
     covs = []
     for g in (0, 1):
-        sub = _group(halves, g)
-        phi, z, y, seg = _rows(sub, spec, it.theta_aux[g], extra=False)
+        phi, z, y, seg = _rows(subs[g], spec, theta_aux[g], extra=False)
         fit = _hac_iv(z, phi, y, seg)
         if fit is None:
             return None
         covs.append(fit[1])
-    d = it.theta[1] - it.theta[0]
+    d = theta[1] - theta[0]
     v = covs[0] + covs[1]
     try:
         stat = float(d @ np.linalg.solve(v, d))
@@ -255,8 +263,8 @@ def parameter_stability(data: RegressionData, spec: ModelSpec,
         f"p = {pval:.2g})")
     return {"statistic": stat, "df": n_par, "pvalue": pval, "level": alpha,
             "rejected": bool(rejected),
-            "first_half": dict(zip(names, map(float, it.theta[0]), strict=True)),
-            "second_half": dict(zip(names, map(float, it.theta[1]), strict=True)),
+            "first_half": dict(zip(names, map(float, theta[0]), strict=True)),
+            "second_half": dict(zip(names, map(float, theta[1]), strict=True)),
             "sentence": sentence}
 
 
