@@ -70,14 +70,46 @@ def _hac_iv(z: np.ndarray, phi: np.ndarray, y: np.ndarray, seg: np.ndarray
     return theta, a_inv @ s @ a_inv.T
 
 
+_SHARED = "_validity_matrices"
+
+
+def reference_matrices(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray, *,
+                       keep: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The regressor matrix and the instruments (with the simulated states) simulated from
+    ``theta_aux`` on every row of a one-group ``data``: ``(phi, z, xhat)``, read-only.
+
+    ``keep``: remember them on ``data`` for the next call with the same ``spec`` and
+    ``theta_aux``, which takes them (the mean-current test computes them, the feedback
+    test's reference designs, :func:`vesselid.identify.loop.reference_designs`, reuse
+    them: the same kernels on the same arrays, computed once)."""
+    theta_aux = np.ascontiguousarray(theta_aux, dtype=float)
+    key = (id(spec), theta_aux.tobytes())
+    memo = getattr(data, "__dict__", {}).pop(_SHARED, None)
+    if memo is not None and memo[0] == key:
+        return memo[1]
+    codes = spec.codes
+    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, codes.factors)
+    z, xhat = kernels.instrument_matrix(data.target, data.u, data.starts, theta_aux,
+                                        codes.factors, codes.equation, spec.n_states)
+    for arr in (phi, z, xhat):
+        arr.flags.writeable = False
+    if keep and hasattr(data, "__dict__"):
+        data.__dict__[_SHARED] = (key, (phi, z, xhat))
+    return phi, z, xhat
+
+
 def _rows(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray, extra: bool):
     """Centred regressors, instruments and targets of group 0 (one state), with the
-    ``|w|`` column and its simulated instrument appended when ``extra``."""
+    ``|w|`` column and its simulated instrument appended when ``extra`` (on a one-group
+    ``data``: its matrices then kept for the feedback test, :func:`reference_matrices`)."""
     codes = spec.codes
     sl, starts = data.group_rows(0)
-    phi = kernels.regressor_matrix(data.regsig[sl], data.u[sl], starts, codes.factors)
-    z, xhat = kernels.instrument_matrix(data.target[sl], data.u[sl], starts, theta_aux,
-                                        codes.factors, codes.equation, spec.n_states)
+    if extra and data.n_groups == 1:  # new arrays below: the kept ones stay unchanged
+        phi, z, xhat = reference_matrices(data, spec, theta_aux, keep=True)
+    else:
+        phi = kernels.regressor_matrix(data.regsig[sl], data.u[sl], starts, codes.factors)
+        z, xhat = kernels.instrument_matrix(data.target[sl], data.u[sl], starts, theta_aux,
+                                            codes.factors, codes.equation, spec.n_states)
     y = data.target[sl, 0].astype(float)
     if extra:
         prev = np.full((y.size, 2), np.nan)
