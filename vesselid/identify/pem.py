@@ -156,11 +156,6 @@ def _start(theta: np.ndarray, y: np.ndarray, u: np.ndarray, starts: np.ndarray,
     return psi, free, scale
 
 
-#: Largest ``T × d`` (samples × directions) of the tangent pass whose output arrays a
-#: filter keeps for reuse (:meth:`_Filter.give_back`): fresh arrays of 10⁴ × 10 cost
-#: about a third of the pass in page faults, large ones are not kept alive.
-SPARE_MAX = 2_000_000
-
 #: Below this many row-samples a pass of several filter rows runs in the calling thread:
 #: ten rows of a 10⁴-sample log take a few milliseconds, less than waking the pool's
 #: threads and handing them the GIL back costs (each row is filtered on its own, so the
@@ -186,9 +181,6 @@ class _Filter:
         self.n = self.y.size
         # innovation samples: all but the first of each experiment
         self.count = self.n - (self.starts.size - 1)
-        # output arrays of finished tangent passes, by number of directions: a scoring
-        # step reuses them (fresh arrays of this size cost their page faults every pass)
-        self._spare: dict[int, list] = {}
 
     def run(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         from vesselid.core.threads import run_ranges
@@ -204,38 +196,24 @@ class _Filter:
         return eps, var
 
 
-    def tangent_buffers(self, d: int) -> tuple[np.ndarray, ...]:
-        """A set of output arrays of :meth:`tangent` for ``d`` directions: a spare one
-        given back by :meth:`give_back` (already in memory), else new."""
-        spare = self._spare.get(d)
-        if spare:
-            return spare.pop()
-        n = self.n
-        return (np.empty(n), np.empty(n), np.empty((n, d)), np.empty((n, d)), np.empty(d),
-                np.empty((d, d)), np.empty(1))
-
-    def give_back(self, bufs: tuple[np.ndarray, ...]) -> None:
-        """Return a set of :meth:`tangent_buffers` whose results are no longer used (kept
-        for reuse while small: :data:`SPARE_MAX`, two sets per ``d``)."""
-        spare = self._spare.setdefault(bufs[4].size, [])
-        if bufs[2].size <= SPARE_MAX and len(spare) < 2:
-            spare.append(bufs)
-
-    def tangent(self, psi: np.ndarray, idx: np.ndarray,
-                out: tuple[np.ndarray, ...] | None = None
+    def tangent(self, psi: np.ndarray, idx: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                            np.ndarray, float]:
         """Innovations ``ε``, variances ``S`` (T,) of the row ``psi``, their exact
         derivatives with respect to ``psi[idx]`` (d, T), and the negative
         log-likelihood's gradient (d,), Fisher information (d, d) and value, in one
-        compiled pass (into ``out``, a set of :meth:`tangent_buffers`, when given: the
-        pass writes every entry)."""
+        compiled pass."""
         from vesselid.identify._pemkernels import gaussian_filter_tangent
 
         psi = np.ascontiguousarray(psi, dtype=np.float64)
         idx = np.ascontiguousarray(idx, dtype=np.int64)
-        eps, var, deps, dvar, grad, fisher, nll = (self.tangent_buffers(idx.size)
-                                                   if out is None else out)
+        eps = np.empty(self.n)
+        var = np.empty(self.n)
+        deps = np.empty((self.n, idx.size))
+        dvar = np.empty((self.n, idx.size))
+        grad = np.empty(idx.size)
+        fisher = np.empty((idx.size, idx.size))
+        nll = np.empty(1)
         gaussian_filter_tangent(psi, idx, self.y, self.u, self.starts, self.p_init,
                                 *self.terms, eps, var, deps, dvar, grad, fisher, nll)
         return eps, var, deps.T, dvar.T, grad, fisher, float(nll[0])
@@ -275,23 +253,13 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
     ahead = None  # the tangent pass of the accepted trial, when the line search ran it
     full = []  # per iteration: whether the full step was accepted
     speculate_ok = d * filt.n <= SPECULATE_MAX
-    # the output arrays of the tangent passes cycle through the filter's spare sets: the
-    # iterate's set is given back once the next iterate's pass is done (the last one is
-    # kept by the result), a rejected trial's at once
-    held = None
     for it in range(1, max_iter + 1):  # noqa: B007 (reported)
         # the filter at ψ with its exact sensitivities (the accepted trial of the line
         # search was filtered without them: the same innovations, recomputed here —
         # unless the line search filtered it with them already)
-        if ahead is None:
-            bufs = filt.tangent_buffers(d)
-            eps0, var0, je, js, grad, fisher, f0 = filt.tangent(psi, idx, out=bufs)
-        else:
-            bufs, (eps0, var0, je, js, grad, fisher, f0) = ahead
+        eps0, var0, je, js, grad, fisher, f0 = (filt.tangent(psi, idx) if ahead is None
+                                                else ahead)
         ahead = None
-        if held is not None:
-            filt.give_back(held)
-        held = bufs
         if not np.isfinite(f0):
             reason = "likelihood not finite"
             break
@@ -313,9 +281,8 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
             trial = psi.copy()
             trial[idx] += alpha * delta
             if speculate and alpha == 1.0:
-                spec_bufs = filt.tangent_buffers(d)
-                tan = (spec_bufs, filt.tangent(trial, idx, out=spec_bufs))
-                f1 = float(np.sum(_nll_terms(tan[1][0], tan[1][1])))
+                tan = filt.tangent(trial, idx)
+                f1 = float(np.sum(_nll_terms(tan[0], tan[1])))
             else:
                 tan = None
                 e1, v1 = filt.run(trial[None])
@@ -323,8 +290,6 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
             if np.isfinite(f1) and f1 <= f0 - 1e-4 * alpha * dec:
                 ahead = tan
                 break
-            if tan is not None:
-                filt.give_back(tan[0])
             alpha *= 0.5
         else:
             reason = NO_DESCENT
