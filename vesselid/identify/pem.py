@@ -230,12 +230,6 @@ def load_kernels() -> None:
     _score_hac(je, js, np.zeros(4), np.ones(4), filt.starts)
 
 
-#: Largest ``d × T`` (free parameters × samples) for which the line search may filter a
-#: trial with its sensitivities ahead of acceptance (:func:`_scoring`): a second set of
-#: ``∂ε``, ``∂S`` (2 d T floats) is then alive beside the current one.
-SPECULATE_MAX = 2_000_000
-
-
 def _nll_terms(eps: np.ndarray, var: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         return 0.5 * (np.log(var) + eps * eps / var)
@@ -250,16 +244,10 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
     reason, converged, it = MAX_ITER, False, 0
     fisher = np.full((d, d), np.nan)
     eps0 = var0 = je = js = None
-    ahead = None  # the tangent pass of the accepted trial, when the line search ran it
-    full = []  # per iteration: whether the full step was accepted
-    speculate_ok = d * filt.n <= SPECULATE_MAX
     for it in range(1, max_iter + 1):  # noqa: B007 (reported)
         # the filter at ψ with its exact sensitivities (the accepted trial of the line
-        # search was filtered without them: the same innovations, recomputed here —
-        # unless the line search filtered it with them already)
-        eps0, var0, je, js, grad, fisher, f0 = (filt.tangent(psi, idx) if ahead is None
-                                                else ahead)
-        ahead = None
+        # search was filtered without them: the same innovations, recomputed here)
+        eps0, var0, je, js, grad, fisher, f0 = filt.tangent(psi, idx)
         if not np.isfinite(f0):
             reason = "likelihood not finite"
             break
@@ -272,29 +260,18 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
         if dec < tol:
             reason, converged = CONVERGED, True
             break
-        # after two full steps in a row the full step is likely accepted again: filter it
-        # with its sensitivities at once (the tangent pass gives the same innovations and
-        # variances as the filter, bit for bit), which the next iteration then reuses
-        speculate = speculate_ok and len(full) >= 2 and full[-1] and full[-2]
         alpha = 1.0
         while alpha > 1e-4:
             trial = psi.copy()
             trial[idx] += alpha * delta
-            if speculate and alpha == 1.0:
-                tan = filt.tangent(trial, idx)
-                f1 = float(np.sum(_nll_terms(tan[0], tan[1])))
-            else:
-                tan = None
-                e1, v1 = filt.run(trial[None])
-                f1 = float(np.sum(_nll_terms(e1[0], v1[0])))
+            e1, v1 = filt.run(trial[None])
+            f1 = float(np.sum(_nll_terms(e1[0], v1[0])))
             if np.isfinite(f1) and f1 <= f0 - 1e-4 * alpha * dec:
-                ahead = tan
                 break
             alpha *= 0.5
         else:
             reason = NO_DESCENT
             break
-        full.append(alpha == 1.0)
         psi = trial
     cov = np.zeros((psi.size, psi.size))
     parts = None
