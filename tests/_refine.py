@@ -34,6 +34,9 @@ def refine_with_fixed_point_map(monkeypatch, fixed_point_map: Callable, max_iter
         return np.where(ok[:, None], fixed_point_map(th, target), np.nan), ok
 
     monkeypatch.setattr(estimators, "compute_moments", fake_compute)
+    # every evaluation of T through compute_moments (not the refined iteration's direct
+    # call of the structure's compiled kernel), so that the fake sees each θ
+    monkeypatch.setattr(estimators, "_bound_moments", lambda *a, **k: None)
     monkeypatch.setattr(estimators, "solve_moments", fake_solve)
     if average:
         with estimators.stall_averaging():
