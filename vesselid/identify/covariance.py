@@ -60,7 +60,7 @@ from __future__ import annotations
 import functools
 import itertools
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any, ClassVar
@@ -360,6 +360,14 @@ def _bartlett_blocks(g: np.ndarray, lags: int, rows: int) -> np.ndarray:
     whole-array form, rounded differently (~1e-14 relative)."""
     n, q = g.shape
     mean = np.array([g[:, i].mean() for i in range(q)])
+    return bartlett_block_sums(lambda a, b: g[a:b], n, q, mean, lags, rows)
+
+
+def bartlett_block_sums(block: Callable[[int, int], np.ndarray], n: int, q: int,
+                        mean: np.ndarray, lags: int, rows: int) -> np.ndarray:
+    """:func:`_bartlett_blocks` of scores that are never held whole: ``block(a, b)``
+    returns rows ``a … b − 1`` of the ``(n, q)`` scores (a fresh or read-only array) and
+    ``mean`` is their column mean. Memory ``O((rows + L) q)`` whatever ``n``."""
     hh = np.zeros((q, q))
     v = np.zeros(q)
     count_sq = 0.0
@@ -367,7 +375,7 @@ def _bartlett_blocks(g: np.ndarray, lags: int, rows: int) -> np.ndarray:
     carry = np.zeros(q)  # c(t0 − 1)
     for t0 in range(0, n, rows):
         t1 = min(t0 + rows, n)
-        c = np.cumsum(g[t0:t1] - mean, axis=0)
+        c = np.cumsum(block(t0, t1) - mean, axis=0)
         c += carry
         carry = c[-1].copy()
         cc = np.concatenate([prev, c])

@@ -377,9 +377,12 @@ class InstrumentalGMM(Estimator):
                     first_z.append(z_sim)
                 ar = gmm.noise_model(data, spec, phi, theta, order) if order else None
                 blocks = gmm.instrument_blocks(spec, kind, phi, z_sim, lagged)
+                del z_sim  # (first_z keeps the first step's; the blocks hold the others)
                 sol = gmm.solve_equations(data, spec, phi, blocks, weight="hac", ar=ar,
                                           keep_designs=keep,
-                                          keep_jacobians=keep and step == n_steps - 1)
+                                          keep_jacobians=keep and step == n_steps - 1,
+                                          release=True)
+                del blocks
             new = np.where((sol.ok & ok_sim & active)[:, None], sol.theta, np.nan)
             iters += active
             active &= np.all(np.isfinite(new), axis=1)
