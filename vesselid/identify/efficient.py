@@ -66,7 +66,7 @@ def _designs_from(sol: gmm.GMMSolution, theta: np.ndarray, spec: ModelSpec
         sl = slice(int(blocks[i]), int(blocks[i + 1]))
         out.append(EquationDesign(z=z, phi=phi, resid=y - phi @ theta[sl],
                                   starts=_starts_of(valid, sol), weight=w, zero_mean=True,
-                                  weight_jacobian=jacobians[i]))
+                                  weight_jacobian=jacobians[i], owned=True))
     return out
 
 

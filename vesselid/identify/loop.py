@@ -239,17 +239,25 @@ def feedback_test_data(data: RegressionData, spec: ModelSpec, designs: list, *,
             a_inv = np.linalg.inv(a)
         except np.linalg.LinAlgError:
             a_inv = np.linalg.pinv(a)
-        phi_kept, n_kept = d.phi[keep], keep.sum()
+        n_kept = keep.sum()
+        # the kept rows as a view where they are the leading ones (one experiment)
+        phi_kept = (d.phi[:n_kept] if d.phi.flags.c_contiguous and keep[:n_kept].all()
+                    else d.phi[keep])
         for tau in range(lags):
             idx = np.minimum(rows + tau, u.shape[0] - 1)
             ut = uc[idx]  # (n_rows, m)
             mmat = uc[idx[keep]].T @ phi_kept / n_kept  # (m, P)
             adj = ut - d.z @ (mmat @ a_inv).T
-            scores.append(adj * d.resid[:, None])
-    s = np.concatenate(scores, axis=1)[keep]
+            adj *= d.resid[:, None]
+            scores.append(adj[keep])  # the kept rows only (no whole-length score kept)
+            del ut, adj
+        del phi_kept
+    s = np.concatenate(scores, axis=1)
+    del scores
     n_eff = s.shape[0]
     mean = column_means(s)
-    cov = _newey_west(s - mean, hac_lags(n_eff))
+    s -= mean  # centred in place (s is this function's own copy)
+    cov = _newey_west(s, hac_lags(n_eff))
     scale = np.sqrt(np.maximum(np.diag(cov), 1e-300))
     corr = cov / np.outer(scale, scale)
     w, vecs = np.linalg.eigh(corr)
@@ -289,10 +297,13 @@ def reference_designs(data: RegressionData, spec: ModelSpec, it: Any = None) -> 
     z, _ = kernels.instrument_matrix(data.target, data.u, data.starts, it.theta_aux[0],
                                      codes.factors, codes.equation, spec.n_states)
     rows = _equation_rows(data)
-    zc = z.copy()
+    zc = z  # centred per experiment in its own buffer (z is this function's)
     for s in range(data.n_segments):
         sl = slice(int(data.starts[s]) + 1, int(data.starts[s + 1]))
         zc[sl] -= column_means(zc[sl])
+    if data.n_segments == 1 and spec.n_states == 1 and rows.size > _large_rows():
+        # a long one-experiment log: every row but the first, as views (no gathered copies)
+        rows = slice(1, None)
     blocks = block_starts(spec)
     out = []
     for i in range(spec.n_states):
@@ -300,6 +311,12 @@ def reference_designs(data: RegressionData, spec: ModelSpec, it: Any = None) -> 
         out.append(_Design(z=zc[rows, sl], phi=phi[rows, sl],
                            resid=data.target[rows, i] - phi[rows, sl] @ theta[sl]))
     return out
+
+
+def _large_rows() -> int:
+    from vesselid.identify.covariance import LARGE_ROWS
+
+    return LARGE_ROWS
 
 
 def feedback_test(log: Any, spec: ModelSpec | None = None, *, lags: int = FEEDBACK_LAGS,

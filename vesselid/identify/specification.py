@@ -122,9 +122,16 @@ def _segs(starts: np.ndarray | None, t_len: int, skip_first: bool) -> list[slice
     return [slice(int(starts[s]) + off, int(starts[s + 1])) for s in range(starts.size - 1)]
 
 
-def _demean(x: np.ndarray, segs: list[slice]) -> np.ndarray:
+def _demean(x: np.ndarray, segs: list[slice], in_place: bool = False) -> np.ndarray:
+    """``x`` centred per segment (rows outside ``segs`` zero); ``in_place``: in ``x``'s
+    own buffer (float64 ``x`` whose segments cover every row; the same numbers)."""
     if len(segs) == 1 and segs[0].start == 0 and segs[0].stop == x.shape[0]:
-        return x - column_means(x)  # one experiment, every row: the same numbers, one pass
+        # one experiment, every row: the same numbers, one pass
+        return np.subtract(x, column_means(x), out=x if in_place else None)
+    if in_place:
+        for s in segs:
+            x[s] -= column_means(x[s])
+        return x
     out = np.zeros_like(x, dtype=float)
     for s in segs:
         out[s] = x[s] - column_means(x[s])
@@ -341,26 +348,29 @@ class _Prepared:
 
 
 def _prepare(z: Any, phi: Any, y: Any, starts: np.ndarray | None, zero_mean: bool,
-             skip_first: bool) -> _Prepared:
+             skip_first: bool, overwrite: bool = False) -> _Prepared:
     z = np.asarray(z, dtype=float)
     phi = np.asarray(phi, dtype=float)
     segs = _segs(starts, phi.shape[0], skip_first)
     arrays = [z, phi] if y is None else [z, phi, np.asarray(y, dtype=float).reshape(-1)]
     cs = _compact_starts(segs)
     inner = [slice(int(cs[i]), int(cs[i + 1])) for i in range(len(segs))]
-    arrays = [_prepared_rows(a, segs, inner, zero_mean) for a in arrays]
+    arrays = [_prepared_rows(a, segs, inner, zero_mean, overwrite) for a in arrays]
     return _Prepared(arrays[0], arrays[1], arrays[2] if y is not None else None, inner,
                      zero_mean)
 
 
 def _prepared_rows(a: np.ndarray, segs: list[slice], inner: list[slice],
-                   zero_mean: bool) -> np.ndarray:
+                   zero_mean: bool, overwrite: bool = False) -> np.ndarray:
     """One array's usable rows, concatenated (``inner`` index them), centred per
     experiment with ``zero_mean`` (each array on its own: the numbers do not depend on
-    which others are prepared with it)."""
-    # one experiment: its rows are a view (centring below copies; nothing writes into them)
-    a = np.ascontiguousarray(a[segs[0]]) if len(segs) == 1 else _rows(a, segs)
-    return _demean(a, inner) if zero_mean else a
+    which others are prepared with it). ``overwrite``: the caller's float64 array may be
+    centred in its own buffer (it needs it no more)."""
+    # one experiment: its rows are a view (centring below copies unless the caller
+    # hands the array over); the rows of several are a fresh copy, centred in place
+    rows = np.ascontiguousarray(a[segs[0]]) if len(segs) == 1 else _rows(a, segs)
+    own = (overwrite and a.dtype == np.float64) or not np.may_share_memory(rows, a)
+    return _demean(rows, inner, in_place=own) if zero_mean else rows
 
 
 def _with_target(prep: _Prepared, y: Any, starts: np.ndarray | None,
@@ -611,6 +621,7 @@ def equation_diagnostics(
     names: list[str] | None = None,
     cov_type: str = DEFAULT_COV_TYPE,
     shared: dict[str, Any] | None = None,
+    overwrite: bool = False,
     **cov_config: Any,
 ) -> dict[str, Any]:
     """Instrument strength, endogeneity (and J when over-identified) of one equation.
@@ -627,6 +638,10 @@ def equation_diagnostics(
     equations have the same terms) reuses its prepared rows, exogenous columns, first
     stage and the first-stage residuals of the endogeneity regression — the same
     numbers, computed once.
+
+    ``overwrite``: the caller hands ``z``, ``phi`` and ``y`` over (float64 arrays it needs
+    no more): they are centred in their own buffers instead of copies (the same numbers;
+    on a long log each copy is as large as the instruments).
     """
     errors = (np.linalg.LinAlgError, ValueError)
     key = (zero_mean, skip_first, None if names is None else tuple(names),
@@ -640,7 +655,7 @@ def equation_diagnostics(
             prep = _with_target(prev["prep"], y, starts, skip_first)
             exo = prev["exo"]
         else:
-            prep = _prepare(z, phi, y, starts, zero_mean, skip_first)
+            prep = _prepare(z, phi, y, starts, zero_mean, skip_first, overwrite)
             exo = exogenous_columns(prep.z, prep.phi)
     except errors:  # let each test report its own reason
         return _equation_diagnostics_apart(z, phi, y, starts, zero_mean, skip_first, names,
