@@ -614,7 +614,12 @@ class CovarianceEstimator:
         """
         if combine not in ("pooled", "stacked"):
             raise CovarianceError(f"combine must be 'pooled' or 'stacked', got {combine!r}")
-        sc = _scores(z, phi, resid, starts, equation, z_equation, zero_mean, skip_first)
+        # a long log whose meat needs the scores only: they are formed in the
+        # equilibrated instruments' buffer once the sums below have read it (the same
+        # products, no second N × K array)
+        late = not self.meat_uses_z and np.shape(z)[0] > LARGE_ROWS
+        sc = _scores(z, phi, resid, starts, equation, z_equation, zero_mean, skip_first,
+                     form_g=not late)
         z, phi, segs, equation, z_equation = sc.z, sc.phi, sc.segs, sc.equation, sc.z_equation
         n_par, n_ins = phi.shape[1], z.shape[1]
         same = z_equation[:, None] == equation[None, :]
@@ -638,6 +643,9 @@ class CovarianceEstimator:
         w_first = (_block_inverse(sum(z[s].T @ z[s] for s in segs) * same_z, z_equation)
                    if windmeijer and weight is not None and n_ins != n_par else None)
         if not self.meat_uses_z:  # the scores carry all the meat needs
+            if late:
+                every_row = sum(s.stop - s.start for s in segs) == z.shape[0]
+                sc.g = _products(z, sc.eps, segs, z_equation, every_row, in_place=True)
             sc.z = sc.phi = z = phi = None
         s_list, used = self.meat(sc.g, z, sc.eps, segs, z_equation)
         n_list = [s.stop - s.start for s in segs]
@@ -703,11 +711,12 @@ class CovarianceEstimator:
 def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
             starts: np.ndarray | None, equation: np.ndarray | None,
             z_equation: np.ndarray | None, zero_mean: bool, skip_first: bool,
-            keep_z: bool = True) -> _Scores:
+            keep_z: bool = True, form_g: bool = True) -> _Scores:
     """Validate the arrays of :meth:`CovarianceEstimator.estimate` and form the scores
     (``phi=None``: instruments only, as :meth:`CovarianceEstimator.long_run`); without
     ``keep_z`` the scores are formed in the equilibrated instruments' buffer (the same
-    products) and ``z`` is None."""
+    products) and ``z`` is None; without ``form_g`` the scores are left to the caller
+    (``g`` None: :func:`_products` once ``z`` has served every other sum)."""
     same = phi is z  # LS / the endogeneity regression: instruments = regressors
     z = np.asarray(z, dtype=float)
     resid = np.asarray(resid, dtype=float)
@@ -762,18 +771,32 @@ def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
     phi = ((z if t_len > LARGE_ROWS and keep_z else z.copy()) if same
            else phi / phi_scale)
     eps = _residual(resid, segs, zero_mean)
-    one = eps.shape[1] == 1  # every instrument in equation 0: broadcast, no column copies
-    if every_row and len(segs) == 1:  # the products themselves, without a zeroed copy
-        # (in the equilibrated copy's buffer when the caller needs no z: same products)
-        g = np.multiply(z, eps if one else eps[:, z_equation], out=None if keep_z else z)
-    else:
-        g = np.zeros((t_len, n_ins))
-        for s in segs:
-            g[s] = z[s] * (eps[s] if one else eps[s][:, z_equation])
+    # (in the equilibrated copy's buffer when the caller needs no z: same products)
+    g = _products(z, eps, segs, z_equation, every_row, in_place=not keep_z) if form_g else None
     if not keep_z:
         z = phi = None
     return _Scores(z=z, phi=phi, z_scale=z_scale, phi_scale=phi_scale, eps=eps, g=g,
                    segs=segs, equation=equation, z_equation=z_equation)
+
+
+def _products(z: np.ndarray, eps: np.ndarray, segs: list[slice], z_equation: np.ndarray,
+              every_row: bool, in_place: bool) -> np.ndarray:
+    """The scores ``g = z ε`` of :func:`_scores` (zero outside ``segs``); ``in_place``:
+    in ``z``'s buffer (the equilibrated copy, which the caller needs no more)."""
+    one = eps.shape[1] == 1  # every instrument in equation 0: broadcast, no column copies
+    if every_row and len(segs) == 1:  # the products themselves, without a zeroed copy
+        return np.multiply(z, eps if one else eps[:, z_equation], out=z if in_place else None)
+    if in_place:
+        rows = np.zeros(z.shape[0], dtype=bool)
+        for s in segs:
+            rows[s] = True
+            z[s] *= eps[s] if one else eps[s][:, z_equation]
+        z[~rows] = 0.0
+        return z
+    g = np.zeros(z.shape)
+    for s in segs:
+        g[s] = z[s] * (eps[s] if one else eps[s][:, z_equation])
+    return g
 
 
 def sandwich_from_sums(a_list: list[np.ndarray], s_list: list[np.ndarray], n_list: list[int],

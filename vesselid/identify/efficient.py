@@ -462,6 +462,7 @@ class InstrumentalGMM(Estimator):
                                              colour=self.instruments == "auto"
                                              and not self.colour_order,
                                              first_z=first_z)
+            lagged = None  # (the delayed regressors serve the combined steps only)
             pvals = np.ones((n, spec.n_states))
             for i in range(spec.n_states):
                 if sol.c_df[i]:
@@ -472,7 +473,7 @@ class InstrumentalGMM(Estimator):
             used[:] = "combined"
             if self.instruments == "auto":
                 w_stat, w_df = self._colour_test(data, spec, phi, theta0, sol,
-                                                 z_first=first_z[0] if first_z else None)
+                                                 z_first=first_z.pop() if first_z else None)
                 w_p = np.ones((n, spec.n_states))
                 for i in range(spec.n_states):
                     if w_df[i]:
