@@ -58,6 +58,7 @@ def test_large_log_paths_agree_with_the_whole_array_paths(monkeypatch) -> None:
 
     from vesselid.identify import covariance as cv
     from vesselid.identify import identify
+    from vesselid.identify import specification as sp
     from vesselid.plant.systems import heave
 
     log = heave().simulate(6000, seed=11).to_log()
@@ -66,6 +67,7 @@ def test_large_log_paths_agree_with_the_whole_array_paths(monkeypatch) -> None:
         ref = identify(log)
         monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
         monkeypatch.setattr(cv, "BLOCK_ROWS", 700)
+        monkeypatch.setattr(sp, "QR_ROWS", 700)
         got = identify(log)
     np.testing.assert_allclose(got.params.to_numpy(), ref.params.to_numpy(), rtol=1e-12)
     c_ref, c_got = ref.cov.to_numpy(), got.cov.to_numpy()
@@ -73,8 +75,49 @@ def test_large_log_paths_agree_with_the_whole_array_paths(monkeypatch) -> None:
     spec_ref = ref.diagnostics["specification"]["w"]
     spec_got = got.diagnostics["specification"]["w"]
     for test in ("endogeneity", "hansen_j"):
-        if spec_ref.get(test, {}).get("stat") is not None:
-            assert np.isclose(spec_got[test]["stat"], spec_ref[test]["stat"], rtol=1e-9)
+        assert spec_ref[test]["stat"] is not None
+        assert np.isclose(spec_got[test]["stat"], spec_ref[test]["stat"], rtol=1e-9)
+    fs_ref, fs_got = spec_ref["first_stage"], spec_got["first_stage"]
+    assert np.isclose(fs_got["cragg_donald"], fs_ref["cragg_donald"], rtol=1e-9)
+    for name, f in fs_ref["partial_f"].items():
+        assert np.isclose(fs_got["partial_f"][name], f, rtol=1e-9)
+    d_ref, d_got = ref.diagnostics, got.diagnostics
+    # the feedback test (views of one long experiment), split-sample stability (block-wise
+    # Bartlett sums of each half), and the GMM colour and C tests (block-wise weights)
+    assert np.isclose(d_got["feedback"]["statistic"], d_ref["feedback"]["statistic"], rtol=1e-9)
+    assert np.isclose(d_got["parameter_stability"]["statistic"],
+                      d_ref["parameter_stability"]["statistic"], rtol=1e-9)
+    for key in ("colour_test", "c_test_lagged", "hansen_j_combined"):
+        assert np.isclose(d_got[key][0]["stat"], d_ref[key][0]["stat"], rtol=1e-9), key
+
+
+def test_blockwise_least_squares_equals_lstsq(monkeypatch) -> None:
+    """The tests' least squares on long logs (a QR accumulated over row blocks) give
+    ``np.linalg.lstsq``'s coefficients to rounding, for one and several right-hand
+    sides, and its minimum-norm solution for collinear columns."""
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import specification as sp
+
+    rng = np.random.default_rng(8)
+    n = 5000
+    a = rng.standard_normal((n, 6)) * np.array([1.0, 10.0, 0.1, 1.0, 3.0, 1e3])
+    b = a @ rng.standard_normal((6, 2)) + rng.standard_normal((n, 2))
+    ref = np.linalg.lstsq(a, b, rcond=None)[0]
+    ref1 = np.linalg.lstsq(a, b[:, 0], rcond=None)[0]
+    a_dup = np.column_stack([a[:, :3], a[:, 0]])  # collinear: the minimum-norm solution
+    ref_dup = np.linalg.lstsq(a_dup, b, rcond=None)[0]
+    monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
+    monkeypatch.setattr(sp, "QR_ROWS", 777)
+    got = sp._lstsq(a, b)
+    assert got.shape == ref.shape
+    assert np.max(np.abs(got - ref)) <= 1e-12 * np.max(np.abs(ref))
+    got1 = sp._lstsq(a, b[:, 0])
+    assert got1.shape == ref1.shape
+    assert np.max(np.abs(got1 - ref1)) <= 1e-12 * np.max(np.abs(ref1))
+    got_dup = sp._lstsq(a_dup, b)
+    assert np.max(np.abs(got_dup - ref_dup)) <= 1e-9 * np.max(np.abs(ref_dup))
+    resid = sp._minus_fit(b.copy(), a, ref)
+    np.testing.assert_allclose(resid, b - a @ ref, rtol=0, atol=1e-12 * np.max(np.abs(b)))
 
 
 def test_gmm_hac_sums_in_blocks_equal_the_whole_array(monkeypatch) -> None:

@@ -502,7 +502,13 @@ class Estimator:
         if run.own_cov is None:
             run.specification = _specification_tests(run.spec, run.designs, run.it.theta[0],
                                                      run.blocks, run.cov_name)
-        run.designs = []  # no later step reads them (the tests may have centred them)
+        # no later step reads the designs (the tests may have centred them in place), nor
+        # the rows a GMM solution kept to build them: on a long log they are the largest
+        # arrays of the fit
+        run.designs = []
+        sol = (run.it.info or {}).get("solution")
+        if getattr(sol, "designs", None) is not None:
+            sol.designs = None
         run.residual_checks = _residual_checks(run.spec, run.data, run.resid)
         if not np.all(np.isfinite(run.cov)):
             run.warn("the covariance of the estimates could not be computed (singular "
@@ -703,7 +709,9 @@ def _specification_tests(spec: ModelSpec, designs: list[EquationDesign], theta: 
     from vesselid.identify.covariance import LARGE_ROWS
 
     out: dict[str, Any] = {}
-    shared: dict[str, Any] = {}  # equations with the same terms share their rows' work
+    # equations with the same terms share their rows' work (one equation: nothing to
+    # share, and nothing kept for another)
+    shared: dict[str, Any] = {}
     for i, s in enumerate(spec.states):
         d = designs[i]
         sl = slice(int(blocks[i]), int(blocks[i + 1]))
@@ -713,7 +721,7 @@ def _specification_tests(spec: ModelSpec, designs: list[EquationDesign], theta: 
         large = d.owned and np.shape(d.z)[0] > LARGE_ROWS
         out[s] = fn(d.z, d.phi, y, d.starts, zero_mean=d.zero_mean, skip_first=False,
                     names=[str(t) for t in spec.equations[s]], cov_type=cov_type,
-                    shared=shared, overwrite=large)
+                    shared=shared if spec.n_states > 1 else None, overwrite=large)
     return out
 
 

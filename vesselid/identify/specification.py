@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from vesselid.identify import covariance as _covariance
 from vesselid.identify.covariance import (
     DEFAULT_COV_TYPE,
     CovarianceError,
@@ -114,6 +115,47 @@ def _finite(x: float) -> float | None:
 def _p(p: float) -> str:
     """``"p = 0.034"`` / ``"p < 0.0001"``."""
     return "p = nan" if not np.isfinite(p) else ("p < 0.0001" if p < 1e-4 else f"p = {p:.2g}")
+
+
+#: Rows per block of the tests' least-squares fits on long logs (:func:`_lstsq`).
+QR_ROWS = 1 << 15
+
+
+def _lstsq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The least-squares coefficients ``np.linalg.lstsq(a, b, rcond=None)[0]``.
+
+    Above :data:`~vesselid.identify.covariance.LARGE_ROWS` rows they come from the
+    triangular factor of a QR decomposition accumulated over blocks of :data:`QR_ROWS`
+    rows (``[R; a_blk] = Q R'``, ``c' = Qᵀ [c; b_blk]``) and the minimum-norm solution of
+    ``R x = c`` with the cut-off ``lstsq`` applies to ``a``: backward stable as the
+    whole-array SVD, without its ``(n, k)`` copies; the same coefficients rounded
+    differently (~1e-13 relative for well-conditioned regressors)."""
+    n, k = a.shape
+    if n <= _covariance.LARGE_ROWS:
+        return np.linalg.lstsq(a, b, rcond=None)[0]
+    rhs = b.reshape(n, -1)
+    r = np.zeros((0, k))
+    c = np.zeros((0, rhs.shape[1]))
+    for t0 in range(0, n, QR_ROWS):
+        blk = slice(t0, min(t0 + QR_ROWS, n))
+        q, r_new = np.linalg.qr(np.vstack([r, a[blk]]))
+        c = q.T @ np.vstack([c, rhs[blk]])
+        r = r_new
+    coef = np.linalg.lstsq(r, c, rcond=np.finfo(float).eps * max(n, k))[0]
+    return coef.reshape((k, *b.shape[1:]))
+
+
+def _minus_fit(a: np.ndarray, b: np.ndarray, coef: np.ndarray) -> np.ndarray:
+    """``a − b·coef`` in ``a``'s own buffer (the caller's copy), block by block on long
+    logs (no ``(n, m)`` product array)."""
+    n = a.shape[0]
+    if n <= _covariance.LARGE_ROWS:
+        fit = b @ coef
+        return np.subtract(a, fit, out=fit)  # a − b·coef in the product's buffer
+    for t0 in range(0, n, QR_ROWS):
+        blk = slice(t0, min(t0 + QR_ROWS, n))
+        a[blk] -= b[blk] @ coef
+    return a
 
 
 def _segs(starts: np.ndarray | None, t_len: int, skip_first: bool) -> list[slice]:
@@ -211,9 +253,7 @@ def _first_stage(prep: _Prepared, names: list[str] | None,
     def resid_on(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         if b.shape[1] == 0:
             return a
-        coef, *_ = np.linalg.lstsq(b, a, rcond=None)
-        fit = b @ coef
-        return np.subtract(a, fit, out=fit)  # a − b·coef in the product's buffer
+        return _minus_fit(a, b, _lstsq(b, a))  # a: a gathered copy, ours
 
     x_t = resid_on(pp[:, endo], w)
     z_t = resid_on(zz[:, excl], w)
@@ -222,7 +262,7 @@ def _first_stage(prep: _Prepared, names: list[str] | None,
     if endo.size == 0 or k_ex == 0:
         out["cragg_donald"] = float("inf") if endo.size == 0 else 0.0
         return out
-    coef, *_ = np.linalg.lstsq(z_t, x_t, rcond=None)
+    coef = _lstsq(z_t, x_t)
     fitted = z_t @ coef
     v = x_t - fitted
     for i, j in enumerate(endo):
@@ -420,12 +460,18 @@ def _endogeneity(prep: _Prepared, cov_type: str, cov_config: Mapping[str, Any],
                           "no endogenous regressor: LS and IV coincide")
     x = None if memo is None else memo.get("x")
     if x is None:
-        coef, *_ = np.linalg.lstsq(z, phi[:, endo], rcond=None)
-        v = phi[:, endo] - z @ coef
-        x = np.hstack([phi, v])
+        coef = _lstsq(z, phi[:, endo])
+        if z.shape[0] > _covariance.LARGE_ROWS:  # [φ, v] filled in place: no separate v
+            x = np.empty((phi.shape[0], phi.shape[1] + endo.size))
+            x[:, :phi.shape[1]] = phi
+            x[:, phi.shape[1]:] = phi[:, endo]
+            _minus_fit(x[:, phi.shape[1]:], z, coef)
+        else:
+            v = phi[:, endo] - z @ coef
+            x = np.hstack([phi, v])
         if memo is not None:
             memo["x"] = x
-    beta, *_ = np.linalg.lstsq(x, y, rcond=None)
+    beta = _lstsq(x, y)
     est = get_covariance_estimator(cov_type, **cov_config)
     cov = est.estimate(x, x, y - x @ beta, _starts_of(segs), skip_first=False,
                        zero_mean=False).cov

@@ -30,8 +30,9 @@ from typing import Any
 
 import numpy as np
 
+from vesselid.identify import covariance as _covariance
 from vesselid.identify.backend import kernels
-from vesselid.identify.covariance import LARGE_ROWS, bartlett_long_run, column_means
+from vesselid.identify.covariance import bartlett_long_run, column_means
 from vesselid.identify.data import RegressionData
 from vesselid.identify.gmm import hac_lags
 from vesselid.model.spec import ModelSpec
@@ -60,7 +61,7 @@ def _hac_iv(z: np.ndarray, phi: np.ndarray, y: np.ndarray, seg: np.ndarray
     s = m.T @ m
     bw = hac_lags(m.shape[0])
     one = seg.size == 0 or seg[0] == seg[-1]  # one segment (sorted): every pair counts
-    if one and m.shape[0] > LARGE_ROWS:  # a long log: the same sum in blocks of rows
+    if one and m.shape[0] > _covariance.LARGE_ROWS:  # a long log: the same sum in blocks
         s = bartlett_long_run(m, bw)
         return theta, a_inv @ s @ a_inv.T
     for lag in range(1, bw + 1):
