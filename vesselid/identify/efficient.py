@@ -378,10 +378,11 @@ class InstrumentalGMM(Estimator):
                 ar = gmm.noise_model(data, spec, phi, theta, order) if order else None
                 blocks = gmm.instrument_blocks(spec, kind, phi, z_sim, lagged)
                 del z_sim  # (first_z keeps the first step's; the blocks hold the others)
+                last = step == n_steps - 1
+                sol = None  # the previous step's rows: only the last step's are kept
                 sol = gmm.solve_equations(data, spec, phi, blocks, weight="hac", ar=ar,
-                                          keep_designs=keep,
-                                          keep_jacobians=keep and step == n_steps - 1,
-                                          release=True)
+                                          keep_designs=keep and last,
+                                          keep_jacobians=keep and last, release=True)
                 del blocks
             new = np.where((sol.ok & ok_sim & active)[:, None], sol.theta, np.nan)
             iters += active
