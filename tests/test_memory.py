@@ -67,7 +67,7 @@ def test_large_log_paths_agree_with_the_whole_array_paths(monkeypatch) -> None:
         ref = identify(log)
         monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
         monkeypatch.setattr(cv, "BLOCK_ROWS", 700)
-        monkeypatch.setattr(sp, "QR_ROWS", 700)
+        monkeypatch.setattr(sp, "BLOCK_ROWS", 700)
         got = identify(log)
     np.testing.assert_allclose(got.params.to_numpy(), ref.params.to_numpy(), rtol=1e-12)
     c_ref, c_got = ref.cov.to_numpy(), got.cov.to_numpy()
@@ -91,10 +91,29 @@ def test_large_log_paths_agree_with_the_whole_array_paths(monkeypatch) -> None:
         assert np.isclose(d_got[key][0]["stat"], d_ref[key][0]["stat"], rtol=1e-9), key
 
 
-def test_blockwise_least_squares_equals_lstsq(monkeypatch) -> None:
-    """The tests' least squares on long logs (a QR accumulated over row blocks) give
-    ``np.linalg.lstsq``'s coefficients to rounding, for one and several right-hand
-    sides, and its minimum-norm solution for collinear columns."""
+def test_minus_fit_in_blocks(monkeypatch) -> None:
+    """``a − b·coef`` formed block by block in ``a``'s buffer on long logs equals the
+    whole product's difference to rounding."""
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import specification as sp
+
+    rng = np.random.default_rng(8)
+    a = rng.standard_normal((5000, 3))
+    b = rng.standard_normal((5000, 6))
+    coef = rng.standard_normal((6, 3))
+    ref = a - b @ coef
+    monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
+    monkeypatch.setattr(sp, "BLOCK_ROWS", 777)
+    work = a.copy()
+    got = sp._minus_fit(work, b, coef)
+    assert got is work
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-13 * np.max(np.abs(ref)))
+
+
+def test_long_log_least_squares_equal_lstsq(monkeypatch) -> None:
+    """The specification tests' least squares on long logs (refined normal equations)
+    give ``np.linalg.lstsq``'s coefficients to rounding, for one and several right-hand
+    sides; collinear columns take ``lstsq`` itself (its minimum-norm solution)."""
     from vesselid.identify import covariance as cv
     from vesselid.identify import specification as sp
 
@@ -104,20 +123,17 @@ def test_blockwise_least_squares_equals_lstsq(monkeypatch) -> None:
     b = a @ rng.standard_normal((6, 2)) + rng.standard_normal((n, 2))
     ref = np.linalg.lstsq(a, b, rcond=None)[0]
     ref1 = np.linalg.lstsq(a, b[:, 0], rcond=None)[0]
-    a_dup = np.column_stack([a[:, :3], a[:, 0]])  # collinear: the minimum-norm solution
+    a_dup = np.column_stack([a[:, :3], a[:, 0]])
     ref_dup = np.linalg.lstsq(a_dup, b, rcond=None)[0]
     monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
-    monkeypatch.setattr(sp, "QR_ROWS", 777)
+    monkeypatch.setattr(sp, "BLOCK_ROWS", 777)
     got = sp._lstsq(a, b)
     assert got.shape == ref.shape
     assert np.max(np.abs(got - ref)) <= 1e-12 * np.max(np.abs(ref))
     got1 = sp._lstsq(a, b[:, 0])
     assert got1.shape == ref1.shape
     assert np.max(np.abs(got1 - ref1)) <= 1e-12 * np.max(np.abs(ref1))
-    got_dup = sp._lstsq(a_dup, b)
-    assert np.max(np.abs(got_dup - ref_dup)) <= 1e-9 * np.max(np.abs(ref_dup))
-    resid = sp._minus_fit(b.copy(), a, ref)
-    np.testing.assert_allclose(resid, b - a @ ref, rtol=0, atol=1e-12 * np.max(np.abs(b)))
+    assert np.array_equal(sp._lstsq(a_dup, b), ref_dup)
 
 
 def test_gmm_hac_sums_in_blocks_equal_the_whole_array(monkeypatch) -> None:
