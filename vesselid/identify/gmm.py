@@ -474,10 +474,30 @@ def hac_sums_derivative(z: np.ndarray, phi: np.ndarray, e: np.ndarray, starts: n
         del once
         tf[:, ~v] = 0.0
         t_gu, t_qu = tf[0], tf[1:]
-        xu = mean * t_gu.sum() - zv.T @ (ph * t_gu[:, None])  # Σ q_j (T uᵀg)
-        xtu = zv.T @ (ev[:, None] * t_qu.T) - np.outer(g_mean, t_qu.sum(axis=1))  # Σ g (T uᵀq_j)
+        if n > _covariance.LARGE_ROWS:  # the same products summed over blocks of rows
+            zph, zeq = _block_cross(zv, ph, ev, t_gu, t_qu)
+        else:
+            zph, zeq = zv.T @ (ph * t_gu[:, None]), zv.T @ (ev[:, None] * t_qu.T)
+        xu = mean * t_gu.sum() - zph  # Σ q_j (T uᵀg)
+        xtu = zeq - np.outer(g_mean, t_qu.sum(axis=1))  # Σ g (T uᵀq_j)
         out += (xu + xtu) / (lag + 1.0)
     return out
+
+
+def _block_cross(zv: np.ndarray, ph: np.ndarray, ev: np.ndarray, t_gu: np.ndarray,
+                 t_qu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``zvᵀ (ph · t_gu)`` and ``zvᵀ (ev · t_quᵀ)`` of :func:`hac_sums_derivative` summed
+    over blocks of :data:`~vesselid.identify.covariance.BLOCK_ROWS` rows (no ``(n, P)``
+    products; rounded differently)."""
+    n = zv.shape[0]
+    zph = np.zeros((zv.shape[1], ph.shape[1]))
+    zeq = np.zeros((zv.shape[1], t_qu.shape[0]))
+    step = _covariance.BLOCK_ROWS * 8
+    for a in range(0, n, step):
+        b = min(a + step, n)
+        zph += zv[a:b].T @ (ph[a:b] * t_gu[a:b, None])
+        zeq += zv[a:b].T @ (ev[a:b, None] * t_qu[:, a:b].T)
+    return zph, zeq
 
 
 def weight_jacobian(a: np.ndarray, w: np.ndarray, gbar: np.ndarray, ds_u: np.ndarray

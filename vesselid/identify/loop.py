@@ -224,12 +224,15 @@ def feedback_test_data(data: RegressionData, spec: ModelSpec, designs: list, *,
     for s in range(data.n_segments):
         sl = data.segment(s)
         uc[sl] -= column_means(u[sl])
-    scores = []
     keep = np.ones(n_rows, dtype=bool)
     for tau in range(lags):
         idx = rows + tau
         ok = idx < data.starts[seg_of_row + 1]
         keep &= ok
+    # the scores of every design and lag, written into their columns of one array
+    n_kept = int(keep.sum())
+    s = np.empty((n_kept, len(designs) * lags * u.shape[1]))
+    col = 0
     for d in designs:
         if d.z.shape[0] != n_rows:
             raise IdentificationError("feedback test: the designs do not cover every equation "
@@ -239,7 +242,6 @@ def feedback_test_data(data: RegressionData, spec: ModelSpec, designs: list, *,
             a_inv = np.linalg.inv(a)
         except np.linalg.LinAlgError:
             a_inv = np.linalg.pinv(a)
-        n_kept = keep.sum()
         # the kept rows as a view where they are the leading ones (one experiment)
         phi_kept = (d.phi[:n_kept] if d.phi.flags.c_contiguous and keep[:n_kept].all()
                     else d.phi[keep])
@@ -249,11 +251,10 @@ def feedback_test_data(data: RegressionData, spec: ModelSpec, designs: list, *,
             mmat = uc[idx[keep]].T @ phi_kept / n_kept  # (m, P)
             adj = ut - d.z @ (mmat @ a_inv).T
             adj *= d.resid[:, None]
-            scores.append(adj[keep])  # the kept rows only (no whole-length score kept)
+            s[:, col:col + adj.shape[1]] = adj[keep]  # the kept rows only
+            col += adj.shape[1]
             del ut, adj
         del phi_kept
-    s = np.concatenate(scores, axis=1)
-    del scores
     n_eff = s.shape[0]
     mean = column_means(s)
     s -= mean  # centred in place (s is this function's own copy)
