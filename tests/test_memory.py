@@ -181,3 +181,29 @@ def test_gmm_weight_derivative_on_long_experiments(monkeypatch) -> None:
     monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
     got = gmm.hac_sums_derivative(z, phi, e, starts, valid, 9, u)
     assert np.all(np.isfinite(got)) and np.array_equal(got, ref)
+
+
+def test_identify_reads_no_ground_truth(tmp_path) -> None:
+    """``TrialLog.load(truth=False)`` (what ``vesselid identify`` reads) leaves the
+    simulator's ``true_*`` columns in the file, the same frame otherwise (CSV and
+    Parquet), and keeps a ``true_*`` column that the model spec names."""
+    from vesselid.data.logs import TrialLog
+    from vesselid.model.spec import ModelSpec
+    from vesselid.plant.systems import heave
+
+    log = heave().simulate(300, seed=1).to_log()
+    spec = ModelSpec.from_dict({"name": "t", "states": ["true_w"], "inputs": ["tau"],
+                                "dt": 1.0,
+                                "equations": {"true_w": ["true_w", "true_w*|true_w|", "tau"]}})
+    for suffix in ("csv", "parquet"):
+        path = tmp_path / f"log.{suffix}"
+        log.save(path)
+        full = TrialLog.load(path)
+        lean = TrialLog.load(path, truth=False)
+        assert any(c.startswith("true_") for c in full.data.columns)
+        assert not any(c.startswith("true_") for c in lean.data.columns)
+        assert lean.data.equals(full.data[list(lean.data.columns)])
+        assert lean.metadata == full.metadata
+        named = TrialLog.load(path, spec=spec, truth=False)
+        assert "true_w" in named.data.columns
+        assert "true_current_w" not in named.data.columns
