@@ -379,6 +379,8 @@ class InstrumentalGMM(Estimator):
                 blocks = gmm.instrument_blocks(spec, kind, phi, z_sim, lagged)
                 del z_sim  # (first_z keeps the first step's; the blocks hold the others)
                 last = step == n_steps - 1
+                if last and lagged:  # gathered for the last time (the caller's list)
+                    lagged.clear()
                 sol = None  # the previous step's rows: only the last step's are kept
                 sol = gmm.solve_equations(data, spec, phi, blocks, weight="hac", ar=ar,
                                           keep_designs=keep and last,
