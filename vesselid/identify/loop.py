@@ -242,18 +242,19 @@ def feedback_test_data(data: RegressionData, spec: ModelSpec, designs: list, *,
             a_inv = np.linalg.inv(a)
         except np.linalg.LinAlgError:
             a_inv = np.linalg.pinv(a)
-        # the kept rows as a view where they are the leading ones (one experiment)
-        phi_kept = (d.phi[:n_kept] if d.phi.flags.c_contiguous and keep[:n_kept].all()
-                    else d.phi[keep])
+        # the kept rows as views where they are the leading ones (one experiment)
+        lead = bool(keep[:n_kept].all())
+        kept = slice(0, n_kept) if lead else keep
+        phi_kept = d.phi[:n_kept] if d.phi.flags.c_contiguous and lead else d.phi[keep]
         for tau in range(lags):
             idx = np.minimum(rows + tau, u.shape[0] - 1)
-            ut = uc[idx]  # (n_rows, m)
-            mmat = uc[idx[keep]].T @ phi_kept / n_kept  # (m, P)
-            adj = ut - d.z @ (mmat @ a_inv).T
+            mmat = uc[idx[kept]].T @ phi_kept / n_kept  # (m, P)
+            adj = uc[idx]  # (n_rows, m), this lag's own copy: adjusted in place
+            adj -= d.z @ (mmat @ a_inv).T
             adj *= d.resid[:, None]
-            s[:, col:col + adj.shape[1]] = adj[keep]  # the kept rows only
+            s[:, col:col + adj.shape[1]] = adj[kept]  # the kept rows only
             col += adj.shape[1]
-            del ut, adj
+            del adj, idx
         del phi_kept
     n_eff = s.shape[0]
     mean = column_means(s)
