@@ -207,3 +207,29 @@ def test_identify_reads_no_ground_truth(tmp_path) -> None:
         named = TrialLog.load(path, spec=spec, truth=False)
         assert "true_w" in named.data.columns
         assert "true_current_w" not in named.data.columns
+
+
+def test_hac_long_run_in_blocks(monkeypatch) -> None:
+    """The HAC long-run covariance of one long experiment (the J test's weight) from
+    scores formed block by block equals the whole-array one to rounding, with the same
+    Newey-West bandwidth, for a rule and a fixed bandwidth; other kernels keep the
+    whole-array path."""
+    from vesselid.identify import covariance as cv
+
+    rng = np.random.default_rng(9)
+    n = 5000
+    z = rng.standard_normal((n, 4)) * np.array([1.0, 5.0, 0.2, 1.0])
+    e = np.convolve(rng.standard_normal(n), np.ones(6), "same")
+    for config in ({}, {"bandwidth": 7.0}):
+        est = cv.get_covariance_estimator(cv.DEFAULT_COV_TYPE, **config)
+        ref, used_ref = est.long_run(z, e, zero_mean=True, skip_first=False)
+        with monkeypatch.context() as m:
+            m.setattr(cv, "LARGE_ROWS", 1000)
+            m.setattr(cv, "BLOCK_ROWS", 333)
+            assert est._long_run_in_blocks(z, e, None, None, True, False) is not None
+            got, used = est.long_run(z, e, zero_mean=True, skip_first=False)
+        assert used["bandwidth"] == used_ref["bandwidth"] > 1
+        assert np.max(np.abs(got - ref)) <= 1e-12 * np.max(np.abs(ref))
+    monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
+    parzen = cv.get_covariance_estimator(cv.DEFAULT_COV_TYPE, kernel="parzen")
+    assert parzen._long_run_in_blocks(z, e, None, None, True, False) is None

@@ -215,13 +215,19 @@ def automatic_bandwidth(
 
 
 def _newey_west_bandwidth(g: np.ndarray, segs: list[slice], kernel: str, t_total: int) -> float:
+    scale = np.sqrt(column_means(_compact(g, segs), square=True))
+    scale[scale == 0] = 1.0
+    x = [_row_sums(g[s], scale) for s in segs] if g.shape[1] > 1 else [g[s, 0] for s in segs]
+    return _newey_west_from_sums(x, kernel, t_total)
+
+
+def _newey_west_from_sums(x: list[np.ndarray], kernel: str, t_total: int) -> float:
+    """:func:`_newey_west_bandwidth` from the standardised columns' sums ``x`` of every
+    experiment."""
     # Newey & West (1994): pilot lags n, exponent q, constant c per kernel
     q, c, n_exp = {"bartlett": (1, 1.1447, 2 / 9), "parzen": (2, 2.6614, 4 / 25),
                    "qs": (2, 1.3221, 2 / 25)}[kernel]
     n = math.ceil(4 * (t_total / 100) ** n_exp)
-    scale = np.sqrt(column_means(_compact(g, segs), square=True))
-    scale[scale == 0] = 1.0
-    x = [_row_sums(g[s], scale) for s in segs] if g.shape[1] > 1 else [g[s, 0] for s in segs]
     sig = np.zeros(n + 1)
     for xs in x:
         for j in range(min(n, xs.size - 1) + 1):
@@ -697,10 +703,25 @@ class CovarianceEstimator:
         what a J test or an optimal GMM weight needs. Arguments as :meth:`estimate`
         (``z_equation`` default: all instruments in equation 0).
         """
+        if np.shape(z)[0] > LARGE_ROWS:
+            blocks = self._long_run_in_blocks(z, resid, starts, z_equation, zero_mean,
+                                              skip_first)
+            if blocks is not None:
+                return blocks
         sc = _scores(z, None, resid, starts, None, z_equation, zero_mean, skip_first,
                      keep_z=self.meat_uses_z)  # else the scores carry all the meat needs
         s_list, used = self.meat(sc.g, sc.z, sc.eps, sc.segs, sc.z_equation)
         return sum(s_list) * np.outer(sc.z_scale, sc.z_scale), {**self.config(), **used}
+
+    def _long_run_in_blocks(self, z: Any, resid: Any, starts: np.ndarray | None,
+                            z_equation: np.ndarray | None, zero_mean: bool,
+                            skip_first: bool) -> tuple[np.ndarray, dict[str, Any]] | None:
+        """:meth:`long_run` of one long experiment whose meat is built from the scores
+        alone, with the scores formed :data:`BLOCK_ROWS` rows at a time (no equilibrated
+        ``(T, K)`` copy, no ``(T, K)`` scores); None where that does not apply (the
+        caller takes the whole-array path). The same rows of scores; sums rounded
+        differently (~1e-14 relative)."""
+        return None
 
     def cov(self, z: np.ndarray, phi: np.ndarray, resid: np.ndarray,
             starts: np.ndarray | None = None, **options: Any) -> np.ndarray:
@@ -983,6 +1004,48 @@ class KernelCovariance(CovarianceEstimator):
         pw = ", VAR(1) pre-whitened" if config.get("prewhiten") else ""
         return (f"HAC ({_KERNEL_LABELS[self.kernel]} kernel, bandwidth "
                 f"{config.get('bandwidth', float('nan')):.3g} by {how}{pw}, within experiments)")
+
+    def _long_run_in_blocks(self, z, resid, starts, z_equation, zero_mean, skip_first):
+        if (self.kernel != "bartlett" or self.prewhiten
+                or (isinstance(self.bandwidth, str) and self.bandwidth != "newey-west")):
+            return None  # the blocks cover the Bartlett kernel with a Newey-West/fixed lag
+        z = np.asarray(z, dtype=float)
+        resid = np.asarray(resid, dtype=float)
+        resid = resid[:, None] if resid.ndim == 1 else resid
+        t_len = z.shape[0]
+        if (z.ndim != 2 or resid.shape != (t_len, 1) or skip_first
+                or not (starts is None or len(starts) == 2)
+                or (z_equation is not None and np.any(np.asarray(z_equation) != 0))):
+            return None  # one experiment, every row, one equation: else the general path
+        if t_len < 2 or not (np.all(np.isfinite(z)) and np.all(np.isfinite(resid))):
+            return None  # (the general path says why)
+        segs = [slice(0, t_len)]
+        z_scale = _column_scale(z, None)
+        eps = _residual(resid, segs, zero_mean)[:, 0]
+        q = z.shape[1]
+        spans = [(a, min(a + BLOCK_ROWS, t_len)) for a in range(0, t_len, BLOCK_ROWS)]
+
+        def block(a: int, b: int) -> np.ndarray:  # the rows a … b − 1 of g = (z / s) ε
+            return np.multiply(z[a:b] / z_scale, eps[a:b, None])
+
+        used: dict[str, Any] = {}
+        if isinstance(self.bandwidth, str):  # Newey-West (1994) on the scores' blocks
+            sq = sum(np.einsum("tk,tk->k", g, g) for g in (block(a, b) for a, b in spans))
+            scale = np.sqrt(sq / t_len)
+            scale[scale == 0] = 1.0
+            x = np.concatenate([_row_sums(block(a, b), scale) if q > 1 else block(a, b)[:, 0]
+                                for a, b in spans])
+            bw = float(min(_newey_west_from_sums([x], self.kernel, t_len),
+                           float(max(t_len - 1, 0))))
+        else:
+            bw = float(self.bandwidth)
+        used["bandwidth"] = bw
+        lags = math.floor(bw)
+        if min(lags + 1, t_len - 1) <= 1:
+            return None  # a bandwidth below one lag: the general path
+        mean = sum(block(a, b).sum(axis=0) for a, b in spans) / t_len
+        s_u = bartlett_block_sums(block, t_len, q, mean, lags, BLOCK_ROWS)
+        return s_u * np.outer(z_scale, z_scale), {**self.config(), **used}
 
     def meat(self, g, z, eps, segs, equation):
         q = g.shape[1]
