@@ -191,8 +191,13 @@ class FeedbackTest:
 
 
 def _newey_west(s: np.ndarray, lags: int) -> np.ndarray:
-    """Bartlett-kernel long-run covariance of the rows of ``s`` (already centred)."""
+    """Bartlett-kernel long-run covariance of the rows of ``s`` (already centred); a long
+    series by the block-wise Bartlett sums (the same quantity rounded differently)."""
     n = s.shape[0]
+    if n > _large_rows() and lags > 0:
+        from vesselid.identify.covariance import bartlett_long_run
+
+        return bartlett_long_run(s, lags) / n
     cov = s.T @ s / n
     for ell in range(1, lags + 1):
         g = s[ell:].T @ s[:-ell] / n
