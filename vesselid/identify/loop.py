@@ -309,7 +309,9 @@ def reference_designs(data: RegressionData, spec: ModelSpec, it: Any = None) -> 
         z, _ = kernels.instrument_matrix(data.target, data.u, data.starts, it.theta_aux[0],
                                          codes.factors, codes.equation, spec.n_states)
     rows = _equation_rows(data)
-    zc = z  # centred per experiment in its own buffer (z is this function's)
+    # centred per experiment: in its own buffer when computed here, else (the matrices
+    # the mean-current test kept, read-only) in a copy
+    zc = z if z.flags.writeable else z.copy()
     for s in range(data.n_segments):
         sl = slice(int(data.starts[s]) + 1, int(data.starts[s + 1]))
         zc[sl] -= column_means(zc[sl])
