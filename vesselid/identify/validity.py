@@ -109,7 +109,10 @@ def _rows(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray, extra: b
     codes = spec.codes
     sl, starts = data.group_rows(0)
     if extra and data.n_groups == 1:  # new arrays below: the kept ones stay unchanged
-        phi, z, xhat = reference_matrices(data, spec, theta_aux, keep=True)
+        # (a long log keeps none: held to the feedback test, they would raise the peak
+        # memory of every step in between; the feedback test computes them again)
+        long = data.target.shape[0] > _covariance.LARGE_ROWS
+        phi, z, xhat = reference_matrices(data, spec, theta_aux, keep=not long)
     else:
         phi = kernels.regressor_matrix(data.regsig[sl], data.u[sl], starts, codes.factors)
         z, xhat = kernels.instrument_matrix(data.target[sl], data.u[sl], starts, theta_aux,
