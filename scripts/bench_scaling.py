@@ -330,6 +330,51 @@ def bench_identify_memory(sizes: tuple[int, ...] = (100_000, 1_000_000, 4_000_00
     return out
 
 
+def bench_identify_large_paths(n: int = 1_000_000) -> dict[str, Any]:
+    """How far the bounded-memory forms of a long log (block-wise sums, refined normal
+    equations; taken above ``covariance.LARGE_ROWS`` rows) move ``identify``'s results
+    from the whole-array forms: the largest relative difference of the estimates, the
+    covariance and every test statistic on one ``n``-sample heave log."""
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import identify
+    from vesselid.plant.systems import heave
+
+    warnings.simplefilter("ignore")
+    log = heave().simulate(n, seed=0).to_log()
+    got = identify(log)
+    large = cv.LARGE_ROWS
+    cv.LARGE_ROWS = 1 << 62  # every whole-array form
+    try:
+        ref = identify(log)
+    finally:
+        cv.LARGE_ROWS = large
+
+    def rel(a: Any, b: Any) -> float:
+        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+        return float(np.max(np.abs(a - b)) / np.max(np.abs(b)))
+
+    dg, dr = got.diagnostics, ref.diagnostics
+    state = next(iter(dr["specification"]))
+    sg, sr = dg["specification"][state], dr["specification"][state]
+    out = {"samples": n, "params": rel(got.params.to_numpy(), ref.params.to_numpy()),
+           "cov": rel(got.cov.to_numpy(), ref.cov.to_numpy())}
+    for test in ("endogeneity", "hansen_j"):
+        if sr.get(test, {}).get("stat") is not None:
+            out[test] = rel(sg[test]["stat"], sr[test]["stat"])
+    out["cragg_donald"] = rel(sg["first_stage"]["cragg_donald"],
+                              sr["first_stage"]["cragg_donald"])
+    out["partial_f"] = max(rel(sg["first_stage"]["partial_f"][k], v)
+                           for k, v in sr["first_stage"]["partial_f"].items())
+    for key, field in (("feedback", "statistic"), ("parameter_stability", "statistic")):
+        if dr.get(key) and dr[key].get(field) is not None:
+            out[key] = rel(dg[key][field], dr[key][field])
+    for key in ("colour_test", "c_test_lagged", "hansen_j_combined"):
+        if dr.get(key):
+            out[key] = rel(dg[key][0]["stat"], dr[key][0]["stat"])
+    out["max_relative_difference"] = max(v for k, v in out.items() if k != "samples")
+    return out
+
+
 # ----------------------------------------------------------------- the pem path
 def bench_pem_path(repeats: int = 11) -> dict[str, Any]:
     """``identify(log)`` on a 10⁴-sample heave log with a Gauss–Markov current (the

@@ -58,6 +58,7 @@ def test_large_log_paths_agree_with_the_whole_array_paths(monkeypatch) -> None:
 
     from vesselid.identify import covariance as cv
     from vesselid.identify import identify
+    from vesselid.identify import specification as sp
     from vesselid.plant.systems import heave
 
     log = heave().simulate(6000, seed=11).to_log()
@@ -66,6 +67,7 @@ def test_large_log_paths_agree_with_the_whole_array_paths(monkeypatch) -> None:
         ref = identify(log)
         monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
         monkeypatch.setattr(cv, "BLOCK_ROWS", 700)
+        monkeypatch.setattr(sp, "BLOCK_ROWS", 700)
         got = identify(log)
     np.testing.assert_allclose(got.params.to_numpy(), ref.params.to_numpy(), rtol=1e-12)
     c_ref, c_got = ref.cov.to_numpy(), got.cov.to_numpy()
@@ -73,8 +75,65 @@ def test_large_log_paths_agree_with_the_whole_array_paths(monkeypatch) -> None:
     spec_ref = ref.diagnostics["specification"]["w"]
     spec_got = got.diagnostics["specification"]["w"]
     for test in ("endogeneity", "hansen_j"):
-        if spec_ref.get(test, {}).get("stat") is not None:
-            assert np.isclose(spec_got[test]["stat"], spec_ref[test]["stat"], rtol=1e-9)
+        assert spec_ref[test]["stat"] is not None
+        assert np.isclose(spec_got[test]["stat"], spec_ref[test]["stat"], rtol=1e-9)
+    fs_ref, fs_got = spec_ref["first_stage"], spec_got["first_stage"]
+    assert np.isclose(fs_got["cragg_donald"], fs_ref["cragg_donald"], rtol=1e-9)
+    for name, f in fs_ref["partial_f"].items():
+        assert np.isclose(fs_got["partial_f"][name], f, rtol=1e-9)
+    d_ref, d_got = ref.diagnostics, got.diagnostics
+    # the feedback test (views of one long experiment), split-sample stability (block-wise
+    # Bartlett sums of each half), and the GMM colour and C tests (block-wise weights)
+    assert np.isclose(d_got["feedback"]["statistic"], d_ref["feedback"]["statistic"], rtol=1e-9)
+    assert np.isclose(d_got["parameter_stability"]["statistic"],
+                      d_ref["parameter_stability"]["statistic"], rtol=1e-9)
+    for key in ("colour_test", "c_test_lagged", "hansen_j_combined"):
+        assert np.isclose(d_got[key][0]["stat"], d_ref[key][0]["stat"], rtol=1e-9), key
+
+
+def test_minus_fit_in_blocks(monkeypatch) -> None:
+    """``a − b·coef`` formed block by block in ``a``'s buffer on long logs equals the
+    whole product's difference to rounding."""
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import specification as sp
+
+    rng = np.random.default_rng(8)
+    a = rng.standard_normal((5000, 3))
+    b = rng.standard_normal((5000, 6))
+    coef = rng.standard_normal((6, 3))
+    ref = a - b @ coef
+    monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
+    monkeypatch.setattr(sp, "BLOCK_ROWS", 777)
+    work = a.copy()
+    got = sp._minus_fit(work, b, coef)
+    assert got is work
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-13 * np.max(np.abs(ref)))
+
+
+def test_long_log_least_squares_equal_lstsq(monkeypatch) -> None:
+    """The specification tests' least squares on long logs (refined normal equations)
+    give ``np.linalg.lstsq``'s coefficients to rounding, for one and several right-hand
+    sides; collinear columns take ``lstsq`` itself (its minimum-norm solution)."""
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import specification as sp
+
+    rng = np.random.default_rng(8)
+    n = 5000
+    a = rng.standard_normal((n, 6)) * np.array([1.0, 10.0, 0.1, 1.0, 3.0, 1e3])
+    b = a @ rng.standard_normal((6, 2)) + rng.standard_normal((n, 2))
+    ref = np.linalg.lstsq(a, b, rcond=None)[0]
+    ref1 = np.linalg.lstsq(a, b[:, 0], rcond=None)[0]
+    a_dup = np.column_stack([a[:, :3], a[:, 0]])
+    ref_dup = np.linalg.lstsq(a_dup, b, rcond=None)[0]
+    monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
+    monkeypatch.setattr(sp, "BLOCK_ROWS", 777)
+    got = sp._lstsq(a, b)
+    assert got.shape == ref.shape
+    assert np.max(np.abs(got - ref)) <= 1e-12 * np.max(np.abs(ref))
+    got1 = sp._lstsq(a, b[:, 0])
+    assert got1.shape == ref1.shape
+    assert np.max(np.abs(got1 - ref1)) <= 1e-12 * np.max(np.abs(ref1))
+    assert np.array_equal(sp._lstsq(a_dup, b), ref_dup)
 
 
 def test_gmm_hac_sums_in_blocks_equal_the_whole_array(monkeypatch) -> None:
@@ -122,3 +181,55 @@ def test_gmm_weight_derivative_on_long_experiments(monkeypatch) -> None:
     monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
     got = gmm.hac_sums_derivative(z, phi, e, starts, valid, 9, u)
     assert np.all(np.isfinite(got)) and np.array_equal(got, ref)
+
+
+def test_identify_reads_no_ground_truth(tmp_path) -> None:
+    """``TrialLog.load(truth=False)`` (what ``vesselid identify`` reads) leaves the
+    simulator's ``true_*`` columns in the file, the same frame otherwise (CSV and
+    Parquet), and keeps a ``true_*`` column that the model spec names."""
+    from vesselid.data.logs import TrialLog
+    from vesselid.model.spec import ModelSpec
+    from vesselid.plant.systems import heave
+
+    log = heave().simulate(300, seed=1).to_log()
+    spec = ModelSpec.from_dict({"name": "t", "states": ["true_w"], "inputs": ["tau"],
+                                "dt": 1.0,
+                                "equations": {"true_w": ["true_w", "true_w*|true_w|", "tau"]}})
+    for suffix in ("csv", "parquet"):
+        path = tmp_path / f"log.{suffix}"
+        log.save(path)
+        full = TrialLog.load(path)
+        lean = TrialLog.load(path, truth=False)
+        assert any(c.startswith("true_") for c in full.data.columns)
+        assert not any(c.startswith("true_") for c in lean.data.columns)
+        assert lean.data.equals(full.data[list(lean.data.columns)])
+        assert lean.metadata == full.metadata
+        named = TrialLog.load(path, spec=spec, truth=False)
+        assert "true_w" in named.data.columns
+        assert "true_current_w" not in named.data.columns
+
+
+def test_hac_long_run_in_blocks(monkeypatch) -> None:
+    """The HAC long-run covariance of one long experiment (the J test's weight) from
+    scores formed block by block equals the whole-array one to rounding, with the same
+    Newey-West bandwidth, for a rule and a fixed bandwidth; other kernels keep the
+    whole-array path."""
+    from vesselid.identify import covariance as cv
+
+    rng = np.random.default_rng(9)
+    n = 5000
+    z = rng.standard_normal((n, 4)) * np.array([1.0, 5.0, 0.2, 1.0])
+    e = np.convolve(rng.standard_normal(n), np.ones(6), "same")
+    for config in ({}, {"bandwidth": 7.0}):
+        est = cv.get_covariance_estimator(cv.DEFAULT_COV_TYPE, **config)
+        ref, used_ref = est.long_run(z, e, zero_mean=True, skip_first=False)
+        with monkeypatch.context() as m:
+            m.setattr(cv, "LARGE_ROWS", 1000)
+            m.setattr(cv, "BLOCK_ROWS", 333)
+            assert est._long_run_in_blocks(z, e, None, None, True, False) is not None
+            got, used = est.long_run(z, e, zero_mean=True, skip_first=False)
+        assert used["bandwidth"] == used_ref["bandwidth"] > 1
+        assert np.max(np.abs(got - ref)) <= 1e-12 * np.max(np.abs(ref))
+    monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
+    parzen = cv.get_covariance_estimator(cv.DEFAULT_COV_TYPE, kernel="parzen")
+    assert parzen._long_run_in_blocks(z, e, None, None, True, False) is None

@@ -223,7 +223,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
                  memory=limits.read_memory(rows, cols), seconds=limits.read_seconds(rows, cols),
                  memory_hint=limits.STREAM_HINT)
     _memory.unmap_large_blocks()  # freed temporaries leave the resident memory
-    log = TrialLog.load(args.log, spec=spec)
+    log = TrialLog.load(args.log, spec=spec, truth=False)  # no estimator reads the truth
     if spec is None and log.spec is None:
         raise CLIError(f"{args.log} carries no model spec; pass --model SPEC.toml")
     from vesselid.data.sampling import check_sampling

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import functools
 import json
 import math
 import re
@@ -42,6 +43,7 @@ from vesselid.model.spec import ModelSpec
 __all__ = [
     "PARQUET_METADATA_KEY",
     "SUPPORTED_SUFFIXES",
+    "TRUTH_PREFIX",
     "TrialLog",
     "TrialLogWriter",
     "concat_logs",
@@ -438,7 +440,8 @@ class TrialLog:
 
     @classmethod
     def load(
-        cls, path: str | Path, spec: ModelSpec | None = None, validate: bool = True
+        cls, path: str | Path, spec: ModelSpec | None = None, validate: bool = True,
+        *, truth: bool = True,
     ) -> TrialLog:
         """Read a log written by :meth:`save`, or a user's own CSV/Parquet file.
 
@@ -451,10 +454,12 @@ class TrialLog:
             Model to validate against; defaults to the spec stored in the metadata.
         validate : bool, default True
             Run :meth:`validate` after reading.
-
-        Returns
-        -------
-        TrialLog
+        truth : bool, default True
+            Read the simulator's ground-truth columns (names starting with
+            :data:`TRUTH_PREFIX`). ``False`` leaves those the model spec (``spec``, else
+            the file's) does not name in the file: what identification needs (no
+            estimator reads them; on a long simulated log they are a large share of the
+            table).
 
         Raises
         ------
@@ -466,10 +471,11 @@ class TrialLog:
         suffix = _suffix(path)
         if not path.is_file():
             raise LogValidationError(f"trial log file {str(path)!r} does not exist")
+        keep = None if truth else functools.partial(_truth_filter, spec)
         if suffix == ".csv":
-            data, envelope = _read_csv(path)
+            data, envelope = _read_csv(path, keep)
         else:
-            data, envelope = _read_parquet(path)
+            data, envelope = _read_parquet(path, keep)
         metadata = envelope.get("metadata", {}) if envelope else {}
         if not isinstance(metadata, dict):
             raise LogValidationError(f"{path}: trial log metadata must be a JSON object")
@@ -766,7 +772,25 @@ def _csv_header(path: Path) -> list[str]:
         raise LogValidationError(f"{path}: cannot read CSV header: {exc}") from exc
 
 
-def _read_csv(path: Path) -> tuple[pd.DataFrame, dict]:
+#: Name prefix of the simulator's ground-truth columns (``true_w``, ``true_current_w``,
+#: ...), which :meth:`TrialLog.load` can leave unread (``truth=False``).
+TRUTH_PREFIX = "true_"
+
+
+def _truth_filter(spec: ModelSpec | None, envelope: dict) -> Any:
+    """The columns :meth:`TrialLog.load` reads with ``truth=False``: all but the
+    ground-truth columns (:data:`TRUTH_PREFIX`) that the spec (``spec``, else the one in
+    the file's metadata ``envelope``) does not mention."""
+    raw = spec.to_dict() if spec is not None else (envelope.get("metadata") or {}).get("spec")
+    named = json.dumps(raw, default=str) if raw is not None else ""
+
+    def keep(name: object) -> bool:
+        return not str(name).startswith(TRUTH_PREFIX) or str(name) in named
+
+    return keep
+
+
+def _read_csv(path: Path, keep: Any = None) -> tuple[pd.DataFrame, dict]:
     sidecar = _sidecar_path(path)
     envelope: dict = {}
     dtypes: dict[str, str] = {}
@@ -798,8 +822,14 @@ def _read_csv(path: Path) -> tuple[pd.DataFrame, dict]:
             later[col] = name
         else:
             direct[col] = name
+    if keep is not None:  # the columns asked for (dtypes of the others do not apply)
+        keep = keep(envelope)
+        direct = {c: t for c, t in direct.items() if keep(c)}
+        later = {c: t for c, t in later.items() if keep(c)}
     try:
-        data = pd.read_csv(path, dtype=direct or None, **_CSV_READ_KWARGS)
+        data = pd.read_csv(path, dtype=direct or None,
+                           **({"usecols": keep} if keep is not None else {}),
+                           **_CSV_READ_KWARGS)
         for col, name in later.items():
             data[col] = data[col].astype(name)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
@@ -811,7 +841,7 @@ def _read_csv(path: Path) -> tuple[pd.DataFrame, dict]:
     return data, envelope
 
 
-def _read_parquet(path: Path) -> tuple[pd.DataFrame, dict]:
+def _read_parquet(path: Path, keep: Any = None) -> tuple[pd.DataFrame, dict]:
     pa, pq = _import_pyarrow()
     try:
         schema = pq.read_schema(path)
@@ -821,7 +851,11 @@ def _read_parquet(path: Path) -> tuple[pd.DataFrame, dict]:
         if duplicated:
             raise LogValidationError(f"{path}: Parquet file has duplicated column names "
                                      f"{duplicated}")
-        table = pq.read_table(path, page_checksum_verification=True)
+        if keep is not None:  # the columns asked for, from the footer's metadata
+            raw = (schema.metadata or {}).get(PARQUET_METADATA_KEY)
+            keep = keep(_read_envelope(raw, str(path)) if raw is not None else {})
+        table = pq.read_table(path, page_checksum_verification=True,
+                              columns=None if keep is None else [c for c in names if keep(c)])
         raw = (table.schema.metadata or {}).get(PARQUET_METADATA_KEY)
         envelope = _read_envelope(raw, str(path)) if raw is not None else {}
         # one block per column, each Arrow buffer freed as soon as it is converted, and

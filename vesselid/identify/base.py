@@ -88,6 +88,9 @@ class EquationDesign:
     (P, P) the derivative ``∂θ₂/∂θ₁`` of a two-step GMM estimate with respect to its
     2SLS first step through the estimated weight (None: the weight is not estimated),
     from which the covariance adds Windmeijer's (2005) finite-sample correction.
+    ``owned``: ``z`` and ``phi`` are the estimator's own buffers (no other array of the
+    fit, the log or the caller shares them), which the last step that reads them may
+    overwrite.
     """
 
     z: np.ndarray
@@ -97,6 +100,7 @@ class EquationDesign:
     weight: np.ndarray | None = None
     zero_mean: bool = False
     weight_jacobian: np.ndarray | None = None
+    owned: bool = False
 
 
 class _Warner:
@@ -498,6 +502,13 @@ class Estimator:
         if run.own_cov is None:
             run.specification = _specification_tests(run.spec, run.designs, run.it.theta[0],
                                                      run.blocks, run.cov_name)
+        # no later step reads the designs (the tests may have centred them in place), nor
+        # the rows a GMM solution kept to build them: on a long log they are the largest
+        # arrays of the fit
+        run.designs = []
+        sol = (run.it.info or {}).get("solution")
+        if getattr(sol, "designs", None) is not None:
+            sol.designs = None
         run.residual_checks = _residual_checks(run.spec, run.data, run.resid)
         if not np.all(np.isfinite(run.cov)):
             run.warn("the covariance of the estimates could not be computed (singular "
@@ -695,15 +706,22 @@ def _specification_tests(spec: ModelSpec, designs: list[EquationDesign], theta: 
     fn = getattr(specification, "equation_diagnostics", None)
     if fn is None:  # pragma: no cover - older module
         return {}
+    from vesselid.identify.covariance import LARGE_ROWS
+
     out: dict[str, Any] = {}
-    shared: dict[str, Any] = {}  # equations with the same terms share their rows' work
+    # equations with the same terms share their rows' work (one equation: nothing to
+    # share, and nothing kept for another)
+    shared: dict[str, Any] = {}
     for i, s in enumerate(spec.states):
         d = designs[i]
         sl = slice(int(blocks[i]), int(blocks[i + 1]))
         y = d.resid + d.phi @ theta[sl]
+        # a long log's rows are centred in the designs' own buffers (the designs' last
+        # use: no second copy of the instruments); short logs keep them as they are
+        large = d.owned and np.shape(d.z)[0] > LARGE_ROWS
         out[s] = fn(d.z, d.phi, y, d.starts, zero_mean=d.zero_mean, skip_first=False,
                     names=[str(t) for t in spec.equations[s]], cov_type=cov_type,
-                    shared=shared)
+                    shared=shared if spec.n_states > 1 else None, overwrite=large)
     return out
 
 

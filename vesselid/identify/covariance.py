@@ -60,7 +60,7 @@ from __future__ import annotations
 import functools
 import itertools
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any, ClassVar
@@ -215,13 +215,19 @@ def automatic_bandwidth(
 
 
 def _newey_west_bandwidth(g: np.ndarray, segs: list[slice], kernel: str, t_total: int) -> float:
+    scale = np.sqrt(column_means(_compact(g, segs), square=True))
+    scale[scale == 0] = 1.0
+    x = [_row_sums(g[s], scale) for s in segs] if g.shape[1] > 1 else [g[s, 0] for s in segs]
+    return _newey_west_from_sums(x, kernel, t_total)
+
+
+def _newey_west_from_sums(x: list[np.ndarray], kernel: str, t_total: int) -> float:
+    """:func:`_newey_west_bandwidth` from the standardised columns' sums ``x`` of every
+    experiment."""
     # Newey & West (1994): pilot lags n, exponent q, constant c per kernel
     q, c, n_exp = {"bartlett": (1, 1.1447, 2 / 9), "parzen": (2, 2.6614, 4 / 25),
                    "qs": (2, 1.3221, 2 / 25)}[kernel]
     n = math.ceil(4 * (t_total / 100) ** n_exp)
-    scale = np.sqrt(column_means(_compact(g, segs), square=True))
-    scale[scale == 0] = 1.0
-    x = [_row_sums(g[s], scale) for s in segs] if g.shape[1] > 1 else [g[s, 0] for s in segs]
     sig = np.zeros(n + 1)
     for xs in x:
         for j in range(min(n, xs.size - 1) + 1):
@@ -360,6 +366,14 @@ def _bartlett_blocks(g: np.ndarray, lags: int, rows: int) -> np.ndarray:
     whole-array form, rounded differently (~1e-14 relative)."""
     n, q = g.shape
     mean = np.array([g[:, i].mean() for i in range(q)])
+    return bartlett_block_sums(lambda a, b: g[a:b], n, q, mean, lags, rows)
+
+
+def bartlett_block_sums(block: Callable[[int, int], np.ndarray], n: int, q: int,
+                        mean: np.ndarray, lags: int, rows: int) -> np.ndarray:
+    """:func:`_bartlett_blocks` of scores that are never held whole: ``block(a, b)``
+    returns rows ``a … b − 1`` of the ``(n, q)`` scores (a fresh or read-only array) and
+    ``mean`` is their column mean. Memory ``O((rows + L) q)`` whatever ``n``."""
     hh = np.zeros((q, q))
     v = np.zeros(q)
     count_sq = 0.0
@@ -367,7 +381,7 @@ def _bartlett_blocks(g: np.ndarray, lags: int, rows: int) -> np.ndarray:
     carry = np.zeros(q)  # c(t0 − 1)
     for t0 in range(0, n, rows):
         t1 = min(t0 + rows, n)
-        c = np.cumsum(g[t0:t1] - mean, axis=0)
+        c = np.cumsum(block(t0, t1) - mean, axis=0)
         c += carry
         carry = c[-1].copy()
         cc = np.concatenate([prev, c])
@@ -606,7 +620,12 @@ class CovarianceEstimator:
         """
         if combine not in ("pooled", "stacked"):
             raise CovarianceError(f"combine must be 'pooled' or 'stacked', got {combine!r}")
-        sc = _scores(z, phi, resid, starts, equation, z_equation, zero_mean, skip_first)
+        # a long log whose meat needs the scores only: they are formed in the
+        # equilibrated instruments' buffer once the sums below have read it (the same
+        # products, no second N × K array)
+        late = not self.meat_uses_z and np.shape(z)[0] > LARGE_ROWS
+        sc = _scores(z, phi, resid, starts, equation, z_equation, zero_mean, skip_first,
+                     form_g=not late)
         z, phi, segs, equation, z_equation = sc.z, sc.phi, sc.segs, sc.equation, sc.z_equation
         n_par, n_ins = phi.shape[1], z.shape[1]
         same = z_equation[:, None] == equation[None, :]
@@ -630,6 +649,9 @@ class CovarianceEstimator:
         w_first = (_block_inverse(sum(z[s].T @ z[s] for s in segs) * same_z, z_equation)
                    if windmeijer and weight is not None and n_ins != n_par else None)
         if not self.meat_uses_z:  # the scores carry all the meat needs
+            if late:
+                every_row = sum(s.stop - s.start for s in segs) == z.shape[0]
+                sc.g = _products(z, sc.eps, segs, z_equation, every_row, in_place=True)
             sc.z = sc.phi = z = phi = None
         s_list, used = self.meat(sc.g, z, sc.eps, segs, z_equation)
         n_list = [s.stop - s.start for s in segs]
@@ -681,10 +703,25 @@ class CovarianceEstimator:
         what a J test or an optimal GMM weight needs. Arguments as :meth:`estimate`
         (``z_equation`` default: all instruments in equation 0).
         """
+        if np.shape(z)[0] > LARGE_ROWS:
+            blocks = self._long_run_in_blocks(z, resid, starts, z_equation, zero_mean,
+                                              skip_first)
+            if blocks is not None:
+                return blocks
         sc = _scores(z, None, resid, starts, None, z_equation, zero_mean, skip_first,
                      keep_z=self.meat_uses_z)  # else the scores carry all the meat needs
         s_list, used = self.meat(sc.g, sc.z, sc.eps, sc.segs, sc.z_equation)
         return sum(s_list) * np.outer(sc.z_scale, sc.z_scale), {**self.config(), **used}
+
+    def _long_run_in_blocks(self, z: Any, resid: Any, starts: np.ndarray | None,
+                            z_equation: np.ndarray | None, zero_mean: bool,
+                            skip_first: bool) -> tuple[np.ndarray, dict[str, Any]] | None:
+        """:meth:`long_run` of one long experiment whose meat is built from the scores
+        alone, with the scores formed :data:`BLOCK_ROWS` rows at a time (no equilibrated
+        ``(T, K)`` copy, no ``(T, K)`` scores); None where that does not apply (the
+        caller takes the whole-array path). The same rows of scores; sums rounded
+        differently (~1e-14 relative)."""
+        return None
 
     def cov(self, z: np.ndarray, phi: np.ndarray, resid: np.ndarray,
             starts: np.ndarray | None = None, **options: Any) -> np.ndarray:
@@ -695,11 +732,12 @@ class CovarianceEstimator:
 def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
             starts: np.ndarray | None, equation: np.ndarray | None,
             z_equation: np.ndarray | None, zero_mean: bool, skip_first: bool,
-            keep_z: bool = True) -> _Scores:
+            keep_z: bool = True, form_g: bool = True) -> _Scores:
     """Validate the arrays of :meth:`CovarianceEstimator.estimate` and form the scores
     (``phi=None``: instruments only, as :meth:`CovarianceEstimator.long_run`); without
     ``keep_z`` the scores are formed in the equilibrated instruments' buffer (the same
-    products) and ``z`` is None."""
+    products) and ``z`` is None; without ``form_g`` the scores are left to the caller
+    (``g`` None: :func:`_products` once ``z`` has served every other sum)."""
     same = phi is z  # LS / the endogeneity regression: instruments = regressors
     z = np.asarray(z, dtype=float)
     resid = np.asarray(resid, dtype=float)
@@ -754,18 +792,32 @@ def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
     phi = ((z if t_len > LARGE_ROWS and keep_z else z.copy()) if same
            else phi / phi_scale)
     eps = _residual(resid, segs, zero_mean)
-    one = eps.shape[1] == 1  # every instrument in equation 0: broadcast, no column copies
-    if every_row and len(segs) == 1:  # the products themselves, without a zeroed copy
-        # (in the equilibrated copy's buffer when the caller needs no z: same products)
-        g = np.multiply(z, eps if one else eps[:, z_equation], out=None if keep_z else z)
-    else:
-        g = np.zeros((t_len, n_ins))
-        for s in segs:
-            g[s] = z[s] * (eps[s] if one else eps[s][:, z_equation])
+    # (in the equilibrated copy's buffer when the caller needs no z: same products)
+    g = _products(z, eps, segs, z_equation, every_row, in_place=not keep_z) if form_g else None
     if not keep_z:
         z = phi = None
     return _Scores(z=z, phi=phi, z_scale=z_scale, phi_scale=phi_scale, eps=eps, g=g,
                    segs=segs, equation=equation, z_equation=z_equation)
+
+
+def _products(z: np.ndarray, eps: np.ndarray, segs: list[slice], z_equation: np.ndarray,
+              every_row: bool, in_place: bool) -> np.ndarray:
+    """The scores ``g = z ε`` of :func:`_scores` (zero outside ``segs``); ``in_place``:
+    in ``z``'s buffer (the equilibrated copy, which the caller needs no more)."""
+    one = eps.shape[1] == 1  # every instrument in equation 0: broadcast, no column copies
+    if every_row and len(segs) == 1:  # the products themselves, without a zeroed copy
+        return np.multiply(z, eps if one else eps[:, z_equation], out=z if in_place else None)
+    if in_place:
+        rows = np.zeros(z.shape[0], dtype=bool)
+        for s in segs:
+            rows[s] = True
+            z[s] *= eps[s] if one else eps[s][:, z_equation]
+        z[~rows] = 0.0
+        return z
+    g = np.zeros(z.shape)
+    for s in segs:
+        g[s] = z[s] * (eps[s] if one else eps[s][:, z_equation])
+    return g
 
 
 def sandwich_from_sums(a_list: list[np.ndarray], s_list: list[np.ndarray], n_list: list[int],
@@ -952,6 +1004,48 @@ class KernelCovariance(CovarianceEstimator):
         pw = ", VAR(1) pre-whitened" if config.get("prewhiten") else ""
         return (f"HAC ({_KERNEL_LABELS[self.kernel]} kernel, bandwidth "
                 f"{config.get('bandwidth', float('nan')):.3g} by {how}{pw}, within experiments)")
+
+    def _long_run_in_blocks(self, z, resid, starts, z_equation, zero_mean, skip_first):
+        if (self.kernel != "bartlett" or self.prewhiten
+                or (isinstance(self.bandwidth, str) and self.bandwidth != "newey-west")):
+            return None  # the blocks cover the Bartlett kernel with a Newey-West/fixed lag
+        z = np.asarray(z, dtype=float)
+        resid = np.asarray(resid, dtype=float)
+        resid = resid[:, None] if resid.ndim == 1 else resid
+        t_len = z.shape[0]
+        if (z.ndim != 2 or resid.shape != (t_len, 1) or skip_first
+                or not (starts is None or len(starts) == 2)
+                or (z_equation is not None and np.any(np.asarray(z_equation) != 0))):
+            return None  # one experiment, every row, one equation: else the general path
+        if t_len < 2 or not (np.all(np.isfinite(z)) and np.all(np.isfinite(resid))):
+            return None  # (the general path says why)
+        segs = [slice(0, t_len)]
+        z_scale = _column_scale(z, None)
+        eps = _residual(resid, segs, zero_mean)[:, 0]
+        q = z.shape[1]
+        spans = [(a, min(a + BLOCK_ROWS, t_len)) for a in range(0, t_len, BLOCK_ROWS)]
+
+        def block(a: int, b: int) -> np.ndarray:  # the rows a … b − 1 of g = (z / s) ε
+            return np.multiply(z[a:b] / z_scale, eps[a:b, None])
+
+        used: dict[str, Any] = {}
+        if isinstance(self.bandwidth, str):  # Newey-West (1994) on the scores' blocks
+            sq = sum(np.einsum("tk,tk->k", g, g) for g in (block(a, b) for a, b in spans))
+            scale = np.sqrt(sq / t_len)
+            scale[scale == 0] = 1.0
+            x = np.concatenate([_row_sums(block(a, b), scale) if q > 1 else block(a, b)[:, 0]
+                                for a, b in spans])
+            bw = float(min(_newey_west_from_sums([x], self.kernel, t_len),
+                           float(max(t_len - 1, 0))))
+        else:
+            bw = float(self.bandwidth)
+        used["bandwidth"] = bw
+        lags = math.floor(bw)
+        if min(lags + 1, t_len - 1) <= 1:
+            return None  # a bandwidth below one lag: the general path
+        mean = sum(block(a, b).sum(axis=0) for a, b in spans) / t_len
+        s_u = bartlett_block_sums(block, t_len, q, mean, lags, BLOCK_ROWS)
+        return s_u * np.outer(z_scale, z_scale), {**self.config(), **used}
 
     def meat(self, g, z, eps, segs, equation):
         q = g.shape[1]

@@ -66,7 +66,7 @@ def _designs_from(sol: gmm.GMMSolution, theta: np.ndarray, spec: ModelSpec
         sl = slice(int(blocks[i]), int(blocks[i + 1]))
         out.append(EquationDesign(z=z, phi=phi, resid=y - phi @ theta[sl],
                                   starts=_starts_of(valid, sol), weight=w, zero_mean=True,
-                                  weight_jacobian=jacobians[i]))
+                                  weight_jacobian=jacobians[i], owned=True))
     return out
 
 
@@ -377,9 +377,15 @@ class InstrumentalGMM(Estimator):
                     first_z.append(z_sim)
                 ar = gmm.noise_model(data, spec, phi, theta, order) if order else None
                 blocks = gmm.instrument_blocks(spec, kind, phi, z_sim, lagged)
+                del z_sim  # (first_z keeps the first step's; the blocks hold the others)
+                last = step == n_steps - 1
+                if last and lagged:  # gathered for the last time (the caller's list)
+                    lagged.clear()
+                sol = None  # the previous step's rows: only the last step's are kept
                 sol = gmm.solve_equations(data, spec, phi, blocks, weight="hac", ar=ar,
-                                          keep_designs=keep,
-                                          keep_jacobians=keep and step == n_steps - 1)
+                                          keep_designs=keep and last,
+                                          keep_jacobians=keep and last, release=True)
+                del blocks
             new = np.where((sol.ok & ok_sim & active)[:, None], sol.theta, np.nan)
             iters += active
             active &= np.all(np.isfinite(new), axis=1)
@@ -459,6 +465,7 @@ class InstrumentalGMM(Estimator):
                                              colour=self.instruments == "auto"
                                              and not self.colour_order,
                                              first_z=first_z)
+            lagged = None  # (the delayed regressors serve the combined steps only)
             pvals = np.ones((n, spec.n_states))
             for i in range(spec.n_states):
                 if sol.c_df[i]:
@@ -469,7 +476,7 @@ class InstrumentalGMM(Estimator):
             used[:] = "combined"
             if self.instruments == "auto":
                 w_stat, w_df = self._colour_test(data, spec, phi, theta0, sol,
-                                                 z_first=first_z[0] if first_z else None)
+                                                 z_first=first_z.pop() if first_z else None)
                 w_p = np.ones((n, spec.n_states))
                 for i in range(spec.n_states):
                     if w_df[i]:

@@ -225,8 +225,9 @@ def colour_test(data: RegressionData, spec: ModelSpec, phi: np.ndarray, z_sim: n
         cols = np.arange(int(blocks[i]), int(blocks[i + 1]))
         e_cols = col_of[cols[endo[cols]]]
         z_blocks.append((_gather_columns([(z_sim, cols), (eta, e_cols)]), e_cols.size))
+    del eta  # gathered into the blocks, which solve_equations frees one by one
     ar = noise_model(data, spec, phi, np.asarray(theta, dtype=float), order) if order else None
-    sol = solve_equations(data, spec, phi, z_blocks, weight="hac", ar=ar)
+    sol = solve_equations(data, spec, phi, z_blocks, weight="hac", ar=ar, release=True)
     return sol.c, sol.c_df
 
 
@@ -356,29 +357,56 @@ def hac_sums(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: np.ndarray
     """
     k_cols = z.shape[1]
     out = np.zeros((starts.size - 1, k_cols, k_cols))
-    for s, a, b, _, _, g in _experiment_scores(z, e, starts, valid):
+    ev = None
+    for s, a, b, v, cnt in _valid_experiments(starts, valid):
         lag = int(min(lags, b - a - 1))
-        if b - a > _covariance.LARGE_ROWS:  # the same sums in blocks (no K × (n + L) copy)
-            out[s] = _covariance._bartlett_blocks(g.T, lag, _covariance.BLOCK_ROWS)
+        if b - a > _covariance.LARGE_ROWS:  # the same sums in blocks: no K × n scores
+            ev = np.where(valid, e, 0.0) if ev is None else ev
+            out[s] = _bartlett_scores_in_blocks(z[a:b], ev[a:b], v, cnt, lag,
+                                                _covariance.BLOCK_ROWS)
             continue
+        g = _scores_of(z, e, a, b, v, cnt)
         h = moving_sums(g, lag)
         out[s] = (h @ h.T) / (lag + 1.0)
     return out
 
 
-def _experiment_scores(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: np.ndarray,
-                       ) -> Iterator[tuple[int, int, int, np.ndarray, int, np.ndarray]]:
-    """Per experiment ``s`` with a valid row: ``(s, a, b, valid rows, their count, g)``,
-    ``g`` the scores ``z(k) e(k)`` of rows ``a … b − 1`` demeaned over the valid rows,
+def _bartlett_scores_in_blocks(z: np.ndarray, ev: np.ndarray, v: np.ndarray, cnt: int,
+                               lag: int, rows: int) -> np.ndarray:
+    """:func:`hac_sums` of one long experiment (rows of ``z``, residuals ``ev`` zero on
+    the invalid rows ``~v``) with the scores formed ``rows`` rows at a time: their mean
+    over the valid rows, then :func:`vesselid.identify.covariance.bartlett_block_sums`
+    of the demeaned scores (invalid rows zero). Memory ``O(rows · K)`` instead of the
+    ``K × n`` scores; the same sums rounded differently (~1e-14 relative)."""
+    n, k_cols = z.shape
+
+    def raw(a: int, b: int) -> np.ndarray:
+        g = z[a:b] * ev[a:b, None]
+        g[~v[a:b]] = 0.0
+        return g
+
+    def demeaned(a: int, b: int) -> np.ndarray:
+        g = raw(a, b)
+        g -= g_mean
+        g[~v[a:b]] = 0.0
+        return g
+
+    spans = [(a, min(a + rows, n)) for a in range(0, n, rows)]
+    g_mean = sum(raw(a, b).sum(axis=0) for a, b in spans) / cnt
+    mean = sum(demeaned(a, b).sum(axis=0) for a, b in spans) / n
+    return _covariance.bartlett_block_sums(demeaned, n, k_cols, mean, lag, rows)
+
+
+def _scores_of(z: np.ndarray, e: np.ndarray, a: int, b: int, v: np.ndarray,
+               cnt: int) -> np.ndarray:
+    """The scores ``z(k) e(k)`` of rows ``a … b − 1`` demeaned over the valid rows ``v``,
     invalid rows zero, as ``(K, n)`` (time along contiguous rows)."""
-    ev = np.where(valid, e, 0.0)
-    for s, a, b, v, cnt in _valid_experiments(starts, valid):
-        # the products z e written in the time-contiguous layout directly (one pass)
-        g = np.empty((z.shape[1], b - a))
-        np.multiply(z[a:b].T, ev[a:b], out=g)
-        g -= (g.sum(axis=1) / cnt)[:, None]
-        g[:, ~v] = 0.0
-        yield s, a, b, v, cnt, g
+    ev = np.where(v, e[a:b], 0.0)
+    g = np.empty((z.shape[1], b - a))
+    np.multiply(z[a:b].T, ev, out=g)
+    g -= (g.sum(axis=1) / cnt)[:, None]
+    g[:, ~v] = 0.0
+    return g
 
 
 def _valid_experiments(starts: np.ndarray, valid: np.ndarray,
@@ -406,7 +434,7 @@ def hac_sums_derivative(z: np.ndarray, phi: np.ndarray, e: np.ndarray, starts: n
     applied twice; symmetric). With ``q_j(k) = ∂g(k)/∂θ_j = −(z(k) φ_j(k) − mean_E z φ_j)``,
     ``(L+1) (∂S/∂θ_j) u = Σ_k q_j(k) (T uᵀg)(k) + Σ_k g(k) (T uᵀq_j)(k)``: the filter runs
     on ``1 + P`` scalar series only (so it never forms ``g`` itself, unlike
-    :func:`hac_sums`' :func:`_experiment_scores`).
+    :func:`hac_sums`' :func:`_scores_of`).
     """
     k_cols, p_cols = z.shape[1], phi.shape[1]
     u = np.asarray(u, dtype=float)
@@ -440,13 +468,36 @@ def hac_sums_derivative(z: np.ndarray, phi: np.ndarray, e: np.ndarray, starts: n
         series[1:] = (u @ mean)[:, None] - zu * ph.T  # uᵀ q_j
         series[:, ~v] = 0.0
         lag = int(min(lags, n - 1))
-        tf = moving_sums(moving_sums(series, lag), lag)[:, lag:lag + n]
+        once = moving_sums(series, lag)
+        del series
+        tf = moving_sums(once, lag)[:, lag:lag + n]
+        del once
         tf[:, ~v] = 0.0
         t_gu, t_qu = tf[0], tf[1:]
-        xu = mean * t_gu.sum() - zv.T @ (ph * t_gu[:, None])  # Σ q_j (T uᵀg)
-        xtu = zv.T @ (ev[:, None] * t_qu.T) - np.outer(g_mean, t_qu.sum(axis=1))  # Σ g (T uᵀq_j)
+        if n > _covariance.LARGE_ROWS:  # the same products summed over blocks of rows
+            zph, zeq = _block_cross(zv, ph, ev, t_gu, t_qu)
+        else:
+            zph, zeq = zv.T @ (ph * t_gu[:, None]), zv.T @ (ev[:, None] * t_qu.T)
+        xu = mean * t_gu.sum() - zph  # Σ q_j (T uᵀg)
+        xtu = zeq - np.outer(g_mean, t_qu.sum(axis=1))  # Σ g (T uᵀq_j)
         out += (xu + xtu) / (lag + 1.0)
     return out
+
+
+def _block_cross(zv: np.ndarray, ph: np.ndarray, ev: np.ndarray, t_gu: np.ndarray,
+                 t_qu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``zvᵀ (ph · t_gu)`` and ``zvᵀ (ev · t_quᵀ)`` of :func:`hac_sums_derivative` summed
+    over blocks of :data:`~vesselid.identify.covariance.BLOCK_ROWS` rows (no ``(n, P)``
+    products; rounded differently)."""
+    n = zv.shape[0]
+    zph = np.zeros((zv.shape[1], ph.shape[1]))
+    zeq = np.zeros((zv.shape[1], t_qu.shape[0]))
+    step = _covariance.BLOCK_ROWS * 8
+    for a in range(0, n, step):
+        b = min(a + step, n)
+        zph += zv[a:b].T @ (ph[a:b] * t_gu[a:b, None])
+        zeq += zv[a:b].T @ (ev[a:b, None] * t_qu[:, a:b].T)
+    return zph, zeq
 
 
 def weight_jacobian(a: np.ndarray, w: np.ndarray, gbar: np.ndarray, ds_u: np.ndarray
@@ -507,6 +558,7 @@ def solve_equations(
     lags: int | None = None,
     keep_designs: bool = False,
     keep_jacobians: bool | None = None,
+    release: bool = False,
 ) -> GMMSolution:
     """IV / 2SLS / two-step GMM of every equation and group (see module docstring).
 
@@ -528,6 +580,10 @@ def solve_equations(
     keep_jacobians : bool, optional
         With ``designs``, also Windmeijer's ``∂θ₂/∂θ₁`` of each two-step HAC equation
         (``jacobians``); default ``keep_designs``.
+    release : bool
+        The caller hands ``z_blocks`` over: each equation's entry is set to None once its
+        rows are centred (the instruments are then freed with the list's reference; on
+        a long log they are as large as the centred rows).
     """
     blocks = block_starts(spec)
     n_groups = data.n_groups
@@ -569,6 +625,10 @@ def solve_equations(
             zz = np.ascontiguousarray(stack[:, :k_i])
             pp = np.ascontiguousarray(stack[:, k_i:k_i + p_i])
             yy = np.ascontiguousarray(stack[:, -1])
+            del stack
+        if release:
+            z_blocks[i] = None  # type: ignore[call-overload]
+        del z, zc
         a_s, b_s, m_s, _ = ivk.cross_sums(zz, pp, yy, data.starts, valid)
         a, b, m = _group_sum(data, a_s), _group_sum(data, b_s), _group_sum(data, m_s)
         w = None
@@ -614,7 +674,13 @@ def solve_equations(
         ok &= ok_i
         if designs is not None:
             rows = _as_slice(valid)  # the valid rows (a slice when they are one block)
-            designs.append((zz[rows] / c_z, pp[rows] / c_p, yy[rows] / c_y, valid,
+            # back to the units of the data in the rows' own buffers (zz, pp and yy are
+            # this step's: a view of one block is divided in place, no second copy)
+            zd, pd_, yd = zz[rows], pp[rows], yy[rows]
+            zd /= c_z
+            pd_ /= c_p
+            yd /= c_y
+            designs.append((zd, pd_, yd, valid,
                             None if w is None else np.asarray(w)[0] * np.outer(c_z, c_z)))
             jacobians.append(jac)
     theta[~ok] = np.nan

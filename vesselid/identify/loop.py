@@ -191,8 +191,13 @@ class FeedbackTest:
 
 
 def _newey_west(s: np.ndarray, lags: int) -> np.ndarray:
-    """Bartlett-kernel long-run covariance of the rows of ``s`` (already centred)."""
+    """Bartlett-kernel long-run covariance of the rows of ``s`` (already centred); a long
+    series by the block-wise Bartlett sums (the same quantity rounded differently)."""
     n = s.shape[0]
+    if n > _large_rows() and lags > 0:
+        from vesselid.identify.covariance import bartlett_long_run
+
+        return bartlett_long_run(s, lags) / n
     cov = s.T @ s / n
     for ell in range(1, lags + 1):
         g = s[ell:].T @ s[:-ell] / n
@@ -224,12 +229,15 @@ def feedback_test_data(data: RegressionData, spec: ModelSpec, designs: list, *,
     for s in range(data.n_segments):
         sl = data.segment(s)
         uc[sl] -= column_means(u[sl])
-    scores = []
     keep = np.ones(n_rows, dtype=bool)
     for tau in range(lags):
         idx = rows + tau
         ok = idx < data.starts[seg_of_row + 1]
         keep &= ok
+    # the scores of every design and lag, written into their columns of one array
+    n_kept = int(keep.sum())
+    s = np.empty((n_kept, len(designs) * lags * u.shape[1]))
+    col = 0
     for d in designs:
         if d.z.shape[0] != n_rows:
             raise IdentificationError("feedback test: the designs do not cover every equation "
@@ -239,17 +247,24 @@ def feedback_test_data(data: RegressionData, spec: ModelSpec, designs: list, *,
             a_inv = np.linalg.inv(a)
         except np.linalg.LinAlgError:
             a_inv = np.linalg.pinv(a)
-        phi_kept, n_kept = d.phi[keep], keep.sum()
+        # the kept rows as views where they are the leading ones (one experiment)
+        lead = bool(keep[:n_kept].all())
+        kept = slice(0, n_kept) if lead else keep
+        phi_kept = d.phi[:n_kept] if d.phi.flags.c_contiguous and lead else d.phi[keep]
         for tau in range(lags):
             idx = np.minimum(rows + tau, u.shape[0] - 1)
-            ut = uc[idx]  # (n_rows, m)
-            mmat = uc[idx[keep]].T @ phi_kept / n_kept  # (m, P)
-            adj = ut - d.z @ (mmat @ a_inv).T
-            scores.append(adj * d.resid[:, None])
-    s = np.concatenate(scores, axis=1)[keep]
+            mmat = uc[idx[kept]].T @ phi_kept / n_kept  # (m, P)
+            adj = uc[idx]  # (n_rows, m), this lag's own copy: adjusted in place
+            adj -= d.z @ (mmat @ a_inv).T
+            adj *= d.resid[:, None]
+            s[:, col:col + adj.shape[1]] = adj[kept]  # the kept rows only
+            col += adj.shape[1]
+            del adj, idx
+        del phi_kept
     n_eff = s.shape[0]
     mean = column_means(s)
-    cov = _newey_west(s - mean, hac_lags(n_eff))
+    s -= mean  # centred in place (s is this function's own copy)
+    cov = _newey_west(s, hac_lags(n_eff))
     scale = np.sqrt(np.maximum(np.diag(cov), 1e-300))
     corr = cov / np.outer(scale, scale)
     w, vecs = np.linalg.eigh(corr)
@@ -294,10 +309,15 @@ def reference_designs(data: RegressionData, spec: ModelSpec, it: Any = None) -> 
         z, _ = kernels.instrument_matrix(data.target, data.u, data.starts, it.theta_aux[0],
                                          codes.factors, codes.equation, spec.n_states)
     rows = _equation_rows(data)
-    zc = z.copy()
+    # centred per experiment: in its own buffer when computed here, else (the matrices
+    # the mean-current test kept, read-only) in a copy
+    zc = z if z.flags.writeable else z.copy()
     for s in range(data.n_segments):
         sl = slice(int(data.starts[s]) + 1, int(data.starts[s + 1]))
         zc[sl] -= column_means(zc[sl])
+    if data.n_segments == 1 and spec.n_states == 1 and rows.size > _large_rows():
+        # a long one-experiment log: every row but the first, as views (no gathered copies)
+        rows = slice(1, None)
     blocks = block_starts(spec)
     out = []
     for i in range(spec.n_states):
@@ -305,6 +325,12 @@ def reference_designs(data: RegressionData, spec: ModelSpec, it: Any = None) -> 
         out.append(_Design(z=zc[rows, sl], phi=phi[rows, sl],
                            resid=data.target[rows, i] - phi[rows, sl] @ theta[sl]))
     return out
+
+
+def _large_rows() -> int:
+    from vesselid.identify.covariance import LARGE_ROWS
+
+    return LARGE_ROWS
 
 
 def feedback_test(log: Any, spec: ModelSpec | None = None, *, lags: int = FEEDBACK_LAGS,

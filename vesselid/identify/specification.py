@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from vesselid.identify import covariance as _covariance
 from vesselid.identify.covariance import (
     DEFAULT_COV_TYPE,
     CovarianceError,
@@ -116,15 +117,81 @@ def _p(p: float) -> str:
     return "p = nan" if not np.isfinite(p) else ("p < 0.0001" if p < 1e-4 else f"p = {p:.2g}")
 
 
+#: Rows per block of :func:`_minus_fit` on long logs.
+BLOCK_ROWS = 1 << 16
+
+
+#: Largest condition number of the equilibrated Gram matrix for which :func:`_lstsq`
+#: solves long logs from the normal equations (beyond: ``np.linalg.lstsq``).
+GRAM_COND = 1e10
+
+
+def _lstsq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The least-squares coefficients ``np.linalg.lstsq(a, b, rcond=None)[0]``.
+
+    Above :data:`~vesselid.identify.covariance.LARGE_ROWS` rows: the normal equations
+    of the column-equilibrated ``a`` (``aᵀa`` and ``aᵀb`` in one pass each, no copy of
+    ``a``) with two steps of iterative refinement on the residual ``b − a x`` (formed
+    :data:`BLOCK_ROWS` rows at a time): for a Gram matrix of condition number ``κ² <``
+    :data:`GRAM_COND` each step multiplies the error by ``~κ² ε``, so the solution has
+    the accuracy of the whole-array SVD (the same coefficients rounded differently,
+    ~1e-13 relative). A worse-conditioned or rank-deficient ``a`` takes ``lstsq``."""
+    n, k = a.shape
+    if n <= _covariance.LARGE_ROWS or k == 0:
+        return np.linalg.lstsq(a, b, rcond=None)[0]
+    rhs = b.reshape(n, -1)
+    gram = a.T @ a
+    scale = np.sqrt(np.diag(gram))
+    if not (np.all(np.isfinite(gram)) and np.all(scale > 0)):
+        return np.linalg.lstsq(a, b, rcond=None)[0]
+    g_s = gram / np.outer(scale, scale)
+    if not np.linalg.cond(g_s) < GRAM_COND:
+        return np.linalg.lstsq(a, b, rcond=None)[0]
+    chol = np.linalg.cholesky(g_s)
+
+    def solve(v: np.ndarray) -> np.ndarray:  # gram⁻¹ v through the equilibrated factor
+        w = np.linalg.solve(chol, v / scale[:, None])
+        return np.linalg.solve(chol.T, w) / scale[:, None]
+
+    x = solve(a.T @ rhs)
+    for _ in range(2):
+        atr = np.zeros_like(x)
+        for t0 in range(0, n, BLOCK_ROWS):
+            blk = slice(t0, min(t0 + BLOCK_ROWS, n))
+            atr += a[blk].T @ (rhs[blk] - a[blk] @ x)
+        x = x + solve(atr)
+    return x.reshape((k, *b.shape[1:]))
+
+
+def _minus_fit(a: np.ndarray, b: np.ndarray, coef: np.ndarray) -> np.ndarray:
+    """``a − b·coef`` in ``a``'s own buffer (the caller's copy), block by block on long
+    logs (no ``(n, m)`` product array)."""
+    n = a.shape[0]
+    if n <= _covariance.LARGE_ROWS:
+        fit = b @ coef
+        return np.subtract(a, fit, out=fit)  # a − b·coef in the product's buffer
+    for t0 in range(0, n, BLOCK_ROWS):
+        blk = slice(t0, min(t0 + BLOCK_ROWS, n))
+        a[blk] -= b[blk] @ coef
+    return a
+
+
 def _segs(starts: np.ndarray | None, t_len: int, skip_first: bool) -> list[slice]:
     starts = np.array([0, t_len]) if starts is None else np.asarray(starts, dtype=np.int64)
     off = 1 if skip_first else 0
     return [slice(int(starts[s]) + off, int(starts[s + 1])) for s in range(starts.size - 1)]
 
 
-def _demean(x: np.ndarray, segs: list[slice]) -> np.ndarray:
+def _demean(x: np.ndarray, segs: list[slice], in_place: bool = False) -> np.ndarray:
+    """``x`` centred per segment (rows outside ``segs`` zero); ``in_place``: in ``x``'s
+    own buffer (float64 ``x`` whose segments cover every row; the same numbers)."""
     if len(segs) == 1 and segs[0].start == 0 and segs[0].stop == x.shape[0]:
-        return x - column_means(x)  # one experiment, every row: the same numbers, one pass
+        # one experiment, every row: the same numbers, one pass
+        return np.subtract(x, column_means(x), out=x if in_place else None)
+    if in_place:
+        for s in segs:
+            x[s] -= column_means(x[s])
+        return x
     out = np.zeros_like(x, dtype=float)
     for s in segs:
         out[s] = x[s] - column_means(x[s])
@@ -204,9 +271,7 @@ def _first_stage(prep: _Prepared, names: list[str] | None,
     def resid_on(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         if b.shape[1] == 0:
             return a
-        coef, *_ = np.linalg.lstsq(b, a, rcond=None)
-        fit = b @ coef
-        return np.subtract(a, fit, out=fit)  # a − b·coef in the product's buffer
+        return _minus_fit(a, b, _lstsq(b, a))  # a: a gathered copy, ours
 
     x_t = resid_on(pp[:, endo], w)
     z_t = resid_on(zz[:, excl], w)
@@ -215,7 +280,7 @@ def _first_stage(prep: _Prepared, names: list[str] | None,
     if endo.size == 0 or k_ex == 0:
         out["cragg_donald"] = float("inf") if endo.size == 0 else 0.0
         return out
-    coef, *_ = np.linalg.lstsq(z_t, x_t, rcond=None)
+    coef = _lstsq(z_t, x_t)
     fitted = z_t @ coef
     v = x_t - fitted
     for i, j in enumerate(endo):
@@ -341,26 +406,29 @@ class _Prepared:
 
 
 def _prepare(z: Any, phi: Any, y: Any, starts: np.ndarray | None, zero_mean: bool,
-             skip_first: bool) -> _Prepared:
+             skip_first: bool, overwrite: bool = False) -> _Prepared:
     z = np.asarray(z, dtype=float)
     phi = np.asarray(phi, dtype=float)
     segs = _segs(starts, phi.shape[0], skip_first)
     arrays = [z, phi] if y is None else [z, phi, np.asarray(y, dtype=float).reshape(-1)]
     cs = _compact_starts(segs)
     inner = [slice(int(cs[i]), int(cs[i + 1])) for i in range(len(segs))]
-    arrays = [_prepared_rows(a, segs, inner, zero_mean) for a in arrays]
+    arrays = [_prepared_rows(a, segs, inner, zero_mean, overwrite) for a in arrays]
     return _Prepared(arrays[0], arrays[1], arrays[2] if y is not None else None, inner,
                      zero_mean)
 
 
 def _prepared_rows(a: np.ndarray, segs: list[slice], inner: list[slice],
-                   zero_mean: bool) -> np.ndarray:
+                   zero_mean: bool, overwrite: bool = False) -> np.ndarray:
     """One array's usable rows, concatenated (``inner`` index them), centred per
     experiment with ``zero_mean`` (each array on its own: the numbers do not depend on
-    which others are prepared with it)."""
-    # one experiment: its rows are a view (centring below copies; nothing writes into them)
-    a = np.ascontiguousarray(a[segs[0]]) if len(segs) == 1 else _rows(a, segs)
-    return _demean(a, inner) if zero_mean else a
+    which others are prepared with it). ``overwrite``: the caller's float64 array may be
+    centred in its own buffer (it needs it no more)."""
+    # one experiment: its rows are a view (centring below copies unless the caller
+    # hands the array over); the rows of several are a fresh copy, centred in place
+    rows = np.ascontiguousarray(a[segs[0]]) if len(segs) == 1 else _rows(a, segs)
+    own = (overwrite and a.dtype == np.float64) or not np.may_share_memory(rows, a)
+    return _demean(rows, inner, in_place=own) if zero_mean else rows
 
 
 def _with_target(prep: _Prepared, y: Any, starts: np.ndarray | None,
@@ -410,12 +478,18 @@ def _endogeneity(prep: _Prepared, cov_type: str, cov_config: Mapping[str, Any],
                           "no endogenous regressor: LS and IV coincide")
     x = None if memo is None else memo.get("x")
     if x is None:
-        coef, *_ = np.linalg.lstsq(z, phi[:, endo], rcond=None)
-        v = phi[:, endo] - z @ coef
-        x = np.hstack([phi, v])
+        coef = _lstsq(z, phi[:, endo])
+        if z.shape[0] > _covariance.LARGE_ROWS:  # [φ, v] filled in place: no separate v
+            x = np.empty((phi.shape[0], phi.shape[1] + endo.size))
+            x[:, :phi.shape[1]] = phi
+            x[:, phi.shape[1]:] = phi[:, endo]
+            _minus_fit(x[:, phi.shape[1]:], z, coef)
+        else:
+            v = phi[:, endo] - z @ coef
+            x = np.hstack([phi, v])
         if memo is not None:
             memo["x"] = x
-    beta, *_ = np.linalg.lstsq(x, y, rcond=None)
+    beta = _lstsq(x, y)
     est = get_covariance_estimator(cov_type, **cov_config)
     cov = est.estimate(x, x, y - x @ beta, _starts_of(segs), skip_first=False,
                        zero_mean=False).cov
@@ -611,6 +685,7 @@ def equation_diagnostics(
     names: list[str] | None = None,
     cov_type: str = DEFAULT_COV_TYPE,
     shared: dict[str, Any] | None = None,
+    overwrite: bool = False,
     **cov_config: Any,
 ) -> dict[str, Any]:
     """Instrument strength, endogeneity (and J when over-identified) of one equation.
@@ -627,6 +702,10 @@ def equation_diagnostics(
     equations have the same terms) reuses its prepared rows, exogenous columns, first
     stage and the first-stage residuals of the endogeneity regression — the same
     numbers, computed once.
+
+    ``overwrite``: the caller hands ``z``, ``phi`` and ``y`` over (float64 arrays it needs
+    no more): they are centred in their own buffers instead of copies (the same numbers;
+    on a long log each copy is as large as the instruments).
     """
     errors = (np.linalg.LinAlgError, ValueError)
     key = (zero_mean, skip_first, None if names is None else tuple(names),
@@ -640,7 +719,7 @@ def equation_diagnostics(
             prep = _with_target(prev["prep"], y, starts, skip_first)
             exo = prev["exo"]
         else:
-            prep = _prepare(z, phi, y, starts, zero_mean, skip_first)
+            prep = _prepare(z, phi, y, starts, zero_mean, skip_first, overwrite)
             exo = exogenous_columns(prep.z, prep.phi)
     except errors:  # let each test report its own reason
         return _equation_diagnostics_apart(z, phi, y, starts, zero_mean, skip_first, names,

@@ -30,8 +30,9 @@ from typing import Any
 
 import numpy as np
 
+from vesselid.identify import covariance as _covariance
 from vesselid.identify.backend import kernels
-from vesselid.identify.covariance import column_means
+from vesselid.identify.covariance import bartlett_long_run, column_means
 from vesselid.identify.data import RegressionData
 from vesselid.identify.gmm import hac_lags
 from vesselid.model.spec import ModelSpec
@@ -60,6 +61,9 @@ def _hac_iv(z: np.ndarray, phi: np.ndarray, y: np.ndarray, seg: np.ndarray
     s = m.T @ m
     bw = hac_lags(m.shape[0])
     one = seg.size == 0 or seg[0] == seg[-1]  # one segment (sorted): every pair counts
+    if one and m.shape[0] > _covariance.LARGE_ROWS:  # a long log: the same sum in blocks
+        s = bartlett_long_run(m, bw)
+        return theta, a_inv @ s @ a_inv.T
     for lag in range(1, bw + 1):
         if one:
             c = m[lag:].T @ m[:-lag]
@@ -105,7 +109,10 @@ def _rows(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray, extra: b
     codes = spec.codes
     sl, starts = data.group_rows(0)
     if extra and data.n_groups == 1:  # new arrays below: the kept ones stay unchanged
-        phi, z, xhat = reference_matrices(data, spec, theta_aux, keep=True)
+        # (a long log keeps none: held to the feedback test, they would raise the peak
+        # memory of every step in between; the feedback test computes them again)
+        long = data.target.shape[0] > _covariance.LARGE_ROWS
+        phi, z, xhat = reference_matrices(data, spec, theta_aux, keep=not long)
     else:
         phi = kernels.regressor_matrix(data.regsig[sl], data.u[sl], starts, codes.factors)
         z, xhat = kernels.instrument_matrix(data.target[sl], data.u[sl], starts, theta_aux,
