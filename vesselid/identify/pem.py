@@ -71,6 +71,7 @@ import numpy as np
 
 from vesselid.errors import IdentificationError
 from vesselid.identify.base import Estimator, square_designs
+from vesselid.identify.current_shape import smoothed_current_test
 from vesselid.identify.data import RegressionData
 from vesselid.identify.estimators import IterationResult, estimate
 from vesselid.model.spec import ModelSpec
@@ -335,6 +336,32 @@ def _vuong(a: dict[str, Any], b: dict[str, Any], count: int) -> float:
     return lr / (math.sqrt(count) * sd)
 
 
+def _with_spread(f: dict[str, Any], other: dict[str, Any], n_par: int) -> dict[str, Any]:
+    """``f`` with ``ddᵀ`` added to its covariances' θ block, ``d`` the difference of its
+    θ and ``other``'s: the spread of two fits of a misspecified model that the
+    likelihood cannot choose between (a bimodal current; module docstring)."""
+    d = f["psi"][:n_par] - other["psi"][:n_par]
+    if not np.all(np.isfinite(d)):
+        return f
+    out = dict(f)
+    for key in ("cov", "cov_sandwich"):
+        c = f[key].copy()
+        c[:n_par, :n_par] += np.outer(d, d)
+        out[key] = c
+    return out
+
+
+def _residuals(psi: np.ndarray, y: np.ndarray, u: np.ndarray, starts: np.ndarray,
+               fac: np.ndarray, n_par: int) -> list[np.ndarray]:
+    """One-step residuals ``y(k+1) − θᵀφ(k)`` of the row ``psi``, one array per
+    experiment (none across an experiment boundary)."""
+    from vesselid.model.regressors import evaluate
+
+    sig = np.concatenate([y[:, None], u], axis=1)
+    res = y[1:] - evaluate(fac, sig[:-1]) @ psi[:n_par]
+    return [res[a:b - 1] for a, b in zip(starts[:-1], starts[1:], strict=True) if b - a > 1]
+
+
 def _joint_start(best: dict[str, Any], model: str, n_par: int, scale: float) -> np.ndarray:
     """Start of the joint model from a converged single-process fit: the other process
     switched on (ρ = 0.8, σ a quarter of the start's residual std)."""
@@ -361,8 +388,10 @@ LOCAL_LR = 10.0
 #: The joint model estimated without the bound σ_c² ≥ 0 (:func:`_local_joint`).
 JOINT_LOCAL = "joint-local"
 #: How the joint model treats the sensor-noise variance's bound at zero
-#: (:func:`fit_groups`'s ``boundary``; the first is the default).
-BOUNDARIES = ("bounded", "unbounded")
+#: (:func:`fit_groups`'s ``boundary``): ``auto`` is ``unbounded`` unless the smoothed
+#: current looks bimodal (:func:`vesselid.identify.current_shape.smoothed_current_test`),
+#: then ``bounded`` (module docstring; ``auto``'s default).
+BOUNDARIES = ("auto", "bounded", "unbounded")
 #: Normal draws of the quadrature of the selection term of :func:`_local_joint`'s
 #: covariance (a fixed set, the same for every log: a numerical integral, not a random
 #: result).
@@ -517,6 +546,9 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
         "cov_conservative": np.full((n_groups, n_par, n_par), np.nan),
         "lr_joint": np.full(n_groups, np.nan),
         "local_z": np.full(n_groups, np.nan),
+        "shape_z": np.full(n_groups, np.nan),
+        "shape_bimodal": np.zeros(n_groups, dtype=bool),
+        "boundary": np.full(n_groups, "", dtype=object),
     }
     if details:  # every candidate's fit (studies of the model choice)
         for prefix in ("single_", "joint_", "local_"):
@@ -580,20 +612,33 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
                 iterations += more["iterations"]
                 if more["nll_terms"] is not None:
                     fj = more
+            bound = boundary
+            if models[best] == "current" and (boundary == "auto" or details):
+                shape = smoothed_current_test(
+                    _residuals(f["psi"], y, u, starts, fac, n_par),
+                    math.tanh(float(f["psi"][_layout(n_par)["rho_v"]])))
+                out["shape_z"][g] = shape["z"]
+                out["shape_bimodal"][g] = shape["bimodal"]
+                if boundary == "auto":
+                    bound = "bounded" if shape["bimodal"] else "unbounded"
+            out["boundary"][g] = bound
             local = (_local_joint(filt, f, n_par)
-                     if models[best] == "current" and (boundary == "unbounded" or details)
+                     if models[best] == "current" and (bound == "unbounded" or details
+                                                       or boundary == "auto")
                      else None)
             if fj["nll_terms"] is not None:
                 gain = float(np.sum(f["nll_terms"]) - np.sum(fj["nll_terms"]))
                 out["lr_joint"][g] = 2.0 * gain
                 if (fj["converged"] and np.isfinite(gain) and gain >= 0
-                        and (local is None or boundary == "bounded"
+                        and (local is None or bound == "bounded"
                              or 2.0 * gain > LOCAL_LR)):
                     f = fj
                     out["model"][g] = JOINT
-            if local is not None and boundary == "unbounded" and out["model"][g] != JOINT:
+            if local is not None and bound == "unbounded" and out["model"][g] != JOINT:
                 f = local
                 out["model"][g] = JOINT_LOCAL
+            elif local is not None and boundary == "auto" and bound == "bounded":
+                f = _with_spread(f, local, n_par)
             if local is not None:
                 out["local_z"][g] = local["q_z"]
                 if "local_theta" in out:
