@@ -46,8 +46,17 @@ estimated without its bound at zero, one scoring step from the current model
 a small spurious sensor-noise process in most runs, and that one-sided choice biases
 ``n`` by 0.4 Monte Carlo sd; the unbounded step is symmetric about θ0 there and stays
 the efficient joint estimate when a weak sensor-noise process is present. On a telegraph
-current (outside every model) it is biased twice as much as the bounded fit, so the
-bound is the default (``scripts/pem_boundary_study.py``).
+current (outside every model) it is biased twice as much as the bounded fit. No
+likelihood-ratio pre-test between the joint and the current model removes the bound's
+bias without biasing the two-process case (the sensor-noise process there is too weak
+to be established in a fifth of the runs, and the current model alone is biased by 2–3
+Monte Carlo sd), so ``boundary="auto"`` (``auto``'s default) asks the current instead:
+a kurtosis test of the smoothed one-step residuals of the current-model fit
+(:func:`vesselid.identify.current_shape.smoothed_current_test`) separates a bimodal,
+switching current from a Gaussian one; the bounded fit is reported where it rejects,
+with the spread between the bounded and the unbounded fit added to its covariance
+(:func:`_with_spread`), the unbounded one elsewhere (``scripts/pem_boundary_study.py``,
+``scripts/robustness_study.py``).
 
 The covariance is the inverse Fisher information of the chosen model (the θ block); with
 a correct model it is efficient. The quasi-ML sandwich ``F⁻¹ Ŝ F⁻¹`` (``Ŝ`` the Bartlett
@@ -64,6 +73,7 @@ noise parameters, the filter restarted at every experiment).
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any, ClassVar
 
@@ -359,7 +369,7 @@ def _residuals(psi: np.ndarray, y: np.ndarray, u: np.ndarray, starts: np.ndarray
 
     sig = np.concatenate([y[:, None], u], axis=1)
     res = y[1:] - evaluate(fac, sig[:-1]) @ psi[:n_par]
-    return [res[a:b - 1] for a, b in zip(starts[:-1], starts[1:], strict=True) if b - a > 1]
+    return [res[a:b - 1] for a, b in itertools.pairwise(starts) if b - a > 1]
 
 
 def _joint_start(best: dict[str, Any], model: str, n_par: int, scale: float) -> np.ndarray:
@@ -517,13 +527,18 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
     ``loglik`` (G, len(models)), ``vuong`` (G,; z of ``models[0]`` against
     ``models[1]``), ``lr_joint`` (G,; twice the joint model's log-likelihood gain over the
     better single-process model, NaN without ``joint``), ``local_z`` (G,; the z of the
-    unbounded sensor-noise variance step, :func:`_local_joint`, where computed).
+    unbounded sensor-noise variance step, :func:`_local_joint`, where computed),
+    ``shape_z`` / ``shape_bimodal`` (G,; the kurtosis test of the smoothed current,
+    :func:`vesselid.identify.current_shape.smoothed_current_test`, where computed) and
+    ``boundary`` (G,; the bound applied: ``bounded`` or ``unbounded``).
 
     ``boundary`` (with ``joint``): ``"bounded"`` reports the joint fit with σ_c ≥ 0;
     ``"unbounded"`` reports :data:`JOINT_LOCAL` instead where the current model is the
     better single process and the joint fit's likelihood ratio is at most
-    :data:`LOCAL_LR` (module docstring). The unbounded step is computed for ``details``
-    either way.
+    :data:`LOCAL_LR` (module docstring); ``"auto"`` is ``"unbounded"`` unless the
+    smoothed current looks bimodal, then ``"bounded"`` with the spread between the two
+    fits added to the covariance. The unbounded step and the shape test are computed
+    for ``details`` either way.
     """
     if boundary not in BOUNDARIES:
         raise IdentificationError(
