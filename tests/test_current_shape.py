@@ -103,3 +103,38 @@ def test_auto_bounds_the_joint_model_on_a_telegraph_current():
     assert stats.binomtest(bounded, runs, 0.95, alternative="less").pvalue > 1e-3, bounded
     assert np.all(it.info["pem_shape_z"][it.info["pem_boundary"] == "bounded"] < -2.326)
     assert not np.isin(it.info["pem_model"], ["joint-local"]).any()
+
+
+def test_auto_on_one_telegraph_log_says_why_and_widens():
+    """One telegraph log (6000 samples): ``auto`` reports the bounded joint fit, names the bimodal
+    current in its reason and in ``diagnostics["current_shape"]``, and its standard
+    errors are those of the always-bounded variant widened by the spread to the
+    unbounded fit (never narrower); on a Gauss–Markov log it takes the unbounded one."""
+    import warnings
+
+    from _scripts import load_script
+
+    from vesselid.identify import identify
+    from vesselid.identify.efficient import InstrumentalGMM
+    from vesselid.identify.registry import entry
+
+    rs = load_script("robustness_study")
+    log = rs.simulate(rs.DESIGNS["telegraph"], np.random.default_rng(5), 6_000)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = identify(log, rs.SPEC)
+        bounded = identify(log, rs.SPEC, InstrumentalGMM(**{**entry("auto").options,
+                                                            "pem_boundary": "bounded"}))
+    d = res.diagnostics
+    assert d["current_shape"]["sensor_noise_bound"] == "bounded"
+    assert d["current_shape"]["kurtosis_z"] < -2.326
+    assert "looks bimodal" in d["choice_reason"]
+    np.testing.assert_array_equal(res.params.to_numpy(), bounded.params.to_numpy())
+    assert np.all(res.std_errors.to_numpy() >= bounded.std_errors.to_numpy() * (1 - 1e-12))
+    assert np.any(res.std_errors.to_numpy() > bounded.std_errors.to_numpy())
+    gm = rs.simulate(rs.DESIGNS["gm-current"], np.random.default_rng(5), 6_000)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        g = identify(gm, rs.SPEC).diagnostics
+    assert g["current_shape"]["sensor_noise_bound"] == "unbounded"
+    assert g["choice"] in ("pem-joint-local", "pem-joint")

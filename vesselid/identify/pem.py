@@ -897,6 +897,16 @@ def describe_fit(info: dict[str, Any], g: int, n_par: int) -> dict[str, Any]:
                          f"{float(np.min(ll)):.6g}; Vuong z (current vs sensor noise) = "
                          f"{z:.3g}, p = {p:.3g}"),
     }
+    zs = info.get("pem_shape_z")
+    if zs is not None and np.isfinite(zs[g]):
+        from vesselid.identify.current_shape import SHAPE_ALPHA
+
+        bound = info.get("pem_boundary")
+        out["current_shape"] = {
+            "kurtosis_z": float(zs[g]), "level": SHAPE_ALPHA,
+            "sensor_noise_bound": str(bound[g]) if bound is not None else "",
+            "test": ("excess kurtosis of the smoothed one-step residuals of the current "
+                     "model (negative: a bimodal, switching current)")}
     lr = info.get("pem_lr_joint")
     if lr is not None and np.isfinite(lr[g]):
         out["model_choice"] = (
