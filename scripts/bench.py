@@ -260,6 +260,7 @@ BENCHES: dict[str, Callable[[], Callable | None]] = {
     "startup": lambda: _load("bench_startup", "bench_startup"),
     "cold_start": lambda: _load("bench_startup", "bench_cold_start"),
     "kernel_paths": lambda: _load("bench_startup", "bench_kernel_paths"),
+    "new_structure": lambda: _load("bench_startup", "bench_new_structure"),
     "ingest": lambda: _load("bench_ingest", "bench_ingest"),
     "single_envs": lambda: _load("bench_scaling", "bench_single_envs"),
     "mc_threads": lambda: _load("bench_scaling", "bench_mc_threads"),

@@ -267,6 +267,53 @@ def bench_kernel_paths(rounds: int = 8, cold_rounds: int = 5) -> dict:
     return out
 
 
+#: A 39-parameter 3-DOF structure (three distinct 13-term equations) of the kind a user
+#: writes or ``vesselid select`` proposes.
+_WIDE_EQUATIONS = {
+    "u": ["u", "u*|u|", "v*r", "r*r", "X", "v*v", "r*|r|", "v*|v|", "u*v", "u*r", "X*u",
+          "|u|", "v*|r|"],
+    "v": ["v", "r", "u*r", "u*v", "v*|v|", "v*|r|", "r*|v|", "r*|r|", "Y", "N", "u", "|u|",
+          "X*v"],
+    "r": ["v", "r", "u*r", "u*v", "v*|v|", "v*|r|", "r*|v|", "r*|r|", "Y", "N", "u", "|u|",
+          "X*r"],
+}
+
+
+def bench_new_structure(samples: int = 5000, experiments: int = 4) -> dict:
+    """``vesselid identify`` on a CyberShip II sea trial with a structure it has not seen
+    (empty generated-kernel cache, warm numba cache): the catalogue's 25-parameter model
+    and a 39-parameter one, then the same command again (kernels cached); whole
+    processes, CPU seconds (wall on a loaded machine measures the neighbours)."""
+    vid = vesselid_command()
+    out: dict = {}
+    with tempfile.TemporaryDirectory() as tmpdir:
+        tmp = Path(tmpdir)
+        run_timed([*vid, "sea-trial", "--vessel", "cybership2", "--experiments",
+                   str(experiments), "--samples", str(samples), "--seed", "3", "--out",
+                   str(tmp / "trial")], env=user_env(MPLBACKEND="Agg"))
+        log, model = tmp / "trial" / "seatrial.parquet", tmp / "trial" / "cybership2.toml"
+        text = model.read_text(encoding="utf-8")
+        head = text[:text.index("[equations]")]
+        wide = tmp / "wide.toml"
+        wide.write_text(head + "[equations]\n" + "".join(
+            f"{s} = {json.dumps(terms)}\n" for s, terms in _WIDE_EQUATIONS.items()),
+            encoding="utf-8")
+        # page in and compile the structure-independent kernels (numba's own cache)
+        run_timed([*vid, "identify", str(log), "--model", str(model), "--noise-order", "16"],
+                  env=user_env(VESSELID_KERNEL_DIR=str(tmp / "warm")))
+        for name, spec, params in (("cybership2", model, 25), ("wide", wide, 39)):
+            env = user_env(VESSELID_KERNEL_DIR=str(tmp / f"kernels_{name}"))
+            cmd = [*vid, "identify", str(log), "--model", str(spec), "--noise-order", "16"]
+            first_wall, first = run_timed(cmd, env)
+            again_wall, again = run_timed(cmd, env)
+            out.update({f"{name}_params": params,
+                        f"{name}_first_cpu_s": first.cpu_s, f"{name}_first_wall_s": first_wall,
+                        f"{name}_cached_cpu_s": again.cpu_s,
+                        f"{name}_cached_wall_s": again_wall})
+    out["samples"] = samples * experiments
+    return out
+
+
 def _fresh_venv(tmp: Path) -> Path:
     """A new virtual environment with a wheel of this checkout; dependencies shared."""
     wheels = tmp / "wheels"

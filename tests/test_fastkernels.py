@@ -77,6 +77,41 @@ def _check_identity(monkeypatch, name, log, spec):
     return kern is not None
 
 
+def test_both_source_forms_are_used_and_match_the_generic_kernel(monkeypatch):
+    """Small structures get unrolled scalar sums, large ones looped array sums (whose
+    code grows with the parameters, not the products); both are the generic kernel's
+    numbers, here on a 39-parameter structure with three distinct 13-term equations."""
+    from vesselid.model.spec import ModelSpec
+
+    forms = {}
+    for name in ("heave", "cybership2"):
+        spec = get_system(name).spec
+        codes = spec.codes
+        source = fk._source(spec.n_states, spec.n_inputs, codes.factors, codes.equation,
+                            block_starts(spec))
+        forms[name] = "(looped sums)" in source.splitlines()[0]
+    assert forms == {"heave": False, "cybership2": True}
+    pool = ["u", "v", "r", "u*|u|", "v*|v|", "r*|r|", "u*v", "u*r", "v*r", "v*|r|", "r*|v|",
+            "|u|"]
+    eqs = {s: [*pool, f"{x}*{s}"] for s, x in zip("uvr", "XYN", strict=True)}
+    big = ModelSpec("big", states=["u", "v", "r"], inputs=["X", "Y", "N"], equations=eqs,
+                    theta0={s: [0.0] * 13 for s in "uvr"}, dt=0.1)
+    system = get_system("cybership2")
+    log = system.simulate(400, n_runs=2, seed=1).to_log()
+    data, big = from_log(log, big)
+    assert fk.moment_products(big.codes.factors, block_starts(big)) == 3 * 13 ** 2
+    theta = np.zeros((data.n_groups, 39))
+    theta[:, [0, 13 + 1, 26 + 2]] = 0.95  # a stable diagonal auxiliary model
+    for th in (None, theta):
+        fast = estimators.compute_moments(data, big, th)
+        with monkeypatch.context() as m:
+            m.setenv("VESSELID_GENERIC_KERNELS", "1")
+            slow = estimators.compute_moments(data, big, th)
+        for field in ("zphi", "zy", "z", "phi", "y", "count", "status"):
+            np.testing.assert_array_equal(getattr(fast, field), getattr(slow, field),
+                                          err_msg=field)
+
+
 def _heave_data():
     system = get_system("heave")
     log = system.simulate(300, n_runs=1, seed=0).to_log()

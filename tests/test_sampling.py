@@ -166,3 +166,19 @@ def test_identify_api_tolerance_and_opt_out(sim):
             identify(log, spec, method="ls", dt_tolerance=bad)
     with pytest.raises(SamplingError, match="tolerance"):
         identify(log, spec, method="ls", dt_tolerance=2.0)
+
+
+def test_experiment_runs_match_groupby():
+    """The run-boundary grouping of an experiment column gives pandas' groupby indices
+    (keys, order, positions) or defers to it (interleaved or missing labels)."""
+    from vesselid.data.sampling import _experiment_runs
+
+    for col in (np.repeat([3, 1, 2], [4, 5, 6]), np.repeat(["b", "a"], [3, 3]),
+                np.repeat([0.5, 1.5], [2, 2]), np.zeros(7, dtype=np.int64)):
+        frame = pd.DataFrame({"experiment": col})
+        ref = list(frame.groupby("experiment", sort=False).indices.items())
+        got = _experiment_runs(frame["experiment"])
+        assert [k for k, _ in got] == [k for k, _ in ref]
+        assert all(np.array_equal(a, b) for (_, a), (_, b) in zip(got, ref, strict=True))
+    assert _experiment_runs(pd.Series(np.repeat([1, 2, 1], 2))) is None
+    assert _experiment_runs(pd.Series([1.0, np.nan, 2.0])) is None

@@ -58,6 +58,27 @@ class SamplingReport:
     worst_step_deviation: float = 0.0
 
 
+def _experiment_runs(column: Any) -> list[tuple[Any, np.ndarray]] | None:
+    """``groupby(sort=False).indices`` of an experiment column whose experiments are
+    contiguous runs of rows with distinct labels and no missing label (what a log holds):
+    the same keys in the same order with the same positions, from the run boundaries
+    instead of a hash grouping. None where that does not hold (the caller groups)."""
+    import pandas as pd
+
+    if isinstance(column.dtype, pd.CategoricalDtype):
+        return None
+    e = column.to_numpy()
+    if e.size == 0 or bool(pd.isna(e).any()):
+        return None
+    cut = np.flatnonzero(e[1:] != e[:-1]) + 1
+    bounds = np.concatenate([[0], cut, [e.size]])
+    keys = [column.iloc[int(a)] for a in bounds[:-1]]
+    if len(set(keys)) != len(keys):
+        return None
+    return [(k, np.arange(a, b)) for k, a, b in zip(keys, bounds[:-1], bounds[1:],
+                                                    strict=True)]
+
+
 def _name(eid: Any) -> str:
     return repr(eid.item() if hasattr(eid, "item") else eid)
 
@@ -95,7 +116,9 @@ def check_sampling(log: Any, spec_dt: float | None, *,
         return SamplingReport(None, spec_dt, False)
     t = data["time"].to_numpy(dtype=float)
     if "experiment" in data.columns:
-        groups = list(data.groupby("experiment", sort=False).indices.items())
+        groups = _experiment_runs(data["experiment"])
+        if groups is None:
+            groups = list(data.groupby("experiment", sort=False).indices.items())
     else:
         groups = [(0, np.arange(t.size))]
     medians: list[tuple[Any, float]] = []

@@ -10,7 +10,10 @@ unrolled into scalar code (factors spelled through
 * The operations and their order are exactly those of the generic kernel (same
   auxiliary-model recursion, same divergence test, same accumulation order), so
   the two give bit-identical moments (tested on every catalogue structure); the
-  specialised kernel only removes the indexing overhead (≈ 3–5× faster).
+  specialised kernel only removes the indexing overhead (≈ 3–5× faster). Small
+  structures keep one local scalar per accumulated product; larger ones
+  (:data:`MAX_UNROLLED_PRODUCTS`) keep their sums in local arrays updated by loops,
+  which compiles in seconds where the scalar form takes minutes.
 * The generated module is written once per structure to a private per-user cache
   directory (:func:`kernel_dir`) and only rewritten if its text changes, so numba's
   on-disk cache of the compiled code stays valid across processes. Its file name is
@@ -52,6 +55,7 @@ __all__ = [
     "MAX_KEPT_FILES",
     "MAX_SPECIALISED_PARAMS",
     "MAX_SPECIALISED_PRODUCTS",
+    "MAX_UNROLLED_PRODUCTS",
     "PRUNE_AFTER_DAYS",
     "SpecialisedMoments",
     "kernel_dir",
@@ -70,6 +74,14 @@ MAX_SPECIALISED_PARAMS = 24
 #: qualifies; the 25-parameter CyberShip II sea-trial model (blocks 5, 10, 10, the last
 #: two with the same terms) accumulates 125.
 MAX_SPECIALISED_PRODUCTS = 24 * 24
+
+#: Structures accumulating more products than this (:func:`moment_products`) keep their
+#: sums in small local arrays updated by loops instead of one scalar per product: the
+#: unrolled form's compile time grows faster than the square of its products (about a
+#: minute of CPU for the CyberShip II sea-trial model's 125, minutes beyond), the looped
+#: form's with the number of parameters (seconds; ``python scripts/bench.py --only
+#: new_structure``). Both add the same products in the same order.
+MAX_UNROLLED_PRODUCTS = 64
 
 #: Generated kernels unused for this many days are deleted.
 PRUNE_AFTER_DAYS = 30
@@ -293,6 +305,8 @@ def moment_products(fac: np.ndarray, blocks: np.ndarray) -> int:
 
 
 def _source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.ndarray) -> str:
+    if moment_products(fac, blocks) > MAX_UNROLLED_PRODUCTS:
+        return _looped_source(n, m, fac, eq, blocks)
     n_par = fac.shape[0]
     blk = [list(range(int(blocks[i]), int(blocks[i + 1]))) for i in range(n)]
     src = _duplicate_blocks(fac, blocks)
@@ -367,6 +381,92 @@ def _source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.ndarray)
             for q in range(n_par):
                 if q not in blk[i]:  # another equation's regressor
                     add(f"    s_zphi[s, {p}, {q}] = 0.0")
+        add(f"    s_y[s, {i}] = ly{i}")
+    args = ("regsig, target, u, starts, group, theta, active, use_sim, limit, "
+            "s_zphi, s_zy, s_z, s_phi, s_y, count, status")
+    _entry_point(add, args, args)
+    return "\n".join(lines) + "\n"
+
+
+def _looped_source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.ndarray) -> str:
+    """:func:`_source` for large structures: the regressors, the auxiliary model and the
+    divergence test unrolled as there, the sums of each distinct equation block in local
+    arrays (``zy``, ``z``, ``φ`` and ``zφ``) updated by loops over the block. Every sum
+    receives the same products in the same order as in the unrolled form and the
+    generic kernel, so the moments are the same numbers; the code grows with the number
+    of parameters, not with the products."""
+    n_par = fac.shape[0]
+    blk = [list(range(int(blocks[i]), int(blocks[i + 1]))) for i in range(n)]
+    src = _duplicate_blocks(fac, blocks)
+    needed = [p for i in range(n) if src[i] == i for p in blk[i]]
+    ind = " " * 8
+    lines: list[str] = []
+    add = lines.append
+    _head(add, " (looped sums)", (
+        "def _segment(s, regsig, target, u, starts, group, theta, active, use_sim, limit,",
+        "             s_zphi, s_zy, s_z, s_phi, s_y, count, status):"))
+    add("    status[s] = 0")
+    add("    count[s] = b - a - 1")
+    add("    lim = limit[s]")
+    for p in range(n_par):
+        add(f"    th{p} = theta[g, {p}]")
+    for i in range(n):
+        size = len(blk[i])
+        add(f"    x{i} = target[a, {i}]")
+        add(f"    ly{i} = 0.0")
+        add(f"    azy{i} = np.zeros({size})")
+        add(f"    zv{i} = np.empty({size})")
+        if src[i] == i:
+            add(f"    az{i} = np.zeros({size})")
+            add(f"    aphi{i} = np.zeros({size})")
+            add(f"    azphi{i} = np.zeros(({size}, {size}))")
+            add(f"    pv{i} = np.empty({size})")
+
+    def body(sim: bool) -> None:
+        add(f"{ind}for k in range(a + 1, b):")
+        i2 = ind + "    "
+        _data_row(add, i2, n, (("d", 1),), m)
+        for p in needed:
+            add(f"{i2}phi{p} = {_term(p, 'd', n, m, fac)}")
+        if sim:
+            for i in range(n):
+                add(f"{i2}ax{i} = abs(x{i})")
+            _advance(add, i2, n, m, fac, eq, "z")
+        else:
+            for p in range(n_par):
+                i = int(eq[p])  # a duplicate block's regressor: its source's
+                q = p + int(blocks[src[i]]) - int(blocks[i])
+                add(f"{i2}z{p} = phi{q}")
+        for i in range(n):
+            add(f"{i2}y{i} = target[k, {i}]")
+            add(f"{i2}ly{i} += y{i}")
+            for j, p in enumerate(blk[i]):
+                add(f"{i2}zv{i}[{j}] = z{p}")
+                if src[i] == i:
+                    add(f"{i2}pv{i}[{j}] = phi{p}")
+            add(f"{i2}for jj in range({len(blk[i])}):")
+            add(f"{i2}    zj = zv{i}[jj]")
+            add(f"{i2}    azy{i}[jj] += zj * y{i}")
+            if src[i] == i:
+                add(f"{i2}    az{i}[jj] += zj")
+                add(f"{i2}    aphi{i}[jj] += pv{i}[jj]")
+                add(f"{i2}    for qq in range({len(blk[i])}):")
+                add(f"{i2}        azphi{i}[jj, qq] += zj * pv{i}[qq]")
+
+    add("    if use_sim:")
+    body(True)
+    add("    else:")
+    body(False)
+    for i in range(n):
+        lo, size, o = int(blocks[i]), len(blk[i]), src[i]
+        add(f"    for jj in range({size}):")
+        add(f"        s_zy[s, {lo} + jj] = azy{i}[jj]")
+        add(f"        s_z[s, {lo} + jj] = az{o}[jj]")
+        add(f"        s_phi[s, {lo} + jj] = aphi{o}[jj]")
+        add(f"        for qq in range({n_par}):")  # another equation's regressor
+        add(f"            s_zphi[s, {lo} + jj, qq] = 0.0")
+        add(f"        for qq in range({size}):")
+        add(f"            s_zphi[s, {lo} + jj, {lo} + qq] = azphi{o}[jj, qq]")
         add(f"    s_y[s, {i}] = ly{i}")
     args = ("regsig, target, u, starts, group, theta, active, use_sim, limit, "
             "s_zphi, s_zy, s_z, s_phi, s_y, count, status")

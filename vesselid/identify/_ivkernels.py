@@ -188,7 +188,9 @@ def autocov(e, starts, valid, p):
 
 @njit(cache=True)
 def cross_sums(z, phi, y, starts, valid):
-    """Per segment: ``Σ z φᵀ`` (S, K, P), ``Σ z y`` (S, K), ``Σ z zᵀ`` (S, K, K), count."""
+    """Per segment: ``Σ z φᵀ`` (S, K, P), ``Σ z y`` (S, K), ``Σ z zᵀ`` (S, K, K), count.
+    Each sum runs over the valid rows in order, in small local accumulators (the row's
+    values loaded once; the same additions as into the outputs)."""
     n_seg = starts.shape[0] - 1
     k_cols = z.shape[1]
     p_cols = phi.shape[1]
@@ -196,21 +198,39 @@ def cross_sums(z, phi, y, starts, valid):
     b_out = np.zeros((n_seg, k_cols))
     m_out = np.zeros((n_seg, k_cols, k_cols))
     cnt = np.zeros(n_seg)
+    la = np.empty((k_cols, p_cols))
+    lb = np.empty(k_cols)
+    lm = np.empty((k_cols, k_cols))
+    zr = np.empty(k_cols)
+    pr = np.empty(p_cols)
     for s in range(n_seg):
+        la[:, :] = 0.0
+        lb[:] = 0.0
+        lm[:, :] = 0.0
+        c = 0.0
         for k in range(starts[s], starts[s + 1]):
             if not valid[k]:
                 continue
-            cnt[s] += 1
+            c += 1
+            yk = y[k]
             for i in range(k_cols):
-                zi = z[k, i]
-                b_out[s, i] += zi * y[k]
+                zr[i] = z[k, i]
+            for j in range(p_cols):
+                pr[j] = phi[k, j]
+            for i in range(k_cols):
+                zi = zr[i]
+                lb[i] += zi * yk
                 for j in range(p_cols):
-                    a_out[s, i, j] += zi * phi[k, j]
+                    la[i, j] += zi * pr[j]
                 for j in range(i, k_cols):
-                    m_out[s, i, j] += zi * z[k, j]
+                    lm[i, j] += zi * zr[j]
+        cnt[s] = c
         for i in range(k_cols):
-            for j in range(i):
-                m_out[s, i, j] = m_out[s, j, i]
+            b_out[s, i] = lb[i]
+            for j in range(p_cols):
+                a_out[s, i, j] = la[i, j]
+            for j in range(k_cols):
+                m_out[s, i, j] = lm[i, j] if j >= i else lm[j, i]
     return a_out, b_out, m_out, cnt
 
 

@@ -165,6 +165,35 @@ def compute_moments(
     return mom
 
 
+def _bound_moments(data: RegressionData, spec: ModelSpec, mom: Moments,
+                   limits: np.ndarray) -> Callable[[np.ndarray, np.ndarray], bool] | None:
+    """:func:`compute_moments` with simulated instruments into ``mom`` for the refined
+    iteration, its specialised kernel looked up once: ``fn(theta, active)`` runs the same
+    kernel on the same arrays (False where it cannot; then :func:`compute_moments`). None
+    on the numpy path or without a specialised kernel of this structure."""
+    from vesselid.identify.backend import numpy_active
+
+    if numpy_active():
+        return None
+    codes = spec.codes
+    blocks = _layout(spec)[0]
+    fast = kernels.specialised_moments(data.regsig.shape[1], data.u.shape[1], codes.factors,
+                                       codes.equation, blocks)
+    if fast is None:
+        return None
+    # what kernels.moments decides for these arrays
+    parallel = (data.starts.shape[0] > 2
+                and data.target.shape[0] >= kernels.PARALLEL_MIN_SAMPLES)
+    arrays = (data.regsig, data.target, data.u, data.starts, data.group)
+    sums = (mom.zphi, mom.zy, mom.z, mom.phi, mom.y, mom.count, mom.status)
+
+    def run(theta: np.ndarray, active: np.ndarray) -> bool:
+        return fast(parallel, *arrays, np.ascontiguousarray(theta, float), active, True,
+                    limits, *sums)
+
+    return run
+
+
 def moments_from_matrices(
     data: RegressionData, spec: ModelSpec, z_mat: np.ndarray, phi_mat: np.ndarray
 ) -> Moments:
@@ -401,13 +430,15 @@ def refined_iv(
     limits = _limits(data, limit_factor)
     mom = _empty_moments(data.n_segments, n_par, spec.n_states)
 
+    direct = _bound_moments(data, spec, mom, limits) if moment_source is None else None
+
     def evaluate(theta: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if moment_source is None:
             # a few finite parameters (a fit) need no cleaned copy
             finite = theta.size <= 64 and all(math.isfinite(x) for x in theta.flat)
-            compute_moments(data, spec, theta if finite else np.nan_to_num(theta),
-                            active=active, out=mom,
-                            limits=limits)
+            th = theta if finite else np.nan_to_num(theta)
+            if direct is None or not direct(th, active):
+                compute_moments(data, spec, th, active=active, out=mom, limits=limits)
         else:  # moments summed elsewhere (streamed experiments, a Dask cluster)
             moment_source(theta, active, mom, limits)
         if n_groups == 1:  # every segment is group 0's

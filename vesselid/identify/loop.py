@@ -284,10 +284,15 @@ def reference_designs(data: RegressionData, spec: ModelSpec, it: Any = None) -> 
     theta = it.theta[0]
     if not np.all(np.isfinite(theta)):
         raise IdentificationError(f"the reference IV fit failed ({it.reason[0]})")
-    codes = spec.codes
-    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, codes.factors)
-    z, _ = kernels.instrument_matrix(data.target, data.u, data.starts, it.theta_aux[0],
-                                     codes.factors, codes.equation, spec.n_states)
+    if data.n_groups == 1:  # computed (and kept) by the mean-current test of auto's fit
+        from vesselid.identify.validity import reference_matrices
+
+        phi, z, _ = reference_matrices(data, spec, it.theta_aux[0])
+    else:
+        codes = spec.codes
+        phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, codes.factors)
+        z, _ = kernels.instrument_matrix(data.target, data.u, data.starts, it.theta_aux[0],
+                                         codes.factors, codes.equation, spec.n_states)
     rows = _equation_rows(data)
     zc = z.copy()
     for s in range(data.n_segments):

@@ -285,18 +285,42 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
             break
         psi = trial
     cov = np.zeros((psi.size, psi.size))
-    sand = np.zeros((psi.size, psi.size))
+    parts = None
     if np.all(np.isfinite(fisher)):
         finv = np.linalg.pinv(fisher, rcond=1e-12, hermitian=True)
         cov[np.ix_(idx, idx)] = finv
-        meat = _score_hac(je, js, eps0, var0, filt.starts)
-        sand[np.ix_(idx, idx)] = finv @ meat @ finv if meat is not None else np.nan
+        parts = (je, js, eps0, var0, filt.starts, finv, idx)
     else:
         cov[:] = np.nan
-        sand[:] = np.nan
     terms = _nll_terms(eps0, var0) if eps0 is not None else None
-    return {"psi": psi, "cov": cov, "cov_sandwich": sand, "converged": converged,
-            "iterations": it, "reason": reason, "nll_terms": terms, "free": int(d)}
+    fit = {"psi": psi, "cov": cov, "cov_sandwich": None, "sandwich_parts": parts,
+           "converged": converged, "iterations": it, "reason": reason,
+           "nll_terms": terms, "free": int(d)}
+    if d * filt.n > DEFER_MAX:  # the sensitivities are large: the sandwich now
+        _sandwich(fit)
+    return fit
+
+
+#: Largest ``d × T`` for which a fit keeps its sensitivities and computes its quasi-ML
+#: sandwich only when it is reported (:func:`_sandwich`; most fits of
+#: :func:`fit_groups` are candidates that are not).
+DEFER_MAX = 200_000
+
+
+def _sandwich(fit: dict[str, Any]) -> np.ndarray:
+    """The quasi-ML sandwich ``F⁻¹ Ŝ F⁻¹`` of a :func:`_scoring` fit (ψ-sized; NaN where
+    the Fisher information or the scores are not finite), computed on first use."""
+    if fit["cov_sandwich"] is None:
+        parts = fit.pop("sandwich_parts", None)
+        n = fit["psi"].size
+        sand = np.full((n, n), np.nan)
+        if parts is not None:
+            je, js, eps0, var0, starts, finv, idx = parts
+            sand[:] = 0.0
+            meat = _score_hac(je, js, eps0, var0, starts)
+            sand[np.ix_(idx, idx)] = finv @ meat @ finv if meat is not None else np.nan
+        fit["cov_sandwich"] = sand
+    return fit["cov_sandwich"]
 
 
 def _score_hac(je: np.ndarray | None, js: np.ndarray | None, eps: np.ndarray,
@@ -354,8 +378,10 @@ def _with_spread(f: dict[str, Any], other: dict[str, Any], n_par: int) -> dict[s
     if not np.all(np.isfinite(d)):
         return f
     out = dict(f)
+    out["cov_sandwich"] = _sandwich(f)
+    out.pop("sandwich_parts", None)
     for key in ("cov", "cov_sandwich"):
-        c = f[key].copy()
+        c = out[key].copy()
         c[:n_par, :n_par] += np.outer(d, d)
         out[key] = c
     return out
@@ -685,10 +711,10 @@ def _store(out: dict[str, np.ndarray], prefix: str, g: int, f: dict[str, Any],
     out[prefix + "theta"][g] = psi[:n_par]
     out[prefix + "psi"][g] = psi
     out[prefix + "cov"][g] = f["cov"][:n_par, :n_par] / np.outer(tscale, tscale)
-    out[prefix + "cov_sandwich"][g] = (f["cov_sandwich"][:n_par, :n_par]
-                                       / np.outer(tscale, tscale))
+    sand = _sandwich(f) if "sandwich_parts" in f else f["cov_sandwich"]
+    out[prefix + "cov_sandwich"][g] = sand[:n_par, :n_par] / np.outer(tscale, tscale)
     out[prefix + "cov_conservative"][g] = (
-        conservative_covariance(f["cov"][:n_par, :n_par], f["cov_sandwich"][:n_par, :n_par])
+        conservative_covariance(f["cov"][:n_par, :n_par], sand[:n_par, :n_par])
         / np.outer(tscale, tscale))
 
 

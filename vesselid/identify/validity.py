@@ -70,14 +70,46 @@ def _hac_iv(z: np.ndarray, phi: np.ndarray, y: np.ndarray, seg: np.ndarray
     return theta, a_inv @ s @ a_inv.T
 
 
+_SHARED = "_validity_matrices"
+
+
+def reference_matrices(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray, *,
+                       keep: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The regressor matrix and the instruments (with the simulated states) simulated from
+    ``theta_aux`` on every row of a one-group ``data``: ``(phi, z, xhat)``, read-only.
+
+    ``keep``: remember them on ``data`` for the next call with the same ``spec`` and
+    ``theta_aux``, which takes them (the mean-current test computes them, the feedback
+    test's reference designs, :func:`vesselid.identify.loop.reference_designs`, reuse
+    them: the same kernels on the same arrays, computed once)."""
+    theta_aux = np.ascontiguousarray(theta_aux, dtype=float)
+    key = (id(spec), theta_aux.tobytes())
+    memo = getattr(data, "__dict__", {}).pop(_SHARED, None)
+    if memo is not None and memo[0] == key:
+        return memo[1]
+    codes = spec.codes
+    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, codes.factors)
+    z, xhat = kernels.instrument_matrix(data.target, data.u, data.starts, theta_aux,
+                                        codes.factors, codes.equation, spec.n_states)
+    for arr in (phi, z, xhat):
+        arr.flags.writeable = False
+    if keep and hasattr(data, "__dict__"):
+        data.__dict__[_SHARED] = (key, (phi, z, xhat))
+    return phi, z, xhat
+
+
 def _rows(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray, extra: bool):
     """Centred regressors, instruments and targets of group 0 (one state), with the
-    ``|w|`` column and its simulated instrument appended when ``extra``."""
+    ``|w|`` column and its simulated instrument appended when ``extra`` (on a one-group
+    ``data``: its matrices then kept for the feedback test, :func:`reference_matrices`)."""
     codes = spec.codes
     sl, starts = data.group_rows(0)
-    phi = kernels.regressor_matrix(data.regsig[sl], data.u[sl], starts, codes.factors)
-    z, xhat = kernels.instrument_matrix(data.target[sl], data.u[sl], starts, theta_aux,
-                                        codes.factors, codes.equation, spec.n_states)
+    if extra and data.n_groups == 1:  # new arrays below: the kept ones stay unchanged
+        phi, z, xhat = reference_matrices(data, spec, theta_aux, keep=True)
+    else:
+        phi = kernels.regressor_matrix(data.regsig[sl], data.u[sl], starts, codes.factors)
+        z, xhat = kernels.instrument_matrix(data.target[sl], data.u[sl], starts, theta_aux,
+                                            codes.factors, codes.equation, spec.n_states)
     y = data.target[sl, 0].astype(float)
     if extra:
         prev = np.full((y.size, 2), np.nan)
@@ -218,22 +250,30 @@ def parameter_stability(data: RegressionData, spec: ModelSpec,
         return None
     if theta_start is None:
         it = estimate(halves, spec, "iv-zero-mean", combine="pooled")
+        theta, theta_aux = it.theta, it.theta_aux
+        subs = [_group(halves, g) for g in (0, 1)]
     else:  # what ``estimate`` runs from a given start, without its unused LS estimate
-        start = np.array(np.broadcast_to(np.asarray(theta_start, dtype=float),
-                                         (halves.n_groups, spec.n_params)))
-        it = refined_iv(halves, spec, start, zero_mean=True, combine="pooled")
-    if not np.all(np.isfinite(it.theta)):
+        # each half on its own: the groups' iterations are independent (per-group steps,
+        # residuals and stopping), and one group's takes the scalar path of the refined
+        # iteration instead of masked two-group arrays at every step (the same numbers;
+        # a half that stops early no longer carries the other's)
+        start = np.asarray(theta_start, dtype=float).reshape(1, spec.n_params)
+        subs = [_group(halves, g) for g in (0, 1)]
+        its = [refined_iv(sub, spec, start.copy(), zero_mean=True, combine="pooled")
+               for sub in subs]
+        theta = np.vstack([i.theta for i in its])
+        theta_aux = np.vstack([i.theta_aux for i in its])
+    if not np.all(np.isfinite(theta)):
         return None
     n_par = spec.n_params
     covs = []
     for g in (0, 1):
-        sub = _group(halves, g)
-        phi, z, y, seg = _rows(sub, spec, it.theta_aux[g], extra=False)
+        phi, z, y, seg = _rows(subs[g], spec, theta_aux[g], extra=False)
         fit = _hac_iv(z, phi, y, seg)
         if fit is None:
             return None
         covs.append(fit[1])
-    d = it.theta[1] - it.theta[0]
+    d = theta[1] - theta[0]
     v = covs[0] + covs[1]
     try:
         stat = float(d @ np.linalg.solve(v, d))
@@ -255,8 +295,8 @@ def parameter_stability(data: RegressionData, spec: ModelSpec,
         f"p = {pval:.2g})")
     return {"statistic": stat, "df": n_par, "pvalue": pval, "level": alpha,
             "rejected": bool(rejected),
-            "first_half": dict(zip(names, map(float, it.theta[0]), strict=True)),
-            "second_half": dict(zip(names, map(float, it.theta[1]), strict=True)),
+            "first_half": dict(zip(names, map(float, theta[0]), strict=True)),
+            "second_half": dict(zip(names, map(float, theta[1]), strict=True)),
             "sentence": sentence}
 
 
