@@ -42,16 +42,18 @@ def test_selection_weights_are_fixed_numbers():
 
 
 @pytest.mark.slow
-def test_single_gauss_markov_current_unbiased_and_covered():
+@pytest.mark.parametrize("boundary", ["unbounded", "auto"])
+def test_single_gauss_markov_current_unbiased_and_covered(boundary):
     """A Gauss–Markov current alone (calibration scenario, random pulses): ``auto`` with
-    ``pem_boundary="unbounded"`` takes the likelihood fallback; its estimate is within
-    Bonferroni-corrected Monte Carlo standard errors of θ0 on every parameter and its
-    95 % intervals cover at a rate a binomial test accepts."""
+    ``pem_boundary="unbounded"`` or the default ``"auto"`` (the current is Gaussian)
+    takes the likelihood fallback; its estimate is within Bonferroni-corrected Monte
+    Carlo standard errors of θ0 on every parameter and its 95 % intervals cover at a
+    rate a binomial test accepts."""
     system, _, _ = heave_scenario("gm-current-random")
     spec = system.identification_spec(aggregate=False)
     runs = 80
     sim = system.simulate(10_000, n_runs=runs, seed=41)
-    est = InstrumentalGMM(**{**entry("auto").options, "pem_boundary": "unbounded"})
+    est = InstrumentalGMM(**{**entry("auto").options, "pem_boundary": boundary})
     it = est.estimate_parameters(from_arrays(spec, sim.y, sim.u), spec)
     assert (it.info["instrument_set"] == "pem").all()
     assert np.isin(it.info["pem_model"], ["joint-local", "joint", "current"]).all()

@@ -192,16 +192,19 @@ class InstrumentalGMM(Estimator):
         currents at 10⁴ samples: 100 % of runs at 0.1 × the levels), while white logs
         reach it in under 0.5 % of runs (rather than the levels' 4–6 %), which keeps the
         expensive fit off the paper's white designs.
-    pem_boundary : {"bounded", "unbounded"}
-        The joint model's sensor-noise variance: bounded at zero (default), or, where the
+    pem_boundary : {"auto", "bounded", "unbounded"}
+        The joint model's sensor-noise variance: bounded at zero, or, where the
         likelihood does not establish the sensor-noise process (likelihood ratio ≤
         :data:`vesselid.identify.pem.LOCAL_LR`), estimated without the bound
-        (:data:`vesselid.identify.pem.JOINT_LOCAL`). Under a single Gauss–Markov current
-        the bounded estimate fits a spurious sensor process in most runs and biases ``n``
-        by about 0.4 Monte Carlo sd, which the unbounded one removes; on a telegraph
-        current, outside every model, the unbounded one is biased twice as much and
-        covers ``n`` in about 81 % (``scripts/pem_boundary_study.py``,
-        ``docs/guide/choosing-an-estimator.md``), so the default keeps the bound.
+        (:data:`vesselid.identify.pem.JOINT_LOCAL`); ``auto`` (default) takes the
+        unbounded estimate unless the smoothed current looks bimodal
+        (:func:`vesselid.identify.current_shape.smoothed_current_test`), then the bounded
+        one. Under a single Gauss–Markov current the bounded estimate fits a spurious
+        sensor process in most runs and biases ``n`` by about 0.4 Monte Carlo sd, which
+        the unbounded one removes; on a telegraph current, outside every model, the
+        unbounded one is biased twice as much as the bounded one, and the kurtosis test
+        of the smoothed current tells the two apart (``scripts/robustness_study.py``,
+        ``scripts/pem_boundary_study.py``, ``docs/guide/choosing-an-estimator.md``).
     pem_cov : {"conservative", "sandwich", "fisher"}
         Covariance of that fallback: the smallest covariance above both the quasi-ML
         sandwich and the inverse Fisher information (default,
@@ -220,7 +223,7 @@ class InstrumentalGMM(Estimator):
                  short: str | None = None,
                  colour_order: int = 0, pem_fallback: bool = False,
                  pem_cov: str = "conservative", pem_level: float = 0.1,
-                 pem_boundary: str = "bounded") -> None:
+                 pem_boundary: str = "auto") -> None:
         super().__init__(instruments=instruments, noise_order=noise_order, alpha=alpha,
                          colour_alpha=colour_alpha, refine=refine,
                          fallback_refine=fallback_refine, colour_order=colour_order,
@@ -546,7 +549,7 @@ class InstrumentalGMM(Estimator):
         idx = np.flatnonzero(reject)
         n = data.n_groups
         for key in ("psi", "cov", "cov_sandwich", "cov_conservative", "loglik", "vuong",
-                    "model", "lr_joint", "local_z"):
+                    "model", "lr_joint", "local_z", "shape_z", "boundary"):
             arr = res[key]
             full = (np.full(n, "", dtype=object) if arr.dtype == object else
                     np.full((n, *arr.shape[1:]), np.nan))
@@ -667,6 +670,16 @@ class InstrumentalGMM(Estimator):
                      "one scoring step from the current-only fit, since the likelihood "
                      "does not establish a sensor-noise process: a bounded estimate "
                      "would bias the parameters whenever there is none)")
+            zs = info.get("pem_shape_z")
+            zs = float(zs[0]) if zs is not None else float("nan")
+            if str(info.get("pem_boundary", [""])[0]) == "bounded" and np.isfinite(zs) \
+                    and self.pem_boundary == "auto":
+                local = (" (the sensor-noise variance bounded at zero: the smoothed current "
+                         f"looks bimodal, kurtosis z = {zs:.2f}, as a switching current "
+                         "would; no model of the estimator describes such a current, so "
+                         "the estimate can be biased by a fraction of its standard error, "
+                         "and its intervals include the spread between the bounded and the "
+                         "unbounded fit)")
             return (f"auto used the prediction-error estimator with a Gauss–Markov current "
                     f"and Gauss–Markov sensor noise as filter states{local} because the "
                     f"{why} rejected white disturbances, and on a one-state log without a "

@@ -46,8 +46,17 @@ estimated without its bound at zero, one scoring step from the current model
 a small spurious sensor-noise process in most runs, and that one-sided choice biases
 ``n`` by 0.4 Monte Carlo sd; the unbounded step is symmetric about θ0 there and stays
 the efficient joint estimate when a weak sensor-noise process is present. On a telegraph
-current (outside every model) it is biased twice as much as the bounded fit, so the
-bound is the default (``scripts/pem_boundary_study.py``).
+current (outside every model) it is biased twice as much as the bounded fit. No
+likelihood-ratio pre-test between the joint and the current model removes the bound's
+bias without biasing the two-process case (the sensor-noise process there is too weak
+to be established in a fifth of the runs, and the current model alone is biased by 2–3
+Monte Carlo sd), so ``boundary="auto"`` (``auto``'s default) asks the current instead:
+a kurtosis test of the smoothed one-step residuals of the current-model fit
+(:func:`vesselid.identify.current_shape.smoothed_current_test`) separates a bimodal,
+switching current from a Gaussian one; the bounded fit is reported where it rejects,
+with the spread between the bounded and the unbounded fit added to its covariance
+(:func:`_with_spread`), the unbounded one elsewhere (``scripts/pem_boundary_study.py``,
+``scripts/robustness_study.py``).
 
 The covariance is the inverse Fisher information of the chosen model (the θ block); with
 a correct model it is efficient. The quasi-ML sandwich ``F⁻¹ Ŝ F⁻¹`` (``Ŝ`` the Bartlett
@@ -64,6 +73,7 @@ noise parameters, the filter restarted at every experiment).
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any, ClassVar
 
@@ -71,6 +81,7 @@ import numpy as np
 
 from vesselid.errors import IdentificationError
 from vesselid.identify.base import Estimator, square_designs
+from vesselid.identify.current_shape import smoothed_current_test
 from vesselid.identify.data import RegressionData
 from vesselid.identify.estimators import IterationResult, estimate
 from vesselid.model.spec import ModelSpec
@@ -359,6 +370,34 @@ def _vuong(a: dict[str, Any], b: dict[str, Any], count: int) -> float:
     return lr / (math.sqrt(count) * sd)
 
 
+def _with_spread(f: dict[str, Any], other: dict[str, Any], n_par: int) -> dict[str, Any]:
+    """``f`` with ``ddᵀ`` added to its covariances' θ block, ``d`` the difference of its
+    θ and ``other``'s: the spread of two fits of a misspecified model that the
+    likelihood cannot choose between (a bimodal current; module docstring)."""
+    d = f["psi"][:n_par] - other["psi"][:n_par]
+    if not np.all(np.isfinite(d)):
+        return f
+    out = dict(f)
+    out["cov_sandwich"] = _sandwich(f)
+    out.pop("sandwich_parts", None)
+    for key in ("cov", "cov_sandwich"):
+        c = out[key].copy()
+        c[:n_par, :n_par] += np.outer(d, d)
+        out[key] = c
+    return out
+
+
+def _residuals(psi: np.ndarray, y: np.ndarray, u: np.ndarray, starts: np.ndarray,
+               fac: np.ndarray, n_par: int) -> list[np.ndarray]:
+    """One-step residuals ``y(k+1) − θᵀφ(k)`` of the row ``psi``, one array per
+    experiment (none across an experiment boundary)."""
+    from vesselid.model.regressors import evaluate
+
+    sig = np.concatenate([y[:, None], u], axis=1)
+    res = y[1:] - evaluate(fac, sig[:-1]) @ psi[:n_par]
+    return [res[a:b - 1] for a, b in itertools.pairwise(starts) if b - a > 1]
+
+
 def _joint_start(best: dict[str, Any], model: str, n_par: int, scale: float) -> np.ndarray:
     """Start of the joint model from a converged single-process fit: the other process
     switched on (ρ = 0.8, σ a quarter of the start's residual std)."""
@@ -385,8 +424,10 @@ LOCAL_LR = 10.0
 #: The joint model estimated without the bound σ_c² ≥ 0 (:func:`_local_joint`).
 JOINT_LOCAL = "joint-local"
 #: How the joint model treats the sensor-noise variance's bound at zero
-#: (:func:`fit_groups`'s ``boundary``; the first is the default).
-BOUNDARIES = ("bounded", "unbounded")
+#: (:func:`fit_groups`'s ``boundary``): ``auto`` is ``unbounded`` unless the smoothed
+#: current looks bimodal (:func:`vesselid.identify.current_shape.smoothed_current_test`),
+#: then ``bounded`` (module docstring; ``auto``'s default).
+BOUNDARIES = ("auto", "bounded", "unbounded")
 #: Normal draws of the quadrature of the selection term of :func:`_local_joint`'s
 #: covariance (a fixed set, the same for every log: a numerical integral, not a random
 #: result).
@@ -512,13 +553,18 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
     ``loglik`` (G, len(models)), ``vuong`` (G,; z of ``models[0]`` against
     ``models[1]``), ``lr_joint`` (G,; twice the joint model's log-likelihood gain over the
     better single-process model, NaN without ``joint``), ``local_z`` (G,; the z of the
-    unbounded sensor-noise variance step, :func:`_local_joint`, where computed).
+    unbounded sensor-noise variance step, :func:`_local_joint`, where computed),
+    ``shape_z`` / ``shape_bimodal`` (G,; the kurtosis test of the smoothed current,
+    :func:`vesselid.identify.current_shape.smoothed_current_test`, where computed) and
+    ``boundary`` (G,; the bound applied: ``bounded`` or ``unbounded``).
 
     ``boundary`` (with ``joint``): ``"bounded"`` reports the joint fit with σ_c ≥ 0;
     ``"unbounded"`` reports :data:`JOINT_LOCAL` instead where the current model is the
     better single process and the joint fit's likelihood ratio is at most
-    :data:`LOCAL_LR` (module docstring). The unbounded step is computed for ``details``
-    either way.
+    :data:`LOCAL_LR` (module docstring); ``"auto"`` is ``"unbounded"`` unless the
+    smoothed current looks bimodal, then ``"bounded"`` with the spread between the two
+    fits added to the covariance. The unbounded step and the shape test are computed
+    for ``details`` either way.
     """
     if boundary not in BOUNDARIES:
         raise IdentificationError(
@@ -541,6 +587,9 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
         "cov_conservative": np.full((n_groups, n_par, n_par), np.nan),
         "lr_joint": np.full(n_groups, np.nan),
         "local_z": np.full(n_groups, np.nan),
+        "shape_z": np.full(n_groups, np.nan),
+        "shape_bimodal": np.zeros(n_groups, dtype=bool),
+        "boundary": np.full(n_groups, "", dtype=object),
     }
     if details:  # every candidate's fit (studies of the model choice)
         for prefix in ("single_", "joint_", "local_"):
@@ -604,20 +653,33 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
                 iterations += more["iterations"]
                 if more["nll_terms"] is not None:
                     fj = more
+            bound = boundary
+            if models[best] == "current" and (boundary == "auto" or details):
+                shape = smoothed_current_test(
+                    _residuals(f["psi"], y, u, starts, fac, n_par),
+                    math.tanh(float(f["psi"][_layout(n_par)["rho_v"]])))
+                out["shape_z"][g] = shape["z"]
+                out["shape_bimodal"][g] = shape["bimodal"]
+                if boundary == "auto":
+                    bound = "bounded" if shape["bimodal"] else "unbounded"
+            out["boundary"][g] = bound
             local = (_local_joint(filt, f, n_par)
-                     if models[best] == "current" and (boundary == "unbounded" or details)
+                     if models[best] == "current" and (bound == "unbounded" or details
+                                                       or boundary == "auto")
                      else None)
             if fj["nll_terms"] is not None:
                 gain = float(np.sum(f["nll_terms"]) - np.sum(fj["nll_terms"]))
                 out["lr_joint"][g] = 2.0 * gain
                 if (fj["converged"] and np.isfinite(gain) and gain >= 0
-                        and (local is None or boundary == "bounded"
+                        and (local is None or bound == "bounded"
                              or 2.0 * gain > LOCAL_LR)):
                     f = fj
                     out["model"][g] = JOINT
-            if local is not None and boundary == "unbounded" and out["model"][g] != JOINT:
+            if local is not None and bound == "unbounded" and out["model"][g] != JOINT:
                 f = local
                 out["model"][g] = JOINT_LOCAL
+            elif local is not None and boundary == "auto" and bound == "bounded":
+                f = _with_spread(f, local, n_par)
             if local is not None:
                 out["local_z"][g] = local["q_z"]
                 if "local_theta" in out:
@@ -861,6 +923,16 @@ def describe_fit(info: dict[str, Any], g: int, n_par: int) -> dict[str, Any]:
                          f"{float(np.min(ll)):.6g}; Vuong z (current vs sensor noise) = "
                          f"{z:.3g}, p = {p:.3g}"),
     }
+    zs = info.get("pem_shape_z")
+    if zs is not None and np.isfinite(zs[g]):
+        from vesselid.identify.current_shape import SHAPE_ALPHA
+
+        bound = info.get("pem_boundary")
+        out["current_shape"] = {
+            "kurtosis_z": float(zs[g]), "level": SHAPE_ALPHA,
+            "sensor_noise_bound": str(bound[g]) if bound is not None else "",
+            "test": ("excess kurtosis of the smoothed one-step residuals of the current "
+                     "model (negative: a bimodal, switching current)")}
     lr = info.get("pem_lr_joint")
     if lr is not None and np.isfinite(lr[g]):
         out["model_choice"] = (
