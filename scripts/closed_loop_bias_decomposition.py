@@ -90,8 +90,10 @@ def decompose_run(design, seed: np.random.SeedSequence) -> dict[str, np.ndarray]
     codes = spec.codes
     x_true = sim.x.reshape(-1, sim.x.shape[2])
     phi_true = kernels.regressor_matrix(x_true, data.u, data.starts, codes.factors)
+    noise = (np.zeros(spec.n_states) if data.regressor_noise is None
+             else data.regressor_noise)
     bump_mean = regressor_error_mean(np.hstack([x_true, data.u]), codes.factors,
-                                     codes.n_signals, data.regressor_noise)
+                                     codes.n_signals, noise)
     out = {k: np.zeros(spec.n_params) for k in ("iv0", "cv", "bump")}
     for i in range(spec.n_states):
         cols = np.flatnonzero(codes.equation == i)
