@@ -25,6 +25,11 @@ have ``E[h(x+e) | x] = x|x|`` (resp. ``x²``) exactly for the square and up to a
 height ``0.2 σ²`` within ``|x| < 2σ`` for the modulus (``2t(φ(t) − tQ(t))σ²``,
 ``t = |x|/σ``: ``sign`` is itself smoothed by the noise there). With ``σ = 0`` nothing
 changes (the correction is skipped: results are bit-identical to the uncorrected ones).
+What remains near zero has closed forms: :func:`signed_square_bias` for the corrected
+``x·|x|``, :func:`modulus_bias` for a modulus factor ``|z+e|`` of a product of two
+different states (which has no conditionally unbiased score: ``|z|`` is not analytic at
+0), and :func:`regressor_error_mean` for every column of a spec — what
+``scripts/closed_loop_bias_decomposition.py`` uses to measure the bias they leave.
 
 ``σ`` is the standard deviation of the white noise on each *regressor* signal (the
 measured state, or the aggregated signal ``ỹ`` of (9)); it comes from the sensor
