@@ -154,10 +154,22 @@ def regressors(data: RegressionData, union: list[Term], spec) -> np.ndarray:
     return kernels.regressor_matrix(data.regsig, data.u, data.starts, fac)
 
 
-def instruments(data: RegressionData, union: list[Term], aux_spec, theta_aux) -> np.ndarray:
+def simulation_error(data: RegressionData, xhat: np.ndarray) -> float:
+    """How poorly the auxiliary simulation ``x̂`` tracks the measured states: the sum over
+    states of ``Σ (x̃ − x̂̃)² / Σ x̃²`` with ``x̃``, ``x̂̃`` centred per experiment (the
+    instruments' strength grows as it falls; 0 for a perfect simulation)."""
+    segs = [(int(data.starts[s]), int(data.starts[s + 1])) for s in range(data.n_segments)]
+    x = centred(data.target, segs)
+    e = x - centred(xhat, segs)
+    ss = np.einsum("ij,ij->j", x, x)
+    return float(np.sum(np.einsum("ij,ij->j", e, e) / np.where(ss > 0, ss, 1.0)))
+
+
+def instruments(data: RegressionData, union: list[Term], aux_spec, theta_aux,
+                with_error: bool = False):
     """ζ of every union candidate: the candidate evaluated on ``[x̂; u]``, ``x̂`` simulated
     from the inputs by the auxiliary model (restarted from the measurement at each
-    experiment's start)."""
+    experiment's start). ``with_error``: also :func:`simulation_error` of ``x̂``."""
     codes = aux_spec.codes
     _, xhat = kernels.instrument_matrix(data.target, data.u, data.starts,
                                         np.asarray(theta_aux, dtype=float), codes.factors,
@@ -168,7 +180,8 @@ def instruments(data: RegressionData, union: list[Term], aux_spec, theta_aux) ->
                              "instruments can be formed; give a stable base model (--model) "
                              "whose equations hold the dominant terms")
     fac = encode_terms([union], aux_spec.signals).factors
-    return kernels.regressor_matrix(xhat, data.u, data.starts, fac)
+    z = kernels.regressor_matrix(xhat, data.u, data.starts, fac)
+    return (z, simulation_error(data, xhat)) if with_error else z
 
 
 def same_in_data_groups(phi_c: np.ndarray, names: list[str], tol: float,
