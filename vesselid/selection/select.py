@@ -331,12 +331,6 @@ def select_terms(
                                                 with_error=True)
         except SelectionError:  # keep the last instruments that could be simulated
             break
-        if err_new > z_err:
-            # the selected model tracks the vessel worse than the auxiliary model of
-            # this pass: its instruments would be weaker, and the next pass with the
-            # same instruments would repeat this selection (a fixed point)
-            converged = True
-            break
         z, z_err = z_new, err_new
         aux_source = "selected model (refined IV, zero-mean instruments)"
     if not converged and len(history) >= 2 and history[-1] == history[-2]:
