@@ -287,3 +287,41 @@ def test_library_model_is_the_best_tracking_iterate():
     assert err_lib <= min(first[1], alt[1])
     assert any(np.array_equal(z_lib, c[0], equal_nan=True) for c in (first, alt)) or \
         err_lib < min(first[1], alt[1])
+
+
+def test_indistinguishable_pair_by_hand():
+    """y = x1 + e with x2 = x1 + 0.03 η: the model {x1} passes, {x2} passes, {x1, x2}
+    leaves neither significant, so x2 is reported as undecided with x1; an independent
+    zero-coefficient x3 is not."""
+    from vesselid.selection.engine import critical_value, indistinguishable
+
+    rng = np.random.default_rng(4)
+    n, L = 2000, 20
+    x1 = rng.standard_normal(n)
+    x2 = x1 + 0.03 * rng.standard_normal(n)
+    x3 = rng.standard_normal(n)
+    y = x1 + rng.standard_normal(n)
+    phi = np.column_stack([x1, x2, x3])
+    phi = phi - phi.mean(axis=0)
+    y = y - y.mean()
+    nb = n // L
+    pb = phi.reshape(nb, L, 3)
+    m_mat = np.einsum("bkp,bkq->bpq", pb, pb)  # instruments = regressors (no noise in φ)
+    m_vec = np.einsum("bkp,bk->bp", pb, y.reshape(nb, L))
+    crit = critical_value(0.01, 3, n)
+    keep = np.array([True, False, False])
+    assert indistinguishable(m_mat, m_vec, keep, crit) == {0: [1]}
+    # a clearly separable pair (x2 independent of x1) is decided
+    phi[:, 1] = rng.standard_normal(n)
+    pb = phi.reshape(nb, L, 3)
+    m_mat = np.einsum("bkp,bkq->bpq", pb, pb)
+    m_vec = np.einsum("bkp,bk->bp", pb, y.reshape(nb, L))
+    assert indistinguishable(m_mat, m_vec, keep, crit) == {}
+
+
+def test_undecided_column_in_table_and_summary():
+    log = _heave_log(6000, 3)
+    res = select_terms(log, log.spec, "vessel", n_boot=0)
+    assert "undecided" in res.table.columns
+    assert set(res.table.loc[~res.table.selected, "undecided"]) <= {""}
+    assert res.to_dict()  # JSON report carries the column

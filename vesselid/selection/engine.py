@@ -506,3 +506,40 @@ def select_equation(m_mat: np.ndarray, m_vec: np.ndarray, counts: np.ndarray, cr
     if equilibrated_condition(m_mat) <= max_condition:
         return eliminate(m_mat, m_vec, counts, crit)
     return stepwise(m_mat, m_vec, counts, crit)
+
+
+def indistinguishable(m_mat: np.ndarray, m_vec: np.ndarray, keep: np.ndarray, crit: float
+                      ) -> dict[int, list[int]]:
+    """Unselected candidates the log cannot tell apart from a selected one.
+
+    For a selected ``j`` and an unselected ``k`` of the model ``S``: with both in the
+    model (``S ∪ {k}``) neither ``|t_j|`` nor ``|t_k|`` reaches ``crit``, while ``S`` with
+    ``j`` replaced by ``k`` keeps every term significant. The data then support the
+    model with either but cannot say which (``|r|`` and ``r*r`` when the turn rate
+    spans too narrow a range): the selection's choice between them is not evidence,
+    and they are reported together. Returns ``{j: [k, ...]}`` (candidate indices).
+    """
+    c = np.ones(m_mat.shape[0])
+    a_full = m_mat.sum(axis=0)
+    b_full = m_vec.sum(axis=0)
+    n_eff = float(c.sum())
+    model = [int(j) for j in np.flatnonzero(keep)]
+    out: dict[int, list[int]] = {}
+    if not model:
+        return out
+    for k in (int(q) for q in np.flatnonzero(~keep)):
+        both = _iv_fit(a_full, b_full, m_mat, m_vec, c, n_eff, [*model, k])
+        if both is None:
+            continue
+        t_both = np.abs(both[2])
+        if t_both[-1] >= crit:
+            continue
+        for q, j in enumerate(model):
+            if t_both[q] >= crit:
+                continue
+            swapped = _iv_fit(a_full, b_full, m_mat, m_vec, c, n_eff,
+                              [k if i == j else i for i in model])
+            if swapped is not None and float(np.min(np.abs(swapped[2]))) >= crit:
+                out.setdefault(j, []).append(k)
+    return out
+

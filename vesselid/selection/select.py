@@ -356,8 +356,15 @@ def select_terms(
             prob[s] = acc / n_boot
     theta_final = _refined_iv(data, out_spec)
 
+    undecided: dict[str, dict[int, list[int]]] = {}
+    if moments is not None:
+        m_mat, m_vec = moments
+        for i, s in enumerate(spec.states):
+            sub = keep_idx[s]
+            undecided[s] = engine.indistinguishable(m_mat[:, sub][:, :, sub], m_vec[:, sub, i],
+                                                    fits[s][0], crit)
     table = _table(spec, lib, names, cols, keep_idx, groups, fits, prob, phi_c, near,
-                   n_boot > 0)
+                   n_boot > 0, undecided)
     return SelectionResult(
         spec=out_spec, base=spec, library=lib, table=table, groups=groups,
         alpha=alpha, critical_value=crit, n_candidates=m_total, n_boot=int(n_boot),
@@ -369,7 +376,8 @@ def select_terms(
     )
 
 
-def _table(spec, lib, names, cols, keep_idx, groups, fits, prob, phi_c, near, boot):
+def _table(spec, lib, names, cols, keep_idx, groups, fits, prob, phi_c, near, boot,
+           undecided):
     rows = []
     for s in spec.states:
         keep, theta, t, cov = fits[s]
@@ -391,6 +399,8 @@ def _table(spec, lib, names, cols, keep_idx, groups, fits, prob, phi_c, near, bo
                    if j != k and not keep[j]]
             if alt:
                 alternatives[kept_names[k]] = alt
+        either = {kept_names[j]: ", ".join(kept_names[k] for k in ks)
+                  for j, ks in undecided.get(s, {}).items()}
         se = np.sqrt(np.maximum(np.diag(cov), 0.0))
         for term in lib[s]:
             name = str(term)
@@ -404,6 +414,7 @@ def _table(spec, lib, names, cols, keep_idx, groups, fits, prob, phi_c, near, bo
                     "stderr": float(se[k]) if keep[k] else math.nan,
                     "t": float(t[k]), "same_as": "",
                     "alternatives": ", ".join(alternatives.get(name, [])),
+                    "undecided": either.get(name, ""),
                 })
             else:
                 g = member_of.get(name, {"kept": None, "reason": "", "members": []})
@@ -417,7 +428,7 @@ def _table(spec, lib, names, cols, keep_idx, groups, fits, prob, phi_c, near, bo
                     "equation": s, "term": name, "represented_by": rep or "",
                     "selected": False, "probability": p,
                     "estimate": math.nan, "stderr": math.nan, "t": math.nan,
-                    "same_as": g.get("reason", ""), "alternatives": "",
+                    "same_as": g.get("reason", ""), "alternatives": "", "undecided": "",
                 })
     return pd.DataFrame(rows)
 
