@@ -693,6 +693,19 @@ def report(df: pd.DataFrame, name: str, truth: ModelSpec) -> pd.DataFrame:
             summary.loc[summary.method == "ivsel", "true_structure_up_to_undecided"] = float(
                 iv["exact_undecided"].map({True: True, False: False, "True": True,
                                            "False": False}).mean())
+    # the same tests on the oracle fit (the true structure, first --oracle-runs runs):
+    # share of runs whose |t| reaches the critical value for every detectable true term
+    # (the most a rule with this critical value can reach on these logs)
+    det_t = [f"oracle_t|{r.equation}|{r.term}" for r in power.itertuples() if r.power >= 0.95]
+    if det_t and all(c in iv for c in det_t):
+        from vesselid.selection.engine import critical_value
+
+        crit = critical_value(0.01, int(iv["n_candidates"].iloc[0]), int(iv["n_rows"].iloc[0]))
+        ot = iv[det_t].dropna()
+        if len(ot):
+            summary.loc[summary.method == "ivsel", "oracle_detectable"] = float(
+                (ot.abs() >= crit).all(axis=1).mean())
+            summary.loc[summary.method == "ivsel", "oracle_runs"] = len(ot)
     oc = [c for c in iv.columns if c.startswith("oracle_cover|")]
     if oc:
         hits = iv[oc].stack().dropna().astype(float)
