@@ -633,11 +633,13 @@ def main(argv=None) -> int:
             for r, ss in enumerate(seeds):
                 if r < args.first_run:
                     continue
+                t_run = time.perf_counter()
                 for row in one_run(system, n, k, library, ss, oracle=r < args.oracle_runs,
                                    base=args.base, first=args.first):
                     row.update(design=name, run=r, base=base_label)
                     rows.append(row)
-                if (r + 1) % 10 == 0:
+                # progress every 10 runs, or every run when runs are slow (long logs)
+                if (r + 1) % 10 == 0 or time.perf_counter() - t_run > 30.0:
                     print(f"  {name}: {r + 1} runs, {time.perf_counter() - t0:.0f} s",
                           file=sys.stderr, flush=True)
                     if args.out:  # the runs so far, so that a long study can be cut short
