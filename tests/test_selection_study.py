@@ -203,3 +203,21 @@ def test_monte_carlo_viknes_manoeuvres_selection(study):
     tol = 2.33 * math.sqrt(0.95 * 0.05 / runs)
     assert exact / runs >= 0.95 - tol
     assert max(false_kept.values(), default=0) / runs <= 0.05 + tol
+
+
+def test_detectable_structure_up_to_undecided_pairs(study):
+    """The selection read with its undecided pairs: run 3's zero term f*x reported as
+    undecided with the true f stands for f (ukeep/utkeep columns), so every run has the
+    detectable structure; FROLS has no such columns and is left out."""
+    df = _table()
+    power = study.power_table(df, _truth(), 10000, 12)
+    iv = df.method == "ivsel"
+    for term in ("x", "x*|x|", "f", "f*x"):
+        df.loc[iv, f"ukeep|x|{term}"] = df.loc[iv, f"keep|x|{term}"]
+    df.loc[iv & (df.run == 3), "ukeep|x|f*x"] = False
+    for term in ("x", "x*|x|", "f"):
+        df.loc[iv, f"utkeep|x|{term}"] = df.loc[iv, f"ukeep|x|{term}"]
+    det = study.detectable_structure(df, power, prefix="u")
+    assert det == {"ivsel": pytest.approx(1.0)}
+    # without the reading, run 3 fails
+    assert study.detectable_structure(df, power)["ivsel"] == pytest.approx(0.75)
