@@ -29,8 +29,13 @@ For one trial log and a candidate library per state equation (Definition 2.1 for
    the covariance is the batch-means HAC estimator over non-overlapping blocks of
    ``L`` samples (blocks never straddle experiments).
 4. **Refinement**: the selected model becomes the auxiliary model and the selection is
-   repeated until the structure no longer changes (at most ``passes`` passes).
-5. **Selection probabilities**: a block bootstrap (blocks of ``L`` samples drawn with
+   repeated until the structure no longer changes (at most ``passes`` passes). Where
+   several auxiliary fits compete (the library model's), the one whose simulation
+   tracks the log best (:func:`simulation_error`) gives the instruments.
+5. **Pairs the log cannot tell apart** (:func:`indistinguishable`): an unselected
+   candidate that, with a selected one in the model, leaves neither significant, while
+   replacing it keeps every term significant, is reported with it (``undecided``).
+6. **Selection probabilities**: a block bootstrap (blocks of ``L`` samples drawn with
    replacement within each experiment, the autocorrelation kept inside the blocks)
    repeats step 3 on resampled moment sums; a candidate's probability is the share of
    replicates that keep it (or its group's representative).

@@ -202,10 +202,12 @@ def select_terms(
         Auxiliary model of the first pass's instruments: the base model's refined-IV fit
         (``"base"``), or (``"library"``) every represented candidate of the library
         fitted by IV with the base model's instruments and refined three times with its
-        own simulated instruments (falls back to the base model when that fit is singular
-        or its simulation diverges). The library model tracks a vessel whose base model
-        is too simple (e.g. linear) far better, which strengthens the instruments of
-        every test.
+        own simulated instruments, or by refined IV from least squares: of these fits the
+        one whose simulation tracks the log best
+        (:func:`~vesselid.selection.engine.simulation_error`), when it tracks the log at
+        least as well as the base model's fit (else the base model). The library model
+        tracks a vessel whose base model is too simple (e.g. linear) far better, which
+        strengthens the instruments of every test.
 
     Returns
     -------
