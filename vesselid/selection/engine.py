@@ -58,7 +58,8 @@ from vesselid.model.regressors import encode_terms
 from vesselid.model.terms import Term
 from vesselid.selection.library import Library, SelectionError
 
-__all__ = ["Blocks", "critical_value", "eliminate", "make_blocks", "same_in_data_groups"]
+__all__ = ["Blocks", "critical_value", "eliminate", "indistinguishable", "make_blocks",
+           "same_in_data_groups", "simulation_error"]
 
 #: most blocks used by the batch-means HAC estimator and the bootstrap (longer blocks
 #: beyond that: the moment arrays stay small on long logs)
