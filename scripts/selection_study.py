@@ -377,6 +377,18 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
                 oracle_hits = pd.Series(err <= 1.959964 * se_true, index=fit_true.params.index)
             except Exception:
                 t_oracle = None
+    # ivsel up to the pairs the log cannot tell apart (the table's ``undecided``): a kept
+    # zero term reported as undecided with a true term stands for that true term
+    either = {s: set(selections["ivsel"][s]) for s in truth.states}
+    for x in tab.itertuples():
+        if not (x.selected and getattr(x, "undecided", "")):
+            continue
+        s, j = x.equation, rep[(x.equation, x.term)]
+        alts = [rep[(s, a.strip())] for a in str(x.undecided).split(",")]
+        true_alts = [a for a in alts if a in true_rep[s] and a not in either[s]]
+        if j not in true_rep[s] and true_alts:
+            either[s].discard(j)
+            either[s].add(true_alts[0])
     for method, picked in selections.items():
         exact = all(picked[s] == true_rep[s] for s in truth.states)
         row = {"method": method, "exact": exact,
@@ -390,6 +402,13 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
                 row[f"true|{s}|{cand}"] = cand in true_rep[s]
             for t in truth.equations[s]:  # each true term, through its representative
                 row[f"tkeep|{s}|{t}"] = rep[(s, str(canonical(t)))] in picked[s]
+            if method == "ivsel":
+                for cand in {rep[(s, str(t))] for t in lib[s]}:
+                    row[f"ukeep|{s}|{cand}"] = cand in either[s]
+                for t in truth.equations[s]:
+                    row[f"utkeep|{s}|{t}"] = rep[(s, str(canonical(t)))] in either[s]
+        if method == "ivsel":
+            row["exact_undecided"] = all(either[s] == true_rep[s] for s in truth.states)
         no_false = all(picked[s] <= true_rep[s] for s in truth.states)
         fit = None
         if method == "ivsel" and no_false:
@@ -523,20 +542,25 @@ def power_table(df: pd.DataFrame, truth: ModelSpec, n_rows: int, n_candidates: i
     return pd.DataFrame(rows)
 
 
-def detectable_structure(df: pd.DataFrame, power: pd.DataFrame) -> dict[str, float]:
+def detectable_structure(df: pd.DataFrame, power: pd.DataFrame, prefix: str = ""
+                         ) -> dict[str, float]:
     """Per method: share of runs that keep every true term whose power at this length is
     at least 95 % and no zero-coefficient candidate (true terms below that power may be
-    kept or dropped)."""
-    det = [f"tkeep|{r.equation}|{r.term}" for r in power.itertuples() if r.power >= 0.95]
-    keep_cols = [c for c in df.columns if c.startswith("keep|")]
+    kept or dropped). ``prefix="u"``: the selection read up to the pairs the log cannot
+    tell apart (``ukeep|``/``utkeep|`` columns, ``select`` only)."""
+    det = [f"{prefix}tkeep|{r.equation}|{r.term}" for r in power.itertuples()
+           if r.power >= 0.95]
+    keep_cols = [c for c in df.columns if c.startswith(f"{prefix}keep|")]
     out = {}
     for m, g in df.groupby("method", sort=False):
+        if prefix and not all(c in g and g[c].notna().any() for c in det):
+            continue
         ok = np.ones(len(g), dtype=bool)
         for c in det:
             ok &= g[c].fillna(False).to_numpy(dtype=bool)
         for c in keep_cols:  # a candidate that stands for no true term in that run
             kept = g[c].fillna(False).to_numpy(dtype=bool)
-            true = g[c.replace("keep|", "true|")].fillna(False).to_numpy(dtype=bool)
+            true = g["true|" + c.split("|", 1)[1]].fillna(False).to_numpy(dtype=bool)
             ok &= ~(kept & ~true)
         out[m] = float(ok.mean())
     return out
@@ -609,11 +633,13 @@ def main(argv=None) -> int:
             for r, ss in enumerate(seeds):
                 if r < args.first_run:
                     continue
+                t_run = time.perf_counter()
                 for row in one_run(system, n, k, library, ss, oracle=r < args.oracle_runs,
                                    base=args.base, first=args.first):
                     row.update(design=name, run=r, base=base_label)
                     rows.append(row)
-                if (r + 1) % 10 == 0:
+                # progress every 10 runs, or every run when runs are slow (long logs)
+                if (r + 1) % 10 == 0 or time.perf_counter() - t_run > 30.0:
                     print(f"  {name}: {r + 1} runs, {time.perf_counter() - t0:.0f} s",
                           file=sys.stderr, flush=True)
                     if args.out:  # the runs so far, so that a long study can be cut short
@@ -643,7 +669,8 @@ def _from_table(df: pd.DataFrame, oracle_rows: pd.DataFrame) -> pd.DataFrame:
     columns this table lacks taken from another table of the same design and seeds (the
     oracle fits the true structure on the same log, whatever the base)."""
     df = df.dropna(axis=1, how="all").reset_index(drop=True).copy()
-    for c in [c for c in df.columns if c.startswith(("keep|", "true|", "tkeep|"))]:
+    for c in [c for c in df.columns if c.startswith(("keep|", "true|", "tkeep|", "ukeep|",
+                                                     "utkeep|"))]:
         df[c] = df[c].map({True: True, False: False, "True": True, "False": False})
     iv = df.method == "ivsel"
     for c in [c for c in oracle_rows.columns if c.startswith("oracle_")]:
@@ -661,6 +688,26 @@ def report(df: pd.DataFrame, name: str, truth: ModelSpec) -> pd.DataFrame:
     summary = summarise(df)
     det = detectable_structure(df, power)
     summary["detectable_structure"] = summary["method"].map(det)
+    det_u = detectable_structure(df, power, prefix="u")
+    if det_u:  # select, with the pairs it reports as undecided read either way
+        summary["detectable_up_to_undecided"] = summary["method"].map(det_u)
+        if "exact_undecided" in iv and iv["exact_undecided"].notna().any():
+            summary.loc[summary.method == "ivsel", "true_structure_up_to_undecided"] = float(
+                iv["exact_undecided"].map({True: True, False: False, "True": True,
+                                           "False": False}).mean())
+    # the same tests on the oracle fit (the true structure, first --oracle-runs runs):
+    # share of runs whose |t| reaches the critical value for every detectable true term
+    # (the most a rule with this critical value can reach on these logs)
+    det_t = [f"oracle_t|{r.equation}|{r.term}" for r in power.itertuples() if r.power >= 0.95]
+    if det_t and all(c in iv for c in det_t):
+        from vesselid.selection.engine import critical_value
+
+        crit = critical_value(0.01, int(iv["n_candidates"].iloc[0]), int(iv["n_rows"].iloc[0]))
+        ot = iv[det_t].dropna()
+        if len(ot):
+            summary.loc[summary.method == "ivsel", "oracle_detectable"] = float(
+                (ot.abs() >= crit).all(axis=1).mean())
+            summary.loc[summary.method == "ivsel", "oracle_runs"] = len(ot)
     oc = [c for c in iv.columns if c.startswith("oracle_cover|")]
     if oc:
         hits = iv[oc].stack().dropna().astype(float)

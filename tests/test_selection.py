@@ -234,3 +234,94 @@ def test_derived_state_kept_in_the_selected_spec(tmp_path):
     assert set(again.derived) == {"dw"}
     fit = identify(raw, again, method="ls")
     assert np.all(np.isfinite(np.asarray(fit.params)))
+
+
+def test_simulation_error_by_hand():
+    """Σ_states Σ(x̃ − x̂̃)²/Σx̃² with per-experiment centring: 0 for a perfect simulation,
+    one per state for a simulation constant within every experiment, (1 − a)² for a
+    simulation that is ``a`` times the measurement."""
+    from vesselid.identify.data import RegressionData
+    from vesselid.selection.engine import simulation_error
+
+    rng = np.random.default_rng(1)
+    x = rng.standard_normal((40, 2))
+    data = RegressionData.__new__(RegressionData)
+    object.__setattr__(data, "target", x)
+    object.__setattr__(data, "starts", np.array([0, 25, 40]))
+    assert simulation_error(data, x) == pytest.approx(0.0, abs=1e-12)
+    const = np.zeros_like(x)
+    const[25:] = 7.0  # constant within each experiment: centred away
+    assert simulation_error(data, const) == pytest.approx(2.0)
+    assert simulation_error(data, 0.75 * x) == pytest.approx(2 * 0.25**2)
+
+
+def test_library_model_is_the_best_tracking_iterate():
+    """The library model's instruments come from the iterate (IV chain from the base
+    model's instruments, or refined IV from least squares) whose simulation tracks the
+    log best, and the error returned is that of the instruments returned."""
+    from vesselid.identify.data import from_log
+    from vesselid.selection import engine
+    from vesselid.selection import select as sel
+    from vesselid.selection.library import resolve_library
+
+    log = _heave_log(6000, 5)
+    base = ModelSpec("heave", ["w"], ["tau"], {"w": ["w", "tau"]}, dt=1.0)
+    lib = resolve_library("vessel", base)
+    data, spec = from_log(log, base)
+    union, cols = engine.library_factors(lib, spec)
+    segs = engine.equation_rows_per_segment(data)
+    phi_c = engine.centred(engine.regressors(data, union, spec), segs)
+    y_c = engine.centred(data.target, segs)
+    keep, _ = engine.same_in_data_groups(phi_c[:, cols["w"]], [str(union[j]) for j in
+                                                               cols["w"]], 1e-4)
+    theta = sel._refined_iv(data, spec)
+    z, _ = engine.instruments(data, union, spec, theta, with_error=True)
+    assert np.array_equal(z, engine.instruments(data, union, spec, theta), equal_nan=True)
+    keep_idx = {"w": cols["w"][keep]}
+    z_lib, err_lib, full = sel._library_model(data, spec, union, keep_idx, z, segs, phi_c,
+                                              y_c)
+    assert [str(t) for t in full.equations["w"]] == [str(union[j]) for j in keep_idx["w"]]
+    first = sel._iv_start(data, full, union, keep_idx, z, segs, phi_c, y_c)
+    alt = engine.instruments(data, union, full, sel._refined_iv(data, full, max_iter=3),
+                             with_error=True)
+    assert err_lib <= min(first[1], alt[1])
+    assert any(np.array_equal(z_lib, c[0], equal_nan=True) for c in (first, alt)) or \
+        err_lib < min(first[1], alt[1])
+
+
+def test_indistinguishable_pair_by_hand():
+    """y = x1 + e with x2 = x1 + 0.03 η: the model {x1} passes, {x2} passes, {x1, x2}
+    leaves neither significant, so x2 is reported as undecided with x1; an independent
+    zero-coefficient x3 is not."""
+    from vesselid.selection.engine import critical_value, indistinguishable
+
+    rng = np.random.default_rng(4)
+    n, L = 2000, 20
+    x1 = rng.standard_normal(n)
+    x2 = x1 + 0.03 * rng.standard_normal(n)
+    x3 = rng.standard_normal(n)
+    y = x1 + rng.standard_normal(n)
+    phi = np.column_stack([x1, x2, x3])
+    phi = phi - phi.mean(axis=0)
+    y = y - y.mean()
+    nb = n // L
+    pb = phi.reshape(nb, L, 3)
+    m_mat = np.einsum("bkp,bkq->bpq", pb, pb)  # instruments = regressors (no noise in φ)
+    m_vec = np.einsum("bkp,bk->bp", pb, y.reshape(nb, L))
+    crit = critical_value(0.01, 3, n)
+    keep = np.array([True, False, False])
+    assert indistinguishable(m_mat, m_vec, keep, crit) == {0: [1]}
+    # a clearly separable pair (x2 independent of x1) is decided
+    phi[:, 1] = rng.standard_normal(n)
+    pb = phi.reshape(nb, L, 3)
+    m_mat = np.einsum("bkp,bkq->bpq", pb, pb)
+    m_vec = np.einsum("bkp,bk->bp", pb, y.reshape(nb, L))
+    assert indistinguishable(m_mat, m_vec, keep, crit) == {}
+
+
+def test_undecided_column_in_table_and_summary():
+    log = _heave_log(6000, 3)
+    res = select_terms(log, log.spec, "vessel", n_boot=0)
+    assert "undecided" in res.table.columns
+    assert set(res.table.loc[~res.table.selected, "undecided"]) <= {""}
+    assert res.to_dict()  # JSON report carries the column

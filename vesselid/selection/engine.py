@@ -29,8 +29,13 @@ For one trial log and a candidate library per state equation (Definition 2.1 for
    the covariance is the batch-means HAC estimator over non-overlapping blocks of
    ``L`` samples (blocks never straddle experiments).
 4. **Refinement**: the selected model becomes the auxiliary model and the selection is
-   repeated until the structure no longer changes (at most ``passes`` passes).
-5. **Selection probabilities**: a block bootstrap (blocks of ``L`` samples drawn with
+   repeated until the structure no longer changes (at most ``passes`` passes). Where
+   several auxiliary fits compete (the library model's), the one whose simulation
+   tracks the log best (:func:`simulation_error`) gives the instruments.
+5. **Pairs the log cannot tell apart** (:func:`indistinguishable`): an unselected
+   candidate that, with a selected one in the model, leaves neither significant, while
+   replacing it keeps every term significant, is reported with it (``undecided``).
+6. **Selection probabilities**: a block bootstrap (blocks of ``L`` samples drawn with
    replacement within each experiment, the autocorrelation kept inside the blocks)
    repeats step 3 on resampled moment sums; a candidate's probability is the share of
    replicates that keep it (or its group's representative).
@@ -53,7 +58,8 @@ from vesselid.model.regressors import encode_terms
 from vesselid.model.terms import Term
 from vesselid.selection.library import Library, SelectionError
 
-__all__ = ["Blocks", "critical_value", "eliminate", "make_blocks", "same_in_data_groups"]
+__all__ = ["Blocks", "critical_value", "eliminate", "indistinguishable", "make_blocks",
+           "same_in_data_groups", "simulation_error"]
 
 #: most blocks used by the batch-means HAC estimator and the bootstrap (longer blocks
 #: beyond that: the moment arrays stay small on long logs)
@@ -154,10 +160,22 @@ def regressors(data: RegressionData, union: list[Term], spec) -> np.ndarray:
     return kernels.regressor_matrix(data.regsig, data.u, data.starts, fac)
 
 
-def instruments(data: RegressionData, union: list[Term], aux_spec, theta_aux) -> np.ndarray:
+def simulation_error(data: RegressionData, xhat: np.ndarray) -> float:
+    """How poorly the auxiliary simulation ``x̂`` tracks the measured states: the sum over
+    states of ``Σ (x̃ − x̂̃)² / Σ x̃²`` with ``x̃``, ``x̂̃`` centred per experiment (the
+    instruments' strength grows as it falls; 0 for a perfect simulation)."""
+    segs = [(int(data.starts[s]), int(data.starts[s + 1])) for s in range(data.n_segments)]
+    x = centred(data.target, segs)
+    e = x - centred(xhat, segs)
+    ss = np.einsum("ij,ij->j", x, x)
+    return float(np.sum(np.einsum("ij,ij->j", e, e) / np.where(ss > 0, ss, 1.0)))
+
+
+def instruments(data: RegressionData, union: list[Term], aux_spec, theta_aux,
+                with_error: bool = False):
     """ζ of every union candidate: the candidate evaluated on ``[x̂; u]``, ``x̂`` simulated
     from the inputs by the auxiliary model (restarted from the measurement at each
-    experiment's start)."""
+    experiment's start). ``with_error``: also :func:`simulation_error` of ``x̂``."""
     codes = aux_spec.codes
     _, xhat = kernels.instrument_matrix(data.target, data.u, data.starts,
                                         np.asarray(theta_aux, dtype=float), codes.factors,
@@ -168,7 +186,8 @@ def instruments(data: RegressionData, union: list[Term], aux_spec, theta_aux) ->
                              "instruments can be formed; give a stable base model (--model) "
                              "whose equations hold the dominant terms")
     fac = encode_terms([union], aux_spec.signals).factors
-    return kernels.regressor_matrix(xhat, data.u, data.starts, fac)
+    z = kernels.regressor_matrix(xhat, data.u, data.starts, fac)
+    return (z, simulation_error(data, xhat)) if with_error else z
 
 
 def same_in_data_groups(phi_c: np.ndarray, names: list[str], tol: float,
@@ -493,3 +512,40 @@ def select_equation(m_mat: np.ndarray, m_vec: np.ndarray, counts: np.ndarray, cr
     if equilibrated_condition(m_mat) <= max_condition:
         return eliminate(m_mat, m_vec, counts, crit)
     return stepwise(m_mat, m_vec, counts, crit)
+
+
+def indistinguishable(m_mat: np.ndarray, m_vec: np.ndarray, keep: np.ndarray, crit: float
+                      ) -> dict[int, list[int]]:
+    """Unselected candidates the log cannot tell apart from a selected one.
+
+    For a selected ``j`` and an unselected ``k`` of the model ``S``: with both in the
+    model (``S ∪ {k}``) neither ``|t_j|`` nor ``|t_k|`` reaches ``crit``, while ``S`` with
+    ``j`` replaced by ``k`` keeps every term significant. The data then support the
+    model with either but cannot say which (``|r|`` and ``r*r`` when the turn rate
+    spans too narrow a range): the selection's choice between them is not evidence,
+    and they are reported together. Returns ``{j: [k, ...]}`` (candidate indices).
+    """
+    c = np.ones(m_mat.shape[0])
+    a_full = m_mat.sum(axis=0)
+    b_full = m_vec.sum(axis=0)
+    n_eff = float(c.sum())
+    model = [int(j) for j in np.flatnonzero(keep)]
+    out: dict[int, list[int]] = {}
+    if not model:
+        return out
+    for k in (int(q) for q in np.flatnonzero(~keep)):
+        both = _iv_fit(a_full, b_full, m_mat, m_vec, c, n_eff, [*model, k])
+        if both is None:
+            continue
+        t_both = np.abs(both[2])
+        if t_both[-1] >= crit:
+            continue
+        for q, j in enumerate(model):
+            if t_both[q] >= crit:
+                continue
+            swapped = _iv_fit(a_full, b_full, m_mat, m_vec, c, n_eff,
+                              [k if i == j else i for i in model])
+            if swapped is not None and float(np.min(np.abs(swapped[2]))) >= crit:
+                out.setdefault(j, []).append(k)
+    return out
+

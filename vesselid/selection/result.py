@@ -36,7 +36,9 @@ class SelectionResult:
         ``stderr`` (IV with the final instruments, batch-means HAC), ``t`` (in the final
         model, or in the model it was dropped from), ``same_as`` (why it is not a
         separate candidate in this log), ``alternatives`` (unselected candidates almost
-        collinear with a selected one).
+        collinear with a selected one), ``undecided`` (unselected candidates the log
+        cannot tell apart from this selected one:
+        :func:`~vesselid.selection.engine.indistinguishable`).
     groups : dict
         Per equation, the candidates that are the same in the data.
     theta : Series or None
@@ -95,7 +97,9 @@ class SelectionResult:
             shown = sub[sub.selected | (sub.probability.fillna(0) >= 0.05)
                         | (sub.same_as != "") & sub.term.isin(_group_members(self.groups[s]))]
             for r in shown.itertuples():
-                note = r.same_as or (f"near: {r.alternatives}" if r.alternatives else "")
+                note = r.same_as or "; ".join(
+                    x for x in (f"near: {r.alternatives}" if r.alternatives else "",
+                                f"or: {r.undecided}" if r.undecided else "") if x)
                 prob = "" if math.isnan(r.probability) else f"{r.probability:.2f}"
                 est = "" if math.isnan(r.estimate) else f"{r.estimate:.5g}"
                 tt = "" if math.isnan(r.t) else f"{r.t:.1f}"

@@ -80,36 +80,43 @@ def _refined_iv(data, spec: ModelSpec, *, max_iter: int = 30, tol: float = 1e-8
 
 def _library_model(data, spec: ModelSpec, union: list[Term], keep_idx: dict[str, np.ndarray],
                    z: np.ndarray, segs, phi_c: np.ndarray, y_c: np.ndarray,
-                   iterations: int = 3) -> tuple[np.ndarray, ModelSpec] | None:
+                   iterations: int = 3) -> tuple[np.ndarray, float, ModelSpec] | None:
     """Every represented candidate, fitted by IV with zero-mean instruments ``z`` (those
     of the base model) and refined ``iterations`` times with the instruments it simulates
-    itself: a consistent model of the whole library whose simulation tracks the vessel
-    where a base model with few terms does not. When that first fit is singular or its
-    simulation diverges, the library model is fitted by refined IV from least squares
-    instead. Returns the instruments of the last refinement whose simulation stays
-    bounded and that model, or ``None`` when neither start gives a bounded simulation."""
+    itself, and the same model fitted by refined IV from least squares: consistent models
+    of the whole library whose simulation tracks the vessel where a base model with few
+    terms does not. With many candidates one such fit can come out far off in a given log
+    (weak first instruments), so every iterate of both chains is scored by its
+    :func:`~vesselid.selection.engine.simulation_error` and the best is kept. Returns its
+    instruments, their simulation error and the library spec, or ``None`` when no iterate
+    gives a bounded simulation."""
     full = _spec_with(spec, {s: [union[j] for j in keep_idx[s]] for s in spec.states},
                       name=f"{spec.name} (library)")
-    z_new = _iv_start(data, full, union, keep_idx, z, segs, phi_c, y_c)
-    if z_new is None:  # refined IV of the library model from least squares
-        theta_ls = _refined_iv(data, full, max_iter=int(iterations))
-        if theta_ls is None:
-            return None
-        try:
-            return engine.instruments(data, union, full, theta_ls), full
-        except SelectionError:
-            return None
-    for _ in range(int(iterations) - 1):
-        z_next = _iv_start(data, full, union, keep_idx, z_new, segs, phi_c, y_c)
+    best = None
+    z_cur = z
+    for _ in range(int(iterations)):
+        z_next = _iv_start(data, full, union, keep_idx, z_cur, segs, phi_c, y_c)
         if z_next is None:
             break
-        z_new = z_next
-    return z_new, full
+        if best is None or z_next[1] < best[1]:
+            best = z_next
+        z_cur = z_next[0]
+    theta_ls = _refined_iv(data, full, max_iter=int(iterations))
+    if theta_ls is not None:
+        try:
+            alt = engine.instruments(data, union, full, theta_ls, with_error=True)
+        except SelectionError:
+            alt = None
+        if alt is not None and (best is None or alt[1] < best[1]):
+            best = alt
+    return None if best is None else (*best, full)
 
 
-def _iv_start(data, full, union, keep_idx, z, segs, phi_c, y_c) -> np.ndarray | None:
-    """Instruments simulated by the library model fitted by IV with instruments ``z``;
-    ``None`` when that fit is singular or its simulation diverges."""
+def _iv_start(data, full, union, keep_idx, z, segs, phi_c, y_c
+              ) -> tuple[np.ndarray, float] | None:
+    """Instruments simulated by the library model fitted by IV with instruments ``z`` and
+    their simulation error; ``None`` when that fit is singular or its simulation
+    diverges."""
     z_c = engine.centred(z, segs)
     theta = []
     for i, s in enumerate(full.states):
@@ -123,7 +130,7 @@ def _iv_start(data, full, union, keep_idx, z, segs, phi_c, y_c) -> np.ndarray | 
     if not np.all(np.isfinite(theta_v)):
         return None
     try:
-        return engine.instruments(data, union, full, theta_v)
+        return engine.instruments(data, union, full, theta_v, with_error=True)
     except SelectionError:
         return None
 
@@ -195,10 +202,12 @@ def select_terms(
         Auxiliary model of the first pass's instruments: the base model's refined-IV fit
         (``"base"``), or (``"library"``) every represented candidate of the library
         fitted by IV with the base model's instruments and refined three times with its
-        own simulated instruments (falls back to the base model when that fit is singular
-        or its simulation diverges). The library model tracks a vessel whose base model
-        is too simple (e.g. linear) far better, which strengthens the instruments of
-        every test.
+        own simulated instruments, or by refined IV from least squares: of these fits the
+        one whose simulation tracks the log best
+        (:func:`~vesselid.selection.engine.simulation_error`), when it tracks the log at
+        least as well as the base model's fit (else the base model). The library model
+        tracks a vessel whose base model is too simple (e.g. linear) far better, which
+        strengthens the instruments of every test.
 
     Returns
     -------
@@ -279,7 +288,7 @@ def select_terms(
         if theta_aux is None:
             continue
         try:
-            z = engine.instruments(data, union, spec, theta_aux)
+            z, z_err = engine.instruments(data, union, spec, theta_aux, with_error=True)
         except SelectionError:
             continue
         aux_source = f"base model ({label})"
@@ -291,8 +300,8 @@ def select_terms(
 
     if first_model == "library":
         lib_model = _library_model(data, spec, union, keep_idx, z, segs, phi_c, y_c)
-        if lib_model is not None:
-            z = lib_model[0]
+        if lib_model is not None and lib_model[1] <= z_err:
+            z, z_err = lib_model[0], lib_model[1]
             aux_source = "library model (IV from the base model's instruments, refined)"
 
     history: list[dict[str, list[str]]] = []
@@ -320,9 +329,11 @@ def select_terms(
         if new_theta is None:
             break
         try:
-            z = engine.instruments(data, union, new_aux, new_theta)
+            z_new, err_new = engine.instruments(data, union, new_aux, new_theta,
+                                                with_error=True)
         except SelectionError:  # keep the last instruments that could be simulated
             break
+        z, z_err = z_new, err_new
         aux_source = "selected model (refined IV, zero-mean instruments)"
     if not converged and len(history) >= 2 and history[-1] == history[-2]:
         converged = True
@@ -347,8 +358,15 @@ def select_terms(
             prob[s] = acc / n_boot
     theta_final = _refined_iv(data, out_spec)
 
+    undecided: dict[str, dict[int, list[int]]] = {}
+    if moments is not None:
+        m_mat, m_vec = moments
+        for i, s in enumerate(spec.states):
+            sub = keep_idx[s]
+            undecided[s] = engine.indistinguishable(m_mat[:, sub][:, :, sub], m_vec[:, sub, i],
+                                                    fits[s][0], crit)
     table = _table(spec, lib, names, cols, keep_idx, groups, fits, prob, phi_c, near,
-                   n_boot > 0)
+                   n_boot > 0, undecided)
     return SelectionResult(
         spec=out_spec, base=spec, library=lib, table=table, groups=groups,
         alpha=alpha, critical_value=crit, n_candidates=m_total, n_boot=int(n_boot),
@@ -360,7 +378,8 @@ def select_terms(
     )
 
 
-def _table(spec, lib, names, cols, keep_idx, groups, fits, prob, phi_c, near, boot):
+def _table(spec, lib, names, cols, keep_idx, groups, fits, prob, phi_c, near, boot,
+           undecided):
     rows = []
     for s in spec.states:
         keep, theta, t, cov = fits[s]
@@ -382,6 +401,8 @@ def _table(spec, lib, names, cols, keep_idx, groups, fits, prob, phi_c, near, bo
                    if j != k and not keep[j]]
             if alt:
                 alternatives[kept_names[k]] = alt
+        either = {kept_names[j]: ", ".join(kept_names[k] for k in ks)
+                  for j, ks in undecided.get(s, {}).items()}
         se = np.sqrt(np.maximum(np.diag(cov), 0.0))
         for term in lib[s]:
             name = str(term)
@@ -395,6 +416,7 @@ def _table(spec, lib, names, cols, keep_idx, groups, fits, prob, phi_c, near, bo
                     "stderr": float(se[k]) if keep[k] else math.nan,
                     "t": float(t[k]), "same_as": "",
                     "alternatives": ", ".join(alternatives.get(name, [])),
+                    "undecided": either.get(name, ""),
                 })
             else:
                 g = member_of.get(name, {"kept": None, "reason": "", "members": []})
@@ -408,7 +430,7 @@ def _table(spec, lib, names, cols, keep_idx, groups, fits, prob, phi_c, near, bo
                     "equation": s, "term": name, "represented_by": rep or "",
                     "selected": False, "probability": p,
                     "estimate": math.nan, "stderr": math.nan, "t": math.nan,
-                    "same_as": g.get("reason", ""), "alternatives": "",
+                    "same_as": g.get("reason", ""), "alternatives": "", "undecided": "",
                 })
     return pd.DataFrame(rows)
 
