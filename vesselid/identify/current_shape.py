@@ -35,7 +35,7 @@ import math
 from typing import Any
 
 import numpy as np
-from scipy import stats
+from scipy.special import ndtr
 
 __all__ = ["SHAPE_ALPHA", "kurtosis_z", "smoothed_current_test"]
 
@@ -92,6 +92,6 @@ def smoothed_current_test(residuals: list[np.ndarray], rho: float,
     trace = np.concatenate([p - p.mean() for p in pieces if p.size]) if any(
         p.size for p in pieces) else np.empty(0)
     kappa, z = kurtosis_z(trace)
-    p = float(stats.norm.cdf(z)) if np.isfinite(z) else float("nan")
+    p = float(ndtr(z)) if np.isfinite(z) else float("nan")
     return {"z": z, "kurtosis": kappa, "window": window, "pvalue": p,
             "bimodal": bool(np.isfinite(z) and p < alpha)}
