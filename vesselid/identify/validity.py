@@ -263,7 +263,7 @@ def parameter_stability(data: RegressionData, spec: ModelSpec,
         # each half on its own: the groups' iterations are independent (per-group steps,
         # residuals and stopping), and one group's takes the scalar path of the refined
         # iteration instead of masked two-group arrays at every step (the same numbers;
-        # a half that stops early no longer carries the other's)
+        # a half that stops early does not carry the other's)
         start = np.asarray(theta_start, dtype=float).reshape(1, spec.n_params)
         subs = [_group(halves, g) for g in (0, 1)]
         its = [refined_iv(sub, spec, start.copy(), zero_mean=True, combine="pooled")
