@@ -209,6 +209,25 @@ def test_identify_reads_no_ground_truth(tmp_path) -> None:
         assert "true_current_w" not in named.data.columns
 
 
+def test_lean_csv_read_still_refuses_ragged_rows(tmp_path) -> None:
+    """Leaving the ground-truth columns unread must not let a CSV row with extra fields
+    through (pandas' ``usecols`` would drop them silently)."""
+    import pytest
+
+    from vesselid.data.logs import TrialLog
+    from vesselid.errors import LogValidationError
+    from vesselid.plant.systems import heave
+
+    path = tmp_path / "log.csv"
+    heave().simulate(50, seed=1).to_log().save(path)
+    lines = path.read_text().splitlines()
+    lines[10] += ",1,2,3"
+    path.write_text("\n".join(lines) + "\n")
+    for truth in (True, False):
+        with pytest.raises(LogValidationError):
+            TrialLog.load(path, truth=truth)
+
+
 def test_hac_long_run_in_blocks(monkeypatch) -> None:
     """The HAC long-run covariance of one long experiment (the J test's weight) from
     scores formed block by block equals the whole-array one to rounding, with the same

@@ -827,9 +827,11 @@ def _read_csv(path: Path, keep: Any = None) -> tuple[pd.DataFrame, dict]:
         direct = {c: t for c, t in direct.items() if keep(c)}
         later = {c: t for c, t in later.items() if keep(c)}
     try:
-        data = pd.read_csv(path, dtype=direct or None,
-                           **({"usecols": keep} if keep is not None else {}),
-                           **_CSV_READ_KWARGS)
+        # every column is parsed (``usecols`` would let ragged rows pass unnoticed); the
+        # unasked ones are dropped at once
+        data = pd.read_csv(path, dtype=direct or None, **_CSV_READ_KWARGS)
+        if keep is not None:
+            data = data.drop(columns=[c for c in data.columns if not keep(c)])
         for col, name in later.items():
             data[col] = data[col].astype(name)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
