@@ -304,6 +304,47 @@ def moment_products(fac: np.ndarray, blocks: np.ndarray) -> int:
                for i in range(len(blocks) - 1) if src[i] == i)
 
 
+#: Arguments of the generated moment kernel's ``_segment`` and ``segments``.
+_MOMENT_ARGS = ("regsig, target, u, starts, group, theta, active, use_sim, limit, "
+                "s_zphi, s_zy, s_z, s_phi, s_y, count, status")
+
+
+def _moment_head(add: Callable[[str], None], title: str, n_par: int) -> None:
+    """The start of a moment kernel's ``_segment``: its status, count, limit and the
+    group's parameters ``th0 …``."""
+    _head(add, title, (
+        "def _segment(s, regsig, target, u, starts, group, theta, active, use_sim, limit,",
+        "             s_zphi, s_zy, s_z, s_phi, s_y, count, status):"))
+    add("    status[s] = 0")
+    add("    count[s] = b - a - 1")
+    add("    lim = limit[s]")
+    for p in range(n_par):
+        add(f"    th{p} = theta[g, {p}]")
+
+
+def _moment_row(add: Callable[[str], None], ind: str, n: int, m: int, fac: np.ndarray,
+                eq: np.ndarray, blocks: np.ndarray, src: list[int], needed: list[int],
+                sim: bool) -> str:
+    """The sample loop's head and row ``k``'s regressors ``phi…`` (those in ``needed``)
+    and instruments ``z…`` (simulated when ``sim``, else the regressors; a duplicate
+    block's from its source's); returns the indent of the loop body."""
+    add(f"{ind}for k in range(a + 1, b):")
+    i2 = ind + "    "
+    _data_row(add, i2, n, (("d", 1),), m)
+    for p in needed:
+        add(f"{i2}phi{p} = {_term(p, 'd', n, m, fac)}")
+    if sim:
+        for i in range(n):
+            add(f"{i2}ax{i} = abs(x{i})")
+        _advance(add, i2, n, m, fac, eq, "z")
+    else:
+        for p in range(fac.shape[0]):
+            i = int(eq[p])  # a duplicate block's regressor: its source's
+            q = p + int(blocks[src[i]]) - int(blocks[i])
+            add(f"{i2}z{p} = phi{q}")
+    return i2
+
+
 def _source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.ndarray) -> str:
     if moment_products(fac, blocks) > MAX_UNROLLED_PRODUCTS:
         return _looped_source(n, m, fac, eq, blocks)
@@ -315,14 +356,7 @@ def _source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.ndarray)
     ind = " " * 8
     lines: list[str] = []
     add = lines.append
-    _head(add, "", (
-        "def _segment(s, regsig, target, u, starts, group, theta, active, use_sim, limit,",
-        "             s_zphi, s_zy, s_z, s_phi, s_y, count, status):"))
-    add("    status[s] = 0")
-    add("    count[s] = b - a - 1")
-    add("    lim = limit[s]")
-    for p in range(n_par):
-        add(f"    th{p} = theta[g, {p}]")
+    _moment_head(add, "", n_par)
     for i in range(n):
         add(f"    x{i} = target[a, {i}]")
         add(f"    ly{i} = 0.0")
@@ -343,20 +377,7 @@ def _source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.ndarray)
                 add(f"    {local} = 0.0")
 
     def body(sim: bool) -> None:
-        add(f"{ind}for k in range(a + 1, b):")
-        i2 = ind + "    "
-        _data_row(add, i2, n, (("d", 1),), m)
-        for p in needed:
-            add(f"{i2}phi{p} = {_term(p, 'd', n, m, fac)}")
-        if sim:
-            for i in range(n):
-                add(f"{i2}ax{i} = abs(x{i})")
-            _advance(add, i2, n, m, fac, eq, "z")
-        else:
-            for p in range(n_par):
-                i = int(eq[p])  # a duplicate block's regressor: its source's
-                q = p + int(blocks[src[i]]) - int(blocks[i])
-                add(f"{i2}z{p} = phi{q}")
+        i2 = _moment_row(add, ind, n, m, fac, eq, blocks, src, needed, sim)
         for i in range(n):
             add(f"{i2}y{i} = target[k, {i}]")
             add(f"{i2}ly{i} += y{i}")
@@ -382,9 +403,7 @@ def _source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.ndarray)
                 if q not in blk[i]:  # another equation's regressor
                     add(f"    s_zphi[s, {p}, {q}] = 0.0")
         add(f"    s_y[s, {i}] = ly{i}")
-    args = ("regsig, target, u, starts, group, theta, active, use_sim, limit, "
-            "s_zphi, s_zy, s_z, s_phi, s_y, count, status")
-    _entry_point(add, args, args)
+    _entry_point(add, _MOMENT_ARGS, _MOMENT_ARGS)
     return "\n".join(lines) + "\n"
 
 
@@ -402,14 +421,7 @@ def _looped_source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.n
     ind = " " * 8
     lines: list[str] = []
     add = lines.append
-    _head(add, " (looped sums)", (
-        "def _segment(s, regsig, target, u, starts, group, theta, active, use_sim, limit,",
-        "             s_zphi, s_zy, s_z, s_phi, s_y, count, status):"))
-    add("    status[s] = 0")
-    add("    count[s] = b - a - 1")
-    add("    lim = limit[s]")
-    for p in range(n_par):
-        add(f"    th{p} = theta[g, {p}]")
+    _moment_head(add, " (looped sums)", n_par)
     for i in range(n):
         size = len(blk[i])
         add(f"    x{i} = target[a, {i}]")
@@ -423,20 +435,7 @@ def _looped_source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.n
             add(f"    pv{i} = np.empty({size})")
 
     def body(sim: bool) -> None:
-        add(f"{ind}for k in range(a + 1, b):")
-        i2 = ind + "    "
-        _data_row(add, i2, n, (("d", 1),), m)
-        for p in needed:
-            add(f"{i2}phi{p} = {_term(p, 'd', n, m, fac)}")
-        if sim:
-            for i in range(n):
-                add(f"{i2}ax{i} = abs(x{i})")
-            _advance(add, i2, n, m, fac, eq, "z")
-        else:
-            for p in range(n_par):
-                i = int(eq[p])  # a duplicate block's regressor: its source's
-                q = p + int(blocks[src[i]]) - int(blocks[i])
-                add(f"{i2}z{p} = phi{q}")
+        i2 = _moment_row(add, ind, n, m, fac, eq, blocks, src, needed, sim)
         for i in range(n):
             add(f"{i2}y{i} = target[k, {i}]")
             add(f"{i2}ly{i} += y{i}")
@@ -468,9 +467,7 @@ def _looped_source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.n
         add(f"        for qq in range({size}):")
         add(f"            s_zphi[s, {lo} + jj, {lo} + qq] = azphi{o}[jj, qq]")
         add(f"    s_y[s, {i}] = ly{i}")
-    args = ("regsig, target, u, starts, group, theta, active, use_sim, limit, "
-            "s_zphi, s_zy, s_z, s_phi, s_y, count, status")
-    _entry_point(add, args, args)
+    _entry_point(add, _MOMENT_ARGS, _MOMENT_ARGS)
     return "\n".join(lines) + "\n"
 
 
