@@ -56,6 +56,7 @@ from vesselid.identify.data import RegressionData, from_arrays
 from vesselid.identify.diagnostics import normalized_error
 from vesselid.identify.efficient import InstrumentalGMM
 from vesselid.identify.estimators import COMBINE_MODES, IterationResult
+from vesselid.identify.linalg import one_blas_thread
 from vesselid.identify.methods import RefinedIV
 from vesselid.identify.pem import PredictionError
 from vesselid.identify.registry import ESTIMATORS, PAPER_METHODS, get_estimator
@@ -212,11 +213,15 @@ def regression_data(study: Study, system: System, spec: ModelSpec, sim) -> Regre
     return data
 
 
+@one_blas_thread
 def run_chunk(study: Study, start: int, stop: int) -> pd.DataFrame:
     """Simulate and estimate runs ``start … stop−1`` of ``study`` (tidy frame).
 
     A pure function of its arguments: this is the unit of work for local batches
-    and for Dask tasks.
+    and for Dask tasks. The BLAS runs on one thread meanwhile
+    (:func:`~vesselid.identify.linalg.one_blas_thread`: the same numbers): the
+    parallelism is the Monte Carlo's own, over runs, and a BLAS thread pool in each of
+    several concurrent workers only oversubscribes the cores.
     """
     system = study.build_system()
     spec = study.identification_spec(system)
