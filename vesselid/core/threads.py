@@ -23,10 +23,10 @@ from __future__ import annotations
 import os
 import threading
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor, wait
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from typing import Any
 
-__all__ = ["CHUNKS_PER_THREAD", "n_threads", "run_ranges", "serial", "serial_here",
+__all__ = ["CHUNKS_PER_THREAD", "background", "n_threads", "run_ranges", "serial", "serial_here",
            "usable_cores"]
 
 #: Chunks per thread (several, so that uneven items — early divergence, converged groups
@@ -102,6 +102,15 @@ def _forget_pool() -> None:
 
 if hasattr(os, "register_at_fork"):  # POSIX
     os.register_at_fork(after_in_child=_forget_pool)
+
+
+def background(fn: Callable[[], Any]) -> Future | None:
+    """``fn()`` started on a pool thread, where the calling thread may use more than one
+    (:func:`n_threads` above one and not :func:`serial`); ``None`` otherwise (the caller
+    runs it itself). The pool thread runs its kernels serially (:func:`serial`)."""
+    if serial() or n_threads() < 2:
+        return None
+    return _pool(1).submit(fn)
 
 
 def run_ranges(kernel: Callable[..., Any], n_items: int, args: tuple, *,

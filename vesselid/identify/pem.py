@@ -75,6 +75,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from concurrent.futures import wait
 from typing import Any, ClassVar
 
 import numpy as np
@@ -487,9 +488,15 @@ def _local_joint(filt: _Filter, single: dict[str, Any], n_par: int,
     free[[ix["rho_c"], ix["sigma_c"]]] = False
     idx = np.flatnonzero(free)
     d = idx.size
-    _, _, je_s, js_s, *_ = filt.tangent(psi0, idx)  # exact, in the free parameters
     rows = np.repeat(psi0[None], 1 + len(grid), axis=0)
-    eps0, var0 = filt.run(rows[:1])
+    parts = single.get("sandwich_parts")
+    if single["converged"] and parts is not None and np.array_equal(parts[6], idx):
+        # the converged fit's last tangent pass was at ψ₀ in these directions: its
+        # sensitivities and innovations are those of the passes below
+        je_s, js_s, eps0, var0 = parts[0], parts[1], parts[2][None], parts[3][None]
+    else:
+        _, _, je_s, js_s, *_ = filt.tangent(psi0, idx)  # exact, in the free parameters
+        eps0, var0 = filt.run(rows[:1])
     if not (np.all(np.isfinite(eps0)) and np.all(np.isfinite(var0))):
         return None
     h = 1e-6 * float(np.mean(var0[0]))  # the sensor-noise variance of the q-rows
@@ -613,13 +620,13 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
         y = data.target[rows, 0] / cx
         u = data.u[rows] / cu
         filt = _Filter(y, u, starts, fac, parallel)
-        fits = []
+        firsts = []
         for m in models:
             psi0, free, scale = _start(th0 * tscale, y, u, starts, fac, m)
             if not scale > EXACT_FIT * max(float(np.max(np.abs(y))), 1e-300):
                 break  # noise-free: the likelihood has no maximum, the start is exact
-            fits.append(_scoring(filt, psi0, free, max_iter, tol))
-        if not fits:
+            firsts.append((psi0, free))
+        if not firsts:
             out["theta"][g] = th0
             out["cov"][g] = 0.0
             out["cov_sandwich"][g] = 0.0
@@ -628,6 +635,9 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
             out["converged"][g] = True
             out["reason"][g] = EXACT
             continue
+        stage_args = (filt, n_par, scale, max_iter, tol, boundary, details, fac)
+        fits, early = _candidates(filt, firsts, models, max_iter, tol,
+                                  stage_args if joint else None)
         ll = np.array([-np.sum(f["nll_terms"]) if f["nll_terms"] is not None else -np.inf
                        for f in fits]) - filt.count * math.log(cx)
         ll = np.where(np.isfinite(ll), ll, -np.inf)
@@ -640,33 +650,14 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
         iterations = sum(x["iterations"] for x in fits)
         fj = None
         if joint and np.isfinite(ll[best]) and f["converged"]:
-            fj = _scoring(filt, _joint_start(f, models[best], n_par, scale),
-                          np.ones(n_par + 7, dtype=bool), min(max_iter, JOINT_ITER), tol)
-            iterations += fj["iterations"]
-            if (fj["reason"] == MAX_ITER and fj["nll_terms"] is not None
-                    and np.sum(fj["nll_terms"]) < np.sum(f["nll_terms"])
-                    and max_iter > JOINT_ITER):
-                # already a better fit than the single process yet still climbing: a
-                # second process is there, so let the scoring finish
-                more = _scoring(filt, fj["psi"], np.ones(n_par + 7, dtype=bool),
-                                max_iter - JOINT_ITER, tol)
-                iterations += more["iterations"]
-                if more["nll_terms"] is not None:
-                    fj = more
-            bound = boundary
-            if models[best] == "current" and (boundary == "auto" or details):
-                shape = smoothed_current_test(
-                    _residuals(f["psi"], y, u, starts, fac, n_par),
-                    math.tanh(float(f["psi"][_layout(n_par)["rho_v"]])))
-                out["shape_z"][g] = shape["z"]
-                out["shape_bimodal"][g] = shape["bimodal"]
-                if boundary == "auto":
-                    bound = "bounded" if shape["bimodal"] else "unbounded"
+            stage = (early if early is not None and best == 0 else
+                     _joint_stage(f, models[best], *stage_args))
+            fj, local, bound = stage["joint"], stage["local"], stage["bound"]
+            iterations += stage["iterations"]
+            if stage["shape"] is not None:
+                out["shape_z"][g] = stage["shape"]["z"]
+                out["shape_bimodal"][g] = stage["shape"]["bimodal"]
             out["boundary"][g] = bound
-            local = (_local_joint(filt, f, n_par)
-                     if models[best] == "current" and (bound == "unbounded" or details
-                                                       or boundary == "auto")
-                     else None)
             if fj["nll_terms"] is not None:
                 gain = float(np.sum(f["nll_terms"]) - np.sum(fj["nll_terms"]))
                 out["lr_joint"][g] = 2.0 * gain
@@ -695,6 +686,76 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
                     _store(out, "joint_", g, fj, tscale, cx, n_par)
                     out["joint_converged"][g] = fj["converged"]
     return out
+
+
+def _candidates(filt: _Filter, firsts: list[tuple[np.ndarray, np.ndarray]],
+                models: tuple[str, ...], max_iter: int, tol: float,
+                stage_args: tuple | None) -> tuple[list[dict[str, Any]], dict | None]:
+    """The scoring fit of every disturbance model from its start ``firsts[i]``, and
+    (``stage_args``: the joint model is wanted) the joint stage of the first model
+    (:func:`_joint_stage`) where it may be the better one, or ``None``.
+
+    Where the calling thread may use a second thread (:func:`vesselid.core.threads.
+    background`), the other models are fitted there while this thread fits the first
+    and runs its joint stage ahead: the first model (``current``) wins on the
+    coloured-current logs that take this estimator, and its stage needs no other fit.
+    Each fit runs the same code on the same numbers in whichever thread, so the results
+    are those of the serial order; only a stage computed for a model that loses is
+    work thrown away."""
+    from vesselid.core.threads import background
+
+    def rest() -> list[dict[str, Any]]:
+        return [_scoring(filt, psi0, free, max_iter, tol) for psi0, free in firsts[1:]]
+
+    job = background(rest) if filt.parallel and len(firsts) > 1 else None
+    if job is None:
+        return [_scoring(filt, *firsts[0], max_iter, tol), *rest()], None
+    try:
+        first = _scoring(filt, *firsts[0], max_iter, tol)
+        early = None
+        if stage_args is not None and first["converged"] and (
+                first["nll_terms"] is not None and np.isfinite(np.sum(first["nll_terms"]))):
+            early = _joint_stage(first, models[0], *stage_args)
+    except BaseException:
+        wait([job])  # never leave while the other fits still run
+        raise
+    return [first, *job.result()], early
+
+
+def _joint_stage(f: dict[str, Any], model: str, filt: _Filter, n_par: int, scale: float,
+                 max_iter: int, tol: float, boundary: str, details: bool,
+                 fac: np.ndarray) -> dict[str, Any]:
+    """What :func:`fit_groups` computes from the better single-process fit ``f`` (of
+    ``model``): the joint model's scoring (continued where it is still climbing past
+    :data:`JOINT_ITER` steps), the shape test of the smoothed current and the
+    unbounded one-step estimate (:func:`_local_joint`) where they apply, and the bound
+    applied. Reads ``f`` only."""
+    fj = _scoring(filt, _joint_start(f, model, n_par, scale),
+                  np.ones(n_par + 7, dtype=bool), min(max_iter, JOINT_ITER), tol)
+    iterations = fj["iterations"]
+    if (fj["reason"] == MAX_ITER and fj["nll_terms"] is not None
+            and np.sum(fj["nll_terms"]) < np.sum(f["nll_terms"])
+            and max_iter > JOINT_ITER):
+        # already a better fit than the single process yet still climbing: a
+        # second process is there, so let the scoring finish
+        more = _scoring(filt, fj["psi"], np.ones(n_par + 7, dtype=bool),
+                        max_iter - JOINT_ITER, tol)
+        iterations += more["iterations"]
+        if more["nll_terms"] is not None:
+            fj = more
+    bound, shape = boundary, None
+    if model == "current" and (boundary == "auto" or details):
+        shape = smoothed_current_test(
+            _residuals(f["psi"], filt.y, filt.u, filt.starts, fac, n_par),
+            math.tanh(float(f["psi"][_layout(n_par)["rho_v"]])))
+        if boundary == "auto":
+            bound = "bounded" if shape["bimodal"] else "unbounded"
+    local = (_local_joint(filt, f, n_par)
+             if model == "current" and (bound == "unbounded" or details
+                                        or boundary == "auto")
+             else None)
+    return {"joint": fj, "iterations": iterations, "shape": shape, "bound": bound,
+            "local": local}
 
 
 def _store(out: dict[str, np.ndarray], prefix: str, g: int, f: dict[str, Any],

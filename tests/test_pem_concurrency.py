@@ -1,0 +1,68 @@
+"""The prediction-error fit's candidate models on two threads: every number equals the
+serial fit's (also where the model fitted ahead loses), and the unbounded one-step
+estimate reuses the converged fit's last tangent pass without changing a number."""
+
+import numpy as np
+import pytest
+
+from vesselid.core import threads
+from vesselid.identify import from_arrays, pem
+from vesselid.identify.estimators import estimate
+from vesselid.studies.calibration import heave_scenario
+
+
+def _data(scenario, seed, samples=3000):
+    system, _, _ = heave_scenario(scenario)
+    spec = system.identification_spec(aggregate=False)
+    sim = system.simulate(samples, seed=seed)
+    data = from_arrays(spec, sim.y, sim.u)
+    base = estimate(data, spec, "iv-zero-mean", combine="pooled")
+    return data, spec, base.theta
+
+
+def _same(a, b):
+    assert a.keys() == b.keys()
+    for key in a:
+        if a[key].dtype == object:
+            assert list(a[key]) == list(b[key]), key
+        else:
+            np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+@pytest.mark.parametrize(("scenario", "winner"), [("gm-current-random", "current"),
+                                                  ("gm-sensor-random", "sensor")])
+def test_two_threads_give_the_serial_numbers(scenario, winner):
+    if threads.n_threads() < 2:
+        pytest.skip("one core: the candidates are fitted in turn either way")
+    data, spec, theta = _data(scenario, seed=3)
+    kw = {"joint": True, "boundary": "auto", "details": True}
+    both = pem.fit_groups(data, spec, theta, parallel=True, **kw)
+    one = pem.fit_groups(data, spec, theta, parallel=False, **kw)
+    assert str(one["model"][0]).startswith(winner) or one["model"][0] in (
+        pem.JOINT, pem.JOINT_LOCAL)
+    assert np.argmax(one["loglik"][0]) == pem.DISTURBANCE_MODELS.index(winner)
+    _same(both, one)
+
+
+def test_background_runs_in_the_calling_thread_when_serial():
+    with threads.serial_here():
+        assert threads.background(lambda: 1) is None
+    job = threads.background(lambda: 2)
+    assert job is None or job.result() == 2
+
+
+def test_local_joint_reuses_the_last_tangent_pass_exactly():
+    data, spec, theta = _data("gm-current-random", seed=5)
+    rows, starts = data.group_rows(0)
+    y = data.target[rows, 0]
+    filt = pem._Filter(y / np.std(y), data.u[rows] / np.std(data.u[rows]), starts,
+                       spec.codes.factors, parallel=False)
+    psi0, free, _ = pem._start(theta[0], filt.y, filt.u, filt.starts, spec.codes.factors,
+                               "current")
+    fit = pem._scoring(filt, psi0, free, 100, pem.SCORING_TOL)
+    assert fit["converged"] and fit["sandwich_parts"] is not None
+    reused = pem._local_joint(filt, fit, spec.n_params)
+    fresh = pem._local_joint(filt, {**fit, "sandwich_parts": None}, spec.n_params)
+    for key in ("psi", "cov", "cov_sandwich"):
+        np.testing.assert_array_equal(reused[key], fresh[key], err_msg=key)
+    assert reused["q_z"] == fresh["q_z"]
