@@ -66,3 +66,43 @@ def test_local_joint_reuses_the_last_tangent_pass_exactly():
     for key in ("psi", "cov", "cov_sandwich"):
         np.testing.assert_array_equal(reused[key], fresh[key], err_msg=key)
     assert reused["q_z"] == fresh["q_z"]
+
+
+@pytest.mark.parametrize("scenario", ["gm-current-random", "gm-sensor-random"])
+def test_secant_tail_changes_no_reported_number(scenario, monkeypatch):
+    """The losing model's tail takes secant steps; a winner is the plain scoring's fit:
+    the estimate, its covariances, the choice and the winner's likelihood are those of
+    plain Fisher scoring everywhere (``TAIL_DEC = 0``: no tail)."""
+    data, spec, theta = _data(scenario, seed=3)
+    kw = {"joint": True, "boundary": "auto", "parallel": False}
+    fast = pem.fit_groups(data, spec, theta, **kw)
+    monkeypatch.setattr(pem, "TAIL_DEC", 0.0)
+    plain = pem.fit_groups(data, spec, theta, **kw)
+    best = int(np.argmax(plain["loglik"][0]))
+    for key in ("theta", "cov", "cov_sandwich", "cov_conservative", "psi", "lr_joint",
+                "local_z", "shape_z"):
+        np.testing.assert_array_equal(fast[key], plain[key], err_msg=key)
+    assert list(fast["model"]) == list(plain["model"])
+    assert fast["loglik"][0, best] == plain["loglik"][0, best]
+    # the loser's likelihood: the same maximum up to a change of Vuong's z (the one
+    # statistic that reads it) far below its resolution
+    assert abs(fast["vuong"][0] - plain["vuong"][0]) < 0.01
+    np.testing.assert_allclose(fast["loglik"][0], plain["loglik"][0], rtol=1e-6)
+
+
+def test_secant_tail_converges_in_fewer_steps_to_the_same_maximum():
+    """The sensor-noise model on a Gauss–Markov current (it loses there): its Hessian
+    exceeds its Fisher information, plain scoring alternates about the optimum; the
+    secant steps reach the same likelihood (within the stopping tolerance) in fewer."""
+    data, spec, theta = _data("gm-current-random", seed=0, samples=10_000)
+    rows, starts = data.group_rows(0)
+    y = data.target[rows, 0]
+    filt = pem._Filter(y / np.std(y), data.u[rows] / np.std(data.u[rows]), starts,
+                       spec.codes.factors, parallel=False)
+    psi0, free, _ = pem._start(theta[0], filt.y, filt.u, filt.starts, spec.codes.factors,
+                               "sensor")
+    plain = pem._scoring(filt, psi0, free, 100, pem.SCORING_TOL)
+    fast = pem._scoring(filt, psi0, free, 100, pem.SCORING_TOL, secant=True)
+    assert plain["converged"] and fast["converged"]
+    assert fast["iterations"] < plain["iterations"]
+    assert abs(np.sum(fast["nll_terms"]) - np.sum(plain["nll_terms"])) < 1e-3
