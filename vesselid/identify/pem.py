@@ -310,13 +310,18 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
     eps0 = var0 = je = js = None
     extra: np.ndarray | None = None  # the tail's secant correction of the curvature
     tail: tuple[np.ndarray, int] | None = None
+    ahead = None  # the tangent pass of an accepted trial point
+    full = False  # whether the last step was the full one
     last: tuple[np.ndarray, np.ndarray] = (psi[idx], np.zeros(d))
     for it in range(1, max_iter + 1):
         if abandon is not None and abandon():
             return None
         # the filter at ψ with its exact sensitivities (the accepted trial of the line
-        # search was filtered without them: the same innovations, recomputed here)
-        eps0, var0, je, js, grad, fisher, f0 = filt.tangent(psi, idx)
+        # search was filtered without them — the same innovations, recomputed here —
+        # unless it was filtered with them)
+        eps0, var0, je, js, grad, fisher, f0 = (ahead if ahead is not None
+                                                else filt.tangent(psi, idx))
+        ahead = None
         if not np.isfinite(f0):
             reason = "likelihood not finite"
             break
@@ -344,14 +349,24 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
         while alpha > 1e-4:
             trial = psi.copy()
             trial[idx] += alpha * delta
-            e1, v1 = filt.run(trial[None])
-            f1 = float(np.sum(_nll_terms(e1[0], v1[0])))
+            if alpha == 1.0 and full:
+                # the last full step was taken: this one likely is too, so filter it
+                # with its sensitivities, which the next step needs (the innovations
+                # are the filter's, bit for bit, and so is the decision below)
+                ahead = filt.tangent(trial, idx)
+                e1, v1 = ahead[0], ahead[1]
+            else:
+                ahead = None
+                e1, v1 = (r[0] for r in filt.run(trial[None]))
+            f1 = float(np.sum(_nll_terms(e1, v1)))
             if np.isfinite(f1) and f1 <= f0 - 1e-4 * alpha * slope:
                 break
+            ahead = None
             alpha *= 0.5
         else:
             reason = NO_DESCENT
             break
+        full = alpha == 1.0
         psi = trial
     cov = np.zeros((psi.size, psi.size))
     parts = None
