@@ -27,7 +27,13 @@ has ridges along which a coloured current is traded for coloured sensor noise, a
 scoring stalled or chose the wrong one in 72 % of Gauss–Markov-current runs; fitted
 apart, the current model won every such run by 48–1890 log-likelihood units and the
 sensor model 99 % of the Gauss–Markov-sensor-noise runs. Vuong's (1989) test of the two
-non-nested models (with Schwarz's correction) is reported.
+non-nested models (with Schwarz's correction) is reported. Where two cores are usable the
+sensor model is fitted on a second thread while the current model and what follows from it
+run on the first (:func:`_candidates`; the same numbers as in turn). The sensor model loses
+on the coloured-current logs that take this estimator, and its Hessian there exceeds its
+Fisher information: its scoring takes secant steps once near the optimum (:func:`_scoring`)
+and, where it wins, is continued with plain scoring from there, so every reported estimate
+is plain Fisher scoring's.
 
 With ``joint=True`` (``auto``'s choice) a third model is fitted from the better of the
 two: ``joint``, a Gauss–Markov current *and* Gauss–Markov sensor noise at once (every
