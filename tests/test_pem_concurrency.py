@@ -106,3 +106,37 @@ def test_secant_tail_converges_in_fewer_steps_to_the_same_maximum():
     assert plain["converged"] and fast["converged"]
     assert fast["iterations"] < plain["iterations"]
     assert abs(np.sum(fast["nll_terms"]) - np.sum(plain["nll_terms"])) < 1e-3
+
+
+def test_background_does_not_hold_up_run_ranges():
+    """A job on the background thread never delays the calling thread's parallel
+    kernels (their chunks go to another pool)."""
+    import threading
+
+    from numba import njit
+
+    if threads.n_threads() < 2:
+        pytest.skip("one core")
+
+    @njit(nogil=True)
+    def fill(lo, hi, out):  # pragma: no cover
+        for i in range(lo, hi):
+            out[i] = i
+
+    release = threading.Event()
+    job = threads.background(lambda: release.wait(30))
+    try:
+        out = np.zeros(64)
+        done = threading.Event()
+
+        def run():
+            threads.run_ranges(fill, out.size, (out,), parallel=True)
+            done.set()
+
+        worker = threading.Thread(target=run)
+        worker.start()
+        assert done.wait(10), "run_ranges waited for the background job"
+        np.testing.assert_array_equal(out, np.arange(64.0))
+    finally:
+        release.set()
+        job.result()

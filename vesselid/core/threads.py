@@ -34,6 +34,7 @@ __all__ = ["CHUNKS_PER_THREAD", "background", "n_threads", "run_ranges", "serial
 CHUNKS_PER_THREAD = 4
 
 _POOL: ThreadPoolExecutor | None = None
+_BACKGROUND: ThreadPoolExecutor | None = None
 _POOL_SIZE = 0
 _LOCK = threading.Lock()
 _LOCAL = threading.local()
@@ -96,8 +97,8 @@ class serial_here:
 def _forget_pool() -> None:
     """In a forked child: the parent's pool threads do not exist there, so start afresh
     (a pool whose threads are gone would never run the submitted chunks)."""
-    global _POOL, _POOL_SIZE, _LOCK
-    _POOL, _POOL_SIZE, _LOCK = None, 0, threading.Lock()
+    global _POOL, _POOL_SIZE, _LOCK, _BACKGROUND
+    _POOL, _POOL_SIZE, _LOCK, _BACKGROUND = None, 0, threading.Lock(), None
 
 
 if hasattr(os, "register_at_fork"):  # POSIX
@@ -105,12 +106,18 @@ if hasattr(os, "register_at_fork"):  # POSIX
 
 
 def background(fn: Callable[[], Any]) -> Future | None:
-    """``fn()`` started on a pool thread, where the calling thread may use more than one
-    (:func:`n_threads` above one and not :func:`serial`); ``None`` otherwise (the caller
-    runs it itself). The pool thread runs its kernels serially (:func:`serial`)."""
+    """``fn()`` started on a second thread, where the calling thread may use more than
+    one (:func:`n_threads` above one and not :func:`serial`); ``None`` otherwise (the
+    caller runs it itself). That thread runs its kernels serially (:func:`serial`); it is
+    not one of :func:`run_ranges`'s pool, whose chunks would otherwise wait for ``fn``."""
+    global _BACKGROUND
     if serial() or n_threads() < 2:
         return None
-    return _pool(1).submit(fn)
+    with _LOCK:
+        if _BACKGROUND is None:
+            _BACKGROUND = ThreadPoolExecutor(max_workers=1, thread_name_prefix="vesselid-bg",
+                                             initializer=_mark_worker)
+        return _BACKGROUND.submit(fn)
 
 
 def run_ranges(kernel: Callable[..., Any], n_items: int, args: tuple, *,
