@@ -31,9 +31,9 @@ non-nested models (with Schwarz's correction) is reported. Where two cores are u
 sensor model is fitted on a second thread while the current model and what follows from it
 run on the first (:func:`_candidates`; the same numbers as in turn). The sensor model loses
 on the coloured-current logs that take this estimator, and its Hessian there exceeds its
-Fisher information: its scoring takes secant steps once near the optimum (:func:`_scoring`)
-and, where it wins, is continued with plain scoring from there, so every reported estimate
-is plain Fisher scoring's.
+Fisher information: once near its optimum and clearly behind the current model, its
+scoring takes secant steps (:func:`_scoring`); where it wins after all it is continued with
+plain scoring from there, so every reported estimate is plain Fisher scoring's.
 
 With ``joint=True`` (``auto``'s choice) a third model is fitted from the better of the
 two: ``joint``, a Gauss–Markov current *and* Gauss–Markov sensor noise at once (every
@@ -293,13 +293,22 @@ def _curvature_step(curv: np.ndarray, grad: np.ndarray) -> tuple[np.ndarray, flo
     return delta, slope
 
 
+def _loses(f0: float, dec: float, rival: float | None) -> bool:
+    """Whether a fit at ``f0`` predicting a decrease of ``dec / 2`` loses to a rival
+    fit at ``rival`` (negative log-likelihoods) by a margin of another ``dec / 2``."""
+    return rival is not None and np.isfinite(rival) and rival < f0 - dec
+
+
 def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, tol: float,
-             secant: bool = False, abandon: Callable[[], bool] | None = None
-             ) -> dict[str, Any] | None:
+             secant: Callable[[], float | None] | None = None,
+             abandon: Callable[[], bool] | None = None) -> dict[str, Any] | None:
     """Fisher scoring of ``V(ψ)`` over the free entries of ψ (module docstring).
 
-    ``secant``: once the squared Newton decrement is below :data:`TAIL_DEC`, the steps
-    use the Fisher information plus a secant estimate of the curvature it misses
+    ``secant``: the negative log-likelihood of a rival model's fit (``None``: none).
+    Once the squared Newton decrement is below :data:`TAIL_DEC` and the rival is the
+    better fit by more than twice the decrease this fit still predicts (so this one
+    loses), the steps use the Fisher information plus a secant estimate of the
+    curvature it misses
     (:func:`_secant_update`, :func:`_curvature_step`). A single-process model fitted to
     a log whose disturbance it does not describe has a Hessian well above its Fisher
     information along some directions (measured: 1.4–1.5 times along ρ_c of the
@@ -346,7 +355,7 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
             step = _curvature_step(fisher + extra, grad)
             if step is not None:
                 delta, slope = step
-        elif secant and dec < TAIL_DEC:
+        elif secant is not None and dec < TAIL_DEC and _loses(f0, dec, secant()):
             extra = np.zeros((d, d))
             tail = (psi.copy(), it - 1)  # the plain scoring's state here: the same
         if extra is not None:
@@ -806,19 +815,35 @@ def _candidates(filt: _Filter, firsts: list[tuple[np.ndarray, np.ndarray]],
     coloured-current logs that take this estimator, and its stage needs no other fit.
     Each fit runs the same code on the same numbers in whichever thread, so the results
     are those of the serial order; only a stage computed for a model that loses is
-    work thrown away. The other models' scoring takes secant steps in its tail
-    (:func:`_scoring`); :func:`fit_groups` refits one that wins without them."""
+    work thrown away. The other models' scoring takes secant steps in its tail where
+    the first model's fit is the better one by a margin (:func:`_scoring`; it waits for
+    that fit, so the choice is the same whatever the threads); :func:`fit_groups`
+    continues one that wins after all without them."""
+    from concurrent.futures import Future
+
     from vesselid.core.threads import background
 
+    done: Future = Future()  # the first model's negative log-likelihood
+
+    def rival() -> float | None:
+        return done.result()
+
     def rest() -> list[dict[str, Any]]:
-        return [_scoring(filt, psi0, free, max_iter, tol, secant=True)
+        return [_scoring(filt, psi0, free, max_iter, tol, secant=rival)
                 for psi0, free in firsts[1:]]
+
+    def settle(fit: dict[str, Any]) -> None:
+        terms = fit["nll_terms"]
+        done.set_result(float(np.sum(terms)) if terms is not None else None)
 
     job = background(rest) if filt.parallel and len(firsts) > 1 else None
     if job is None:
-        return [_scoring(filt, *firsts[0], max_iter, tol), *rest()], None
+        first = _scoring(filt, *firsts[0], max_iter, tol)
+        settle(first)
+        return [first, *rest()], None
     try:
         first = _scoring(filt, *firsts[0], max_iter, tol)
+        settle(first)
         early = None
         if stage_args is not None and first["converged"] and (
                 first["nll_terms"] is not None and np.isfinite(np.sum(first["nll_terms"]))):
@@ -830,7 +855,9 @@ def _candidates(filt: _Filter, firsts: list[tuple[np.ndarray, np.ndarray]],
                     for o in job.result())
 
             early = _joint_stage(first, models[0], *stage_args, abandon=beaten)
-    except BaseException:
+    except BaseException as exc:
+        if not done.done():
+            done.set_exception(exc)
         wait([job])  # never leave while the other fits still run
         raise
     return [first, *job.result()], early
