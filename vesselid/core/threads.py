@@ -23,10 +23,10 @@ from __future__ import annotations
 import os
 import threading
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor, wait
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from typing import Any
 
-__all__ = ["CHUNKS_PER_THREAD", "n_threads", "run_ranges", "serial", "serial_here",
+__all__ = ["CHUNKS_PER_THREAD", "background", "n_threads", "run_ranges", "serial", "serial_here",
            "usable_cores"]
 
 #: Chunks per thread (several, so that uneven items — early divergence, converged groups
@@ -34,6 +34,7 @@ __all__ = ["CHUNKS_PER_THREAD", "n_threads", "run_ranges", "serial", "serial_her
 CHUNKS_PER_THREAD = 4
 
 _POOL: ThreadPoolExecutor | None = None
+_BACKGROUND: ThreadPoolExecutor | None = None
 _POOL_SIZE = 0
 _LOCK = threading.Lock()
 _LOCAL = threading.local()
@@ -96,12 +97,27 @@ class serial_here:
 def _forget_pool() -> None:
     """In a forked child: the parent's pool threads do not exist there, so start afresh
     (a pool whose threads are gone would never run the submitted chunks)."""
-    global _POOL, _POOL_SIZE, _LOCK
-    _POOL, _POOL_SIZE, _LOCK = None, 0, threading.Lock()
+    global _POOL, _POOL_SIZE, _LOCK, _BACKGROUND
+    _POOL, _POOL_SIZE, _LOCK, _BACKGROUND = None, 0, threading.Lock(), None
 
 
 if hasattr(os, "register_at_fork"):  # POSIX
     os.register_at_fork(after_in_child=_forget_pool)
+
+
+def background(fn: Callable[[], Any]) -> Future | None:
+    """``fn()`` started on a second thread, where the calling thread may use more than
+    one (:func:`n_threads` above one and not :func:`serial`); ``None`` otherwise (the
+    caller runs it itself). That thread runs its kernels serially (:func:`serial`); it is
+    not one of :func:`run_ranges`'s pool, whose chunks would otherwise wait for ``fn``."""
+    global _BACKGROUND
+    if serial() or n_threads() < 2:
+        return None
+    with _LOCK:
+        if _BACKGROUND is None:
+            _BACKGROUND = ThreadPoolExecutor(max_workers=1, thread_name_prefix="vesselid-bg",
+                                             initializer=_mark_worker)
+        return _BACKGROUND.submit(fn)
 
 
 def run_ranges(kernel: Callable[..., Any], n_items: int, args: tuple, *,

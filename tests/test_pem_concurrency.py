@@ -1,0 +1,143 @@
+"""The prediction-error fit's candidate models on two threads: every number equals the
+serial fit's (also where the model fitted ahead loses), and the unbounded one-step
+estimate reuses the converged fit's last tangent pass without changing a number."""
+
+import numpy as np
+import pytest
+
+from vesselid.core import threads
+from vesselid.identify import from_arrays, pem
+from vesselid.identify.estimators import estimate
+from vesselid.studies.calibration import heave_scenario
+
+
+def _data(scenario, seed, samples=3000):
+    system, _, _ = heave_scenario(scenario)
+    spec = system.identification_spec(aggregate=False)
+    sim = system.simulate(samples, seed=seed)
+    data = from_arrays(spec, sim.y, sim.u)
+    base = estimate(data, spec, "iv-zero-mean", combine="pooled")
+    return data, spec, base.theta
+
+
+def _same(a, b):
+    assert a.keys() == b.keys()
+    for key in a:
+        if a[key].dtype == object:
+            assert list(a[key]) == list(b[key]), key
+        else:
+            np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+@pytest.mark.parametrize(("scenario", "winner"), [("gm-current-random", "current"),
+                                                  ("gm-sensor-random", "sensor")])
+def test_two_threads_give_the_serial_numbers(scenario, winner):
+    if threads.n_threads() < 2:
+        pytest.skip("one core: the candidates are fitted in turn either way")
+    data, spec, theta = _data(scenario, seed=3)
+    kw = {"joint": True, "boundary": "auto", "details": True}
+    both = pem.fit_groups(data, spec, theta, parallel=True, **kw)
+    one = pem.fit_groups(data, spec, theta, parallel=False, **kw)
+    assert str(one["model"][0]).startswith(winner) or one["model"][0] in (
+        pem.JOINT, pem.JOINT_LOCAL)
+    assert np.argmax(one["loglik"][0]) == pem.DISTURBANCE_MODELS.index(winner)
+    _same(both, one)
+
+
+def test_background_runs_in_the_calling_thread_when_serial():
+    with threads.serial_here():
+        assert threads.background(lambda: 1) is None
+    job = threads.background(lambda: 2)
+    assert job is None or job.result() == 2
+
+
+def test_local_joint_reuses_the_last_tangent_pass_exactly():
+    data, spec, theta = _data("gm-current-random", seed=5)
+    rows, starts = data.group_rows(0)
+    y = data.target[rows, 0]
+    filt = pem._Filter(y / np.std(y), data.u[rows] / np.std(data.u[rows]), starts,
+                       spec.codes.factors, parallel=False)
+    psi0, free, _ = pem._start(theta[0], filt.y, filt.u, filt.starts, spec.codes.factors,
+                               "current")
+    fit = pem._scoring(filt, psi0, free, 100, pem.SCORING_TOL)
+    assert fit["converged"] and fit["sandwich_parts"] is not None
+    reused = pem._local_joint(filt, fit, spec.n_params)
+    fresh = pem._local_joint(filt, {**fit, "sandwich_parts": None}, spec.n_params)
+    for key in ("psi", "cov", "cov_sandwich"):
+        np.testing.assert_array_equal(reused[key], fresh[key], err_msg=key)
+    assert reused["q_z"] == fresh["q_z"]
+
+
+@pytest.mark.parametrize("scenario", ["gm-current-random", "gm-sensor-random"])
+def test_secant_tail_changes_no_reported_number(scenario, monkeypatch):
+    """The losing model's tail takes secant steps; a winner is the plain scoring's fit:
+    the estimate, its covariances, the choice and the winner's likelihood are those of
+    plain Fisher scoring everywhere (``TAIL_DEC = 0``: no tail)."""
+    data, spec, theta = _data(scenario, seed=3)
+    kw = {"joint": True, "boundary": "auto", "parallel": False}
+    fast = pem.fit_groups(data, spec, theta, **kw)
+    monkeypatch.setattr(pem, "TAIL_DEC", 0.0)
+    plain = pem.fit_groups(data, spec, theta, **kw)
+    best = int(np.argmax(plain["loglik"][0]))
+    for key in ("theta", "cov", "cov_sandwich", "cov_conservative", "psi", "lr_joint",
+                "local_z", "shape_z"):
+        np.testing.assert_array_equal(fast[key], plain[key], err_msg=key)
+    assert list(fast["model"]) == list(plain["model"])
+    assert fast["loglik"][0, best] == plain["loglik"][0, best]
+    # the loser's likelihood: the same maximum up to a change of Vuong's z (the one
+    # statistic that reads it) far below its resolution
+    assert abs(fast["vuong"][0] - plain["vuong"][0]) < 0.01
+    np.testing.assert_allclose(fast["loglik"][0], plain["loglik"][0], rtol=1e-6)
+
+
+def test_secant_tail_converges_in_fewer_steps_to_the_same_maximum():
+    """The sensor-noise model on a Gauss–Markov current (it loses there): its Hessian
+    exceeds its Fisher information, plain scoring alternates about the optimum; the
+    secant steps reach the same likelihood (within the stopping tolerance) in fewer."""
+    data, spec, theta = _data("gm-current-random", seed=0, samples=10_000)
+    rows, starts = data.group_rows(0)
+    y = data.target[rows, 0]
+    filt = pem._Filter(y / np.std(y), data.u[rows] / np.std(data.u[rows]), starts,
+                       spec.codes.factors, parallel=False)
+    psi0, free, _ = pem._start(theta[0], filt.y, filt.u, filt.starts, spec.codes.factors,
+                               "sensor")
+    plain = pem._scoring(filt, psi0, free, 100, pem.SCORING_TOL)
+    # a rival far better: the secant steps engage in the tail
+    fast = pem._scoring(filt, psi0, free, 100, pem.SCORING_TOL, secant=lambda: -1e300)
+    assert plain["converged"] and fast["converged"]
+    assert fast["iterations"] < plain["iterations"]
+    assert abs(np.sum(fast["nll_terms"]) - np.sum(plain["nll_terms"])) < 1e-3
+
+
+def test_background_does_not_hold_up_run_ranges():
+    """A job on the background thread never delays the calling thread's parallel
+    kernels (their chunks go to another pool)."""
+    import threading
+
+    from numba import njit
+
+    if threads.n_threads() < 2:
+        pytest.skip("one core")
+
+    @njit(nogil=True)
+    def fill(lo, hi, out):  # pragma: no cover
+        for i in range(lo, hi):
+            out[i] = i
+
+    release = threading.Event()
+    job = threads.background(lambda: release.wait(30))
+    try:
+        out = np.zeros(64)
+        done = threading.Event()
+
+        def run():
+            threads.run_ranges(fill, out.size, (out,), parallel=True)
+            done.set()
+
+        worker = threading.Thread(target=run)
+        worker.start()
+        assert done.wait(10), "run_ranges waited for the background job"
+        np.testing.assert_array_equal(out, np.arange(64.0))
+    finally:
+        release.set()
+        job.result()
