@@ -377,21 +377,35 @@ def bartlett_block_sums(block: Callable[[int, int], np.ndarray], n: int, q: int,
     hh = np.zeros((q, q))
     v = np.zeros(q)
     count_sq = 0.0
-    prev = np.zeros((lags + 1, q))  # c(t0 − L − 1 … t0 − 1)
+    # buf holds c(t0 − L − 1 … t1 − 1): the carried L + 1 running sums, then the block's
+    # (no concatenated copy); h is formed in its own buffer
+    buf = np.zeros((rows + lags + 1, q))
+    h_buf = np.empty((rows, q))
     carry = np.zeros(q)  # c(t0 − 1)
+    full = None  # the window sizes of a whole block once every window is full (t ≥ L)
     for t0 in range(0, n, rows):
         t1 = min(t0 + rows, n)
-        c = np.cumsum(block(t0, t1) - mean, axis=0)
+        m = t1 - t0
+        c = buf[lags + 1:lags + 1 + m]
+        np.subtract(block(t0, t1), mean, out=c)
+        np.cumsum(c, axis=0, out=c)
         c += carry
         carry = c[-1].copy()
-        cc = np.concatenate([prev, c])
-        h = cc[lags + 1:] - cc[:t1 - t0]
-        t = np.arange(t0, t1, dtype=float)
-        count = t - np.maximum(t - lags, 0.0) + 1.0
+        h = np.subtract(buf[lags + 1:lags + 1 + m], buf[:m], out=h_buf[:m])
+        if t0 >= lags and m == rows:
+            if full is None:
+                full = (np.full(rows, lags + 1.0),)
+                full += (float(full[0] @ full[0]),)
+            count, count_sq_block = full
+        else:
+            t = np.arange(t0, t1, dtype=float)
+            count = t - np.maximum(t - lags, 0.0) + 1.0
+            count_sq_block = float(count @ count)
         hh += h.T @ h
         v += h.T @ count
-        count_sq += float(count @ count)
-        prev = cc[-(lags + 1):]
+        count_sq += count_sq_block
+        buf[:lags + 1] = buf[m:m + lags + 1]  # c(t1 − L − 1 … t1 − 1) for the next block
+    prev = buf[:lags + 1]
     # the tail t = n … n + L − 1: h(t) = c(n − 1) − c(t − L − 1)
     h = carry - prev[:lags]
     t = np.arange(n, n + lags, dtype=float)

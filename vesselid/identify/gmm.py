@@ -379,19 +379,23 @@ def _bartlett_scores_in_blocks(z: np.ndarray, ev: np.ndarray, v: np.ndarray, cnt
     of the demeaned scores (invalid rows zero). Memory ``O(rows · K)`` instead of the
     ``K × n`` scores; the same sums rounded differently (~1e-14 relative)."""
     n, k_cols = z.shape
+    spans = [(a, min(a + rows, n)) for a in range(0, n, rows)]
+    # the blocks holding an invalid row (the others need no mask: the same numbers)
+    masked = {a for a, b in spans if not v[a:b].all()}
 
     def raw(a: int, b: int) -> np.ndarray:
         g = z[a:b] * ev[a:b, None]
-        g[~v[a:b]] = 0.0
+        if a in masked:
+            g[~v[a:b]] = 0.0
         return g
 
     def demeaned(a: int, b: int) -> np.ndarray:
         g = raw(a, b)
         g -= g_mean
-        g[~v[a:b]] = 0.0
+        if a in masked:
+            g[~v[a:b]] = 0.0
         return g
 
-    spans = [(a, min(a + rows, n)) for a in range(0, n, rows)]
     g_mean = sum(raw(a, b).sum(axis=0) for a, b in spans) / cnt
     mean = sum(demeaned(a, b).sum(axis=0) for a, b in spans) / n
     return _covariance.bartlett_block_sums(demeaned, n, k_cols, mean, lag, rows)
