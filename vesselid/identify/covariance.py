@@ -1043,8 +1043,13 @@ class KernelCovariance(CovarianceEstimator):
             return np.multiply(z[a:b] / z_scale, eps[a:b, None])
 
         used: dict[str, Any] = {}
+        total = None  # the scores' column sums, from the bandwidth's pass where it has one
         if isinstance(self.bandwidth, str):  # Newey-West (1994) on the scores' blocks
-            sq = sum(np.einsum("tk,tk->k", g, g) for g in (block(a, b) for a, b in spans))
+            sq, total = 0, 0
+            for a, b in spans:
+                g = block(a, b)
+                sq = sq + np.einsum("tk,tk->k", g, g)
+                total = total + g.sum(axis=0)
             scale = np.sqrt(sq / t_len)
             scale[scale == 0] = 1.0
             x = np.concatenate([_row_sums(block(a, b), scale) if q > 1 else block(a, b)[:, 0]
@@ -1057,7 +1062,9 @@ class KernelCovariance(CovarianceEstimator):
         lags = math.floor(bw)
         if min(lags + 1, t_len - 1) <= 1:
             return None  # a bandwidth below one lag: the general path
-        mean = sum(block(a, b).sum(axis=0) for a, b in spans) / t_len
+        if total is None:
+            total = sum(block(a, b).sum(axis=0) for a, b in spans)
+        mean = total / t_len
         s_u = bartlett_block_sums(block, t_len, q, mean, lags, BLOCK_ROWS)
         return s_u * np.outer(z_scale, z_scale), {**self.config(), **used}
 
