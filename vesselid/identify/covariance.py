@@ -577,6 +577,7 @@ class CovarianceEstimator:
         combine: str = "pooled",
         skip_first: bool = True,
         weight_jacobian: np.ndarray | None = None,
+        overwrite: bool = False,
     ) -> CovarianceResult:
         """Covariance of the estimates from instruments, regressors and residuals.
 
@@ -620,6 +621,10 @@ class CovarianceEstimator:
             ``C₁ = (AᵀW₁A)⁻¹AᵀW₁`` (``W₁ = (Σ zzᵀ)⁻¹``) map the moments to the two-step
             and first-step estimates (``θ₂ − θ0 ≈ C ḡ + D (θ₁ − θ0)``); with
             ``S = W⁻¹`` it is Windmeijer's ``V + DV + VDᵀ + D V₁ Dᵀ``. Pooled only.
+        overwrite : bool
+            The caller hands ``z`` over (a float64 array it needs no more): it is
+            equilibrated in its own buffer instead of a copy (the same numbers; on a long
+            log the copy is as large as the instruments).
 
         Returns
         -------
@@ -639,7 +644,7 @@ class CovarianceEstimator:
         # products, no second N × K array)
         late = not self.meat_uses_z and np.shape(z)[0] > LARGE_ROWS
         sc = _scores(z, phi, resid, starts, equation, z_equation, zero_mean, skip_first,
-                     form_g=not late)
+                     form_g=not late, overwrite=overwrite)
         z, phi, segs, equation, z_equation = sc.z, sc.phi, sc.segs, sc.equation, sc.z_equation
         n_par, n_ins = phi.shape[1], z.shape[1]
         same = z_equation[:, None] == equation[None, :]
@@ -746,12 +751,13 @@ class CovarianceEstimator:
 def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
             starts: np.ndarray | None, equation: np.ndarray | None,
             z_equation: np.ndarray | None, zero_mean: bool, skip_first: bool,
-            keep_z: bool = True, form_g: bool = True) -> _Scores:
+            keep_z: bool = True, form_g: bool = True, overwrite: bool = False) -> _Scores:
     """Validate the arrays of :meth:`CovarianceEstimator.estimate` and form the scores
     (``phi=None``: instruments only, as :meth:`CovarianceEstimator.long_run`); without
     ``keep_z`` the scores are formed in the equilibrated instruments' buffer (the same
     products) and ``z`` is None; without ``form_g`` the scores are left to the caller
-    (``g`` None: :func:`_products` once ``z`` has served every other sum)."""
+    (``g`` None: :func:`_products` once ``z`` has served every other sum); ``overwrite``:
+    ``z`` (the caller's, handed over) is equilibrated in its own buffer."""
     same = phi is z  # LS / the endogeneity regression: instruments = regressors
     z = np.asarray(z, dtype=float)
     resid = np.asarray(resid, dtype=float)
@@ -798,7 +804,8 @@ def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
     # θ_s = D_φ θ, ḡ_s = D_z⁻¹ ḡ, W_s = D_z W D_z, so Cov θ̂ = D_φ⁻¹ Cov θ̂_s D_φ⁻¹.
     z_scale = _column_scale(z, None if every_row else rows)
     phi_scale = z_scale if same else _column_scale(phi, None if every_row else rows)
-    z = z / z_scale
+    z = (np.divide(z, z_scale, out=z) if overwrite and z.flags.writeable
+         else z / z_scale)
     # the same numbers either way; a copy all the same (a product of one buffer with
     # itself would take BLAS's symmetric rank-k path, rounded differently)
     # (above LARGE_ROWS rows the one buffer serves both: no second N × P copy, the

@@ -518,8 +518,11 @@ def _endogeneity(prep: _Prepared, cov_type: str, cov_config: Mapping[str, Any],
             memo["x"] = x
     beta = _lstsq(x, y)
     est = get_covariance_estimator(cov_type, **cov_config)
+    # a long log's augmented regressors, kept for no other target, are handed over
+    hand_over = ({"overwrite": True} if memo is None and x.shape[0] > _covariance.LARGE_ROWS
+                 and type(est).estimate is _covariance.CovarianceEstimator.estimate else {})
     cov = est.estimate(x, x, y - x @ beta, _starts_of(segs), skip_first=False,
-                       zero_mean=False).cov
+                       zero_mean=False, **hand_over).cov
     d = beta[phi.shape[1]:]
     v_d = cov[phi.shape[1]:, phi.shape[1]:]
     try:
