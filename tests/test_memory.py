@@ -297,18 +297,3 @@ def test_covariance_of_handed_over_regressors_is_the_same() -> None:
     assert np.array_equal(got.cov, ref.cov)
     assert not np.array_equal(mine, x)  # the buffer was used
 
-
-def test_parquet_read_restores_the_arrow_pool(tmp_path) -> None:
-    """Reading a Parquet log leaves Arrow's default memory pool as it was."""
-    import pytest
-
-    pa = pytest.importorskip("pyarrow")
-    from vesselid.data.logs import TrialLog
-    from vesselid.plant.systems import heave
-
-    path = tmp_path / "log.parquet"
-    heave().simulate(200, seed=0).to_log().save(path)
-    before = pa.default_memory_pool().backend_name
-    log = TrialLog.load(path, truth=False)
-    assert pa.default_memory_pool().backend_name == before
-    assert len(log.data) == 200 and "w" in log.data

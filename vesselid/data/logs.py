@@ -28,7 +28,6 @@ import functools
 import json
 import math
 import re
-import threading
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -844,29 +843,6 @@ def _read_csv(path: Path, keep: Any = None) -> tuple[pd.DataFrame, dict]:
     return data, envelope
 
 
-_POOL_LOCK = threading.Lock()
-
-
-@contextlib.contextmanager
-def _system_pool(pa: Any) -> Any:
-    """Arrow's default memory pool set to the system allocator while a log is read
-    (restored after; one reader at a time): the decoded pages freed during the read go
-    back to the operating system instead of staying in the default pool's arenas (a
-    10⁶-row heave log: ~15 MB less resident memory while the frame lives, ~30 MB less at
-    the read's peak). The frame's buffers keep their pool."""
-    with _POOL_LOCK:
-        previous = pa.default_memory_pool()
-        try:
-            pa.set_memory_pool(pa.system_memory_pool())
-        except (AttributeError, NotImplementedError, pa.ArrowException):
-            yield
-            return
-        try:
-            yield
-        finally:
-            pa.set_memory_pool(previous)
-
-
 def _read_parquet(path: Path, keep: Any = None) -> tuple[pd.DataFrame, dict]:
     pa, pq = _import_pyarrow()
     try:
@@ -880,19 +856,15 @@ def _read_parquet(path: Path, keep: Any = None) -> tuple[pd.DataFrame, dict]:
         if keep is not None:  # the columns asked for, from the footer's metadata
             raw = (schema.metadata or {}).get(PARQUET_METADATA_KEY)
             keep = keep(_read_envelope(raw, str(path)) if raw is not None else {})
-        with _system_pool(pa):
-            # the file mapped (its pages are the page cache's, not copies), the columns
-            # decoded into buffers of the C allocator, which returns freed pages at once
-            table = pq.read_table(path, page_checksum_verification=True, memory_map=True,
-                                  columns=None if keep is None
-                                  else [c for c in names if keep(c)])
-            raw = (table.schema.metadata or {}).get(PARQUET_METADATA_KEY)
-            envelope = _read_envelope(raw, str(path)) if raw is not None else {}
-            # one block per column, each Arrow buffer freed as soon as it is converted,
-            # and the pool's freed pages handed back: the frame is the only copy that stays
-            data = table.to_pandas(split_blocks=True, self_destruct=True)
-            del table
-            pa.default_memory_pool().release_unused()
+        table = pq.read_table(path, page_checksum_verification=True,
+                              columns=None if keep is None else [c for c in names if keep(c)])
+        raw = (table.schema.metadata or {}).get(PARQUET_METADATA_KEY)
+        envelope = _read_envelope(raw, str(path)) if raw is not None else {}
+        # one block per column, each Arrow buffer freed as soon as it is converted, and
+        # the pool's freed pages handed back: the frame is the only copy that stays
+        data = table.to_pandas(split_blocks=True, self_destruct=True)
+        del table
+        pa.default_memory_pool().release_unused()
     except LogValidationError:
         raise
     except (pa.ArrowException, OSError, ValueError, TypeError) as exc:
