@@ -15,7 +15,9 @@ CPU clock (``time.process_time``, all threads of the process; children's CPU fro
   10⁴ samples) with one and two workers (``--workers``), wall, the CPU of the parent
   and of every worker process, and whether the result CSVs are byte-identical;
 * ``identify_memory``: peak resident memory and time of the whole
-  ``vesselid identify`` process on one-state heave logs of several lengths;
+  ``vesselid identify`` process on one-state heave logs of several lengths (medians of
+  three processes), and on the 10⁶-sample log each step of the fit with its CPU time and
+  the resident memory at its start and its peak (where the peak is reached);
 * ``pem_path``: ``identify`` (default estimator, which takes ``pem`` there) on a
   10⁴-sample log with a Gauss–Markov current, in-process.
 
