@@ -15,7 +15,9 @@ CPU clock (``time.process_time``, all threads of the process; children's CPU fro
   10⁴ samples) with one and two workers (``--workers``), wall, the CPU of the parent
   and of every worker process, and whether the result CSVs are byte-identical;
 * ``identify_memory``: peak resident memory and time of the whole
-  ``vesselid identify`` process on one-state heave logs of several lengths;
+  ``vesselid identify`` process on one-state heave logs of several lengths (medians of
+  three processes), and on the 10⁶-sample log each step of the fit with its CPU time and
+  the resident memory at its start and its peak (where the peak is reached);
 * ``pem_path``: ``identify`` (default estimator, which takes ``pem`` there) on a
   10⁴-sample log with a Gauss–Markov current, in-process.
 
@@ -296,15 +298,76 @@ def _run_measured(cmd: list[str]) -> tuple[float, float, float]:
     return wall, cpu, rss
 
 
+#: Runs ``vesselid identify LOG`` in this process with the resident memory sampled every
+#: 2 ms and each step of ``Estimator.fit`` (and the steps of the default estimator's
+#: estimate) timed: prints one JSON list of ``[step, depth, CPU s, RSS at entry MB, peak
+#: RSS during MB]`` in the order the steps start.
+_PHASES = """
+import functools, json, os, sys, threading, time
+page = os.sysconf("SC_PAGE_SIZE")
+def rss():
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * page / 1e6
+open_steps, rows, depth = [], [], [0]
+def sample():
+    while True:
+        r = rss()
+        for cell in list(open_steps):
+            cell[0] = max(cell[0], r)
+        time.sleep(0.002)
+threading.Thread(target=sample, daemon=True).start()
+def wrap(owner, name, label):
+    fn = getattr(owner, name)
+    @functools.wraps(fn)
+    def timed(*a, **k):
+        cell = [rss()]
+        entry, c0, start = cell[0], time.process_time(), time.perf_counter()
+        open_steps.append(cell)
+        depth[0] += 1
+        try:
+            return fn(*a, **k)
+        finally:
+            depth[0] -= 1
+            open_steps.pop()
+            rows.append([start, label, depth[0], time.process_time() - c0, entry,
+                         max(cell[0], rss())])
+    setattr(owner, name, timed)
+from vesselid.data import logs
+from vesselid.identify import base, efficient, validity
+wrap(logs.TrialLog, "load", "read the log")
+for step in ("regression", "estimate", "feedback", "covariance", "specification",
+             "fit_quality"):
+    wrap(base.Estimator, "_" + step, step.replace("_", " "))
+for step, label in (("_refine", "refined GMM steps"), ("_colour_test", "colour test")):
+    wrap(efficient.InstrumentalGMM, step, label)
+for step in ("parameter_stability", "mean_current"):
+    wrap(validity, step, step.replace("_", " "))
+from vesselid.cli import main
+code = main(["identify", sys.argv[1]])
+rows.append([time.perf_counter(), "whole process", 0, time.process_time(), 0.0, float(
+    open("/proc/self/status").read().split("VmHWM:")[1].split()[0]) * 1024 / 1e6])
+sys.stdout.flush()
+print(json.dumps([r[1:] for r in sorted(rows)]), file=sys.stderr)
+sys.exit(code)
+"""
+
+
 def bench_identify_memory(sizes: tuple[int, ...] = (100_000, 1_000_000, 4_000_000),
-                          repeats: int = 1, fmt: str = "parquet") -> dict[str, Any]:
+                          repeats: int = 3, fmt: str = "parquet",
+                          phases_at: int | None = 1_000_000) -> dict[str, Any]:
     """Peak RSS and time of the whole ``vesselid identify LOG`` process (default
     estimator) on one-state heave logs (``fmt``: Parquet, or CSV) of ``sizes``
-    samples; the growth per 10⁶ samples between the two largest logs and as the
-    least-squares slope over every size (linear growth: the two agree)."""
+    samples, medians of ``repeats`` processes per size; the growth per 10⁶ samples
+    between the two largest logs and as the least-squares slope over every size (linear
+    growth: the two agree). ``phases_at``: on that log also where the peak is reached —
+    every step of the fit with its CPU time, its resident memory at entry and its peak
+    (one process sampling its own RSS every 2 ms; the sampling thread costs a little
+    CPU)."""
+    import json
+
     from vesselid.plant.systems import heave
 
-    out: dict[str, Any] = {"sizes": list(sizes), "format": fmt}
+    out: dict[str, Any] = {"sizes": list(sizes), "format": fmt, "repeats": repeats}
     exe = [sys.executable, "-m", "vesselid", "identify"]
     with tempfile.TemporaryDirectory() as tmp:
         for n in sizes:
@@ -315,6 +378,13 @@ def bench_identify_memory(sizes: tuple[int, ...] = (100_000, 1_000_000, 4_000_00
             out[f"{n}_cpu_s"] = statistics.median(r[1] for r in runs)
             out[f"{n}_peak_rss_mb"] = statistics.median(r[2] for r in runs) / 1e6
             out[f"{n}_load_average"] = _load()
+            if n == phases_at:
+                proc = subprocess.run([sys.executable, "-c", _PHASES, str(path)],
+                                      capture_output=True, text=True, check=False,
+                                      env={**os.environ, "MPLBACKEND": "Agg"})
+                if proc.returncode == 0:
+                    out["phases_samples"] = n
+                    out["phases"] = json.loads(proc.stderr.strip().splitlines()[-1])
             path.unlink()
     big = [n for n in sizes if n >= 1_000_000]
     if len(big) >= 2:  # slope per 10⁶ samples between the two largest logs
@@ -537,7 +607,8 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
             "",
             "The whole `vesselid identify LOG` process (default estimator, every "
             f"diagnostic) on one-state heave logs ({mem.get('format', 'csv')}), peak "
-            "resident memory from `wait4`.",
+            "resident memory from `wait4`; medians of "
+            f"{mem.get('repeats', 1)} processes per log.",
             "",
             "| samples | peak RSS (MB) | wall (s) | CPU (s) | load average |",
             "|---:|---:|---:|---:|---:|",
@@ -552,6 +623,8 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
                              f"{mem['rss_mb_per_1e6_samples_fit']:.0f} MB per 10⁶ samples, "
                              f"intercept {mem['rss_mb_intercept']:.0f} MB)."
                              if "rss_mb_per_1e6_samples_fit" in mem else ".")]
+        if mem.get("phases"):
+            lines += render_phases(mem["phases"], mem["phases_samples"])
         lines.append("")
     pem = results.get("pem_path")
     if pem:
@@ -573,6 +646,24 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
     if kp:
         lines += render_kernel_paths(kp)
     return "\n".join(lines)
+
+def render_phases(phases: list[list[Any]], samples: int) -> list[str]:
+    """The memory section's table of where ``vesselid identify``'s peak is reached
+    (:data:`_PHASES`, steps of the estimate indented)."""
+    peak = max(p[4] for p in phases)
+    lines = ["", f"Where the memory goes on the {samples:,}-sample log: each step of the fit "
+                 "(the default estimator's own steps indented under *estimate*) with its "
+                 "CPU time, the resident memory when it starts and the highest while it "
+                 "runs (sampled every 2 ms in one process).", "",
+             "| step | CPU (s) | RSS at start (MB) | peak RSS in the step (MB) |",
+             "|---|---:|---:|---:|"]
+    for name, depth, cpu, entry, top in phases:
+        mark = "**" if top == peak else ""
+        shown = "—" if name == "whole process" else f"{entry:.0f}"
+        lines.append(f"| {'&nbsp;&nbsp;' * depth}{name} | {cpu:.2f} | {shown} | "
+                     f"{mark}{top:.0f}{mark} |")
+    return lines
+
 
 def render_kernel_paths(kp: dict[str, Any]) -> list[str]:
     """The page's section on ``identify``'s numpy kernels for small logs

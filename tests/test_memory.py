@@ -252,3 +252,48 @@ def test_hac_long_run_in_blocks(monkeypatch) -> None:
     monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
     parzen = cv.get_covariance_estimator(cv.DEFAULT_COV_TYPE, kernel="parzen")
     assert parzen._long_run_in_blocks(z, e, None, None, True, False) is None
+
+
+def test_instruments_centred_in_place_equal_the_compiled_centring() -> None:
+    """A long log's handed-over instruments centred in their own buffer are the compiled
+    kernel's centred instruments bit for bit (invalid rows, non-finite ones among them,
+    and two experiments), and the regressors and target from the kernel without the
+    instruments are its own."""
+    from vesselid.identify import _ivkernels as ivk
+    from vesselid.identify import gmm
+
+    rng = np.random.default_rng(7)
+    n = 5000
+    phi = rng.standard_normal((n, 3))
+    target = rng.standard_normal((n, 1)) + 0.3
+    starts = np.array([0, 1234, n])
+    for k in (2, 5):
+        z = rng.standard_normal((n, k)) * 3.0 + 1.0
+        z[[0, 1234, 4000]] = np.nan
+        valid, cmax = ivk.design_scan(z, phi, 0, 3, target, 0)
+        assert not valid[[0, 1234, 4000]].any()
+        col = 2.0 ** -np.round(np.log2(np.maximum(cmax, 1e-300)))
+        zz, pp, yy = ivk.design_centre(z, phi, 0, 3, target, 0, valid, col, starts)
+        own = z.copy()
+        got = gmm._centre_in_place(own, valid, col[:k], starts)
+        assert got is own and np.array_equal(got, zz)
+        _, pp2, yy2 = ivk.design_centre(own[:, :0], phi, 0, 3, target, 0, valid, col[k:],
+                                        starts)
+        assert np.array_equal(pp2, pp) and np.array_equal(yy2, yy)
+
+
+def test_covariance_of_handed_over_regressors_is_the_same() -> None:
+    """``estimate(..., overwrite=True)`` equilibrates the caller's regressors in their
+    own buffer and gives the covariance of the copying form bit for bit."""
+    from vesselid.identify.covariance import get_covariance_estimator
+
+    rng = np.random.default_rng(8)
+    x = rng.standard_normal((3000, 4)) * [1.0, 10.0, 0.1, 3.0]
+    e = np.convolve(rng.standard_normal(3000), np.ones(3), "same")
+    est = get_covariance_estimator("hac")
+    ref = est.estimate(x, x, e, skip_first=False)
+    mine = x.copy()
+    got = est.estimate(mine, mine, e, skip_first=False, overwrite=True)
+    assert np.array_equal(got.cov, ref.cov)
+    assert not np.array_equal(mine, x)  # the buffer was used
+

@@ -70,7 +70,8 @@ __all__ = [
 MEMORY_FRACTION = 0.8
 #: Default time limit (seconds) unless ``VESSELID_MAX_SECONDS`` says otherwise.
 DEFAULT_TIME_LIMIT = 24 * 3600.0
-#: Resident memory of the interpreter with numpy, pandas and numba loaded (measured ~150 MB).
+#: Resident memory of the interpreter with numpy, pandas, pyarrow and numba loaded and
+#: LLVM initialised (measured ~215 MB at the start of a long log's fit).
 BASE_MEMORY = 250e6
 #: Peak memory per float64 value of a tidy log while simulating and writing it: the
 #: simulation arrays, the DataFrame and the CSV formatter's buffers. Measured 28 B

@@ -137,7 +137,7 @@ class _FitRun:
     it: IterationResult = None  # type: ignore[assignment]
     designs: list[EquationDesign] = field(default_factory=list)
     feedback: dict[str, Any] = field(default_factory=dict)
-    pred: np.ndarray = None  # type: ignore[assignment]
+    pred_weights: np.ndarray = None  # type: ignore[assignment]
     resid: np.ndarray = None  # type: ignore[assignment]
     cov: np.ndarray = None  # type: ignore[assignment]
     cov_label: str = ""
@@ -405,6 +405,11 @@ class Estimator:
             )
         run.it = it
         run.designs = self.equation_designs(data, spec, it, run.phi, opts.combine)
+        # the rows a GMM solution kept to build the designs: the designs hold what the
+        # later steps read (the centred targets kept with them are as large as a column)
+        sol = (it.info or {}).get("solution")
+        if getattr(sol, "designs", None) is not None:
+            sol.designs = None
 
     def _feedback(self, run: _FitRun, log: Any) -> None:
         """The closed-loop check of an open-loop estimator (:mod:`vesselid.identify.loop`)."""
@@ -427,8 +432,10 @@ class Estimator:
         spec, theta = run.spec, run.it.theta[0]
         weights = np.zeros((spec.n_params, spec.n_states))
         weights[np.arange(spec.n_params), spec.codes.equation] = theta
-        run.pred = run.phi @ weights
-        run.resid = run.data.target - run.pred
+        # the one-step predictions are formed again where the fit figures need them (the
+        # same product): on a long log they would be held through every test between
+        run.pred_weights = weights
+        run.resid = run.data.target - run.phi @ weights
         cov = np.zeros((spec.n_params, spec.n_params))
         run.cov_label = run.cov_name
         run.own_cov = self.own_covariance(run.it)
@@ -519,8 +526,10 @@ class Estimator:
         """One-step and free-run fit, stability, and the A10/A15 design and smoothness
         checks of the estimated model."""
         data, spec, theta, opts = run.data, run.spec, run.it.theta[0], run.opts
-        run.fit_one = {s: nrmse_fit(data.target[run.rows, i], run.pred[run.rows, i])
+        pred = run.phi @ run.pred_weights
+        run.fit_one = {s: nrmse_fit(data.target[run.rows, i], pred[run.rows, i])
                        for i, s in enumerate(spec.states)}
+        del pred
         sims = free_run_states(data, spec, theta)
         run.fit_free, free_ok = _free_run_fit(data, spec, theta, sims)
         if not free_ok:

@@ -377,21 +377,35 @@ def bartlett_block_sums(block: Callable[[int, int], np.ndarray], n: int, q: int,
     hh = np.zeros((q, q))
     v = np.zeros(q)
     count_sq = 0.0
-    prev = np.zeros((lags + 1, q))  # c(t0 − L − 1 … t0 − 1)
+    # buf holds c(t0 − L − 1 … t1 − 1): the carried L + 1 running sums, then the block's
+    # (no concatenated copy); h is formed in its own buffer
+    buf = np.zeros((rows + lags + 1, q))
+    h_buf = np.empty((rows, q))
     carry = np.zeros(q)  # c(t0 − 1)
+    full = None  # the window sizes of a whole block once every window is full (t ≥ L)
     for t0 in range(0, n, rows):
         t1 = min(t0 + rows, n)
-        c = np.cumsum(block(t0, t1) - mean, axis=0)
+        m = t1 - t0
+        c = buf[lags + 1:lags + 1 + m]
+        np.subtract(block(t0, t1), mean, out=c)
+        np.cumsum(c, axis=0, out=c)
         c += carry
         carry = c[-1].copy()
-        cc = np.concatenate([prev, c])
-        h = cc[lags + 1:] - cc[:t1 - t0]
-        t = np.arange(t0, t1, dtype=float)
-        count = t - np.maximum(t - lags, 0.0) + 1.0
+        h = np.subtract(buf[lags + 1:lags + 1 + m], buf[:m], out=h_buf[:m])
+        if t0 >= lags and m == rows:
+            if full is None:
+                full = (np.full(rows, lags + 1.0),)
+                full += (float(full[0] @ full[0]),)
+            count, count_sq_block = full
+        else:
+            t = np.arange(t0, t1, dtype=float)
+            count = t - np.maximum(t - lags, 0.0) + 1.0
+            count_sq_block = float(count @ count)
         hh += h.T @ h
         v += h.T @ count
-        count_sq += float(count @ count)
-        prev = cc[-(lags + 1):]
+        count_sq += count_sq_block
+        buf[:lags + 1] = buf[m:m + lags + 1]  # c(t1 − L − 1 … t1 − 1) for the next block
+    prev = buf[:lags + 1]
     # the tail t = n … n + L − 1: h(t) = c(n − 1) − c(t − L − 1)
     h = carry - prev[:lags]
     t = np.arange(n, n + lags, dtype=float)
@@ -563,6 +577,7 @@ class CovarianceEstimator:
         combine: str = "pooled",
         skip_first: bool = True,
         weight_jacobian: np.ndarray | None = None,
+        overwrite: bool = False,
     ) -> CovarianceResult:
         """Covariance of the estimates from instruments, regressors and residuals.
 
@@ -606,6 +621,10 @@ class CovarianceEstimator:
             ``C₁ = (AᵀW₁A)⁻¹AᵀW₁`` (``W₁ = (Σ zzᵀ)⁻¹``) map the moments to the two-step
             and first-step estimates (``θ₂ − θ0 ≈ C ḡ + D (θ₁ − θ0)``); with
             ``S = W⁻¹`` it is Windmeijer's ``V + DV + VDᵀ + D V₁ Dᵀ``. Pooled only.
+        overwrite : bool
+            The caller hands ``z`` over (a float64 array it needs no more): it is
+            equilibrated in its own buffer instead of a copy (the same numbers; on a long
+            log the copy is as large as the instruments).
 
         Returns
         -------
@@ -625,7 +644,7 @@ class CovarianceEstimator:
         # products, no second N × K array)
         late = not self.meat_uses_z and np.shape(z)[0] > LARGE_ROWS
         sc = _scores(z, phi, resid, starts, equation, z_equation, zero_mean, skip_first,
-                     form_g=not late)
+                     form_g=not late, overwrite=overwrite)
         z, phi, segs, equation, z_equation = sc.z, sc.phi, sc.segs, sc.equation, sc.z_equation
         n_par, n_ins = phi.shape[1], z.shape[1]
         same = z_equation[:, None] == equation[None, :]
@@ -732,12 +751,13 @@ class CovarianceEstimator:
 def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
             starts: np.ndarray | None, equation: np.ndarray | None,
             z_equation: np.ndarray | None, zero_mean: bool, skip_first: bool,
-            keep_z: bool = True, form_g: bool = True) -> _Scores:
+            keep_z: bool = True, form_g: bool = True, overwrite: bool = False) -> _Scores:
     """Validate the arrays of :meth:`CovarianceEstimator.estimate` and form the scores
     (``phi=None``: instruments only, as :meth:`CovarianceEstimator.long_run`); without
     ``keep_z`` the scores are formed in the equilibrated instruments' buffer (the same
     products) and ``z`` is None; without ``form_g`` the scores are left to the caller
-    (``g`` None: :func:`_products` once ``z`` has served every other sum)."""
+    (``g`` None: :func:`_products` once ``z`` has served every other sum); ``overwrite``:
+    ``z`` (the caller's, handed over) is equilibrated in its own buffer."""
     same = phi is z  # LS / the endogeneity regression: instruments = regressors
     z = np.asarray(z, dtype=float)
     resid = np.asarray(resid, dtype=float)
@@ -784,7 +804,8 @@ def _scores(z: np.ndarray, phi: np.ndarray | None, resid: np.ndarray,
     # θ_s = D_φ θ, ḡ_s = D_z⁻¹ ḡ, W_s = D_z W D_z, so Cov θ̂ = D_φ⁻¹ Cov θ̂_s D_φ⁻¹.
     z_scale = _column_scale(z, None if every_row else rows)
     phi_scale = z_scale if same else _column_scale(phi, None if every_row else rows)
-    z = z / z_scale
+    z = (np.divide(z, z_scale, out=z) if overwrite and z.flags.writeable
+         else z / z_scale)
     # the same numbers either way; a copy all the same (a product of one buffer with
     # itself would take BLAS's symmetric rank-k path, rounded differently)
     # (above LARGE_ROWS rows the one buffer serves both: no second N × P copy, the
@@ -1029,8 +1050,13 @@ class KernelCovariance(CovarianceEstimator):
             return np.multiply(z[a:b] / z_scale, eps[a:b, None])
 
         used: dict[str, Any] = {}
+        total = None  # the scores' column sums, from the bandwidth's pass where it has one
         if isinstance(self.bandwidth, str):  # Newey-West (1994) on the scores' blocks
-            sq = sum(np.einsum("tk,tk->k", g, g) for g in (block(a, b) for a, b in spans))
+            sq, total = 0, 0
+            for a, b in spans:
+                g = block(a, b)
+                sq = sq + np.einsum("tk,tk->k", g, g)
+                total = total + g.sum(axis=0)
             scale = np.sqrt(sq / t_len)
             scale[scale == 0] = 1.0
             x = np.concatenate([_row_sums(block(a, b), scale) if q > 1 else block(a, b)[:, 0]
@@ -1043,7 +1069,9 @@ class KernelCovariance(CovarianceEstimator):
         lags = math.floor(bw)
         if min(lags + 1, t_len - 1) <= 1:
             return None  # a bandwidth below one lag: the general path
-        mean = sum(block(a, b).sum(axis=0) for a, b in spans) / t_len
+        if total is None:
+            total = sum(block(a, b).sum(axis=0) for a, b in spans)
+        mean = total / t_len
         s_u = bartlett_block_sums(block, t_len, q, mean, lags, BLOCK_ROWS)
         return s_u * np.outer(z_scale, z_scale), {**self.config(), **used}
 

@@ -379,19 +379,23 @@ def _bartlett_scores_in_blocks(z: np.ndarray, ev: np.ndarray, v: np.ndarray, cnt
     of the demeaned scores (invalid rows zero). Memory ``O(rows · K)`` instead of the
     ``K × n`` scores; the same sums rounded differently (~1e-14 relative)."""
     n, k_cols = z.shape
+    spans = [(a, min(a + rows, n)) for a in range(0, n, rows)]
+    # the blocks holding an invalid row (the others need no mask: the same numbers)
+    masked = {a for a, b in spans if not v[a:b].all()}
 
     def raw(a: int, b: int) -> np.ndarray:
         g = z[a:b] * ev[a:b, None]
-        g[~v[a:b]] = 0.0
+        if a in masked:
+            g[~v[a:b]] = 0.0
         return g
 
     def demeaned(a: int, b: int) -> np.ndarray:
         g = raw(a, b)
         g -= g_mean
-        g[~v[a:b]] = 0.0
+        if a in masked:
+            g[~v[a:b]] = 0.0
         return g
 
-    spans = [(a, min(a + rows, n)) for a in range(0, n, rows)]
     g_mean = sum(raw(a, b).sum(axis=0) for a, b in spans) / cnt
     mean = sum(demeaned(a, b).sum(axis=0) for a, b in spans) / n
     return _covariance.bartlett_block_sums(demeaned, n, k_cols, mean, lag, rows)
@@ -492,7 +496,7 @@ def _block_cross(zv: np.ndarray, ph: np.ndarray, ev: np.ndarray, t_gu: np.ndarra
     n = zv.shape[0]
     zph = np.zeros((zv.shape[1], ph.shape[1]))
     zeq = np.zeros((zv.shape[1], t_qu.shape[0]))
-    step = _covariance.BLOCK_ROWS * 8
+    step = _covariance.BLOCK_ROWS * 2  # (cache-sized: 4x the rows took 2.5x longer per row)
     for a in range(0, n, step):
         b = min(a + step, n)
         zph += zv[a:b].T @ (ph[a:b] * t_gu[a:b, None])
@@ -545,6 +549,14 @@ def _per_row(x: np.ndarray, data: RegressionData) -> np.ndarray:
     built by repeating each segment's row over its rows (a gather per segment, not per row:
     ~3x faster for one group of 10⁴ rows)."""
     return np.repeat(x[data.group], np.diff(data.starts), axis=0)
+
+
+def _rows_of(theta: np.ndarray, data: RegressionData, shape: tuple[int, int]) -> np.ndarray:
+    """Each row's group's ``theta`` as a ``shape`` array: :func:`_per_row`, or for one
+    group on a long log its row broadcast (no ``(T, P)`` copy; the same products)."""
+    if data.n_groups == 1 and shape[0] > _covariance.LARGE_ROWS:
+        return np.broadcast_to(theta[0], shape)
+    return _per_row(theta, data)
 
 
 def solve_equations(
@@ -609,7 +621,13 @@ def solve_equations(
         zc = np.ascontiguousarray(z, dtype=float)
         valid, cmax = ivk.design_scan(zc, phi, sl.start, sl.stop, data.target, i)
         col = linalg.pow2_scale(cmax)
-        if ar is None:  # masked, scaled and centred in two compiled passes (bit-identical)
+        if ar is None and release and _centres_in_place(zc):
+            # a long log's handed-over instruments centred in their own buffer (no second
+            # T × K array); the regressors and target as below (the same numbers)
+            zz = _centre_in_place(zc, valid, col[:k_i], data.starts)
+            _, pp, yy = ivk.design_centre(zc[:, :0], phi, sl.start, sl.stop, data.target, i,
+                                          valid, col[k_i:], data.starts)
+        elif ar is None:  # masked, scaled and centred in two compiled passes (bit-identical)
             zz, pp, yy = ivk.design_centre(zc, phi, sl.start, sl.stop, data.target, i,
                                            valid, col, data.starts)
         elif not numpy_active():  # prefiltered and centred in one compiled pass (same bits)
@@ -640,7 +658,7 @@ def solve_equations(
         s_mat = None
         jac = None
         if k_i > p_i:
-            e = yy - np.einsum("tp,tp->t", pp, _per_row(np.nan_to_num(th), data))
+            e = yy - np.einsum("tp,tp->t", pp, _rows_of(np.nan_to_num(th), data, pp.shape))
             s_mat = _group_sum(data, hac_sums(zz, e, data.starts, valid, bw))
             s_inv, ok_s = linalg.inv_sym(s_mat)
             if weight == "hac":
@@ -686,6 +704,34 @@ def solve_equations(
     theta[~ok] = np.nan
     return GMMSolution(theta=theta, ok=ok, j=j_stat, df=df, c=c_stat, c_df=c_df,
                        designs=designs, jacobians=jacobians)
+
+
+def _centres_in_place(z: np.ndarray) -> bool:
+    """Instruments :func:`solve_equations` may centre in their own buffer when the
+    caller hands them over: a long log's (above
+    :data:`~vesselid.identify.covariance.LARGE_ROWS` rows) float64, C-ordered, writeable
+    array of at least two columns that owns its memory (not a view of another array)."""
+    return (z.shape[0] > _covariance.LARGE_ROWS and z.ndim == 2 and z.shape[1] >= 2
+            and z.dtype == np.float64 and z.flags.c_contiguous and z.flags.owndata
+            and z.flags.writeable)
+
+
+def _centre_in_place(z: np.ndarray, valid: np.ndarray, col: np.ndarray,
+                     starts: np.ndarray) -> np.ndarray:
+    """``z`` masked (invalid rows 0), scaled by ``col`` and centred per segment over its
+    valid rows, in place: the instruments of ``design_centre`` (the same numbers — each
+    product is the same, a C-ordered ``(T, K ≥ 2)`` column sum adds the rows in order, as
+    the kernel does, and the zeroed invalid rows add nothing)."""
+    z *= col
+    bad = ~valid
+    if bad.any():
+        z[bad] = 0.0
+    for s in range(starts.size - 1):
+        a, b = int(starts[s]), int(starts[s + 1])
+        cnt = int(np.count_nonzero(valid[a:b]))
+        if cnt:
+            z[a:b] -= z[a:b].sum(axis=0) / cnt
+    return z
 
 
 def _as_slice(mask: np.ndarray) -> slice | np.ndarray:

@@ -117,8 +117,10 @@ def _p(p: float) -> str:
     return "p = nan" if not np.isfinite(p) else ("p < 0.0001" if p < 1e-4 else f"p = {p:.2g}")
 
 
-#: Rows per block of :func:`_minus_fit` on long logs.
-BLOCK_ROWS = 1 << 16
+#: Rows per block of :func:`_minus_fit` and of :func:`_lstsq`'s refinement on long logs:
+#: a block and its products stay in the core's cache (a residual block of ``1 << 16``
+#: rows × 6 columns took ~5x longer per row than one of ``1 << 13``).
+BLOCK_ROWS = 1 << 13
 
 
 #: Largest condition number of the equilibrated Gram matrix for which :func:`_lstsq`
@@ -281,23 +283,48 @@ def _first_stage(prep: _Prepared, names: list[str] | None,
         out["cragg_donald"] = float("inf") if endo.size == 0 else 0.0
         return out
     coef = _lstsq(z_t, x_t)
-    fitted = z_t @ coef
-    v = x_t - fitted
+    ssrs, sses, vv, ff = _fit_cross_products(z_t, x_t, coef)
     for i, j in enumerate(endo):
-        ssr = float(v[:, i] @ v[:, i])
-        sse = float(fitted[:, i] @ fitted[:, i])
+        ssr = float(ssrs[i])
+        sse = float(sses[i])
         r2 = sse / (sse + ssr) if sse + ssr > 0 else float("nan")
         f = (sse / k_ex) / (ssr / n) if ssr > 0 else float("inf")
         out["partial_f"][names[j]] = float(f)
         out["partial_r2"][names[j]] = float(r2)
-    s_vv = v.T @ v / n
+    s_vv = vv / n
     try:
         l_inv = np.linalg.inv(np.linalg.cholesky(s_vv))
-        g = l_inv @ (fitted.T @ fitted) @ l_inv.T / k_ex
+        g = l_inv @ ff @ l_inv.T / k_ex
         out["cragg_donald"] = float(np.min(np.linalg.eigvalsh(0.5 * (g + g.T))))
     except np.linalg.LinAlgError:
         out["cragg_donald"] = float("inf")
     return out
+
+
+def _fit_cross_products(z: np.ndarray, x: np.ndarray, coef: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The first stage's sums of the fit ``f = z·coef`` and its residual ``v = x − f``:
+    ``(Σ v², Σ f²)`` per column and ``(vᵀv, fᵀf)``. Above
+    :data:`~vesselid.identify.covariance.LARGE_ROWS` rows summed over blocks of
+    :data:`BLOCK_ROWS` rows (no ``(n, m)`` fit or residual arrays; the same sums rounded
+    differently); shorter logs: whole-array products (the column sums as the columns'
+    own dot products)."""
+    n = z.shape[0]
+    if n > _covariance.LARGE_ROWS:
+        m = x.shape[1]
+        vv, ff = np.zeros((m, m)), np.zeros((m, m))
+        for t0 in range(0, n, BLOCK_ROWS):
+            blk = slice(t0, min(t0 + BLOCK_ROWS, n))
+            f = z[blk] @ coef
+            v = x[blk] - f
+            vv += v.T @ v
+            ff += f.T @ f
+        return np.diag(vv).copy(), np.diag(ff).copy(), vv, ff
+    fitted = z @ coef
+    v = x - fitted
+    ssr = np.array([v[:, i] @ v[:, i] for i in range(x.shape[1])])
+    sse = np.array([fitted[:, i] @ fitted[:, i] for i in range(x.shape[1])])
+    return ssr, sse, v.T @ v, fitted.T @ fitted
 
 
 # ----------------------------------------------------------------- over-identification
@@ -491,8 +518,11 @@ def _endogeneity(prep: _Prepared, cov_type: str, cov_config: Mapping[str, Any],
             memo["x"] = x
     beta = _lstsq(x, y)
     est = get_covariance_estimator(cov_type, **cov_config)
+    # a long log's augmented regressors, kept for no other target, are handed over
+    hand_over = ({"overwrite": True} if memo is None and x.shape[0] > _covariance.LARGE_ROWS
+                 and type(est).estimate is _covariance.CovarianceEstimator.estimate else {})
     cov = est.estimate(x, x, y - x @ beta, _starts_of(segs), skip_first=False,
-                       zero_mean=False).cov
+                       zero_mean=False, **hand_over).cov
     d = beta[phi.shape[1]:]
     v_d = cov[phi.shape[1]:, phi.shape[1]:]
     try:
