@@ -47,24 +47,33 @@ default 4 × 2 500). ``--first library`` starts the selection from the library m
 from __future__ import annotations
 
 import argparse
+import functools
+import gc
+import json
 import math
+import os
 import sys
 import time
 import warnings
 from pathlib import Path
 
-import numpy as np
-import pandas as pd
+# one BLAS/OpenMP thread per process, set before numpy loads: every run is computed by the
+# same single-threaded code whatever --workers is, so the results do not depend on it
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
-from vesselid.identify import identify
-from vesselid.model.spec import ModelSpec
-from vesselid.model.terms import Term
-from vesselid.plant.disturbances import Gaussian, GaussMarkov
-from vesselid.plant.signals import InputSignal
-from vesselid.plant.systems import System, heave
-from vesselid.selection import select_terms
-from vesselid.selection.engine import library_factors, regressors
-from vesselid.selection.library import canonical, resolve_library
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from vesselid.identify import identify  # noqa: E402
+from vesselid.model.spec import ModelSpec  # noqa: E402
+from vesselid.model.terms import Term  # noqa: E402
+from vesselid.plant.disturbances import Gaussian, GaussMarkov  # noqa: E402
+from vesselid.plant.signals import InputSignal  # noqa: E402
+from vesselid.plant.systems import System, heave  # noqa: E402
+from vesselid.selection import select_terms  # noqa: E402
+from vesselid.selection.engine import library_factors, regressors  # noqa: E402
+from vesselid.selection.library import canonical, resolve_library  # noqa: E402
 
 
 # ----------------------------------------------------------------------------- designs
@@ -121,6 +130,7 @@ class _Schedule(InputSignal):
         return {"kind": "schedule", "programme": self.label, "samples": int(self.values.size)}
 
 
+@functools.lru_cache(maxsize=4)
 def planned_programmes(samples: int, experiments: int) -> list:
     """The trial planner's manoeuvres for CyberShip II (:func:`vesselid.studies.planner.
     plan_trial`: blocks of half an experiment chosen to minimise the worst relative
@@ -324,7 +334,8 @@ def _stlsq(phi: np.ndarray, y: np.ndarray) -> np.ndarray | None:
 
 # --------------------------------------------------------------------------------- run
 def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = True,
-            base: str = "linear", first: str = "base") -> list[dict]:
+            base: str = "linear", first: str = "base", comparators: bool = True
+            ) -> list[dict]:
     sim = system.simulate(n, k, seed=seed)
     log = sim.to_log(aggregate=False)
     truth = system.model if system.model is not None else system.spec
@@ -342,26 +353,28 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
     theta0 = truth.theta0_series()
     true_rep = {s: {rep[(s, str(canonical(t)))] for t in truth.equations[s]}
                 for s in truth.states}
-    # the candidate regressors of the log for the comparators (rows k -> target k)
-    from vesselid.identify.data import from_log
-
-    lin = linear_base(truth)
-    data, _ = from_log(log, lin)
-    union, cols = library_factors(lib, lin)
-    phi = regressors(data, union, lin)
-    ok = np.isfinite(phi).all(axis=1)
     selections: dict[str, dict[str, set]] = {"ivsel": {s: {rep[(s, t)] for t in res.selected[s]}
                                                        for s in truth.states}}
-    for name, fn in (("frols", _frols), ("stlsq", _stlsq)):
-        picked: dict[str, set] = {}
-        for i, s in enumerate(truth.states):
-            sel = fn(phi[ok][:, cols[s]], data.target[ok, i])
-            if sel is None:
-                picked = {}
-                break
-            picked[s] = {rep[(s, str(union[cols[s][j]]))] for j in np.flatnonzero(sel)}
-        if picked:
-            selections[name] = picked
+    if comparators:
+        # the candidate regressors of the log for the comparators (rows k -> target k)
+        from vesselid.identify.data import from_log
+
+        lin = linear_base(truth)
+        data, _ = from_log(log, lin)
+        union, cols = library_factors(lib, lin)
+        phi = regressors(data, union, lin)
+        ok = np.isfinite(phi).all(axis=1)
+        for name, fn in (("frols", _frols), ("stlsq", _stlsq)):
+            picked: dict[str, set] = {}
+            for i, s in enumerate(truth.states):
+                sel = fn(phi[ok][:, cols[s]], data.target[ok, i])
+                if sel is None:  # not installed: skipped
+                    picked = {}
+                    break
+                picked[s] = {rep[(s, str(union[cols[s][j]]))] for j in np.flatnonzero(sel)}
+            if picked:
+                selections[name] = picked
+        del phi
     # oracle: |t| of the true terms in the IV fit of the true structure
     t_oracle = None
     oracle_hits = None
@@ -397,13 +410,13 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
                "critical_value": res.critical_value, "n_candidates": res.n_candidates,
                "n_rows": res.n_samples - res.n_experiments}
         for s in truth.states:
-            for cand in {rep[(s, str(t))] for t in lib[s]}:
+            for cand in sorted({rep[(s, str(t))] for t in lib[s]}):
                 row[f"keep|{s}|{cand}"] = cand in picked[s]
                 row[f"true|{s}|{cand}"] = cand in true_rep[s]
             for t in truth.equations[s]:  # each true term, through its representative
                 row[f"tkeep|{s}|{t}"] = rep[(s, str(canonical(t)))] in picked[s]
             if method == "ivsel":
-                for cand in {rep[(s, str(t))] for t in lib[s]}:
+                for cand in sorted({rep[(s, str(t))] for t in lib[s]}):
                     row[f"ukeep|{s}|{cand}"] = cand in either[s]
                 for t in truth.equations[s]:
                     row[f"utkeep|{s}|{t}"] = rep[(s, str(canonical(t)))] in either[s]
@@ -597,8 +610,18 @@ def main(argv=None) -> int:
                          "simulating")
     ap.add_argument("--oracle-runs", type=int, default=25,
                     help="runs that also fit the true structure for the oracle |t|")
+    ap.add_argument("--workers", type=int, default=1,
+                    help="processes running the runs in parallel (each run seeded from "
+                         "--seed, the design and its run index, computed single-threaded: "
+                         "the results do not depend on this number)")
+    ap.add_argument("--comparators", choices=("auto", "off"), default="auto",
+                    help="FROLS and STLSQ on the same logs when installed (auto), or not")
+    ap.add_argument("--summary-out", type=Path,
+                    help="write the summary with 95 %% Wilson intervals (.json, else CSV)")
     args = ap.parse_args(argv)
-    frames, powers = [], []
+    if args.workers < 1:
+        ap.error(f"--workers must be at least 1, got {args.workers}")
+    frames, powers, summaries, jobs = [], [], [], []
     loaded = None
     if args.from_csv:
         loaded = pd.concat([pd.read_csv(f, low_memory=False) for f in args.from_csv],
@@ -617,7 +640,6 @@ def main(argv=None) -> int:
         if args.design and not any(s in name for s in args.design):
             continue
         truth = (system.model or system.spec).with_aggregate(None)
-        t0 = time.perf_counter()
         if loaded is not None:
             for base, df in loaded[loaded.design == name].groupby("base", sort=False):
                 df = _from_table(df, loaded[(loaded.design == name)
@@ -625,36 +647,229 @@ def main(argv=None) -> int:
                 frames.append(df)
                 print(f"{name}, base {base}:")
                 powers.append(report(df, name, truth))
+                summaries.append(summary_table(df, powers[-1]))
             continue
-        else:
-            seeds = np.random.SeedSequence([args.seed, d_i]).spawn(args.runs)
-            rows = []
-            base_label = args.base if args.first == "base" else f"{args.base}+library"
-            for r, ss in enumerate(seeds):
-                if r < args.first_run:
-                    continue
-                t_run = time.perf_counter()
-                for row in one_run(system, n, k, library, ss, oracle=r < args.oracle_runs,
-                                   base=args.base, first=args.first):
-                    row.update(design=name, run=r, base=base_label)
-                    rows.append(row)
-                # progress every 10 runs, or every run when runs are slow (long logs)
-                if (r + 1) % 10 == 0 or time.perf_counter() - t_run > 30.0:
-                    print(f"  {name}: {r + 1} runs, {time.perf_counter() - t0:.0f} s",
-                          file=sys.stderr, flush=True)
-                    if args.out:  # the runs so far, so that a long study can be cut short
-                        _write_csv(pd.concat([*frames, pd.DataFrame(rows)],
-                                             ignore_index=True), args.out)
-            df = pd.DataFrame(rows)
-            print(f"{name}: {args.runs} runs, {k} x {n} samples, base {base_label}, "
-                  f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
-        frames.append(df)
-        powers.append(report(df, name, truth))
+        jobs.append((name, d_i, system, n, k, library, truth))
+    opts = {"seed": args.seed, "oracle_runs": args.oracle_runs, "base": args.base,
+            "first": args.first, "comparators": args.comparators == "auto"}
+    if jobs:
+        for name, df in run_designs(jobs, opts, range(args.first_run, args.runs),
+                                    args.workers, args.out, frames):
+            truth = next(j[6] for j in jobs if j[0] == name)
+            frames.append(df)
+            power = report(df, name, truth)
+            powers.append(power)
+            summaries.append(summary_table(df, power))
     if args.out and frames and loaded is None:
         _write_csv(pd.concat(frames, ignore_index=True), args.out)
     if args.power_out and powers:
-        pd.concat(powers, ignore_index=True).to_csv(args.power_out, index=False)
+        _write_csv(pd.concat(powers, ignore_index=True), args.power_out)
+    if args.summary_out and summaries:
+        _write_summary(pd.concat(summaries, ignore_index=True), args.summary_out)
     return 0
+
+
+# ---------------------------------------------------------------------- parallel runs
+#: (name, design index, system, samples, experiments, library, truth) of the designs being
+#: run and the run options: set before the worker processes fork (or by their initializer)
+_JOBS: dict[str, tuple] = {}
+_OPTS: dict = {}
+
+
+def run_seed(seed: int, design_index: int, run: int) -> np.random.SeedSequence:
+    """The seed of one run: child ``run`` of ``SeedSequence([seed, design_index])`` (the
+    same as ``.spawn(runs)[run]``), so a run's log does not depend on which process runs
+    it or on how many runs are asked for."""
+    return np.random.SeedSequence([seed, design_index], spawn_key=(run,))
+
+
+def _init_worker(jobs: dict, opts: dict) -> None:
+    _JOBS.update(jobs)
+    _OPTS.update(opts)
+
+
+def _one_task(name: str, run: int) -> list[dict]:
+    """Every method's row of run ``run`` of design ``name`` (serial kernels)."""
+    from vesselid.core.threads import serial_here
+
+    _, d_i, system, n, k, library, _ = _JOBS[name]
+    o = _OPTS
+    cpu = time.process_time()
+    with serial_here():
+        rows = one_run(system, n, k, library, run_seed(o["seed"], d_i, run),
+                       oracle=run < o["oracle_runs"], base=o["base"], first=o["first"],
+                       comparators=o["comparators"])
+    cpu = time.process_time() - cpu
+    label = o["base"] if o["first"] == "base" else f"{o['base']}+library"
+    for row in rows:
+        row.update(design=name, run=run, base=label, cpu_seconds=cpu)
+    return rows
+
+
+def _fork_context():
+    import multiprocessing
+
+    if "fork" in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("fork")
+    return None
+
+
+def run_designs(jobs: list[tuple], opts: dict, runs: range, workers: int,
+                out: Path | None = None, done: list | None = None):
+    """Run ``runs`` of every design in ``jobs`` on ``workers`` processes and yield
+    ``(name, per-run table)`` per design, rows in run order (the same table whatever
+    ``workers``). ``out``: the finished runs so far are written there every 10 runs."""
+    table = {j[0]: j for j in jobs}
+    tasks = [(j[0], r) for j in jobs for r in runs]
+    results: dict[tuple[str, int], list[dict]] = {}
+    t0 = time.perf_counter()
+    last = [0]
+
+    def finished(key: tuple[str, int], rows: list[dict]) -> None:
+        results[key] = rows
+        count = len(results)
+        if count % 10 == 0 or count == len(tasks) or time.perf_counter() - last[0] > 30:
+            last[0] = time.perf_counter()
+            print(f"  {count} of {len(tasks)} runs, {time.perf_counter() - t0:.0f} s",
+                  file=sys.stderr, flush=True)
+            if out is not None:  # the runs so far, so that a long study can be cut short
+                _write_csv(pd.concat([*(done or []), pd.DataFrame(
+                    [r for key in sorted(results) for r in results[key]])],
+                    ignore_index=True), out)
+
+    _JOBS.clear()
+    _JOBS.update(table)
+    _OPTS.clear()
+    _OPTS.update(opts)
+    if workers <= 1 or len(tasks) <= 1:
+        for key in tasks:
+            finished(key, _one_task(*key))
+    else:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        ctx = _fork_context()
+        # forked workers inherit the designs (and any kernel loaded here); elsewhere
+        # each worker receives them once through its initializer
+        kw = ({"mp_context": ctx} if ctx is not None else
+              {"initializer": _init_worker, "initargs": (table, opts)})
+        gc.collect()
+        gc.freeze()  # the parent's objects stay out of the workers' collections
+        try:
+            with warnings.catch_warnings(), ProcessPoolExecutor(min(workers, len(tasks)),
+                                                                **kw) as pool:
+                warnings.filterwarnings("ignore", message=".*fork.*",
+                                        category=DeprecationWarning)
+                futures = {pool.submit(_one_task, *key): key for key in tasks}
+                for fut in as_completed(futures):
+                    finished(futures[fut], fut.result())
+        finally:
+            gc.unfreeze()
+    for j in jobs:
+        rows = [r for run in runs for r in results[(j[0], run)]]
+        print(f"{j[0]}: {len(runs)} runs, {j[4]} x {j[3]} samples, "
+              f"{time.perf_counter() - t0:.0f} s wall, {workers} worker(s)", file=sys.stderr)
+        yield j[0], pd.DataFrame(rows)
+
+
+# --------------------------------------------------------------------------- summary
+def wilson(k: float, n: float, z: float = 1.959964) -> tuple[float, float]:
+    """95 % Wilson score interval of a binomial share ``k / n``."""
+    if n <= 0:
+        return math.nan, math.nan
+    p = k / n
+    den = 1.0 + z * z / n
+    mid = (p + z * z / (2 * n)) / den
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return max(0.0, mid - half), min(1.0, mid + half)
+
+
+def summary_table(df: pd.DataFrame, power: pd.DataFrame) -> pd.DataFrame:
+    """The acceptance figures of one design as counts with 95 % Wilson intervals, one row
+    per (method, measure): ``true_structure`` (every true term kept, no other),
+    ``all_true_kept``, ``worst_zero_term`` (runs keeping the zero-coefficient candidate
+    kept most often, named in ``term``), ``detectable_structure``, ``coverage`` (the
+    95 % intervals of ``identify(method="iv-zero-mean")`` on the selected spec, runs with
+    the true structure), ``coverage_no_zero_term``; for ``oracle`` (the IV fit of the true
+    structure, runs with ``--oracle-runs``): ``true_structure`` (every true ``|t|`` at
+    least the selection's critical value: the ceiling of any rule with that critical
+    value on these logs), ``detectable_structure`` and ``coverage``."""
+    rows = []
+    name = str(df["design"].iloc[0])
+    base = str(df["base"].iloc[0]) if "base" in df else ""
+
+    def add(method, measure, k, n, term=""):
+        lo, hi = wilson(float(k), float(n))
+        rows.append({"design": name, "base": base, "method": method, "measure": measure,
+                     "term": term, "count": int(k), "runs": int(n),
+                     "share": (k / n if n else math.nan), "wilson_lo": lo, "wilson_hi": hi})
+
+    def flag(g, c):
+        return g[c].map({True: True, False: False, "True": True, "False": False}
+                        ).fillna(False).to_numpy(dtype=bool)
+
+    det_terms = [f"{r.equation}|{r.term}" for r in power.itertuples() if r.power >= 0.95]
+    for method, g in df.groupby("method", sort=False):
+        n = len(g)
+        add(method, "true_structure", int(g["exact"].astype(bool).sum()), n)
+        add(method, "all_true_kept", int(g["all_true_kept"].astype(bool).sum()), n)
+        keep_cols = [c for c in g.columns if c.startswith("keep|") and g[c].notna().any()]
+        worst, worst_k = "", -1
+        det_ok = np.ones(n, dtype=bool)
+        for c in keep_cols:
+            kept = flag(g, c)
+            true = flag(g, "true|" + c.split("|", 1)[1])
+            det_ok &= ~(kept & ~true)
+            if not true.any() and int(kept.sum()) > worst_k:
+                worst, worst_k = c.split("|", 1)[1].replace("|", ": ", 1), int(kept.sum())
+        if worst_k >= 0:
+            add(method, "worst_zero_term", worst_k, n, worst)
+        for t in det_terms:
+            if f"tkeep|{t}" in g:
+                det_ok &= flag(g, f"tkeep|{t}")
+        add(method, "detectable_structure", int(det_ok.sum()), n)
+        for col, measure in (("covered", "coverage"), ("covered_kept", "coverage_no_zero_term")):
+            tot = col.replace("covered", "intervals")
+            if col in g and g[tot].sum() > 0:
+                add(method, measure, int(g[col].sum()), int(g[tot].sum()))
+    iv = df[df.method == "ivsel"]
+    t_cols = [c for c in iv.columns if c.startswith("oracle_t|")]
+    if t_cols and "critical_value" in iv:
+        ot = iv[t_cols].dropna()
+        if len(ot):
+            crit = iv.loc[ot.index, "critical_value"].to_numpy()[:, None]
+            add("oracle", "true_structure", int((ot.abs().to_numpy() >= crit).all(axis=1).sum()),
+                len(ot))
+            det_t = [f"oracle_t|{t}" for t in det_terms if f"oracle_t|{t}" in ot]
+            if det_t:
+                add("oracle", "detectable_structure",
+                    int((ot[det_t].abs().to_numpy() >= crit).all(axis=1).sum()), len(ot))
+    oc = [c for c in iv.columns if c.startswith("oracle_cover|")]
+    if oc:
+        hits = iv[oc].stack().dropna().map(
+            {True: 1, False: 0, "True": 1, "False": 0}).astype(float)
+        if hits.size:
+            add("oracle", "coverage", int(hits.sum()), int(hits.size))
+    if "cpu_seconds" in iv and iv["cpu_seconds"].notna().any():
+        rows.append({"design": name, "base": base, "method": "ivsel",
+                     "measure": "median_cpu_seconds_per_run", "term": "", "count": 0,
+                     "runs": int(iv["cpu_seconds"].notna().sum()),
+                     "share": float(iv["cpu_seconds"].median()), "wilson_lo": math.nan,
+                     "wilson_hi": math.nan})
+    return pd.DataFrame(rows)
+
+
+def _write_summary(summary: pd.DataFrame, path: Path) -> None:
+    """The summary as JSON (``.json``: a list of records) or CSV, whole or not at all."""
+    with pd.option_context("display.width", 250):
+        print(summary.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
+    if path.suffix.lower() == ".json":
+        tmp = path.with_name(path.name + ".tmp")
+        recs = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                 for k, v in r.items()} for r in summary.to_dict(orient="records")]
+        tmp.write_text(json.dumps(recs, indent=1) + "\n")
+        tmp.replace(path)
+    else:
+        _write_csv(summary, path)
 
 
 def _write_csv(df: pd.DataFrame, path: Path) -> None:
