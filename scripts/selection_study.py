@@ -682,7 +682,17 @@ def main(argv=None) -> int:
                     help="FROLS and STLSQ on the same logs when installed (auto), or not")
     ap.add_argument("--summary-out", type=Path,
                     help="write the summary with 95 %% Wilson intervals (.json, else CSV)")
+    ap.add_argument("--scan-excitation", choices=("white", "gauss-markov"),
+                    help="instead of the study: the weakest terms' noncentrality at 10^6 "
+                         "samples per CyberShip II input design (--runs logs of "
+                         "--experiments x --samples each; writes --power-out)")
     args = ap.parse_args(argv)
+    if args.scan_excitation:
+        tab = scan_excitation(args.samples or 25_000, args.experiments or 4, args.runs,
+                              "white" if args.scan_excitation == "white" else "gm", args.seed)
+        if args.power_out:
+            _write_csv(tab, args.power_out)
+        return 0
     if args.workers < 1:
         ap.error(f"--workers must be at least 1, got {args.workers}")
     frames, powers, summaries, jobs = [], [], [], []
@@ -732,6 +742,72 @@ def main(argv=None) -> int:
     if args.summary_out and summaries:
         _write_summary(pd.concat(summaries, ignore_index=True), args.summary_out)
     return 0
+
+
+# ------------------------------------------------------------------ excitation scan
+#: Thruster squares compared by :func:`scan_excitation` ``(hold_y, hold_n, hold_x, low)``
+#: (the planner's candidates with the engine reversing, two with longer or shorter holds
+#: and one half-astern engine).
+SCAN_SQUARES = ((5.0, 3.5, 30.0, -1.0), (7.0, 10.0, 15.0, -1.0), (10.0, 7.0, 30.0, -1.0),
+                (20.0, 14.0, 60.0, -1.0), (3.5, 5.0, 20.0, -1.0), (15.0, 10.0, 30.0, -0.5))
+
+
+def scan_excitation(samples: int, experiments: int, runs: int, current: str,
+                    seed: int = 7) -> pd.DataFrame:
+    """Per CyberShip II input design (the planner's mix, each of :data:`SCAN_SQUARES` in
+    every experiment, and :data:`CYBERSHIP_SQUARES` alternating): the noncentrality
+    ``|θ0| / SE`` of every true term in the IV fit of the true structure
+    (``identify(method="iv-zero-mean")``, median SE over ``runs`` logs), scaled to 10⁶
+    samples (``δ ∝ √n``). The weakest terms decide how long a trial must be."""
+    from vesselid.plant.vessels.cybership2 import HULL, cybership2_system
+    from vesselid.plant.vessels.kernel import VesselModel
+    from vesselid.studies.manoeuvres import FORCE_LIMITS, Programme, ThrusterSquare
+
+    base = cybership2_system()
+    x0 = [base.x0[s] for s in base.spec.states]
+    vessel = VesselModel(HULL, base.spec.dt)
+    cur = ((Gaussian(0.0, 0.005), Gaussian(0.0, 0.005)) if current == "white" else
+           (GaussMarkov(0.0, 0.002, 1.0, 0.1, 0.006), GaussMarkov(0.0, 0.002, 1.0, 0.1, 0.006)))
+
+    def square(hy, hn, hx, low):
+        return Programme([ThrusterSquare(thrust=FORCE_LIMITS[0], sway=FORCE_LIMITS[1],
+                                         moment=FORCE_LIMITS[2], hold_y=hy, hold_n=hn,
+                                         hold_x=hx, low=low)])
+
+    designs_ = {"planner's mix": planned_programmes(samples, experiments)}
+    for q in SCAN_SQUARES:
+        designs_[square(*q).label()] = [square(*q)] * experiments
+    designs_["alternating " + " / ".join(f"{hy:g}-{hn:g}-{hx:g} s" for hy, hn, hx in
+                                        CYBERSHIP_SQUARES)] = [
+        square(*CYBERSHIP_SQUARES[e % len(CYBERSHIP_SQUARES)], -1.0)
+        for e in range(experiments)]
+    rows = []
+    for label, progs in designs_.items():
+        forces = [p.schedule(vessel, samples, x0=x0, limits=FORCE_LIMITS) for p in progs]
+        inputs = {name: tuple(_Schedule(f[:, j], label) for f in forces)
+                  for j, name in enumerate(base.spec.inputs)}
+        system = System(spec=base.spec, inputs=inputs, current={"u": cur[0], "v": cur[1]},
+                        process_noise=base.process_noise, sensor_noise=base.sensor_noise,
+                        x0=base.x0)
+        truth = system.spec.with_aggregate(None)
+        theta0 = truth.theta0_series()
+        ses = []
+        for r in range(runs):
+            log = system.simulate(samples, experiments,
+                                  seed=np.random.SeedSequence([seed, r])).to_log(aggregate=False)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                fit = identify(log, truth, "iv-zero-mean")
+            ses.append(np.sqrt(np.diag(fit.cov)))
+        se = pd.Series(np.median(ses, axis=0), index=fit.params.index)
+        delta = theta0.loc[se.index].abs() / se * math.sqrt(1e6 / (samples * experiments))
+        for (eq, term), d in delta.sort_values().items():
+            rows.append({"design": label, "current": current, "equation": eq, "term": term,
+                         "noncentrality_1e6": float(d)})
+        weak = delta.sort_values()[:2]
+        print(f"{label}: " + ", ".join(f"{e}: {t} {d:.2f}" for (e, t), d in weak.items()),
+              flush=True)
+    return pd.DataFrame(rows)
 
 
 # ---------------------------------------------------------------------- parallel runs
@@ -940,7 +1016,7 @@ def _write_summary(summary: pd.DataFrame, path: Path) -> None:
 def _write_csv(df: pd.DataFrame, path: Path) -> None:
     """Write ``df`` to ``path`` whole or not at all (temporary file, then rename)."""
     tmp = path.with_name(path.name + ".tmp")
-    df.to_csv(tmp, index=False)
+    df.to_csv(tmp, index=False, compression="gzip" if path.suffix == ".gz" else None)
     tmp.replace(path)
 
 
