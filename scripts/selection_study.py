@@ -32,8 +32,18 @@ catalogue's CyberShip II model with the pulse design :data:`CYBERSHIP_LEVELS`; l
 ``--experiments`` × ``--samples``, default 4 × 5 000); ``cybership2-planned`` (the same
 vessel driven open loop by the trial planner's manoeuvres, :func:`planned_programmes`;
 default 4 × 2 500); ``viknes830`` (the catalogue's Viknes 830 with its pulse design,
-default 4 × 2 500). ``--first library`` starts the selection from the library model
+default 4 × 2 500); ``cybership2-squares`` (CyberShip II under two alternating
+thruster squares, :data:`CYBERSHIP_SQUARES`, 4 × 125 000 samples: long enough for the
+whole 25-term structure). ``--first library`` starts the selection from the library model
 (``select_terms(first_model="library")``).
+
+``--workers N`` runs the runs in ``N`` processes; every run is seeded from ``--seed``,
+its design and its run index and computed single-threaded, so the tables do not depend
+on ``N``, and ``--first-run``/``--runs`` chunks of one study summarise together with
+``--from-csv``. ``--summary-out`` writes the acceptance figures as counts with 95 %
+Wilson intervals; ``--comparators off`` skips FROLS and STLSQ (skipped anyway where
+they are not installed). ``--scan-excitation`` compares CyberShip II input designs by the
+noncentrality of the true terms instead of running the study.
 
     nice -n 10 python scripts/selection_study.py --runs 200 --system heave
     OMP_NUM_THREADS=1 nice -n 10 python scripts/selection_study.py --runs 200 \
@@ -42,6 +52,9 @@ default 4 × 2 500). ``--first library`` starts the selection from the library m
         --system viknes830 --oracle-runs 50
     OMP_NUM_THREADS=1 nice -n 10 python scripts/selection_study.py --runs 200 \
         --system cybership2-planned --first library --oracle-runs 50
+    nice -n 10 python scripts/selection_study.py --system cybership2-squares \
+        --first library --runs 48 --oracle-runs 200 --workers 16 --comparators off \
+        --out squares.csv --summary-out squares.json
 """
 
 from __future__ import annotations
