@@ -32,8 +32,18 @@ catalogue's CyberShip II model with the pulse design :data:`CYBERSHIP_LEVELS`; l
 ``--experiments`` × ``--samples``, default 4 × 5 000); ``cybership2-planned`` (the same
 vessel driven open loop by the trial planner's manoeuvres, :func:`planned_programmes`;
 default 4 × 2 500); ``viknes830`` (the catalogue's Viknes 830 with its pulse design,
-default 4 × 2 500). ``--first library`` starts the selection from the library model
+default 4 × 2 500); ``cybership2-squares`` (CyberShip II under two alternating
+thruster squares, :data:`CYBERSHIP_SQUARES`, 4 × 125 000 samples: long enough for the
+whole 25-term structure). ``--first library`` starts the selection from the library model
 (``select_terms(first_model="library")``).
+
+``--workers N`` runs the runs in ``N`` processes; every run is seeded from ``--seed``,
+its design and its run index and computed single-threaded, so the tables do not depend
+on ``N``, and ``--first-run``/``--runs`` chunks of one study summarise together with
+``--from-csv``. ``--summary-out`` writes the acceptance figures as counts with 95 %
+Wilson intervals; ``--comparators off`` skips FROLS and STLSQ (skipped anyway where
+they are not installed). ``--scan-excitation`` compares CyberShip II input designs by the
+noncentrality of the true terms instead of running the study.
 
     nice -n 10 python scripts/selection_study.py --runs 200 --system heave
     OMP_NUM_THREADS=1 nice -n 10 python scripts/selection_study.py --runs 200 \
@@ -42,29 +52,41 @@ default 4 × 2 500). ``--first library`` starts the selection from the library m
         --system viknes830 --oracle-runs 50
     OMP_NUM_THREADS=1 nice -n 10 python scripts/selection_study.py --runs 200 \
         --system cybership2-planned --first library --oracle-runs 50
+    nice -n 10 python scripts/selection_study.py --system cybership2-squares \
+        --first library --runs 48 --oracle-runs 200 --workers 16 --comparators off \
+        --out squares.csv --summary-out squares.json
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
+import gc
+import json
 import math
+import os
 import sys
 import time
 import warnings
 from pathlib import Path
 
-import numpy as np
-import pandas as pd
+# one BLAS/OpenMP thread per process, set before numpy loads: every run is computed by the
+# same single-threaded code whatever --workers is, so the results do not depend on it
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
-from vesselid.identify import identify
-from vesselid.model.spec import ModelSpec
-from vesselid.model.terms import Term
-from vesselid.plant.disturbances import Gaussian, GaussMarkov
-from vesselid.plant.signals import InputSignal
-from vesselid.plant.systems import System, heave
-from vesselid.selection import select_terms
-from vesselid.selection.engine import library_factors, regressors
-from vesselid.selection.library import canonical, resolve_library
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from vesselid.identify import identify  # noqa: E402
+from vesselid.model.spec import ModelSpec  # noqa: E402
+from vesselid.model.terms import Term  # noqa: E402
+from vesselid.plant.disturbances import Gaussian, GaussMarkov  # noqa: E402
+from vesselid.plant.signals import InputSignal  # noqa: E402
+from vesselid.plant.systems import System, heave  # noqa: E402
+from vesselid.selection import select_terms  # noqa: E402
+from vesselid.selection.engine import library_factors, regressors  # noqa: E402
+from vesselid.selection.library import canonical, resolve_library  # noqa: E402
 
 
 # ----------------------------------------------------------------------------- designs
@@ -121,6 +143,7 @@ class _Schedule(InputSignal):
         return {"kind": "schedule", "programme": self.label, "samples": int(self.values.size)}
 
 
+@functools.lru_cache(maxsize=4)
 def planned_programmes(samples: int, experiments: int) -> list:
     """The trial planner's manoeuvres for CyberShip II (:func:`vesselid.studies.planner.
     plan_trial`: blocks of half an experiment chosen to minimise the worst relative
@@ -206,13 +229,61 @@ def _viknes_manoeuvre_system(current_u, current_v, samples: int, experiments: in
                   x0=base.x0)
 
 
-SYSTEMS = ("heave", "cybership2", "cybership2-planned", "viknes830", "viknes830-manoeuvres")
+#: CyberShip II thruster squares of the long design, one per experiment in turn:
+#: ``(hold_y, hold_n, hold_x)`` seconds of the sway-force, yaw-moment and full ahead /
+#: full astern engine reversals (two of the trial planner's candidates,
+#: :func:`vesselid.studies.planner.candidate_library`; forces at the actuator limits).
+CYBERSHIP_SQUARES = ((10.0, 7.0, 30.0), (7.0, 10.0, 15.0))
+#: Samples per experiment of the long design (4 experiments): the length at which the
+#: weakest true terms, ``v: v*|r|`` and ``v: r*|v|``, reach the noncentrality for
+#: 99.5 % power each (see the term-selection guide).
+CYBERSHIP_SQUARES_SAMPLES = 125_000
+
+
+def _cybership_squares_system(current_u, current_v, samples: int, experiments: int
+                              ) -> System:
+    """CyberShip II driven open loop by thruster squares (:data:`CYBERSHIP_SQUARES`,
+    alternating between experiments): ``u``, ``v`` and ``r`` change sign within every
+    experiment and ``v``, ``r`` take equal and opposite signs, so the true structure is
+    the hull's full one (25 terms). Per sample these squares carry about 2.5 times the
+    information on ``v: v*|r|`` and ``v: r*|v|`` of the trial planner's mix
+    (:func:`planned_programmes`)."""
+    from vesselid.plant.vessels.cybership2 import HULL, cybership2_system
+    from vesselid.plant.vessels.kernel import VesselModel
+    from vesselid.studies.manoeuvres import FORCE_LIMITS, Programme, ThrusterSquare
+
+    base = cybership2_system()
+    x0 = [base.x0[s] for s in base.spec.states]
+    vessel = VesselModel(HULL, base.spec.dt)
+    forces = []
+    for e in range(experiments):
+        hy, hn, hx = CYBERSHIP_SQUARES[e % len(CYBERSHIP_SQUARES)]
+        prog = Programme([ThrusterSquare(thrust=FORCE_LIMITS[0], sway=FORCE_LIMITS[1],
+                                         moment=FORCE_LIMITS[2], hold_y=hy, hold_n=hn,
+                                         hold_x=hx, low=-1.0)])
+        forces.append((prog.schedule(vessel, samples, x0=x0, limits=FORCE_LIMITS),
+                       prog.label()))
+    inputs = {name: tuple(_Schedule(f[:, j], label) for f, label in forces)
+              for j, name in enumerate(base.spec.inputs)}
+    return System(spec=base.spec, inputs=inputs, current={"u": current_u, "v": current_v},
+                  process_noise=base.process_noise, sensor_noise=base.sensor_noise,
+                  x0=base.x0)
+
+
+SYSTEMS = ("heave", "cybership2", "cybership2-planned", "cybership2-squares", "viknes830",
+           "viknes830-manoeuvres")
+#: Seed index of the designs added on request (their runs' seeds do not depend on which
+#: other designs are run); the others take their position in :func:`designs`.
+SEED_INDEX = {"CyberShip II squares, white current": 10,
+              "CyberShip II squares, Gauss-Markov current": 11}
 
 
 def system_key(design: str) -> str:
     """The ``--system`` name of a design."""
     if design.startswith("CyberShip II planned"):
         return "cybership2-planned"
+    if design.startswith("CyberShip II squares"):
+        return "cybership2-squares"
     if design.startswith("CyberShip"):
         return "cybership2"
     if design.startswith("Viknes 830 manoeuvres"):
@@ -223,7 +294,7 @@ def system_key(design: str) -> str:
 
 
 def designs(quick: bool, samples: int | None = None, experiments: int | None = None,
-            planned: bool = False, manoeuvres: bool = False) -> dict:
+            planned: bool = False, manoeuvres: bool = False, squares: bool = False) -> dict:
     """name -> (system, samples per experiment, experiments, library).
 
     ``samples``/``experiments`` override the CyberShip II log length (default 4 × 5 000
@@ -259,6 +330,15 @@ def designs(quick: bool, samples: int | None = None, experiments: int | None = N
             _cybership_planned_system(GaussMarkov(0.0, 0.002, 1.0, dt, 0.006),
                                       GaussMarkov(0.0, 0.002, 1.0, dt, 0.006), n_p, k_c),
             n_p, k_c, "vessel")
+    if squares:
+        n_s = int(samples) if samples else (2500 if quick else CYBERSHIP_SQUARES_SAMPLES)
+        out["CyberShip II squares, white current"] = (
+            _cybership_squares_system(Gaussian(0.0, 0.005), Gaussian(0.0, 0.005), n_s, k_c),
+            n_s, k_c, "vessel")
+        out["CyberShip II squares, Gauss-Markov current"] = (
+            _cybership_squares_system(GaussMarkov(0.0, 0.002, 1.0, dt, 0.006),
+                                      GaussMarkov(0.0, 0.002, 1.0, dt, 0.006), n_s, k_c),
+            n_s, k_c, "vessel")
     if manoeuvres:
         out["Viknes 830 manoeuvres, white current"] = (
             _viknes_manoeuvre_system(Gaussian(0.0, 0.05), Gaussian(0.0, 0.05), n_v, k_c),
@@ -324,7 +404,8 @@ def _stlsq(phi: np.ndarray, y: np.ndarray) -> np.ndarray | None:
 
 # --------------------------------------------------------------------------------- run
 def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = True,
-            base: str = "linear", first: str = "base") -> list[dict]:
+            base: str = "linear", first: str = "base", comparators: bool = True
+            ) -> list[dict]:
     sim = system.simulate(n, k, seed=seed)
     log = sim.to_log(aggregate=False)
     truth = system.model if system.model is not None else system.spec
@@ -342,26 +423,28 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
     theta0 = truth.theta0_series()
     true_rep = {s: {rep[(s, str(canonical(t)))] for t in truth.equations[s]}
                 for s in truth.states}
-    # the candidate regressors of the log for the comparators (rows k -> target k)
-    from vesselid.identify.data import from_log
-
-    lin = linear_base(truth)
-    data, _ = from_log(log, lin)
-    union, cols = library_factors(lib, lin)
-    phi = regressors(data, union, lin)
-    ok = np.isfinite(phi).all(axis=1)
     selections: dict[str, dict[str, set]] = {"ivsel": {s: {rep[(s, t)] for t in res.selected[s]}
                                                        for s in truth.states}}
-    for name, fn in (("frols", _frols), ("stlsq", _stlsq)):
-        picked: dict[str, set] = {}
-        for i, s in enumerate(truth.states):
-            sel = fn(phi[ok][:, cols[s]], data.target[ok, i])
-            if sel is None:
-                picked = {}
-                break
-            picked[s] = {rep[(s, str(union[cols[s][j]]))] for j in np.flatnonzero(sel)}
-        if picked:
-            selections[name] = picked
+    if comparators:
+        # the candidate regressors of the log for the comparators (rows k -> target k)
+        from vesselid.identify.data import from_log
+
+        lin = linear_base(truth)
+        data, _ = from_log(log, lin)
+        union, cols = library_factors(lib, lin)
+        phi = regressors(data, union, lin)
+        ok = np.isfinite(phi).all(axis=1)
+        for name, fn in (("frols", _frols), ("stlsq", _stlsq)):
+            picked: dict[str, set] = {}
+            for i, s in enumerate(truth.states):
+                sel = fn(phi[ok][:, cols[s]], data.target[ok, i])
+                if sel is None:  # not installed: skipped
+                    picked = {}
+                    break
+                picked[s] = {rep[(s, str(union[cols[s][j]]))] for j in np.flatnonzero(sel)}
+            if picked:
+                selections[name] = picked
+        del phi
     # oracle: |t| of the true terms in the IV fit of the true structure
     t_oracle = None
     oracle_hits = None
@@ -397,13 +480,13 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
                "critical_value": res.critical_value, "n_candidates": res.n_candidates,
                "n_rows": res.n_samples - res.n_experiments}
         for s in truth.states:
-            for cand in {rep[(s, str(t))] for t in lib[s]}:
+            for cand in sorted({rep[(s, str(t))] for t in lib[s]}):
                 row[f"keep|{s}|{cand}"] = cand in picked[s]
                 row[f"true|{s}|{cand}"] = cand in true_rep[s]
             for t in truth.equations[s]:  # each true term, through its representative
                 row[f"tkeep|{s}|{t}"] = rep[(s, str(canonical(t)))] in picked[s]
             if method == "ivsel":
-                for cand in {rep[(s, str(t))] for t in lib[s]}:
+                for cand in sorted({rep[(s, str(t))] for t in lib[s]}):
                     row[f"ukeep|{s}|{cand}"] = cand in either[s]
                 for t in truth.equations[s]:
                     row[f"utkeep|{s}|{t}"] = rep[(s, str(canonical(t)))] in either[s]
@@ -411,7 +494,14 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
             row["exact_undecided"] = all(either[s] == true_rep[s] for s in truth.states)
         no_false = all(picked[s] <= true_rep[s] for s in truth.states)
         fit = None
-        if method == "ivsel" and no_false:
+        same = t_oracle is not None and all(
+            sorted(str(canonical(t)) for t in res.spec.equations[s])
+            == sorted(str(canonical(t)) for t in truth.equations[s]) for s in truth.states)
+        if method == "ivsel" and no_false and same:
+            # the selected spec is the true structure: its fit is the oracle's (one fit)
+            row["covered"], row["intervals"] = int(oracle_hits.sum()), int(oracle_hits.size)
+            row["covered_kept"], row["intervals_kept"] = row["covered"], row["intervals"]
+        elif method == "ivsel" and no_false:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 try:
@@ -597,8 +687,28 @@ def main(argv=None) -> int:
                          "simulating")
     ap.add_argument("--oracle-runs", type=int, default=25,
                     help="runs that also fit the true structure for the oracle |t|")
+    ap.add_argument("--workers", type=int, default=1,
+                    help="processes running the runs in parallel (each run seeded from "
+                         "--seed, the design and its run index, computed single-threaded: "
+                         "the results do not depend on this number)")
+    ap.add_argument("--comparators", choices=("auto", "off"), default="auto",
+                    help="FROLS and STLSQ on the same logs when installed (auto), or not")
+    ap.add_argument("--summary-out", type=Path,
+                    help="write the summary with 95 %% Wilson intervals (.json, else CSV)")
+    ap.add_argument("--scan-excitation", choices=("white", "gauss-markov"),
+                    help="instead of the study: the weakest terms' noncentrality at 10^6 "
+                         "samples per CyberShip II input design (--runs logs of "
+                         "--experiments x --samples each; writes --power-out)")
     args = ap.parse_args(argv)
-    frames, powers = [], []
+    if args.scan_excitation:
+        tab = scan_excitation(args.samples or 25_000, args.experiments or 4, args.runs,
+                              "white" if args.scan_excitation == "white" else "gm", args.seed)
+        if args.power_out:
+            _write_csv(tab, args.power_out)
+        return 0
+    if args.workers < 1:
+        ap.error(f"--workers must be at least 1, got {args.workers}")
+    frames, powers, summaries, jobs = [], [], [], []
     loaded = None
     if args.from_csv:
         loaded = pd.concat([pd.read_csv(f, low_memory=False) for f in args.from_csv],
@@ -609,6 +719,7 @@ def main(argv=None) -> int:
     for d_i, (name, (system, n, k, library)) in enumerate(
             designs(args.quick, args.samples, args.experiments,
                     planned=bool(args.system and "cybership2-planned" in args.system),
+                    squares=bool(args.system and "cybership2-squares" in args.system),
                     manoeuvres=bool(args.system and "viknes830-manoeuvres" in args.system)
                     ).items()):
         key = system_key(name)
@@ -617,7 +728,6 @@ def main(argv=None) -> int:
         if args.design and not any(s in name for s in args.design):
             continue
         truth = (system.model or system.spec).with_aggregate(None)
-        t0 = time.perf_counter()
         if loaded is not None:
             for base, df in loaded[loaded.design == name].groupby("base", sort=False):
                 df = _from_table(df, loaded[(loaded.design == name)
@@ -625,42 +735,301 @@ def main(argv=None) -> int:
                 frames.append(df)
                 print(f"{name}, base {base}:")
                 powers.append(report(df, name, truth))
+                summaries.append(summary_table(df, powers[-1]))
             continue
-        else:
-            seeds = np.random.SeedSequence([args.seed, d_i]).spawn(args.runs)
-            rows = []
-            base_label = args.base if args.first == "base" else f"{args.base}+library"
-            for r, ss in enumerate(seeds):
-                if r < args.first_run:
-                    continue
-                t_run = time.perf_counter()
-                for row in one_run(system, n, k, library, ss, oracle=r < args.oracle_runs,
-                                   base=args.base, first=args.first):
-                    row.update(design=name, run=r, base=base_label)
-                    rows.append(row)
-                # progress every 10 runs, or every run when runs are slow (long logs)
-                if (r + 1) % 10 == 0 or time.perf_counter() - t_run > 30.0:
-                    print(f"  {name}: {r + 1} runs, {time.perf_counter() - t0:.0f} s",
-                          file=sys.stderr, flush=True)
-                    if args.out:  # the runs so far, so that a long study can be cut short
-                        _write_csv(pd.concat([*frames, pd.DataFrame(rows)],
-                                             ignore_index=True), args.out)
-            df = pd.DataFrame(rows)
-            print(f"{name}: {args.runs} runs, {k} x {n} samples, base {base_label}, "
-                  f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
-        frames.append(df)
-        powers.append(report(df, name, truth))
+        jobs.append((name, SEED_INDEX.get(name, d_i), system, n, k, library, truth))
+    opts = {"seed": args.seed, "oracle_runs": args.oracle_runs, "base": args.base,
+            "first": args.first, "comparators": args.comparators == "auto"}
+    if jobs:
+        for name, df in run_designs(jobs, opts, range(args.first_run, args.runs),
+                                    args.workers, args.out, frames):
+            truth = next(j[6] for j in jobs if j[0] == name)
+            frames.append(df)
+            power = report(df, name, truth)
+            powers.append(power)
+            summaries.append(summary_table(df, power))
     if args.out and frames and loaded is None:
         _write_csv(pd.concat(frames, ignore_index=True), args.out)
     if args.power_out and powers:
-        pd.concat(powers, ignore_index=True).to_csv(args.power_out, index=False)
+        _write_csv(pd.concat(powers, ignore_index=True), args.power_out)
+    if args.summary_out and summaries:
+        _write_summary(pd.concat(summaries, ignore_index=True), args.summary_out)
     return 0
+
+
+# ------------------------------------------------------------------ excitation scan
+#: Thruster squares compared by :func:`scan_excitation` ``(hold_y, hold_n, hold_x, low)``
+#: (the planner's candidates with the engine reversing, two with longer or shorter holds
+#: and one half-astern engine).
+SCAN_SQUARES = ((5.0, 3.5, 30.0, -1.0), (7.0, 10.0, 15.0, -1.0), (10.0, 7.0, 30.0, -1.0),
+                (20.0, 14.0, 60.0, -1.0), (3.5, 5.0, 20.0, -1.0), (15.0, 10.0, 30.0, -0.5))
+
+
+def scan_excitation(samples: int, experiments: int, runs: int, current: str,
+                    seed: int = 7) -> pd.DataFrame:
+    """Per CyberShip II input design (the planner's mix, each of :data:`SCAN_SQUARES` in
+    every experiment, and :data:`CYBERSHIP_SQUARES` alternating): the noncentrality
+    ``|θ0| / SE`` of every true term in the IV fit of the true structure
+    (``identify(method="iv-zero-mean")``, median SE over ``runs`` logs), scaled to 10⁶
+    samples (``δ ∝ √n``). The weakest terms decide how long a trial must be."""
+    from vesselid.plant.vessels.cybership2 import HULL, cybership2_system
+    from vesselid.plant.vessels.kernel import VesselModel
+    from vesselid.studies.manoeuvres import FORCE_LIMITS, Programme, ThrusterSquare
+
+    base = cybership2_system()
+    x0 = [base.x0[s] for s in base.spec.states]
+    vessel = VesselModel(HULL, base.spec.dt)
+    cur = ((Gaussian(0.0, 0.005), Gaussian(0.0, 0.005)) if current == "white" else
+           (GaussMarkov(0.0, 0.002, 1.0, 0.1, 0.006), GaussMarkov(0.0, 0.002, 1.0, 0.1, 0.006)))
+
+    def square(hy, hn, hx, low):
+        return Programme([ThrusterSquare(thrust=FORCE_LIMITS[0], sway=FORCE_LIMITS[1],
+                                         moment=FORCE_LIMITS[2], hold_y=hy, hold_n=hn,
+                                         hold_x=hx, low=low)])
+
+    designs_ = {"planner's mix": planned_programmes(samples, experiments)}
+    for q in SCAN_SQUARES:
+        designs_[square(*q).label()] = [square(*q)] * experiments
+    designs_["alternating " + " / ".join(f"{hy:g}-{hn:g}-{hx:g} s" for hy, hn, hx in
+                                        CYBERSHIP_SQUARES)] = [
+        square(*CYBERSHIP_SQUARES[e % len(CYBERSHIP_SQUARES)], -1.0)
+        for e in range(experiments)]
+    rows = []
+    for label, progs in designs_.items():
+        forces = [p.schedule(vessel, samples, x0=x0, limits=FORCE_LIMITS) for p in progs]
+        inputs = {name: tuple(_Schedule(f[:, j], label) for f in forces)
+                  for j, name in enumerate(base.spec.inputs)}
+        system = System(spec=base.spec, inputs=inputs, current={"u": cur[0], "v": cur[1]},
+                        process_noise=base.process_noise, sensor_noise=base.sensor_noise,
+                        x0=base.x0)
+        truth = system.spec.with_aggregate(None)
+        theta0 = truth.theta0_series()
+        ses = []
+        for r in range(runs):
+            log = system.simulate(samples, experiments,
+                                  seed=np.random.SeedSequence([seed, r])).to_log(aggregate=False)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                fit = identify(log, truth, "iv-zero-mean")
+            ses.append(np.sqrt(np.diag(fit.cov)))
+        se = pd.Series(np.median(ses, axis=0), index=fit.params.index)
+        delta = theta0.loc[se.index].abs() / se * math.sqrt(1e6 / (samples * experiments))
+        for (eq, term), d in delta.sort_values().items():
+            rows.append({"design": label, "current": current, "equation": eq, "term": term,
+                         "noncentrality_1e6": float(d)})
+        weak = delta.sort_values()[:2]
+        print(f"{label}: " + ", ".join(f"{e}: {t} {d:.2f}" for (e, t), d in weak.items()),
+              flush=True)
+    return pd.DataFrame(rows)
+
+
+# ---------------------------------------------------------------------- parallel runs
+#: (name, design index, system, samples, experiments, library, truth) of the designs being
+#: run and the run options: set before the worker processes fork (or by their initializer)
+_JOBS: dict[str, tuple] = {}
+_OPTS: dict = {}
+
+
+def run_seed(seed: int, design_index: int, run: int) -> np.random.SeedSequence:
+    """The seed of one run: child ``run`` of ``SeedSequence([seed, design_index])`` (the
+    same as ``.spawn(runs)[run]``), so a run's log does not depend on which process runs
+    it or on how many runs are asked for."""
+    return np.random.SeedSequence([seed, design_index], spawn_key=(run,))
+
+
+def _init_worker(jobs: dict, opts: dict) -> None:
+    _JOBS.update(jobs)
+    _OPTS.update(opts)
+
+
+def _one_task(name: str, run: int) -> list[dict]:
+    """Every method's row of run ``run`` of design ``name`` (serial kernels)."""
+    from vesselid.core.threads import serial_here
+
+    _, d_i, system, n, k, library, _ = _JOBS[name]
+    o = _OPTS
+    cpu = time.process_time()
+    with serial_here():
+        rows = one_run(system, n, k, library, run_seed(o["seed"], d_i, run),
+                       oracle=run < o["oracle_runs"], base=o["base"], first=o["first"],
+                       comparators=o["comparators"])
+    cpu = time.process_time() - cpu
+    label = o["base"] if o["first"] == "base" else f"{o['base']}+library"
+    for row in rows:
+        row.update(design=name, run=run, base=label, cpu_seconds=cpu)
+    return rows
+
+
+def _fork_context():
+    import multiprocessing
+
+    if "fork" in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("fork")
+    return None
+
+
+def run_designs(jobs: list[tuple], opts: dict, runs: range, workers: int,
+                out: Path | None = None, done: list | None = None):
+    """Run ``runs`` of every design in ``jobs`` on ``workers`` processes and yield
+    ``(name, per-run table)`` per design, rows in run order (the same table whatever
+    ``workers``). ``out``: the finished runs so far are written there every 10 runs."""
+    table = {j[0]: j for j in jobs}
+    tasks = [(j[0], r) for j in jobs for r in runs]
+    results: dict[tuple[str, int], list[dict]] = {}
+    t0 = time.perf_counter()
+    last = [0]
+
+    def finished(key: tuple[str, int], rows: list[dict]) -> None:
+        results[key] = rows
+        count = len(results)
+        if count % 10 == 0 or count == len(tasks) or time.perf_counter() - last[0] > 30:
+            last[0] = time.perf_counter()
+            print(f"  {count} of {len(tasks)} runs, {time.perf_counter() - t0:.0f} s",
+                  file=sys.stderr, flush=True)
+            if out is not None:  # the runs so far, so that a long study can be cut short
+                _write_csv(pd.concat([*(done or []), pd.DataFrame(
+                    [r for key in sorted(results) for r in results[key]])],
+                    ignore_index=True), out)
+
+    _JOBS.clear()
+    _JOBS.update(table)
+    _OPTS.clear()
+    _OPTS.update(opts)
+    if workers <= 1 or len(tasks) <= 1:
+        for key in tasks:
+            finished(key, _one_task(*key))
+    else:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        ctx = _fork_context()
+        # forked workers inherit the designs (and any kernel loaded here); elsewhere
+        # each worker receives them once through its initializer
+        kw = ({"mp_context": ctx} if ctx is not None else
+              {"initializer": _init_worker, "initargs": (table, opts)})
+        gc.collect()
+        gc.freeze()  # the parent's objects stay out of the workers' collections
+        try:
+            with warnings.catch_warnings(), ProcessPoolExecutor(min(workers, len(tasks)),
+                                                                **kw) as pool:
+                warnings.filterwarnings("ignore", message=".*fork.*",
+                                        category=DeprecationWarning)
+                futures = {pool.submit(_one_task, *key): key for key in tasks}
+                for fut in as_completed(futures):
+                    finished(futures[fut], fut.result())
+        finally:
+            gc.unfreeze()
+    for j in jobs:
+        rows = [r for run in runs for r in results[(j[0], run)]]
+        print(f"{j[0]}: {len(runs)} runs, {j[4]} x {j[3]} samples, "
+              f"{time.perf_counter() - t0:.0f} s wall, {workers} worker(s)", file=sys.stderr)
+        yield j[0], pd.DataFrame(rows)
+
+
+# --------------------------------------------------------------------------- summary
+def wilson(k: float, n: float, z: float = 1.959964) -> tuple[float, float]:
+    """95 % Wilson score interval of a binomial share ``k / n``."""
+    if n <= 0:
+        return math.nan, math.nan
+    p = k / n
+    den = 1.0 + z * z / n
+    mid = (p + z * z / (2 * n)) / den
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return max(0.0, mid - half), min(1.0, mid + half)
+
+
+def summary_table(df: pd.DataFrame, power: pd.DataFrame) -> pd.DataFrame:
+    """The acceptance figures of one design as counts with 95 % Wilson intervals, one row
+    per (method, measure): ``true_structure`` (every true term kept, no other),
+    ``all_true_kept``, ``worst_zero_term`` (runs keeping the zero-coefficient candidate
+    kept most often, named in ``term``), ``detectable_structure``, ``coverage`` (the
+    95 % intervals of ``identify(method="iv-zero-mean")`` on the selected spec, runs with
+    the true structure), ``coverage_no_zero_term``; for ``oracle`` (the IV fit of the true
+    structure, runs with ``--oracle-runs``): ``true_structure`` (every true ``|t|`` at
+    least the selection's critical value: the ceiling of any rule with that critical
+    value on these logs), ``detectable_structure`` and ``coverage``."""
+    rows = []
+    name = str(df["design"].iloc[0])
+    base = str(df["base"].iloc[0]) if "base" in df else ""
+
+    def add(method, measure, k, n, term=""):
+        lo, hi = wilson(float(k), float(n))
+        rows.append({"design": name, "base": base, "method": method, "measure": measure,
+                     "term": term, "count": int(k), "runs": int(n),
+                     "share": (k / n if n else math.nan), "wilson_lo": lo, "wilson_hi": hi})
+
+    def flag(g, c):
+        return g[c].map({True: True, False: False, "True": True, "False": False}
+                        ).fillna(False).to_numpy(dtype=bool)
+
+    det_terms = [f"{r.equation}|{r.term}" for r in power.itertuples() if r.power >= 0.95]
+    for method, g in df.groupby("method", sort=False):
+        n = len(g)
+        add(method, "true_structure", int(g["exact"].astype(bool).sum()), n)
+        add(method, "all_true_kept", int(g["all_true_kept"].astype(bool).sum()), n)
+        keep_cols = [c for c in g.columns if c.startswith("keep|") and g[c].notna().any()]
+        worst, worst_k = "", -1
+        det_ok = np.ones(n, dtype=bool)
+        for c in keep_cols:
+            kept = flag(g, c)
+            true = flag(g, "true|" + c.split("|", 1)[1])
+            det_ok &= ~(kept & ~true)
+            if not true.any() and int(kept.sum()) > worst_k:
+                worst, worst_k = c.split("|", 1)[1].replace("|", ": ", 1), int(kept.sum())
+        if worst_k >= 0:
+            add(method, "worst_zero_term", worst_k, n, worst)
+        for t in det_terms:
+            if f"tkeep|{t}" in g:
+                det_ok &= flag(g, f"tkeep|{t}")
+        add(method, "detectable_structure", int(det_ok.sum()), n)
+        for col, measure in (("covered", "coverage"), ("covered_kept", "coverage_no_zero_term")):
+            tot = col.replace("covered", "intervals")
+            if col in g and g[tot].sum() > 0:
+                add(method, measure, int(g[col].sum()), int(g[tot].sum()))
+    iv = df[df.method == "ivsel"]
+    t_cols = [c for c in iv.columns if c.startswith("oracle_t|")]
+    if t_cols and "critical_value" in iv:
+        ot = iv[t_cols].dropna()
+        if len(ot):
+            crit = iv.loc[ot.index, "critical_value"].to_numpy()[:, None]
+            add("oracle", "true_structure", int((ot.abs().to_numpy() >= crit).all(axis=1).sum()),
+                len(ot))
+            det_t = [f"oracle_t|{t}" for t in det_terms if f"oracle_t|{t}" in ot]
+            if det_t:
+                add("oracle", "detectable_structure",
+                    int((ot[det_t].abs().to_numpy() >= crit).all(axis=1).sum()), len(ot))
+    oc = [c for c in iv.columns if c.startswith("oracle_cover|")]
+    if oc:
+        hits = iv[oc].stack().dropna().map(
+            {True: 1, False: 0, "True": 1, "False": 0}).astype(float)
+        if hits.size:
+            add("oracle", "coverage", int(hits.sum()), int(hits.size))
+    if "cpu_seconds" in iv and iv["cpu_seconds"].notna().any():
+        rows.append({"design": name, "base": base, "method": "ivsel",
+                     "measure": "median_cpu_seconds_per_run", "term": "", "count": 0,
+                     "runs": int(iv["cpu_seconds"].notna().sum()),
+                     "share": float(iv["cpu_seconds"].median()), "wilson_lo": math.nan,
+                     "wilson_hi": math.nan})
+    return pd.DataFrame(rows)
+
+
+def _write_summary(summary: pd.DataFrame, path: Path) -> None:
+    """The summary as JSON (``.json``: a list of records) or CSV, whole or not at all."""
+    with pd.option_context("display.width", 250):
+        print(summary.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
+    if path.suffix.lower() == ".json":
+        tmp = path.with_name(path.name + ".tmp")
+        recs = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                 for k, v in r.items()} for r in summary.to_dict(orient="records")]
+        tmp.write_text(json.dumps(recs, indent=1) + "\n")
+        tmp.replace(path)
+    else:
+        _write_csv(summary, path)
 
 
 def _write_csv(df: pd.DataFrame, path: Path) -> None:
     """Write ``df`` to ``path`` whole or not at all (temporary file, then rename)."""
     tmp = path.with_name(path.name + ".tmp")
-    df.to_csv(tmp, index=False)
+    df.to_csv(tmp, index=False, compression="gzip" if path.suffix == ".gz" else None)
     tmp.replace(path)
 
 

@@ -221,3 +221,71 @@ def test_detectable_structure_up_to_undecided_pairs(study):
     assert det == {"ivsel": pytest.approx(1.0)}
     # without the reading, run 3 fails
     assert study.detectable_structure(df, power)["ivsel"] == pytest.approx(0.75)
+
+
+def test_wilson_interval_by_hand(study):
+    # k = 8 of n = 10: centre (0.8 + z²/20)/(1 + z²/10), half-width
+    # z √(0.8·0.2/10 + z²/400)/(1 + z²/10), z = 1.959964
+    z = 1.959964
+    den = 1 + z * z / 10
+    mid = (0.8 + z * z / 20) / den
+    half = z * math.sqrt(0.016 + z * z / 400) / den
+    lo, hi = study.wilson(8, 10)
+    assert (lo, hi) == pytest.approx((mid - half, mid + half))
+    assert study.wilson(0, 20)[0] == 0.0 and study.wilson(20, 20)[1] == 1.0
+    assert study.wilson(0, 20)[1] == pytest.approx(z * z / (20 + z * z))
+
+
+def test_summary_table_counts(study):
+    df = _table()
+    df["base"] = "linear"
+    df.loc[df.method == "ivsel", "cpu_seconds"] = [1.0, 2.0, 3.0, 4.0]
+    power = study.power_table(df, _truth(), 10000, 12)
+    tab = study.summary_table(df, power).set_index(["method", "measure"])
+    # 'a' (ivsel): never the true structure; keeps the zero term f*x in run 3
+    assert tab.loc[("ivsel", "true_structure"), "count"] == 0
+    worst = tab.loc[("ivsel", "worst_zero_term")]
+    assert (worst["count"], worst["runs"], worst["term"]) == (1, 4, "x: f*x")
+    assert tab.loc[("ivsel", "detectable_structure"), "count"] == 3
+    assert tab.loc[("frols", "true_structure"), "count"] == 4
+    # oracle: |t| of x*|x| is 2 < 3.5 in every run: never the whole structure, always
+    # the detectable one (x, f); its intervals cover in runs 1-3
+    assert tab.loc[("oracle", "true_structure"), "count"] == 0
+    assert tab.loc[("oracle", "detectable_structure"), "count"] == 4
+    cov = tab.loc[("oracle", "coverage")]
+    assert (cov["count"], cov["runs"]) == (9, 12)
+    assert (cov["wilson_lo"], cov["wilson_hi"]) == pytest.approx(study.wilson(9, 12))
+    assert tab.loc[("ivsel", "median_cpu_seconds_per_run"), "share"] == 2.5
+
+
+def test_run_seed_is_the_spawned_child(study):
+    kids = np.random.SeedSequence([7, 3]).spawn(5)
+    for r in (0, 4):
+        assert (study.run_seed(7, 3, r).generate_state(4) == kids[r].generate_state(4)).all()
+
+
+def test_results_do_not_depend_on_workers(study, tmp_path):
+    """Two heave runs on one process and on two: the same per-run table."""
+    out = {}
+    for w in (1, 2):
+        path = tmp_path / f"w{w}.csv"
+        study.main(["--system", "heave", "--design", "white", "--quick", "--runs", "2",
+                    "--oracle-runs", "2", "--comparators", "off", "--workers", str(w),
+                    "--out", str(path), "--summary-out", str(tmp_path / f"w{w}.json")])
+        out[w] = pd.read_csv(path).drop(columns=["seconds", "cpu_seconds"])
+    pd.testing.assert_frame_equal(out[1], out[2])
+    assert set(out[1]["method"]) == {"ivsel"} and out[1]["run"].tolist() == [0, 1]
+
+
+def test_squares_design_changes_signs(study):
+    """The thruster squares make u, v and r change sign, with v and r of equal and of
+    opposite signs, within every experiment: the truth is the full 25-term structure."""
+    d = study.designs(True, squares=True)
+    system, n, k, _ = d["CyberShip II squares, Gauss-Markov current"]
+    assert (n, k) == (2500, 4) and sum(len(v) for v in system.spec.equations.values()) == 25
+    log = system.simulate(n, k, seed=0).to_log(aggregate=False)
+    for _, g in log.data.groupby("experiment"):
+        for s in ("u", "v", "r"):
+            assert g[s].min() < 0 < g[s].max()
+        vr = np.sign(g["v"].to_numpy() * g["r"].to_numpy())
+        assert (vr > 0).mean() > 0.1 and (vr < 0).mean() > 0.1

@@ -52,6 +52,9 @@ def _refined_iv(data, spec: ModelSpec, *, max_iter: int = 30, tol: float = 1e-8
                                                     codes.factors), segs)
     y_c = engine.centred(data.target, segs)
     bound = 1e3 * max(float(np.abs(data.target).max()), 1.0)
+    eq_cols = [np.flatnonzero(codes.equation == i) for i in range(spec.n_states)]
+    phi_eq = [phi_c[:, cols] for cols in eq_cols]  # each equation's columns, copied once
+    del phi_c
     good = None
     for _ in range(max_iter):
         with np.errstate(all="ignore"):
@@ -62,11 +65,10 @@ def _refined_iv(data, spec: ModelSpec, *, max_iter: int = 30, tol: float = 1e-8
         good = theta
         z_c = engine.centred(z, segs)
         new = np.zeros_like(theta)
-        for i in range(spec.n_states):
-            cols = np.flatnonzero(codes.equation == i)
+        for i, cols in enumerate(eq_cols):
+            z_i = z_c[:, cols]
             try:
-                new[cols] = np.linalg.solve(z_c[:, cols].T @ phi_c[:, cols],
-                                            z_c[:, cols].T @ y_c[:, i])
+                new[cols] = np.linalg.solve(z_i.T @ phi_eq[i], z_i.T @ y_c[:, i])
             except np.linalg.LinAlgError:
                 return good
         if not np.all(np.isfinite(new)):
@@ -304,6 +306,16 @@ def select_terms(
             z, z_err = lib_model[0], lib_model[1]
             aux_source = "library model (IV from the base model's instruments, refined)"
 
+    # refined-IV fits by structure: the converged pass refits the structure it selects,
+    # and that fit is the reported one (each computed once)
+    refits: dict[tuple, np.ndarray | None] = {}
+
+    def refit(aux: ModelSpec) -> np.ndarray | None:
+        key = tuple(tuple(str(t) for t in aux.equations[s]) for s in aux.states)
+        if key not in refits:
+            refits[key] = _refined_iv(data, aux)
+        return refits[key]
+
     history: list[dict[str, list[str]]] = []
     fits: dict[str, tuple] = {}
     moments = None
@@ -325,7 +337,7 @@ def select_terms(
             break
         history.append(key)
         new_aux = _spec_with(spec, chosen)
-        new_theta = _refined_iv(data, new_aux)
+        new_theta = refit(new_aux)
         if new_theta is None:
             break
         try:
@@ -356,7 +368,7 @@ def select_terms(
             for r in range(int(n_boot)):
                 acc += engine.select_equation(mm, mv, counts[r], crit)[0]
             prob[s] = acc / n_boot
-    theta_final = _refined_iv(data, out_spec)
+    theta_final = refit(out_spec)
 
     undecided: dict[str, dict[int, list[int]]] = {}
     if moments is not None:
