@@ -297,3 +297,23 @@ def test_covariance_of_handed_over_regressors_is_the_same() -> None:
     assert np.array_equal(got.cov, ref.cov)
     assert not np.array_equal(mine, x)  # the buffer was used
 
+
+
+def test_feedback_scores_of_one_long_experiment(monkeypatch) -> None:
+    """The feedback test of a long one-experiment log (rows and lags as slices, matrices
+    computed into the test's own buffers) is the whole-array test to rounding."""
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import loop
+    from vesselid.identify.data import from_log
+    from vesselid.plant.systems import heave
+
+    for seed in (4, 5):
+        data, spec = from_log(heave().simulate(6000, seed=seed).to_log(), None,
+                              sensor_noise=False)
+        ref = loop.feedback_test_data(data, spec, loop.reference_designs(data, spec))
+        with monkeypatch.context() as m:
+            m.setattr(cv, "LARGE_ROWS", 1000)
+            got = loop.feedback_test_data(data, spec, loop.reference_designs(data, spec))
+        assert got.df == ref.df > 0
+        assert abs(got.statistic - ref.statistic) <= 1e-9 * abs(ref.statistic), seed
+        assert abs(got.pvalue - ref.pvalue) <= 1e-9
