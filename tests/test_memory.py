@@ -317,3 +317,49 @@ def test_feedback_scores_of_one_long_experiment(monkeypatch) -> None:
         assert got.df == ref.df > 0
         assert abs(got.statistic - ref.statistic) <= 1e-9 * abs(ref.statistic), seed
         assert abs(got.pvalue - ref.pvalue) <= 1e-9
+
+
+def _pulse_heave(seed: int, n: int, vbar: float):
+    """Heave driven by pulses of random sign, with a current of mean ``vbar``."""
+    import pandas as pd
+
+    rng = np.random.default_rng(seed)
+    widths = rng.integers(10, 101, size=n // 10 + 2)
+    levels = rng.uniform(0.1, 0.4, widths.size) * rng.choice([-1.0, 1.0], widths.size)
+    tau = np.repeat(levels, widths)[:n]
+    v = rng.normal(vbar, 0.05, n)
+    xi = rng.normal(0.0, 0.05, n)
+    w = np.zeros(n)
+    for k in range(n - 1):
+        wr = w[k] - v[k]
+        w[k + 1] = 0.9 * wr - 0.2 * wr * abs(wr) + 0.8 * tau[k] + xi[k]
+    y = w + rng.normal(0.0, 0.05, n)
+    return pd.DataFrame({"time": np.arange(n, dtype=float), "w": y, "tau": tau})
+
+
+def test_mean_current_of_one_long_experiment(monkeypatch) -> None:
+    """The mean-current test of a long one-experiment log (matrices formed in their final
+    buffers, scores summed block by block) is the whole-array test to rounding, with and
+    without a current's mean."""
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import validity
+    from vesselid.identify.data import from_log
+    from vesselid.identify.estimators import estimate
+    from vesselid.model.spec import ModelSpec
+
+    spec = ModelSpec(name="heave-test", states=["w"], inputs=["tau"],
+                     equations={"w": ["w", "w*|w|", "tau"]}, dt=1.0)
+    for seed, vbar in ((4, 0.0), (5, 0.05)):
+        data, spec = from_log(_pulse_heave(seed, 6000, vbar), spec, sensor_noise=False)
+        theta_aux = estimate(data, spec, "iv-zero-mean").theta_aux[0]
+        ref = validity.mean_current(data, spec, theta_aux)
+        with monkeypatch.context() as m:
+            m.setattr(cv, "LARGE_ROWS", 1000)
+            m.setattr(cv, "BLOCK_ROWS", 777)
+            assert validity._one_long_experiment(data)
+            got = validity.mean_current(data, spec, theta_aux)
+        assert ref is not None and got is not None
+        for key in ("statistic", "abs_coefficient", "abs_coefficient_se", "estimate",
+                    "std_error", "pvalue"):
+            assert abs(got[key] - ref[key]) <= 1e-9 * abs(ref[key]) + 1e-15, (seed, key)
+        assert got["warned"] == ref["warned"] == (vbar > 0)
