@@ -363,3 +363,30 @@ def test_mean_current_of_one_long_experiment(monkeypatch) -> None:
                     "std_error", "pvalue"):
             assert abs(got[key] - ref[key]) <= 1e-9 * abs(ref[key]) + 1e-15, (seed, key)
         assert got["warned"] == ref["warned"] == (vbar > 0)
+
+
+def test_gmm_weight_derivative_filtered_in_blocks(monkeypatch) -> None:
+    """The derivative of the GMM weight's sums with the filtered series formed block by
+    block (each block widened by the lag window) equals the whole-series form, for blocks
+    shorter than, near and longer than the window, with invalid rows inside blocks and
+    at block edges."""
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import gmm
+
+    rng = np.random.default_rng(7)
+    n = 3001
+    z = rng.standard_normal((n, 4)) + 0.3
+    phi = rng.standard_normal((n, 2))
+    e = np.convolve(rng.standard_normal(n), np.ones(5), "same")  # coloured
+    u = rng.standard_normal(4)
+    valid = np.ones(n, dtype=bool)
+    valid[[0, 200, 201, 1500, 2999]] = False
+    starts = np.array([0, 1500, n])
+    for lags in (9, 40):
+        ref = gmm.hac_sums_derivative(z, phi, e, starts, valid, lags, u)
+        for rows in (3, 20, 100, 4096):
+            with monkeypatch.context() as m:
+                m.setattr(cv, "LARGE_ROWS", 1000)
+                m.setattr(cv, "BLOCK_ROWS", rows)
+                got = gmm.hac_sums_derivative(z, phi, e, starts, valid, lags, u)
+            assert np.max(np.abs(got - ref)) <= 1e-12 * np.max(np.abs(ref)), (lags, rows)
