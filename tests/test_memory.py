@@ -390,3 +390,32 @@ def test_gmm_weight_derivative_filtered_in_blocks(monkeypatch) -> None:
                 m.setattr(cv, "BLOCK_ROWS", rows)
                 got = gmm.hac_sums_derivative(z, phi, e, starts, valid, lags, u)
             assert np.max(np.abs(got - ref)) <= 1e-12 * np.max(np.abs(ref)), (lags, rows)
+
+
+def test_deferred_gmm_designs_are_the_kept_ones(monkeypatch) -> None:
+    """A long log's GMM designs formed again when the covariance needs them (not held
+    through the tests between) give the covariance and specification tests of the
+    designs the refinement kept, bit for bit."""
+    import warnings
+
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import efficient, identify
+    from vesselid.plant.systems import heave
+
+    warnings.simplefilter("ignore")
+    log = heave().simulate(6000, seed=2).to_log()
+    monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
+    calls = []
+    rows = efficient.InstrumentalGMM._final_rows
+    monkeypatch.setattr(efficient.InstrumentalGMM, "_final_rows",
+                        lambda self, *a: calls.append(1) or rows(self, *a))
+    got = identify(log)
+    assert calls == [1]
+    monkeypatch.setattr(efficient, "_long_log", lambda data: False)
+    ref = identify(log)
+    assert calls == [1]
+    assert np.array_equal(got.params.to_numpy(), ref.params.to_numpy())
+    assert np.array_equal(got.cov.to_numpy(), ref.cov.to_numpy())
+    assert got.diagnostics["specification"] == ref.diagnostics["specification"]
+    assert (got.diagnostics["instrument_condition"]
+            == ref.diagnostics["instrument_condition"])
