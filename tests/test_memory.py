@@ -419,3 +419,38 @@ def test_deferred_gmm_designs_are_the_kept_ones(monkeypatch) -> None:
     assert got.diagnostics["specification"] == ref.diagnostics["specification"]
     assert (got.diagnostics["instrument_condition"]
             == ref.diagnostics["instrument_condition"])
+
+
+def test_covariance_of_one_long_experiment_in_blocks(monkeypatch) -> None:
+    """The HAC sandwich of one long experiment with every sum over blocks of rows (no
+    equilibrated copy of the instruments, no scores array) is the whole-array sandwich to
+    rounding: IV, 2SLS, a given GMM weight with and without Windmeijer's correction,
+    centred and raw residuals, a fixed and the automatic bandwidth."""
+    from vesselid.identify import covariance as cv
+
+    rng = np.random.default_rng(9)
+    n = 5000
+    x = rng.standard_normal((n, 2))
+    z = np.column_stack([x + 0.5 * rng.standard_normal((n, 2)), rng.standard_normal((n, 2))])
+    z *= [1.0, 1e3, 1e-2, 1.0]  # badly scaled columns: the equilibration matters
+    resid = np.convolve(rng.standard_normal(n), np.ones(4), "same") + 0.1
+    w = np.linalg.inv(z.T @ z / n)
+    jac = 0.01 * rng.standard_normal((2, 2))
+    cases = [(z[:, :2], {}), (z, {}), (z, {"weight": w}),
+             (z, {"weight": w, "weight_jacobian": jac})]
+    for est in (cv.KernelCovariance(), cv.KernelCovariance(bandwidth=7.0)):
+        for zz, kw in cases:
+            for zero_mean in (False, True):
+                args = (zz, x, resid, np.array([0, n]))
+                opts = dict(zero_mean=zero_mean, skip_first=False, **kw)
+                ref = est.estimate(*args, **opts)
+                with monkeypatch.context() as m:
+                    m.setattr(cv, "LARGE_ROWS", 1000)
+                    m.setattr(cv, "BLOCK_ROWS", 333)
+                    assert est._estimate_in_blocks(*args, None, None, kw.get("weight"),
+                                                   zero_mean, "pooled", False,
+                                                   kw.get("weight_jacobian")) is not None
+                    got = est.estimate(*args, **opts)
+                assert np.max(np.abs(got.cov - ref.cov)) <= 1e-11 * np.max(np.abs(ref.cov))
+                assert np.allclose(got.long_run, ref.long_run, rtol=1e-11, atol=0)
+                assert got.config == ref.config and got.label == ref.label
