@@ -425,7 +425,8 @@ def test_covariance_of_one_long_experiment_in_blocks(monkeypatch) -> None:
     """The HAC sandwich of one long experiment with every sum over blocks of rows (no
     equilibrated copy of the instruments, no scores array) is the whole-array sandwich to
     rounding: IV, 2SLS, a given GMM weight with and without Windmeijer's correction,
-    centred and raw residuals, a fixed and the automatic bandwidth."""
+    instruments that are the regressors (LS), centred and raw residuals, a fixed and the
+    automatic bandwidth."""
     from vesselid.identify import covariance as cv
 
     rng = np.random.default_rng(9)
@@ -436,12 +437,12 @@ def test_covariance_of_one_long_experiment_in_blocks(monkeypatch) -> None:
     resid = np.convolve(rng.standard_normal(n), np.ones(4), "same") + 0.1
     w = np.linalg.inv(z.T @ z / n)
     jac = 0.01 * rng.standard_normal((2, 2))
-    cases = [(z[:, :2], {}), (z, {}), (z, {"weight": w}),
-             (z, {"weight": w, "weight_jacobian": jac})]
+    cases = [(z[:, :2], x, {}), (z, x, {}), (z, x, {"weight": w}),
+             (z, x, {"weight": w, "weight_jacobian": jac}), (z, z, {})]
     for est in (cv.KernelCovariance(), cv.KernelCovariance(bandwidth=7.0)):
-        for zz, kw in cases:
+        for zz, xx, kw in cases:
             for zero_mean in (False, True):
-                args = (zz, x, resid, np.array([0, n]))
+                args = (zz, xx, resid, np.array([0, n]))
                 opts = dict(zero_mean=zero_mean, skip_first=False, **kw)
                 ref = est.estimate(*args, **opts)
                 with monkeypatch.context() as m:

@@ -739,10 +739,11 @@ class CovarianceEstimator:
         ``(T, K)`` copy, no ``(T, K)`` scores); None where that does not apply (the
         caller takes the whole-array path). Sums rounded differently (~1e-14
         relative)."""
-        if phi is None or phi is z or np.ndim(phi) != 2 or np.ndim(z) != 2:
-            return None  # (instruments = regressors: the whole-array path)
+        same = phi is z  # LS / the endogeneity regression: instruments = regressors
+        if phi is None or np.ndim(phi) != 2 or np.ndim(z) != 2:
+            return None
         z = np.asarray(z, dtype=float)
-        phi = np.asarray(phi, dtype=float)
+        phi = z if same else np.asarray(phi, dtype=float)
         t_len, n_ins = z.shape
         n_par = phi.shape[1]
         if (phi.shape[0] != t_len or n_ins < n_par
@@ -760,7 +761,7 @@ class CovarianceEstimator:
         if got is None:
             return None
         s_u, z_scale, used = got
-        phi_scale = _column_scale(phi, None)
+        phi_scale = z_scale if same else _column_scale(phi, None)
         two_sls = weight is None and n_ins != n_par
         windmeijer = weight_jacobian is not None and self.windmeijer
         need_zz = two_sls or (windmeijer and weight is not None and n_ins != n_par)
@@ -768,7 +769,7 @@ class CovarianceEstimator:
         zz = np.zeros((n_ins, n_ins))
         for a in range(0, t_len, BLOCK_ROWS):
             zb = z[a:a + BLOCK_ROWS] / z_scale
-            a_sum += zb.T @ (phi[a:a + BLOCK_ROWS] / phi_scale)
+            a_sum += zb.T @ (zb if same else phi[a:a + BLOCK_ROWS] / phi_scale)
             if need_zz:
                 zz += zb.T @ zb
         eq = np.zeros(n_ins, dtype=np.int64)
