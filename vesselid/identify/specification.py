@@ -264,11 +264,14 @@ def _first_stage(prep: _Prepared, names: list[str] | None,
     names = names or [f"x{j}" for j in range(pp.shape[1])]
     exo = exogenous_columns(zz, pp) if exo is None else exo
     excl = ~exogenous_columns(pp, zz)  # instrument columns that are not regressors
-    w = pp[:, exo]
     endo = np.flatnonzero(~exo)
     n = zz.shape[0]
     k_ex = int(excl.sum())
     k_total = k_ex + int(exo.sum()) + (len(prep.segs) if prep.zero_mean else 0)
+    if n > _covariance.LARGE_ROWS and endo.size and k_ex:  # sums over blocks of rows
+        return _first_stage_blocks(zz, pp, excl, exo, names,
+                                   _first_stage_base(names, endo, k_ex, n - k_total))
+    w = pp[:, exo]
 
     def resid_on(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         if b.shape[1] == 0:
@@ -284,6 +287,20 @@ def _first_stage(prep: _Prepared, names: list[str] | None,
         return out
     coef = _lstsq(z_t, x_t)
     ssrs, sses, vv, ff = _fit_cross_products(z_t, x_t, coef)
+    return _first_stage_stats(out, endo, names, ssrs, sses, vv, ff, k_ex, n)
+
+
+def _first_stage_base(names: list[str], endo: np.ndarray, k_ex: int, df_den: int) -> dict[str, Any]:
+    """The first stage's result before its statistics (:func:`_first_stage`)."""
+    return {"partial_f": {}, "partial_r2": {}, "endogenous": [names[j] for j in endo],
+            "df": (k_ex, df_den)}
+
+
+def _first_stage_stats(out: dict[str, Any], endo: np.ndarray, names: list[str],
+                       ssrs: np.ndarray, sses: np.ndarray, vv: np.ndarray, ff: np.ndarray,
+                       k_ex: int, n: int) -> dict[str, Any]:
+    """Partial F, partial R² and Cragg–Donald of :func:`_first_stage` from the sums of
+    its fit and residual."""
     for i, j in enumerate(endo):
         ssr = float(ssrs[i])
         sse = float(sses[i])
@@ -299,6 +316,75 @@ def _first_stage(prep: _Prepared, names: list[str] | None,
     except np.linalg.LinAlgError:
         out["cragg_donald"] = float("inf")
     return out
+
+
+def _first_stage_blocks(zz: np.ndarray, pp: np.ndarray, excl: np.ndarray, exo: np.ndarray,
+                        names: list[str], out: dict[str, Any]) -> dict[str, Any]:
+    """:func:`_first_stage` of a long log without the partialled-out copies of the
+    excluded instruments and endogenous regressors: every row of ``z̃ = z_excl − w c_z``
+    and ``x̃ = x_endo − w c_x`` is formed inside a block of :data:`BLOCK_ROWS` rows where a
+    sum needs it (:func:`_lstsq_blocks`; the same sums rounded differently)."""
+    excl_i, exo_i, endo = np.flatnonzero(excl), np.flatnonzero(exo), np.flatnonzero(~exo)
+    n = zz.shape[0]
+    if exo_i.size:
+        c_z = _lstsq_blocks(lambda b: pp[b][:, exo_i], lambda b: zz[b][:, excl_i], n)
+        c_x = _lstsq_blocks(lambda b: pp[b][:, exo_i], lambda b: pp[b][:, endo], n)
+
+        def z_t(b: slice) -> np.ndarray:
+            return zz[b][:, excl_i] - pp[b][:, exo_i] @ c_z
+
+        def x_t(b: slice) -> np.ndarray:
+            return pp[b][:, endo] - pp[b][:, exo_i] @ c_x
+    else:
+        def z_t(b: slice) -> np.ndarray:
+            return zz[b][:, excl_i]
+
+        def x_t(b: slice) -> np.ndarray:
+            return pp[b][:, endo]
+    coef = _lstsq_blocks(z_t, x_t, n)
+    m = endo.size
+    vv, ff = np.zeros((m, m)), np.zeros((m, m))
+    for t0 in range(0, n, BLOCK_ROWS):
+        blk = slice(t0, min(t0 + BLOCK_ROWS, n))
+        f = z_t(blk) @ coef
+        v = x_t(blk) - f
+        vv += v.T @ v
+        ff += f.T @ f
+    return _first_stage_stats(out, endo, names, np.diag(vv).copy(), np.diag(ff).copy(), vv,
+                              ff, int(excl_i.size), n)
+
+
+def _lstsq_blocks(a_of: Any, b_of: Any, n: int) -> np.ndarray:
+    """:func:`_lstsq` of a long ``a`` and ``b`` given by their rows: ``a_of(rows)``,
+    ``b_of(rows)`` return the rows of a slice (2-d); the normal equations and their two
+    refinement steps summed over blocks of :data:`BLOCK_ROWS` rows. Where the Gram matrix
+    is too ill-conditioned for them, the arrays are formed whole and ``lstsq`` solves."""
+    blocks = [slice(t0, min(t0 + BLOCK_ROWS, n)) for t0 in range(0, n, BLOCK_ROWS)]
+    gram, atb = 0.0, 0.0
+    for blk in blocks:
+        a, b = a_of(blk), b_of(blk)
+        gram = gram + a.T @ a
+        atb = atb + a.T @ b
+    scale = np.sqrt(np.diag(gram))
+    g_s = gram / np.outer(scale, scale) if np.all(scale > 0) else None
+    if (g_s is None or not np.all(np.isfinite(gram))
+            or not np.linalg.cond(g_s) < GRAM_COND):
+        whole = slice(0, n)
+        return np.linalg.lstsq(a_of(whole), b_of(whole), rcond=None)[0]
+    chol = np.linalg.cholesky(g_s)
+
+    def solve(v: np.ndarray) -> np.ndarray:  # gram⁻¹ v through the equilibrated factor
+        w = np.linalg.solve(chol, v / scale[:, None])
+        return np.linalg.solve(chol.T, w) / scale[:, None]
+
+    x = solve(atb)
+    for _ in range(2):
+        atr = np.zeros_like(x)
+        for blk in blocks:
+            a = a_of(blk)
+            atr += a.T @ (b_of(blk) - a @ x)
+        x = x + solve(atr)
+    return x
 
 
 def _fit_cross_products(z: np.ndarray, x: np.ndarray, coef: np.ndarray
