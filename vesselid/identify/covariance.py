@@ -1136,7 +1136,8 @@ class KernelCovariance(CovarianceEstimator):
             return None  # (the general path says why)
         segs = [slice(0, t_len)]
         z_scale = _column_scale(z, None)
-        eps = _residual(resid, segs, zero_mean)[:, 0]
+        # (raw residuals are read in place: the same numbers as _residual's copy)
+        eps = _residual(resid, segs, zero_mean)[:, 0] if zero_mean else resid[:, 0]
         q = z.shape[1]
         spans = [(a, min(a + BLOCK_ROWS, t_len)) for a in range(0, t_len, BLOCK_ROWS)]
 
@@ -1153,8 +1154,9 @@ class KernelCovariance(CovarianceEstimator):
                 total = total + g.sum(axis=0)
             scale = np.sqrt(sq / t_len)
             scale[scale == 0] = 1.0
-            x = np.concatenate([_row_sums(block(a, b), scale) if q > 1 else block(a, b)[:, 0]
-                                for a, b in spans])
+            x = np.empty(t_len)  # the scaled row sums, block by block
+            for a, b in spans:
+                x[a:b] = _row_sums(block(a, b), scale) if q > 1 else block(a, b)[:, 0]
             bw = float(min(_newey_west_from_sums([x], self.kernel, t_len),
                            float(max(t_len - 1, 0))))
         else:
