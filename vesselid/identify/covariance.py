@@ -1120,9 +1120,14 @@ class KernelCovariance(CovarianceEstimator):
         s_u, z_scale, used = got
         return s_u * np.outer(z_scale, z_scale), used
 
+    def sums_in_blocks(self) -> bool:
+        """Whether the block-wise long run applies: the Bartlett kernel with a
+        Newey-West or fixed lag, not pre-whitened."""
+        return not (self.kernel != "bartlett" or self.prewhiten
+                    or (isinstance(self.bandwidth, str) and self.bandwidth != "newey-west"))
+
     def _scaled_long_run_blocks(self, z, resid, starts, z_equation, zero_mean, skip_first):
-        if (self.kernel != "bartlett" or self.prewhiten
-                or (isinstance(self.bandwidth, str) and self.bandwidth != "newey-west")):
+        if not self.sums_in_blocks():
             return None  # the blocks cover the Bartlett kernel with a Newey-West/fixed lag
         z = np.asarray(z, dtype=float)
         resid = np.asarray(resid, dtype=float)
@@ -1138,11 +1143,17 @@ class KernelCovariance(CovarianceEstimator):
         z_scale = _column_scale(z, None)
         # (raw residuals are read in place: the same numbers as _residual's copy)
         eps = _residual(resid, segs, zero_mean)[:, 0] if zero_mean else resid[:, 0]
-        q = z.shape[1]
+        return self._bartlett_of_rows(lambda a, b: z[a:b], t_len, z.shape[1], z_scale, eps)
+
+    def _bartlett_of_rows(self, rows_of: Callable[[int, int], np.ndarray], t_len: int,
+                          q: int, z_scale: np.ndarray, eps: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]] | None:
+        """The block-wise long run of the scores ``(z / z_scale) ε`` whose instrument
+        rows ``a … b − 1`` are ``rows_of(a, b)`` (:meth:`_scaled_long_run_blocks`)."""
         spans = [(a, min(a + BLOCK_ROWS, t_len)) for a in range(0, t_len, BLOCK_ROWS)]
 
         def block(a: int, b: int) -> np.ndarray:  # the rows a … b − 1 of g = (z / s) ε
-            return np.multiply(z[a:b] / z_scale, eps[a:b, None])
+            return np.multiply(rows_of(a, b) / z_scale, eps[a:b, None])
 
         used: dict[str, Any] = {}
         total = None  # the scores' column sums, from the bandwidth's pass where it has one
@@ -1196,6 +1207,41 @@ class KernelCovariance(CovarianceEstimator):
                 s_u = long_run_covariance(series[s], w)
             out.append(s_u if not self.prewhiten else recolour @ s_u @ recolour.T)
         return out, used
+
+
+def ls_covariance_of_rows(est: CovarianceEstimator, rows_of: Callable[[int, int], np.ndarray],
+                          t_len: int, q: int, resid: np.ndarray) -> np.ndarray | None:
+    """The covariance ``est.estimate(x, x, resid, skip_first=False)`` of least squares
+    on one long experiment whose regressor rows ``a … b − 1`` are ``rows_of(a, b)``
+    (never formed whole): the equilibration, the sandwich's sums and the Bartlett meat
+    over blocks of :data:`BLOCK_ROWS` rows. None where that does not apply (another
+    kernel or estimator, non-finite rows, a bandwidth below one lag)."""
+    if not (isinstance(est, KernelCovariance) and est.sums_in_blocks()) or t_len < 2:
+        return None
+    spans = [(a, min(a + BLOCK_ROWS, t_len)) for a in range(0, t_len, BLOCK_ROWS)]
+    sq = np.zeros(q)
+    for a, b in spans:
+        x = rows_of(a, b)
+        if not np.all(np.isfinite(x)):
+            return None
+        sq += np.einsum("tk,tk->k", x, x)
+    scale = np.sqrt(sq)
+    scale = np.where((scale > 0) & np.isfinite(scale), scale, 1.0)
+    eps = np.asarray(resid, dtype=float).reshape(-1)
+    if eps.shape != (t_len,) or not np.all(np.isfinite(eps)):
+        return None
+    got = est._bartlett_of_rows(rows_of, t_len, q, scale, eps)
+    if got is None:
+        return None
+    s_u, _, used = got
+    a_sum = np.zeros((q, q))
+    for a, b in spans:
+        xb = rows_of(a, b) / scale
+        a_sum += xb.T @ xb
+    eq = np.zeros(q, dtype=np.int64)
+    return est._sandwich([a_sum], a_sum, [s_u], [t_len], np.eye(q), None, used, weight=None,
+                         weight_jacobian=None, combine="pooled", z_scale=scale,
+                         phi_scale=scale, z_equation=eq, equation=eq).cov
 
 
 def _compact(x: np.ndarray, segs: list[slice]) -> np.ndarray:

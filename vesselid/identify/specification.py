@@ -318,6 +318,37 @@ def _first_stage_stats(out: dict[str, Any], endo: np.ndarray, names: list[str],
     return out
 
 
+def _endogeneity_rows(z: np.ndarray, phi: np.ndarray, y: np.ndarray, endo: np.ndarray,
+                      cov_type: str, cov_config: Mapping[str, Any]
+                      ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The augmented regression of :func:`_endogeneity` on one long experiment without
+    its ``[φ, v̂]`` array: each block of rows formed where a sum needs it (the least
+    squares of :func:`_lstsq_blocks`, the covariance of
+    :func:`~vesselid.identify.covariance.ls_covariance_of_rows`; the same sums rounded
+    differently). ``(β, Cov β)``, or None where the covariance has no block form."""
+    est = get_covariance_estimator(cov_type, **cov_config)
+    n, p = phi.shape
+    q = p + endo.size
+    if not (isinstance(est, _covariance.KernelCovariance) and est.sums_in_blocks()):
+        return None
+    coef = _lstsq_blocks(lambda b: z[b], lambda b: phi[b][:, endo], n)
+
+    def x_of(a: int, b: int) -> np.ndarray:  # the rows of [φ, v̂]
+        out = np.empty((b - a, q))
+        out[:, :p] = phi[a:b]
+        out[:, p:] = phi[a:b][:, endo]
+        out[:, p:] -= z[a:b] @ coef
+        return out
+
+    beta = _lstsq_blocks(lambda b: x_of(b.start, b.stop), lambda b: y[b][:, None], n)[:, 0]
+    resid = np.empty(n)
+    for t0 in range(0, n, BLOCK_ROWS):
+        t1 = min(t0 + BLOCK_ROWS, n)
+        resid[t0:t1] = y[t0:t1] - x_of(t0, t1) @ beta
+    cov = _covariance.ls_covariance_of_rows(est, x_of, n, q, resid)
+    return None if cov is None else (beta, cov)
+
+
 def _first_stage_blocks(zz: np.ndarray, pp: np.ndarray, excl: np.ndarray, exo: np.ndarray,
                         names: list[str], out: dict[str, Any]) -> dict[str, Any]:
     """:func:`_first_stage` of a long log without the partialled-out copies of the
@@ -590,7 +621,12 @@ def _endogeneity(prep: _Prepared, cov_type: str, cov_config: Mapping[str, Any],
         return TestResult("Durbin-Wu-Hausman", 0.0, 0, 1.0, "chi2", "LS is consistent",
                           "no endogenous regressor: LS and IV coincide")
     x = None if memo is None else memo.get("x")
-    if x is None:
+    rows = None
+    if x is None and memo is None and z.shape[0] > _covariance.LARGE_ROWS and len(segs) == 1:
+        rows = _endogeneity_rows(z, phi, y, endo, cov_type, cov_config)
+    if rows is not None:
+        beta, cov = rows
+    elif x is None:
         coef = _lstsq(z, phi[:, endo])
         if z.shape[0] > _covariance.LARGE_ROWS:  # [φ, v] filled in place: no separate v
             x = np.empty((phi.shape[0], phi.shape[1] + endo.size))
@@ -602,13 +638,16 @@ def _endogeneity(prep: _Prepared, cov_type: str, cov_config: Mapping[str, Any],
             x = np.hstack([phi, v])
         if memo is not None:
             memo["x"] = x
-    beta = _lstsq(x, y)
-    est = get_covariance_estimator(cov_type, **cov_config)
-    # a long log's augmented regressors, kept for no other target, are handed over
-    hand_over = ({"overwrite": True} if memo is None and x.shape[0] > _covariance.LARGE_ROWS
-                 and type(est).estimate is _covariance.CovarianceEstimator.estimate else {})
-    cov = est.estimate(x, x, y - x @ beta, _starts_of(segs), skip_first=False,
-                       zero_mean=False, **hand_over).cov
+    if rows is None:
+        beta = _lstsq(x, y)
+        est = get_covariance_estimator(cov_type, **cov_config)
+        # a long log's augmented regressors, kept for no other target, are handed over
+        hand_over = ({"overwrite": True} if memo is None
+                     and x.shape[0] > _covariance.LARGE_ROWS
+                     and type(est).estimate is _covariance.CovarianceEstimator.estimate
+                     else {})
+        cov = est.estimate(x, x, y - x @ beta, _starts_of(segs), skip_first=False,
+                           zero_mean=False, **hand_over).cov
     d = beta[phi.shape[1]:]
     v_d = cov[phi.shape[1]:, phi.shape[1]:]
     try:
