@@ -378,12 +378,16 @@ class InstrumentalGMM(Estimator):
                 if first is None:
                     first = sol
             else:
-                z_sim, ok_sim = gmm.simulated_instruments(data, spec, theta)
-                if first_z is not None and step == 0:
-                    first_z.append(z_sim)
-                ar = gmm.noise_model(data, spec, phi, theta, order) if order else None
-                blocks = gmm.instrument_blocks(spec, kind, phi, z_sim, lagged)
-                del z_sim  # (first_z keeps the first step's; the blocks hold the others)
+                if defer:  # (the colour test simulates the first step's instruments again)
+                    blocks, ok_sim = _combined_blocks(data, spec, theta)
+                    ar = None
+                else:
+                    z_sim, ok_sim = gmm.simulated_instruments(data, spec, theta)
+                    if first_z is not None and step == 0:
+                        first_z.append(z_sim)
+                    ar = gmm.noise_model(data, spec, phi, theta, order) if order else None
+                    blocks = gmm.instrument_blocks(spec, kind, phi, z_sim, lagged)
+                    del z_sim  # (first_z keeps the first step's; the blocks the others)
                 last = step == n_steps - 1
                 if last and lagged:  # gathered for the last time (the caller's list)
                     lagged.clear()
@@ -457,7 +461,9 @@ class InstrumentalGMM(Estimator):
         whitened = self.instruments == "auto" and bool(self.colour_order)
         phi = (None if fused and not whitened else corrected_regressor_matrix(data, spec))
         lagged = None
-        if self.instruments in ("combined", "auto") and keep:  # explicit rows (fit path)
+        if self.instruments in ("combined", "auto") and keep and not _long_log(data):
+            # explicit rows (fit path; a long log's are formed one source at a time,
+            # :func:`_combined_blocks`)
             lagged = [gmm.lagged_regressors(data, spec, lag) for lag in gmm.LAGS]
         theta0 = base.theta.copy()
         used = np.full(n, self.instruments, dtype=object)
@@ -586,11 +592,7 @@ class InstrumentalGMM(Estimator):
         rows and weight derivatives (the same calls on the same arrays: the same
         numbers as the step :meth:`_refine` ran)."""
         phi = corrected_regressor_matrix(data, spec)
-        lagged = [gmm.lagged_regressors(data, spec, lag) for lag in gmm.LAGS]
-        z_sim, _ = gmm.simulated_instruments(data, spec, theta)
-        blocks = gmm.instrument_blocks(spec, "combined", phi, z_sim, lagged)
-        del z_sim
-        lagged.clear()
+        blocks, _ = _combined_blocks(data, spec, theta)
         sol = gmm.solve_equations(data, spec, phi, blocks, weight="hac", ar=None,
                                   keep_designs=True, keep_jacobians=True, release=True)
         sol.segment_starts = data.starts  # type: ignore[attr-defined]
@@ -760,6 +762,30 @@ class InstrumentalGMM(Estimator):
         return ("simulated + delayed measurements: the disturbances look white, so the "
                 "delayed measurements are valid and make the estimate more precise; neither "
                 f"test rejects ({c_txt}; {w_txt})")
+
+
+def _combined_blocks(data: RegressionData, spec: ModelSpec, theta: np.ndarray
+                     ) -> tuple[list[tuple[np.ndarray, int]], np.ndarray]:
+    """``gmm.instrument_blocks(spec, "combined", …)`` of the instruments simulated from
+    ``theta`` and the delayed regressors, with the simulation's ``ok``: on one state
+    equation each source is formed, copied into its columns and freed before the next
+    (the same values; not every source held at once beside the block)."""
+    z_sim, ok = gmm.simulated_instruments(data, spec, theta)
+    if spec.n_states != 1:
+        lagged = [gmm.lagged_regressors(data, spec, lag) for lag in gmm.LAGS]
+        return gmm.instrument_blocks(spec, "combined", None, z_sim, lagged), ok
+    d_cols = np.flatnonzero(gmm.state_terms(spec))
+    p_cols = z_sim.shape[1]
+    out = np.empty((z_sim.shape[0], p_cols + len(gmm.LAGS) * d_cols.size))
+    out[:, :p_cols] = z_sim
+    del z_sim
+    pos = p_cols
+    for lag in gmm.LAGS:
+        lg = gmm.lagged_regressors(data, spec, lag)
+        out[:, pos:pos + d_cols.size] = lg[:, d_cols]
+        pos += d_cols.size
+        del lg
+    return [(out, len(gmm.LAGS) * d_cols.size)], ok
 
 
 def _long_log(data: RegressionData) -> bool:
