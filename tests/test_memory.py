@@ -419,6 +419,8 @@ def test_deferred_gmm_designs_are_the_kept_ones(monkeypatch) -> None:
     assert got.diagnostics["specification"] == ref.diagnostics["specification"]
     assert (got.diagnostics["instrument_condition"]
             == ref.diagnostics["instrument_condition"])
+    # every other diagnostic too (the colour test simulates its instruments again)
+    assert got.to_json() == ref.to_json()
 
 
 def test_covariance_of_one_long_experiment_in_blocks(monkeypatch) -> None:
