@@ -297,3 +297,229 @@ def test_covariance_of_handed_over_regressors_is_the_same() -> None:
     assert np.array_equal(got.cov, ref.cov)
     assert not np.array_equal(mine, x)  # the buffer was used
 
+
+
+def test_feedback_scores_of_one_long_experiment(monkeypatch) -> None:
+    """The feedback test of a long one-experiment log (rows and lags as slices, matrices
+    computed into the test's own buffers) is the whole-array test to rounding."""
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import loop
+    from vesselid.identify.data import from_log
+    from vesselid.plant.systems import heave
+
+    for seed in (4, 5):
+        data, spec = from_log(heave().simulate(6000, seed=seed).to_log(), None,
+                              sensor_noise=False)
+        ref = loop.feedback_test_data(data, spec, loop.reference_designs(data, spec))
+        with monkeypatch.context() as m:
+            m.setattr(cv, "LARGE_ROWS", 1000)
+            got = loop.feedback_test_data(data, spec, loop.reference_designs(data, spec))
+        assert got.df == ref.df > 0
+        assert abs(got.statistic - ref.statistic) <= 1e-9 * abs(ref.statistic), seed
+        assert abs(got.pvalue - ref.pvalue) <= 1e-9
+
+
+def _pulse_heave(seed: int, n: int, vbar: float):
+    """Heave driven by pulses of random sign, with a current of mean ``vbar``."""
+    import pandas as pd
+
+    rng = np.random.default_rng(seed)
+    widths = rng.integers(10, 101, size=n // 10 + 2)
+    levels = rng.uniform(0.1, 0.4, widths.size) * rng.choice([-1.0, 1.0], widths.size)
+    tau = np.repeat(levels, widths)[:n]
+    v = rng.normal(vbar, 0.05, n)
+    xi = rng.normal(0.0, 0.05, n)
+    w = np.zeros(n)
+    for k in range(n - 1):
+        wr = w[k] - v[k]
+        w[k + 1] = 0.9 * wr - 0.2 * wr * abs(wr) + 0.8 * tau[k] + xi[k]
+    y = w + rng.normal(0.0, 0.05, n)
+    return pd.DataFrame({"time": np.arange(n, dtype=float), "w": y, "tau": tau})
+
+
+def test_mean_current_of_one_long_experiment(monkeypatch) -> None:
+    """The mean-current test of a long one-experiment log (matrices formed in their final
+    buffers, scores summed block by block) is the whole-array test to rounding, with and
+    without a current's mean."""
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import validity
+    from vesselid.identify.data import from_log
+    from vesselid.identify.estimators import estimate
+    from vesselid.model.spec import ModelSpec
+
+    spec = ModelSpec(name="heave-test", states=["w"], inputs=["tau"],
+                     equations={"w": ["w", "w*|w|", "tau"]}, dt=1.0)
+    for seed, vbar in ((4, 0.0), (5, 0.05)):
+        data, spec = from_log(_pulse_heave(seed, 6000, vbar), spec, sensor_noise=False)
+        theta_aux = estimate(data, spec, "iv-zero-mean").theta_aux[0]
+        ref = validity.mean_current(data, spec, theta_aux)
+        with monkeypatch.context() as m:
+            m.setattr(cv, "LARGE_ROWS", 1000)
+            m.setattr(cv, "BLOCK_ROWS", 777)
+            assert validity._one_long_experiment(data)
+            got = validity.mean_current(data, spec, theta_aux)
+        assert ref is not None and got is not None
+        for key in ("statistic", "abs_coefficient", "abs_coefficient_se", "estimate",
+                    "std_error", "pvalue"):
+            assert abs(got[key] - ref[key]) <= 1e-9 * abs(ref[key]) + 1e-15, (seed, key)
+        assert got["warned"] == ref["warned"] == (vbar > 0)
+
+
+def test_gmm_weight_derivative_filtered_in_blocks(monkeypatch) -> None:
+    """The derivative of the GMM weight's sums with the filtered series formed block by
+    block (each block widened by the lag window) equals the whole-series form, for blocks
+    shorter than, near and longer than the window, with invalid rows inside blocks and
+    at block edges."""
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import gmm
+
+    rng = np.random.default_rng(7)
+    n = 3001
+    z = rng.standard_normal((n, 4)) + 0.3
+    phi = rng.standard_normal((n, 2))
+    e = np.convolve(rng.standard_normal(n), np.ones(5), "same")  # coloured
+    u = rng.standard_normal(4)
+    valid = np.ones(n, dtype=bool)
+    valid[[0, 200, 201, 1500, 2999]] = False
+    starts = np.array([0, 1500, n])
+    for lags in (9, 40):
+        ref = gmm.hac_sums_derivative(z, phi, e, starts, valid, lags, u)
+        for rows in (3, 20, 100, 4096):
+            with monkeypatch.context() as m:
+                m.setattr(cv, "LARGE_ROWS", 1000)
+                m.setattr(cv, "BLOCK_ROWS", rows)
+                got = gmm.hac_sums_derivative(z, phi, e, starts, valid, lags, u)
+            assert np.max(np.abs(got - ref)) <= 1e-12 * np.max(np.abs(ref)), (lags, rows)
+
+
+def test_deferred_gmm_designs_are_the_kept_ones(monkeypatch) -> None:
+    """A long log's GMM designs formed again when the covariance needs them (not held
+    through the tests between) give the covariance and specification tests of the
+    designs the refinement kept, bit for bit."""
+    import warnings
+
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import efficient, identify
+    from vesselid.plant.systems import heave
+
+    warnings.simplefilter("ignore")
+    log = heave().simulate(6000, seed=2).to_log()
+    monkeypatch.setattr(cv, "LARGE_ROWS", 1000)
+    calls = []
+    rows = efficient.InstrumentalGMM._final_rows
+    monkeypatch.setattr(efficient.InstrumentalGMM, "_final_rows",
+                        lambda self, *a: calls.append(1) or rows(self, *a))
+    got = identify(log)
+    assert calls == [1]
+    monkeypatch.setattr(efficient, "_long_log", lambda data: False)
+    ref = identify(log)
+    assert calls == [1]
+    assert np.array_equal(got.params.to_numpy(), ref.params.to_numpy())
+    assert np.array_equal(got.cov.to_numpy(), ref.cov.to_numpy())
+    assert got.diagnostics["specification"] == ref.diagnostics["specification"]
+    assert (got.diagnostics["instrument_condition"]
+            == ref.diagnostics["instrument_condition"])
+    # every other diagnostic too (the colour test simulates its instruments again)
+    assert got.to_json() == ref.to_json()
+
+
+def test_covariance_of_one_long_experiment_in_blocks(monkeypatch) -> None:
+    """The HAC sandwich of one long experiment with every sum over blocks of rows (no
+    equilibrated copy of the instruments, no scores array) is the whole-array sandwich to
+    rounding: IV, 2SLS, a given GMM weight with and without Windmeijer's correction,
+    instruments that are the regressors (LS), centred and raw residuals, a fixed and the
+    automatic bandwidth."""
+    from vesselid.identify import covariance as cv
+
+    rng = np.random.default_rng(9)
+    n = 5000
+    x = rng.standard_normal((n, 2))
+    z = np.column_stack([x + 0.5 * rng.standard_normal((n, 2)), rng.standard_normal((n, 2))])
+    z *= [1.0, 1e3, 1e-2, 1.0]  # badly scaled columns: the equilibration matters
+    resid = np.convolve(rng.standard_normal(n), np.ones(4), "same") + 0.1
+    w = np.linalg.inv(z.T @ z / n)
+    jac = 0.01 * rng.standard_normal((2, 2))
+    cases = [(z[:, :2], x, {}), (z, x, {}), (z, x, {"weight": w}),
+             (z, x, {"weight": w, "weight_jacobian": jac}), (z, z, {})]
+    for est in (cv.KernelCovariance(), cv.KernelCovariance(bandwidth=7.0)):
+        for zz, xx, kw in cases:
+            for zero_mean in (False, True):
+                args = (zz, xx, resid, np.array([0, n]))
+                opts = dict(zero_mean=zero_mean, skip_first=False, **kw)
+                ref = est.estimate(*args, **opts)
+                with monkeypatch.context() as m:
+                    m.setattr(cv, "LARGE_ROWS", 1000)
+                    m.setattr(cv, "BLOCK_ROWS", 333)
+                    assert est._estimate_in_blocks(*args, None, None, kw.get("weight"),
+                                                   zero_mean, "pooled", False,
+                                                   kw.get("weight_jacobian")) is not None
+                    got = est.estimate(*args, **opts)
+                assert np.max(np.abs(got.cov - ref.cov)) <= 1e-11 * np.max(np.abs(ref.cov))
+                assert np.allclose(got.long_run, ref.long_run, rtol=1e-11, atol=0)
+                assert got.config == ref.config and got.label == ref.label
+
+
+def test_first_stage_of_a_long_log_in_blocks(monkeypatch) -> None:
+    """The first stage of a long log with the partialled-out instruments and regressors
+    formed block by block (never whole) gives the whole-array partial F, partial R² and
+    Cragg–Donald to rounding, with and without exogenous regressors among the
+    instruments."""
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import specification as sp
+
+    rng = np.random.default_rng(11)
+    n = 4000
+    tau = rng.standard_normal(n)
+    inst = rng.standard_normal((n, 3)) * [1e3, 1.0, 1e-2]  # badly scaled instruments
+    x = np.column_stack([inst @ [5e-4, 0.2, 10.0] + rng.standard_normal(n),
+                         inst @ [1e-4, 0.4, 30.0] + rng.standard_normal(n), tau])
+    for z, phi in ((np.column_stack([inst, tau]), x), (inst, x[:, :2])):
+        ref = sp.first_stage(z, phi, names=[f"p{j}" for j in range(phi.shape[1])])
+        with monkeypatch.context() as m:
+            m.setattr(cv, "LARGE_ROWS", 1000)
+            m.setattr(sp, "BLOCK_ROWS", 333)
+            got = sp.first_stage(z, phi, names=[f"p{j}" for j in range(phi.shape[1])])
+        assert got.keys() == ref.keys() and got["df"] == ref["df"]
+        assert got["endogenous"] == ref["endogenous"] == ["p0", "p1"]
+        assert abs(got["cragg_donald"] - ref["cragg_donald"]) <= 1e-11 * ref["cragg_donald"]
+        for key in ("partial_f", "partial_r2"):
+            for name, value in ref[key].items():
+                assert abs(got[key][name] - value) <= 1e-11 * abs(value), (key, name)
+
+
+def test_endogeneity_of_a_long_log_in_blocks(monkeypatch) -> None:
+    """The Durbin–Wu–Hausman test of a long log with the augmented regressors
+    ``[φ, v̂]`` formed block by block (never whole) gives the whole-array statistic to
+    rounding, on an endogenous and on an exogenous regressor, with the automatic and a
+    fixed bandwidth."""
+    from vesselid.identify import covariance as cv
+    from vesselid.identify import specification as sp
+
+    rng = np.random.default_rng(12)
+    n = 4000
+    tau = rng.standard_normal(n)
+    inst = rng.standard_normal((n, 3)) * [1e3, 1.0, 1e-2]
+    err = np.convolve(rng.standard_normal(n), np.ones(3), "same")
+    rows, done = sp._endogeneity_rows, []
+
+    def counted(*args):  # the block form, recorded: it must be the one taken
+        done.append(rows(*args))
+        return done[-1]
+
+    for share in (0.0, 0.8):  # exogenous, endogenous
+        xe = inst @ [5e-4, 0.3, 20.0] + rng.standard_normal(n) + share * err
+        phi = np.column_stack([xe, tau])
+        y = phi @ [0.7, -1.2] + err
+        z = np.column_stack([inst, tau])
+        for config in ({}, {"bandwidth": 6.0}):
+            ref = sp.endogeneity_test(z, phi, y, **config)
+            with monkeypatch.context() as m:
+                m.setattr(cv, "LARGE_ROWS", 1000)
+                m.setattr(cv, "BLOCK_ROWS", 333)
+                m.setattr(sp, "BLOCK_ROWS", 333)
+                m.setattr(sp, "_endogeneity_rows", counted)
+                got = sp.endogeneity_test(z, phi, y, **config)
+            assert len(done) == 1 and done.pop() is not None
+            assert got.df == ref.df == 1
+            assert abs(got.stat - ref.stat) <= 1e-10 * abs(ref.stat), (share, config)
+            assert abs(got.pvalue - ref.pvalue) <= 1e-10 * max(ref.pvalue, 1e-12)

@@ -245,6 +245,12 @@ class Estimator:
         """Final instruments, regressors and residuals per state equation (one group)."""
         raise NotImplementedError
 
+    def defers_designs(self, it: IterationResult) -> bool:
+        """Whether :meth:`equation_designs` of ``it`` is better called when the
+        covariance needs the designs (they are formed again there instead of being held
+        through the feedback test; a long log's designs are the fit's largest arrays)."""
+        return False
+
     def describe(self, it: IterationResult) -> dict[str, Any]:
         """Estimator-specific diagnostics of a one-group result (JSON-ready)."""
         return {}
@@ -404,7 +410,8 @@ class Estimator:
                 "longer or better-excited experiments"
             )
         run.it = it
-        run.designs = self.equation_designs(data, spec, it, run.phi, opts.combine)
+        run.designs = (None if self.defers_designs(it) else
+                       self.equation_designs(data, spec, it, run.phi, opts.combine))
         # the rows a GMM solution kept to build the designs: the designs hold what the
         # later steps read (the centred targets kept with them are as large as a column)
         sol = (it.info or {}).get("solution")
@@ -439,6 +446,9 @@ class Estimator:
         cov = np.zeros((spec.n_params, spec.n_params))
         run.cov_label = run.cov_name
         run.own_cov = self.own_covariance(run.it)
+        if run.designs is None:  # deferred to here (:meth:`defers_designs`)
+            run.designs = self.equation_designs(run.data, spec, run.it, run.phi,
+                                                run.opts.combine)
         if run.own_cov is not None:
             cov = np.array(run.own_cov, dtype=float)
             run.cov_name, run.cov_label = self.own_covariance_label(run.it)

@@ -639,6 +639,12 @@ class CovarianceEstimator:
         """
         if combine not in ("pooled", "stacked"):
             raise CovarianceError(f"combine must be 'pooled' or 'stacked', got {combine!r}")
+        if np.shape(z)[0] > LARGE_ROWS:  # one long experiment: every sum in blocks
+            blocks = self._estimate_in_blocks(z, phi, resid, starts, equation, z_equation,
+                                              weight, zero_mean, combine, skip_first,
+                                              weight_jacobian)
+            if blocks is not None:
+                return blocks
         # a long log whose meat needs the scores only: they are formed in the
         # equilibrated instruments' buffer once the sums below have read it (the same
         # products, no second N × K array)
@@ -674,6 +680,23 @@ class CovarianceEstimator:
             sc.z = sc.phi = z = phi = None
         s_list, used = self.meat(sc.g, z, sc.eps, segs, z_equation)
         n_list = [s.stop - s.start for s in segs]
+        return self._sandwich(a_list, a_sum, s_list, n_list, w_mat, w_first, used,
+                              weight=weight, weight_jacobian=weight_jacobian,
+                              combine=combine, z_scale=sc.z_scale, phi_scale=sc.phi_scale,
+                              z_equation=z_equation, equation=equation)
+
+    def _sandwich(self, a_list: list[np.ndarray], a_sum: np.ndarray, s_list: list[np.ndarray],
+                  n_list: list[int], w_mat: np.ndarray, w_first: np.ndarray | None,
+                  used: dict[str, Any], *, weight: np.ndarray | None,
+                  weight_jacobian: np.ndarray | None, combine: str, z_scale: np.ndarray,
+                  phi_scale: np.ndarray, z_equation: np.ndarray, equation: np.ndarray
+                  ) -> CovarianceResult:
+        """The sandwich of :meth:`estimate` from its sums in the equilibrated units:
+        ``a_list`` (``Σ_E zφᵀ``), the meat ``s_list`` (``S_E``), the rows ``n_list``, the
+        weight ``w_mat`` (and ``w_first``, the first step's, for Windmeijer)."""
+        n_ins, n_par = a_sum.shape
+        windmeijer = weight_jacobian is not None and self.windmeijer
+        n_segs = len(s_list)
         if weight_jacobian is not None:
             used["windmeijer"] = bool(self.windmeijer)
         if windmeijer:
@@ -681,30 +704,93 @@ class CovarianceEstimator:
             if weight is None or n_ins == n_par:
                 raise CovarianceError("weight_jacobian needs the weight of an over-identified "
                                       "two-step GMM estimate")
-            if combine == "stacked" and len(segs) > 1:
+            if combine == "stacked" and n_segs > 1:
                 raise CovarianceError("weight_jacobian (Windmeijer) is for pooled estimates")
             if d_mat.shape != (n_par, n_par) or not np.all(np.isfinite(d_mat)):
                 raise CovarianceError(f"weight_jacobian must be a finite ({n_par}, {n_par}) "
                                       "matrix")
             # θ_s = D_φ θ: the Jacobian in the equilibrated units
-            d_mat = d_mat * np.outer(sc.phi_scale, 1.0 / sc.phi_scale)
+            d_mat = d_mat * np.outer(phi_scale, 1.0 / phi_scale)
             cov = _windmeijer_sandwich(a_sum, s_list, w_mat, w_first, d_mat)
-        elif n_ins == n_par and weight is None and (combine == "pooled" or len(segs) == 1):
+        elif n_ins == n_par and weight is None and (combine == "pooled" or n_segs == 1):
             cov = sandwich_from_sums(a_list, s_list, n_list)
         elif combine == "stacked" and _is_positive_diagonal(w_mat):
             cov = sandwich_from_sums(a_list, s_list, n_list, row_weight=np.diag(w_mat))
         else:
             cov = _general_sandwich(a_list, a_sum, s_list, w_mat, n_list, combine)
         if np.all(np.isfinite(cov)):
-            cov = cov / np.outer(sc.phi_scale, sc.phi_scale)
+            cov = cov / np.outer(phi_scale, phi_scale)
         config = {**self.config(), **used}
         label = self.label(config)
         if config.get("windmeijer"):
             label += "; Windmeijer (2005) correction for the estimated two-step GMM weight"
         return CovarianceResult(cov=cov, cov_type=self.name, config=config,
                                 label=label,
-                                long_run=sum(s_list) * np.outer(sc.z_scale, sc.z_scale),
+                                long_run=sum(s_list) * np.outer(z_scale, z_scale),
                                 moment_matrix=(a_sum, z_equation, equation))
+
+    def _estimate_in_blocks(self, z: Any, phi: Any, resid: Any, starts: np.ndarray | None,
+                            equation: np.ndarray | None, z_equation: np.ndarray | None,
+                            weight: np.ndarray | None, zero_mean: bool, combine: str,
+                            skip_first: bool, weight_jacobian: np.ndarray | None
+                            ) -> CovarianceResult | None:
+        """:meth:`estimate` of one long experiment whose meat is built from the
+        scores alone, every sum over :data:`BLOCK_ROWS` rows at a time (no equilibrated
+        ``(T, K)`` copy, no ``(T, K)`` scores); None where that does not apply (the
+        caller takes the whole-array path). Sums rounded differently (~1e-14
+        relative)."""
+        same = phi is z  # LS / the endogeneity regression: instruments = regressors
+        if phi is None or np.ndim(phi) != 2 or np.ndim(z) != 2:
+            return None
+        z = np.asarray(z, dtype=float)
+        phi = z if same else np.asarray(phi, dtype=float)
+        t_len, n_ins = z.shape
+        n_par = phi.shape[1]
+        if (phi.shape[0] != t_len or n_ins < n_par
+                or (equation is not None and np.any(np.asarray(equation) != 0))
+                or not (starts is None or (len(starts) == 2 and int(starts[0]) == 0
+                                          and int(starts[-1]) == t_len))
+                or not all(np.isfinite(phi[:, j]).all() for j in range(n_par))):
+            return None
+        if weight is not None:
+            weight = np.asarray(weight, dtype=float)
+            if weight.shape != (n_ins, n_ins) or not np.all(np.isfinite(weight)):
+                return None  # (the whole-array path says why)
+        got = self._scaled_long_run_blocks(z, resid, starts, z_equation, zero_mean,
+                                           skip_first)
+        if got is None:
+            return None
+        s_u, z_scale, used = got
+        phi_scale = z_scale if same else _column_scale(phi, None)
+        two_sls = weight is None and n_ins != n_par
+        windmeijer = weight_jacobian is not None and self.windmeijer
+        need_zz = two_sls or (windmeijer and weight is not None and n_ins != n_par)
+        a_sum = np.zeros((n_ins, n_par))
+        zz = np.zeros((n_ins, n_ins))
+        for a in range(0, t_len, BLOCK_ROWS):
+            zb = z[a:a + BLOCK_ROWS] / z_scale
+            a_sum += zb.T @ (zb if same else phi[a:a + BLOCK_ROWS] / phi_scale)
+            if need_zz:
+                zz += zb.T @ zb
+        eq = np.zeros(n_ins, dtype=np.int64)
+        if weight is None:
+            w_mat = np.eye(n_ins) if n_ins == n_par else _block_inverse(zz, eq)
+        else:
+            w_mat = weight * np.outer(z_scale, z_scale)
+        w_first = _block_inverse(zz, eq) if need_zz and not two_sls else None
+        return self._sandwich([a_sum], a_sum, [s_u], [t_len], w_mat, w_first, used,
+                              weight=weight, weight_jacobian=weight_jacobian,
+                              combine=combine, z_scale=z_scale, phi_scale=phi_scale,
+                              z_equation=eq, equation=np.zeros(n_par, dtype=np.int64))
+
+    def _scaled_long_run_blocks(self, z: Any, resid: Any, starts: np.ndarray | None,
+                                z_equation: np.ndarray | None, zero_mean: bool,
+                                skip_first: bool
+                                ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]] | None:
+        """The block-wise long run of :meth:`_long_run_in_blocks` in the equilibrated
+        units, with the column scales: ``(S, scale, settings)``; None where it does not
+        apply."""
+        return None
 
     def long_run(
         self,
@@ -1027,8 +1113,21 @@ class KernelCovariance(CovarianceEstimator):
                 f"{config.get('bandwidth', float('nan')):.3g} by {how}{pw}, within experiments)")
 
     def _long_run_in_blocks(self, z, resid, starts, z_equation, zero_mean, skip_first):
-        if (self.kernel != "bartlett" or self.prewhiten
-                or (isinstance(self.bandwidth, str) and self.bandwidth != "newey-west")):
+        got = self._scaled_long_run_blocks(z, resid, starts, z_equation, zero_mean,
+                                           skip_first)
+        if got is None:
+            return None
+        s_u, z_scale, used = got
+        return s_u * np.outer(z_scale, z_scale), used
+
+    def sums_in_blocks(self) -> bool:
+        """Whether the block-wise long run applies: the Bartlett kernel with a
+        Newey-West or fixed lag, not pre-whitened."""
+        return not (self.kernel != "bartlett" or self.prewhiten
+                    or (isinstance(self.bandwidth, str) and self.bandwidth != "newey-west"))
+
+    def _scaled_long_run_blocks(self, z, resid, starts, z_equation, zero_mean, skip_first):
+        if not self.sums_in_blocks():
             return None  # the blocks cover the Bartlett kernel with a Newey-West/fixed lag
         z = np.asarray(z, dtype=float)
         resid = np.asarray(resid, dtype=float)
@@ -1042,12 +1141,19 @@ class KernelCovariance(CovarianceEstimator):
             return None  # (the general path says why)
         segs = [slice(0, t_len)]
         z_scale = _column_scale(z, None)
-        eps = _residual(resid, segs, zero_mean)[:, 0]
-        q = z.shape[1]
+        # (raw residuals are read in place: the same numbers as _residual's copy)
+        eps = _residual(resid, segs, zero_mean)[:, 0] if zero_mean else resid[:, 0]
+        return self._bartlett_of_rows(lambda a, b: z[a:b], t_len, z.shape[1], z_scale, eps)
+
+    def _bartlett_of_rows(self, rows_of: Callable[[int, int], np.ndarray], t_len: int,
+                          q: int, z_scale: np.ndarray, eps: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]] | None:
+        """The block-wise long run of the scores ``(z / z_scale) ε`` whose instrument
+        rows ``a … b − 1`` are ``rows_of(a, b)`` (:meth:`_scaled_long_run_blocks`)."""
         spans = [(a, min(a + BLOCK_ROWS, t_len)) for a in range(0, t_len, BLOCK_ROWS)]
 
         def block(a: int, b: int) -> np.ndarray:  # the rows a … b − 1 of g = (z / s) ε
-            return np.multiply(z[a:b] / z_scale, eps[a:b, None])
+            return np.multiply(rows_of(a, b) / z_scale, eps[a:b, None])
 
         used: dict[str, Any] = {}
         total = None  # the scores' column sums, from the bandwidth's pass where it has one
@@ -1059,8 +1165,9 @@ class KernelCovariance(CovarianceEstimator):
                 total = total + g.sum(axis=0)
             scale = np.sqrt(sq / t_len)
             scale[scale == 0] = 1.0
-            x = np.concatenate([_row_sums(block(a, b), scale) if q > 1 else block(a, b)[:, 0]
-                                for a, b in spans])
+            x = np.empty(t_len)  # the scaled row sums, block by block
+            for a, b in spans:
+                x[a:b] = _row_sums(block(a, b), scale) if q > 1 else block(a, b)[:, 0]
             bw = float(min(_newey_west_from_sums([x], self.kernel, t_len),
                            float(max(t_len - 1, 0))))
         else:
@@ -1073,7 +1180,7 @@ class KernelCovariance(CovarianceEstimator):
             total = sum(block(a, b).sum(axis=0) for a, b in spans)
         mean = total / t_len
         s_u = bartlett_block_sums(block, t_len, q, mean, lags, BLOCK_ROWS)
-        return s_u * np.outer(z_scale, z_scale), {**self.config(), **used}
+        return s_u, z_scale, {**self.config(), **used}
 
     def meat(self, g, z, eps, segs, equation):
         q = g.shape[1]
@@ -1100,6 +1207,41 @@ class KernelCovariance(CovarianceEstimator):
                 s_u = long_run_covariance(series[s], w)
             out.append(s_u if not self.prewhiten else recolour @ s_u @ recolour.T)
         return out, used
+
+
+def ls_covariance_of_rows(est: CovarianceEstimator, rows_of: Callable[[int, int], np.ndarray],
+                          t_len: int, q: int, resid: np.ndarray) -> np.ndarray | None:
+    """The covariance ``est.estimate(x, x, resid, skip_first=False)`` of least squares
+    on one long experiment whose regressor rows ``a … b − 1`` are ``rows_of(a, b)``
+    (never formed whole): the equilibration, the sandwich's sums and the Bartlett meat
+    over blocks of :data:`BLOCK_ROWS` rows. None where that does not apply (another
+    kernel or estimator, non-finite rows, a bandwidth below one lag)."""
+    if not (isinstance(est, KernelCovariance) and est.sums_in_blocks()) or t_len < 2:
+        return None
+    spans = [(a, min(a + BLOCK_ROWS, t_len)) for a in range(0, t_len, BLOCK_ROWS)]
+    sq = np.zeros(q)
+    for a, b in spans:
+        x = rows_of(a, b)
+        if not np.all(np.isfinite(x)):
+            return None
+        sq += np.einsum("tk,tk->k", x, x)
+    scale = np.sqrt(sq)
+    scale = np.where((scale > 0) & np.isfinite(scale), scale, 1.0)
+    eps = np.asarray(resid, dtype=float).reshape(-1)
+    if eps.shape != (t_len,) or not np.all(np.isfinite(eps)):
+        return None
+    got = est._bartlett_of_rows(rows_of, t_len, q, scale, eps)
+    if got is None:
+        return None
+    s_u, _, used = got
+    a_sum = np.zeros((q, q))
+    for a, b in spans:
+        xb = rows_of(a, b) / scale
+        a_sum += xb.T @ xb
+    eq = np.zeros(q, dtype=np.int64)
+    return est._sandwich([a_sum], a_sum, [s_u], [t_len], np.eye(q), None, used, weight=None,
+                         weight_jacobian=None, combine="pooled", z_scale=scale,
+                         phi_scale=scale, z_equation=eq, equation=eq).cov
 
 
 def _compact(x: np.ndarray, segs: list[slice]) -> np.ndarray:

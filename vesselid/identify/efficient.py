@@ -367,6 +367,9 @@ class InstrumentalGMM(Estimator):
         active = np.all(np.isfinite(theta), axis=1)
         sol = first = None
         fused = kind == "combined" and not order and not keep
+        # a long log's final rows are formed again when the covariance needs them
+        # (:meth:`equation_designs`) instead of being held through every test between
+        defer = keep and kind == "combined" and not order and _long_log(data)
         n_steps = int(self.refine if steps is None else steps)
         for step in range(n_steps):
             if fused:  # Monte Carlo fast path: two compiled passes, no row matrices
@@ -375,20 +378,27 @@ class InstrumentalGMM(Estimator):
                 if first is None:
                     first = sol
             else:
-                z_sim, ok_sim = gmm.simulated_instruments(data, spec, theta)
-                if first_z is not None and step == 0:
-                    first_z.append(z_sim)
-                ar = gmm.noise_model(data, spec, phi, theta, order) if order else None
-                blocks = gmm.instrument_blocks(spec, kind, phi, z_sim, lagged)
-                del z_sim  # (first_z keeps the first step's; the blocks hold the others)
+                if defer:  # (the colour test simulates the first step's instruments again)
+                    blocks, ok_sim = _combined_blocks(data, spec, theta)
+                    ar = None
+                else:
+                    z_sim, ok_sim = gmm.simulated_instruments(data, spec, theta)
+                    if first_z is not None and step == 0:
+                        first_z.append(z_sim)
+                    ar = gmm.noise_model(data, spec, phi, theta, order) if order else None
+                    blocks = gmm.instrument_blocks(spec, kind, phi, z_sim, lagged)
+                    del z_sim  # (first_z keeps the first step's; the blocks the others)
                 last = step == n_steps - 1
                 if last and lagged:  # gathered for the last time (the caller's list)
                     lagged.clear()
                 sol = None  # the previous step's rows: only the last step's are kept
+                keep_rows = keep and last and not defer
                 sol = gmm.solve_equations(data, spec, phi, blocks, weight="hac", ar=ar,
-                                          keep_designs=keep and last,
-                                          keep_jacobians=keep and last, release=True)
+                                          keep_designs=keep_rows,
+                                          keep_jacobians=keep_rows, release=True)
                 del blocks
+                if defer and last:  # the start of the step that formed the final rows
+                    sol.rebuild_from = theta.copy()  # type: ignore[attr-defined]
             new = np.where((sol.ok & ok_sim & active)[:, None], sol.theta, np.nan)
             iters += active
             active &= np.all(np.isfinite(new), axis=1)
@@ -451,7 +461,9 @@ class InstrumentalGMM(Estimator):
         whitened = self.instruments == "auto" and bool(self.colour_order)
         phi = (None if fused and not whitened else corrected_regressor_matrix(data, spec))
         lagged = None
-        if self.instruments in ("combined", "auto") and keep:  # explicit rows (fit path)
+        if self.instruments in ("combined", "auto") and keep and not _long_log(data):
+            # explicit rows (fit path; a long log's are formed one source at a time,
+            # :func:`_combined_blocks`)
             lagged = [gmm.lagged_regressors(data, spec, lag) for lag in gmm.LAGS]
         theta0 = base.theta.copy()
         used = np.full(n, self.instruments, dtype=object)
@@ -564,7 +576,27 @@ class InstrumentalGMM(Estimator):
         if it.info["instrument_set"][0] == "pem":  # diagnostics only (own covariance)
             return square_designs(data, spec, phi, phi, it.theta[0], zero_mean=False,
                                   combine=combine)
-        return _designs_from(it.info["solution"], it.theta[0], spec)
+        sol = it.info["solution"]
+        if sol.designs is None and getattr(sol, "rebuild_from", None) is not None:
+            sol = self._final_rows(data, spec, sol.rebuild_from)
+        return _designs_from(sol, it.theta[0], spec)
+
+    def defers_designs(self, it: IterationResult) -> bool:
+        sol = it.info.get("solution")
+        return (it.info["instrument_set"][0] == "combined"
+                and getattr(sol, "rebuild_from", None) is not None)
+
+    def _final_rows(self, data: RegressionData, spec: ModelSpec, theta: np.ndarray
+                    ) -> gmm.GMMSolution:
+        """The last combined refinement step from its start ``theta`` again, keeping its
+        rows and weight derivatives (the same calls on the same arrays: the same
+        numbers as the step :meth:`_refine` ran)."""
+        phi = corrected_regressor_matrix(data, spec)
+        blocks, _ = _combined_blocks(data, spec, theta)
+        sol = gmm.solve_equations(data, spec, phi, blocks, weight="hac", ar=None,
+                                  keep_designs=True, keep_jacobians=True, release=True)
+        sol.segment_starts = data.starts  # type: ignore[attr-defined]
+        return sol
 
     def own_covariance(self, it: IterationResult) -> np.ndarray | None:
         if it.info["instrument_set"][0] == "pem":
@@ -730,6 +762,37 @@ class InstrumentalGMM(Estimator):
         return ("simulated + delayed measurements: the disturbances look white, so the "
                 "delayed measurements are valid and make the estimate more precise; neither "
                 f"test rejects ({c_txt}; {w_txt})")
+
+
+def _combined_blocks(data: RegressionData, spec: ModelSpec, theta: np.ndarray
+                     ) -> tuple[list[tuple[np.ndarray, int]], np.ndarray]:
+    """``gmm.instrument_blocks(spec, "combined", …)`` of the instruments simulated from
+    ``theta`` and the delayed regressors, with the simulation's ``ok``: on one state
+    equation each source is formed, copied into its columns and freed before the next
+    (the same values; not every source held at once beside the block)."""
+    z_sim, ok = gmm.simulated_instruments(data, spec, theta)
+    if spec.n_states != 1:
+        lagged = [gmm.lagged_regressors(data, spec, lag) for lag in gmm.LAGS]
+        return gmm.instrument_blocks(spec, "combined", None, z_sim, lagged), ok
+    d_cols = np.flatnonzero(gmm.state_terms(spec))
+    p_cols = z_sim.shape[1]
+    out = np.empty((z_sim.shape[0], p_cols + len(gmm.LAGS) * d_cols.size))
+    out[:, :p_cols] = z_sim
+    del z_sim
+    pos = p_cols
+    for lag in gmm.LAGS:
+        lg = gmm.lagged_regressors(data, spec, lag)
+        out[:, pos:pos + d_cols.size] = lg[:, d_cols]
+        pos += d_cols.size
+        del lg
+    return [(out, len(gmm.LAGS) * d_cols.size)], ok
+
+
+def _long_log(data: RegressionData) -> bool:
+    """One group longer than :data:`~vesselid.identify.covariance.LARGE_ROWS` rows."""
+    from vesselid.identify.covariance import LARGE_ROWS
+
+    return data.n_groups == 1 and int(data.starts[-1]) > LARGE_ROWS
 
 
 def _guarded(fn, *args):

@@ -459,49 +459,70 @@ def hac_sums_derivative(z: np.ndarray, phi: np.ndarray, e: np.ndarray, starts: n
         ev = e[a:b] if every else np.where(v, e[a:b], 0.0)
         ph = phi[a:b]
         if in_place:
-            zu = zv @ u
-            zu[bad] = 0.0
             g_mean = zv.T @ ev / cnt
             mean = (zv.T @ ph - zv[bad].T @ ph[bad]) / cnt
         else:
-            zu = zv @ u
             g_mean = zv.T @ ev / cnt  # (K,)
             mean = zv.T @ ph / cnt  # (K, P): mean of z φ_j
+        lag = int(min(lags, n - 1))
+        if n > _covariance.LARGE_ROWS:  # the filtered series and their sums in blocks
+            t_gu_sum, t_qu_sum, zph, zeq = _filtered_sums_blocks(zv, ph, ev, v, u, g_mean,
+                                                                 mean, lag)
+            xu = mean * t_gu_sum - zph  # Σ q_j (T uᵀg)
+            xtu = zeq - np.outer(g_mean, t_qu_sum)  # Σ g (T uᵀq_j)
+            out += (xu + xtu) / (lag + 1.0)
+            continue
+        zu = zv @ u
         series = np.empty((1 + p_cols, n))
         series[0] = zu * ev - g_mean @ u  # uᵀ g
         series[1:] = (u @ mean)[:, None] - zu * ph.T  # uᵀ q_j
         series[:, ~v] = 0.0
-        lag = int(min(lags, n - 1))
         once = moving_sums(series, lag)
         del series
         tf = moving_sums(once, lag)[:, lag:lag + n]
         del once
         tf[:, ~v] = 0.0
         t_gu, t_qu = tf[0], tf[1:]
-        if n > _covariance.LARGE_ROWS:  # the same products summed over blocks of rows
-            zph, zeq = _block_cross(zv, ph, ev, t_gu, t_qu)
-        else:
-            zph, zeq = zv.T @ (ph * t_gu[:, None]), zv.T @ (ev[:, None] * t_qu.T)
+        zph, zeq = zv.T @ (ph * t_gu[:, None]), zv.T @ (ev[:, None] * t_qu.T)
         xu = mean * t_gu.sum() - zph  # Σ q_j (T uᵀg)
         xtu = zeq - np.outer(g_mean, t_qu.sum(axis=1))  # Σ g (T uᵀq_j)
         out += (xu + xtu) / (lag + 1.0)
     return out
 
 
-def _block_cross(zv: np.ndarray, ph: np.ndarray, ev: np.ndarray, t_gu: np.ndarray,
-                 t_qu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``zvᵀ (ph · t_gu)`` and ``zvᵀ (ev · t_quᵀ)`` of :func:`hac_sums_derivative` summed
-    over blocks of :data:`~vesselid.identify.covariance.BLOCK_ROWS` rows (no ``(n, P)``
-    products; rounded differently)."""
-    n = zv.shape[0]
-    zph = np.zeros((zv.shape[1], ph.shape[1]))
-    zeq = np.zeros((zv.shape[1], t_qu.shape[0]))
-    step = _covariance.BLOCK_ROWS * 2  # (cache-sized: 4x the rows took 2.5x longer per row)
+def _filtered_sums_blocks(zv: np.ndarray, ph: np.ndarray, ev: np.ndarray, v: np.ndarray,
+                          u: np.ndarray, g_mean: np.ndarray, mean: np.ndarray, lag: int
+                          ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    """The sums :func:`hac_sums_derivative` needs of one long experiment's filtered
+    series — ``Σ T uᵀg``, ``Σ T uᵀq_j``, ``zvᵀ (ph · T uᵀg)`` and ``zvᵀ (ev · (T uᵀq)ᵀ)``
+    — formed over blocks of output rows: the triangular filter ``T`` of row ``k`` reads
+    the series on rows ``k − L … k + L`` only, so each block's series is formed (and
+    filtered twice by :func:`moving_sums`) on its rows widened by ``L`` on each side
+    (zero outside the experiment, as the whole-series filter pads). Memory
+    ``O(BLOCK_ROWS + L)`` instead of three ``(1 + P) × n`` series; rounded differently."""
+    n, p_cols = ph.shape
+    k_cols = zv.shape[1]
+    step = _covariance.BLOCK_ROWS * 2
+    um = u @ mean  # (P,)
+    gu = g_mean @ u
+    t_gu_sum, t_qu_sum = 0.0, np.zeros(p_cols)
+    zph, zeq = np.zeros((k_cols, p_cols)), np.zeros((k_cols, p_cols))
     for a in range(0, n, step):
         b = min(a + step, n)
-        zph += zv[a:b].T @ (ph[a:b] * t_gu[a:b, None])
-        zeq += zv[a:b].T @ (ev[a:b, None] * t_qu[:, a:b].T)
-    return zph, zeq
+        lo, hi = max(a - lag, 0), min(b + lag, n)
+        zu = zv[lo:hi] @ u
+        series = np.empty((1 + p_cols, hi - lo))
+        series[0] = zu * ev[lo:hi] - gu  # uᵀ g
+        series[1:] = um[:, None] - zu * ph[lo:hi].T  # uᵀ q_j
+        series[:, ~v[lo:hi]] = 0.0
+        tf = moving_sums(moving_sums(series, lag), lag)[:, lag + a - lo:lag + b - lo]
+        tf[:, ~v[a:b]] = 0.0
+        t_gu, t_qu = tf[0], tf[1:]
+        t_gu_sum += t_gu.sum()
+        t_qu_sum += t_qu.sum(axis=1)
+        zph += zv[a:b].T @ (ph[a:b] * t_gu[:, None])
+        zeq += zv[a:b].T @ (ev[a:b, None] * t_qu.T)
+    return t_gu_sum, t_qu_sum, zph, zeq
 
 
 def weight_jacobian(a: np.ndarray, w: np.ndarray, gbar: np.ndarray, ds_u: np.ndarray

@@ -220,15 +220,74 @@ def feedback_test_data(data: RegressionData, spec: ModelSpec, designs: list, *,
     if all(tiny):
         raise IdentificationError("the fit leaves only rounding-level residuals (noise-free "
                                   "data): no equation error to test")
-    rows = np.flatnonzero(_equation_rows(data))
-    n_rows = rows.size
-    seg_of_row = np.searchsorted(data.starts, rows, side="right") - 1
     u = data.u
     # centred inputs per experiment
     uc = u.copy()
     for s in range(data.n_segments):
         sl = data.segment(s)
         uc[sl] -= column_means(u[sl])
+    if data.n_segments == 1 and rows_of(data) > _large_rows():
+        # a long one-experiment log: the rows and lags as slices (no index arrays)
+        s = _one_experiment_scores(designs, uc, lags)
+    else:
+        s = _scores(data, designs, uc, lags)
+    del uc
+    n_eff = s.shape[0]
+    mean = column_means(s)
+    s -= mean  # centred in place (s is this function's own copy)
+    cov = _newey_west(s, hac_lags(n_eff))
+    scale = np.sqrt(np.maximum(np.diag(cov), 1e-300))
+    corr = cov / np.outer(scale, scale)
+    w, vecs = np.linalg.eigh(corr)
+    good = w > 1e-10 * max(w.max(), 1e-300)
+    t = vecs[:, good].T @ (mean / scale)
+    stat = float(n_eff * np.sum(t**2 / w[good]))
+    df = int(good.sum())
+    pvalue = float(chdtrc(df, stat)) if df > 0 else float("nan")
+    return FeedbackTest(statistic=stat, df=df, pvalue=pvalue, lags=lags, alpha=alpha)
+
+
+def _inverse_moments(d: Any, n_rows: int) -> np.ndarray:
+    """``A⁻¹``, ``A = mean ζ(k) φ(k)ᵀ`` of one design (the pseudo-inverse where singular)."""
+    if d.z.shape[0] != n_rows:
+        raise IdentificationError("feedback test: the designs do not cover every equation "
+                                  "row")
+    a = d.z.T @ d.phi / n_rows
+    try:
+        return np.linalg.inv(a)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(a)
+
+
+def _one_experiment_scores(designs: list, uc: np.ndarray, lags: int) -> np.ndarray:
+    """The scores of :func:`_scores` on one experiment's rows ``1 … T−1`` (the designs'
+    rows), each lag's written straight into its columns: the kept rows are the leading
+    ``T − lags`` of every design, and row ``k`` of lag ``τ`` reads ``ũ(k + 1 + τ)``."""
+    n_rows = uc.shape[0] - 1
+    n_kept = n_rows - (lags - 1)
+    m = uc.shape[1]
+    s = np.empty((n_kept, len(designs) * lags * m))
+    col = 0
+    for d in designs:
+        a_inv = _inverse_moments(d, n_rows)
+        phi_kept, z_kept, e_kept = d.phi[:n_kept], d.z[:n_kept], d.resid[:n_kept, None]
+        for tau in range(lags):
+            u_tau = uc[1 + tau:1 + tau + n_kept]
+            out = s[:, col:col + m]
+            out[...] = u_tau
+            out -= z_kept @ ((u_tau.T @ phi_kept / n_kept) @ a_inv).T
+            out *= e_kept
+            col += m
+    return s
+
+
+def _scores(data: RegressionData, designs: list, uc: np.ndarray, lags: int) -> np.ndarray:
+    """The rows ``s(k)`` of the feedback test's moments, every design and lag in its
+    columns, on the equation rows that have every lag inside their experiment."""
+    rows = np.flatnonzero(_equation_rows(data))
+    n_rows = rows.size
+    seg_of_row = np.searchsorted(data.starts, rows, side="right") - 1
+    u = uc
     keep = np.ones(n_rows, dtype=bool)
     for tau in range(lags):
         idx = rows + tau
@@ -239,14 +298,7 @@ def feedback_test_data(data: RegressionData, spec: ModelSpec, designs: list, *,
     s = np.empty((n_kept, len(designs) * lags * u.shape[1]))
     col = 0
     for d in designs:
-        if d.z.shape[0] != n_rows:
-            raise IdentificationError("feedback test: the designs do not cover every equation "
-                                      "row")
-        a = d.z.T @ d.phi / n_rows
-        try:
-            a_inv = np.linalg.inv(a)
-        except np.linalg.LinAlgError:
-            a_inv = np.linalg.pinv(a)
+        a_inv = _inverse_moments(d, n_rows)
         # the kept rows as views where they are the leading ones (one experiment)
         lead = bool(keep[:n_kept].all())
         kept = slice(0, n_kept) if lead else keep
@@ -261,19 +313,7 @@ def feedback_test_data(data: RegressionData, spec: ModelSpec, designs: list, *,
             col += adj.shape[1]
             del adj, idx
         del phi_kept
-    n_eff = s.shape[0]
-    mean = column_means(s)
-    s -= mean  # centred in place (s is this function's own copy)
-    cov = _newey_west(s, hac_lags(n_eff))
-    scale = np.sqrt(np.maximum(np.diag(cov), 1e-300))
-    corr = cov / np.outer(scale, scale)
-    w, vecs = np.linalg.eigh(corr)
-    good = w > 1e-10 * max(w.max(), 1e-300)
-    t = vecs[:, good].T @ (mean / scale)
-    stat = float(n_eff * np.sum(t**2 / w[good]))
-    df = int(good.sum())
-    pvalue = float(chdtrc(df, stat)) if df > 0 else float("nan")
-    return FeedbackTest(statistic=stat, df=df, pvalue=pvalue, lags=lags, alpha=alpha)
+    return s
 
 
 @dataclass
@@ -299,15 +339,17 @@ def reference_designs(data: RegressionData, spec: ModelSpec, it: Any = None) -> 
     theta = it.theta[0]
     if not np.all(np.isfinite(theta)):
         raise IdentificationError(f"the reference IV fit failed ({it.reason[0]})")
-    if data.n_groups == 1:  # computed (and kept) by the mean-current test of auto's fit
+    long = data.n_segments == 1 and spec.n_states == 1 and rows_of(data) > _large_rows()
+    if data.n_groups == 1 and not long:  # computed (and kept) by the mean-current test
         from vesselid.identify.validity import reference_matrices
 
         phi, z, _ = reference_matrices(data, spec, it.theta_aux[0])
-    else:
+    else:  # (a long log: none kept; computed here into buffers this function owns)
         codes = spec.codes
         phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, codes.factors)
-        z, _ = kernels.instrument_matrix(data.target, data.u, data.starts, it.theta_aux[0],
-                                         codes.factors, codes.equation, spec.n_states)
+        z, xhat = kernels.instrument_matrix(data.target, data.u, data.starts, it.theta_aux[0],
+                                            codes.factors, codes.equation, spec.n_states)
+        del xhat
     rows = _equation_rows(data)
     # centred per experiment: in its own buffer when computed here, else (the matrices
     # the mean-current test kept, read-only) in a copy
@@ -315,7 +357,7 @@ def reference_designs(data: RegressionData, spec: ModelSpec, it: Any = None) -> 
     for s in range(data.n_segments):
         sl = slice(int(data.starts[s]) + 1, int(data.starts[s + 1]))
         zc[sl] -= column_means(zc[sl])
-    if data.n_segments == 1 and spec.n_states == 1 and rows.size > _large_rows():
+    if long:
         # a long one-experiment log: every row but the first, as views (no gathered copies)
         rows = slice(1, None)
     blocks = block_starts(spec)
@@ -325,6 +367,11 @@ def reference_designs(data: RegressionData, spec: ModelSpec, it: Any = None) -> 
         out.append(_Design(z=zc[rows, sl], phi=phi[rows, sl],
                            resid=data.target[rows, i] - phi[rows, sl] @ theta[sl]))
     return out
+
+
+def rows_of(data: RegressionData) -> int:
+    """The number of rows of ``data`` (every experiment's samples)."""
+    return int(data.starts[-1])
 
 
 def _large_rows() -> int:

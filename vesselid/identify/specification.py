@@ -264,11 +264,14 @@ def _first_stage(prep: _Prepared, names: list[str] | None,
     names = names or [f"x{j}" for j in range(pp.shape[1])]
     exo = exogenous_columns(zz, pp) if exo is None else exo
     excl = ~exogenous_columns(pp, zz)  # instrument columns that are not regressors
-    w = pp[:, exo]
     endo = np.flatnonzero(~exo)
     n = zz.shape[0]
     k_ex = int(excl.sum())
     k_total = k_ex + int(exo.sum()) + (len(prep.segs) if prep.zero_mean else 0)
+    if n > _covariance.LARGE_ROWS and endo.size and k_ex:  # sums over blocks of rows
+        return _first_stage_blocks(zz, pp, excl, exo, names,
+                                   _first_stage_base(names, endo, k_ex, n - k_total))
+    w = pp[:, exo]
 
     def resid_on(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         if b.shape[1] == 0:
@@ -284,6 +287,20 @@ def _first_stage(prep: _Prepared, names: list[str] | None,
         return out
     coef = _lstsq(z_t, x_t)
     ssrs, sses, vv, ff = _fit_cross_products(z_t, x_t, coef)
+    return _first_stage_stats(out, endo, names, ssrs, sses, vv, ff, k_ex, n)
+
+
+def _first_stage_base(names: list[str], endo: np.ndarray, k_ex: int, df_den: int) -> dict[str, Any]:
+    """The first stage's result before its statistics (:func:`_first_stage`)."""
+    return {"partial_f": {}, "partial_r2": {}, "endogenous": [names[j] for j in endo],
+            "df": (k_ex, df_den)}
+
+
+def _first_stage_stats(out: dict[str, Any], endo: np.ndarray, names: list[str],
+                       ssrs: np.ndarray, sses: np.ndarray, vv: np.ndarray, ff: np.ndarray,
+                       k_ex: int, n: int) -> dict[str, Any]:
+    """Partial F, partial R² and Cragg–Donald of :func:`_first_stage` from the sums of
+    its fit and residual."""
     for i, j in enumerate(endo):
         ssr = float(ssrs[i])
         sse = float(sses[i])
@@ -299,6 +316,106 @@ def _first_stage(prep: _Prepared, names: list[str] | None,
     except np.linalg.LinAlgError:
         out["cragg_donald"] = float("inf")
     return out
+
+
+def _endogeneity_rows(z: np.ndarray, phi: np.ndarray, y: np.ndarray, endo: np.ndarray,
+                      cov_type: str, cov_config: Mapping[str, Any]
+                      ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The augmented regression of :func:`_endogeneity` on one long experiment without
+    its ``[φ, v̂]`` array: each block of rows formed where a sum needs it (the least
+    squares of :func:`_lstsq_blocks`, the covariance of
+    :func:`~vesselid.identify.covariance.ls_covariance_of_rows`; the same sums rounded
+    differently). ``(β, Cov β)``, or None where the covariance has no block form."""
+    est = get_covariance_estimator(cov_type, **cov_config)
+    n, p = phi.shape
+    q = p + endo.size
+    if not (isinstance(est, _covariance.KernelCovariance) and est.sums_in_blocks()):
+        return None
+    coef = _lstsq_blocks(lambda b: z[b], lambda b: phi[b][:, endo], n)
+
+    def x_of(a: int, b: int) -> np.ndarray:  # the rows of [φ, v̂]
+        out = np.empty((b - a, q))
+        out[:, :p] = phi[a:b]
+        out[:, p:] = phi[a:b][:, endo]
+        out[:, p:] -= z[a:b] @ coef
+        return out
+
+    beta = _lstsq_blocks(lambda b: x_of(b.start, b.stop), lambda b: y[b][:, None], n)[:, 0]
+    resid = np.empty(n)
+    for t0 in range(0, n, BLOCK_ROWS):
+        t1 = min(t0 + BLOCK_ROWS, n)
+        resid[t0:t1] = y[t0:t1] - x_of(t0, t1) @ beta
+    cov = _covariance.ls_covariance_of_rows(est, x_of, n, q, resid)
+    return None if cov is None else (beta, cov)
+
+
+def _first_stage_blocks(zz: np.ndarray, pp: np.ndarray, excl: np.ndarray, exo: np.ndarray,
+                        names: list[str], out: dict[str, Any]) -> dict[str, Any]:
+    """:func:`_first_stage` of a long log without the partialled-out copies of the
+    excluded instruments and endogenous regressors: every row of ``z̃ = z_excl − w c_z``
+    and ``x̃ = x_endo − w c_x`` is formed inside a block of :data:`BLOCK_ROWS` rows where a
+    sum needs it (:func:`_lstsq_blocks`; the same sums rounded differently)."""
+    excl_i, exo_i, endo = np.flatnonzero(excl), np.flatnonzero(exo), np.flatnonzero(~exo)
+    n = zz.shape[0]
+    if exo_i.size:
+        c_z = _lstsq_blocks(lambda b: pp[b][:, exo_i], lambda b: zz[b][:, excl_i], n)
+        c_x = _lstsq_blocks(lambda b: pp[b][:, exo_i], lambda b: pp[b][:, endo], n)
+
+        def z_t(b: slice) -> np.ndarray:
+            return zz[b][:, excl_i] - pp[b][:, exo_i] @ c_z
+
+        def x_t(b: slice) -> np.ndarray:
+            return pp[b][:, endo] - pp[b][:, exo_i] @ c_x
+    else:
+        def z_t(b: slice) -> np.ndarray:
+            return zz[b][:, excl_i]
+
+        def x_t(b: slice) -> np.ndarray:
+            return pp[b][:, endo]
+    coef = _lstsq_blocks(z_t, x_t, n)
+    m = endo.size
+    vv, ff = np.zeros((m, m)), np.zeros((m, m))
+    for t0 in range(0, n, BLOCK_ROWS):
+        blk = slice(t0, min(t0 + BLOCK_ROWS, n))
+        f = z_t(blk) @ coef
+        v = x_t(blk) - f
+        vv += v.T @ v
+        ff += f.T @ f
+    return _first_stage_stats(out, endo, names, np.diag(vv).copy(), np.diag(ff).copy(), vv,
+                              ff, int(excl_i.size), n)
+
+
+def _lstsq_blocks(a_of: Any, b_of: Any, n: int) -> np.ndarray:
+    """:func:`_lstsq` of a long ``a`` and ``b`` given by their rows: ``a_of(rows)``,
+    ``b_of(rows)`` return the rows of a slice (2-d); the normal equations and their two
+    refinement steps summed over blocks of :data:`BLOCK_ROWS` rows. Where the Gram matrix
+    is too ill-conditioned for them, the arrays are formed whole and ``lstsq`` solves."""
+    blocks = [slice(t0, min(t0 + BLOCK_ROWS, n)) for t0 in range(0, n, BLOCK_ROWS)]
+    gram, atb = 0.0, 0.0
+    for blk in blocks:
+        a, b = a_of(blk), b_of(blk)
+        gram = gram + a.T @ a
+        atb = atb + a.T @ b
+    scale = np.sqrt(np.diag(gram))
+    g_s = gram / np.outer(scale, scale) if np.all(scale > 0) else None
+    if (g_s is None or not np.all(np.isfinite(gram))
+            or not np.linalg.cond(g_s) < GRAM_COND):
+        whole = slice(0, n)
+        return np.linalg.lstsq(a_of(whole), b_of(whole), rcond=None)[0]
+    chol = np.linalg.cholesky(g_s)
+
+    def solve(v: np.ndarray) -> np.ndarray:  # gram⁻¹ v through the equilibrated factor
+        w = np.linalg.solve(chol, v / scale[:, None])
+        return np.linalg.solve(chol.T, w) / scale[:, None]
+
+    x = solve(atb)
+    for _ in range(2):
+        atr = np.zeros_like(x)
+        for blk in blocks:
+            a = a_of(blk)
+            atr += a.T @ (b_of(blk) - a @ x)
+        x = x + solve(atr)
+    return x
 
 
 def _fit_cross_products(z: np.ndarray, x: np.ndarray, coef: np.ndarray
@@ -504,7 +621,12 @@ def _endogeneity(prep: _Prepared, cov_type: str, cov_config: Mapping[str, Any],
         return TestResult("Durbin-Wu-Hausman", 0.0, 0, 1.0, "chi2", "LS is consistent",
                           "no endogenous regressor: LS and IV coincide")
     x = None if memo is None else memo.get("x")
-    if x is None:
+    rows = None
+    if x is None and memo is None and z.shape[0] > _covariance.LARGE_ROWS and len(segs) == 1:
+        rows = _endogeneity_rows(z, phi, y, endo, cov_type, cov_config)
+    if rows is not None:
+        beta, cov = rows
+    elif x is None:
         coef = _lstsq(z, phi[:, endo])
         if z.shape[0] > _covariance.LARGE_ROWS:  # [φ, v] filled in place: no separate v
             x = np.empty((phi.shape[0], phi.shape[1] + endo.size))
@@ -516,13 +638,16 @@ def _endogeneity(prep: _Prepared, cov_type: str, cov_config: Mapping[str, Any],
             x = np.hstack([phi, v])
         if memo is not None:
             memo["x"] = x
-    beta = _lstsq(x, y)
-    est = get_covariance_estimator(cov_type, **cov_config)
-    # a long log's augmented regressors, kept for no other target, are handed over
-    hand_over = ({"overwrite": True} if memo is None and x.shape[0] > _covariance.LARGE_ROWS
-                 and type(est).estimate is _covariance.CovarianceEstimator.estimate else {})
-    cov = est.estimate(x, x, y - x @ beta, _starts_of(segs), skip_first=False,
-                       zero_mean=False, **hand_over).cov
+    if rows is None:
+        beta = _lstsq(x, y)
+        est = get_covariance_estimator(cov_type, **cov_config)
+        # a long log's augmented regressors, kept for no other target, are handed over
+        hand_over = ({"overwrite": True} if memo is None
+                     and x.shape[0] > _covariance.LARGE_ROWS
+                     and type(est).estimate is _covariance.CovarianceEstimator.estimate
+                     else {})
+        cov = est.estimate(x, x, y - x @ beta, _starts_of(segs), skip_first=False,
+                           zero_mean=False, **hand_over).cov
     d = beta[phi.shape[1]:]
     v_d = cov[phi.shape[1]:, phi.shape[1]:]
     try:

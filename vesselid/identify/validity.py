@@ -153,6 +153,87 @@ def _rows(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray, extra: b
     return phi[keep], z[keep], y[keep], seg[keep]
 
 
+def _one_long_experiment(data: RegressionData) -> bool:
+    """Whether ``data`` is one group of one experiment longer than
+    :data:`~vesselid.identify.covariance.LARGE_ROWS` rows (the bounded-memory forms of
+    the mean-current test)."""
+    return (data.n_groups == 1 and data.starts.size == 2
+            and int(data.starts[-1]) > _covariance.LARGE_ROWS)
+
+
+def _long_rows(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray,
+               extra: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_rows` with ``extra`` of one long experiment (:func:`_one_long_experiment`):
+    the same numbers, each matrix formed once in its final ``(T, P + 1)`` buffer (the
+    ``|w|`` column and its instrument written in place; nothing kept for the feedback
+    test). ``seg`` is empty: every row belongs to the one experiment."""
+    codes = spec.codes
+    n = int(data.starts[-1])
+
+    def widened(x: np.ndarray, last: np.ndarray) -> np.ndarray:
+        out = np.empty((n, x.shape[1] + 1))
+        out[:, :-1] = x
+        out[0, -1] = np.nan
+        np.abs(last[:-1], out=out[1:, -1])
+        return out
+
+    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, codes.factors)
+    phi = widened(phi, data.regsig[:, 0])
+    z, xhat = kernels.instrument_matrix(data.target, data.u, data.starts, theta_aux,
+                                        codes.factors, codes.equation, spec.n_states)
+    z = widened(z, xhat[:, 0])
+    del xhat
+    y = data.target[:, 0].astype(float)
+    keep = np.ones(n, dtype=bool)
+    for arr in (phi, z):  # column by column: the same mask as a row-wise all()
+        for j in range(arr.shape[1]):
+            keep &= np.isfinite(arr[:, j])
+    seg = np.zeros(0, dtype=np.int64)
+    kept = np.flatnonzero(keep)
+    if kept.size and kept[-1] - kept[0] + 1 == kept.size:  # one run of rows: in place
+        r = slice(int(kept[0]), int(kept[-1]) + 1)
+        for arr in (phi, z):
+            rows = arr[r]
+            rows -= column_means(rows)
+        rows = y[r]
+        rows -= rows.mean(axis=0)
+        return phi[r], z[r], y[r], seg
+    for arr in (phi, z):
+        arr[keep] -= column_means(arr[keep])
+    y[keep] -= y[keep].mean()
+    return phi[keep], z[keep], y[keep], seg
+
+
+def _hac_iv_blocks(z: np.ndarray, phi: np.ndarray, y: np.ndarray, seg: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`_hac_iv` of one experiment with its scores ``z (y − Φθ)`` formed one block
+    of :data:`~vesselid.identify.covariance.BLOCK_ROWS` rows at a time (the Bartlett sums
+    of :func:`~vesselid.identify.covariance.bartlett_block_sums`): the same quantity
+    rounded differently, memory ``O(BLOCK_ROWS)`` beyond the rows."""
+    a = z.T @ phi
+    try:
+        theta = np.linalg.solve(a, z.T @ y)
+        a_inv = np.linalg.inv(a)
+    except np.linalg.LinAlgError:
+        return None
+    n, q = z.shape
+    rows = int(_covariance.BLOCK_ROWS)
+
+    def block(i: int, j: int) -> np.ndarray:
+        return z[i:j] * (y[i:j] - phi[i:j] @ theta)[:, None]
+
+    bw = hac_lags(n)
+    total, s = np.zeros(q), np.zeros((q, q))
+    for i in range(0, n, rows):
+        m = block(i, min(i + rows, n))
+        total += m.sum(axis=0)
+        if bw == 0:
+            s += m.T @ m
+    if bw > 0:
+        s = _covariance.bartlett_block_sums(block, n, q, total / n, bw, rows)
+    return theta, a_inv @ s @ a_inv.T
+
+
 def _chi2_sf(x: float, df: int) -> float:
     from vesselid.identify._special import chi2_sf
 
@@ -174,10 +255,13 @@ def mean_current(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray,
     key = f"{state}*|{state}|"
     if key not in names or state not in names:
         return None
-    phi, z, y, seg = _rows(data, spec, np.asarray(theta_aux, dtype=float), extra=True)
+    long = _one_long_experiment(data)  # (bounded memory: _long_rows, _hac_iv_blocks)
+    phi, z, y, seg = (_long_rows if long else _rows)(data, spec,
+                                                     np.asarray(theta_aux, dtype=float),
+                                                     extra=True)
     if y.size < 4 * phi.shape[1]:
         return None
-    fit = _hac_iv(z, phi, y, seg)
+    fit = (_hac_iv_blocks if long else _hac_iv)(z, phi, y, seg)
     if fit is None:
         return None
     theta, cov = fit
