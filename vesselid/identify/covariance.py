@@ -527,6 +527,10 @@ class CovarianceEstimator:
     #: Add Windmeijer's (2005) finite-sample correction to two-step GMM estimates whose
     #: design carries ``weight_jacobian`` (``cov_config`` ``windmeijer=False`` turns it off).
     windmeijer: bool = True
+    #: With the Windmeijer correction and a Bartlett kernel: scale each standard error by
+    #: the fixed-b critical value at its effective bandwidth ratio over 1.96
+    #: (:mod:`vesselid.identify.fixedb`; ``cov_config`` ``fixed_b=False`` turns it off).
+    fixed_b: bool = True
     #: Whether :meth:`meat` reads the instruments ``z`` (else it gets None, and the
     #: equilibrated copies of ``z`` and ``φ`` are released before it runs: a long log's
     #: HAC meat then holds only the scores).
@@ -606,6 +610,11 @@ class CovarianceEstimator:
             ``C₁ = (AᵀW₁A)⁻¹AᵀW₁`` (``W₁ = (Σ zzᵀ)⁻¹``) map the moments to the two-step
             and first-step estimates (``θ₂ − θ0 ≈ C ḡ + D (θ₁ − θ0)``); with
             ``S = W⁻¹`` it is Windmeijer's ``V + DV + VDᵀ + D V₁ Dᵀ``. Pooled only.
+            With :attr:`fixed_b` and a Bartlett kernel (not pre-whitened) each standard
+            error is then scaled by ``q(b_p)/1.96``, the fixed-b 95 % critical value at the
+            parameter's effective bandwidth ratio (:mod:`vesselid.identify.fixedb`), so
+            that ``±1.96 SE`` is the fixed-b interval (``config``: ``effective_b``,
+            ``critical_value``).
 
         Returns
         -------
@@ -648,6 +657,16 @@ class CovarianceEstimator:
         windmeijer = weight_jacobian is not None and self.windmeijer
         w_first = (_block_inverse(sum(z[s].T @ z[s] for s in segs) * same_z, z_equation)
                    if windmeijer and weight is not None and n_ins != n_par else None)
+        fixed_b = None
+        if (windmeijer and self.fixed_b and w_first is not None and combine == "pooled"
+                and getattr(self, "kernel", None) == "bartlett"
+                and not getattr(self, "prewhiten", False)):
+            # before the meat, which may form the scores in z's buffer
+            d_s = np.asarray(weight_jacobian, dtype=float)
+            if d_s.shape == (n_par, n_par) and np.all(np.isfinite(d_s)):
+                fixed_b = _fixed_b_rows(z, phi, segs, equation, z_equation, zero_mean,
+                                        _influence(a_sum, w_mat, w_first, d_s * np.outer(
+                                            sc.phi_scale, 1.0 / sc.phi_scale)))
         if not self.meat_uses_z:  # the scores carry all the meat needs
             if late:
                 every_row = sum(s.stop - s.start for s in segs) == z.shape[0]
@@ -676,12 +695,31 @@ class CovarianceEstimator:
             cov = sandwich_from_sums(a_list, s_list, n_list, row_weight=np.diag(w_mat))
         else:
             cov = _general_sandwich(a_list, a_sum, s_list, w_mat, n_list, combine)
+        if weight_jacobian is not None and windmeijer:
+            used["fixed_b"] = bool(self.fixed_b and fixed_b is not None)
+        if fixed_b is not None and np.all(np.isfinite(cov)) and "bandwidth" in used:
+            from vesselid.identify.fixedb import (
+                BARTLETT_QUANTILES,
+                bartlett_critical_value,
+                effective_b,
+            )
+
+            zl, phi_c = fixed_b
+            b_eff = effective_b(zl, phi_c, cov, equation, math.floor(used["bandwidth"]), segs)
+            crit = bartlett_critical_value(b_eff)
+            scale = crit / BARTLETT_QUANTILES[0.975][0]
+            cov = cov * np.outer(scale, scale)
+            used["effective_b"] = [float(x) for x in b_eff]
+            used["critical_value"] = [float(x) for x in crit]
         if np.all(np.isfinite(cov)):
             cov = cov / np.outer(sc.phi_scale, sc.phi_scale)
         config = {**self.config(), **used}
         label = self.label(config)
         if config.get("windmeijer"):
             label += "; Windmeijer (2005) correction for the estimated two-step GMM weight"
+        if config.get("fixed_b") and "critical_value" in config:
+            label += ("; standard errors scaled to the fixed-b (Kiefer-Vogelsang 2005) 95 % "
+                      "critical value at the effective bandwidth ratio")
         return CovarianceResult(cov=cov, cov_type=self.name, config=config,
                                 label=label,
                                 long_run=sum(s_list) * np.outer(sc.z_scale, sc.z_scale),
@@ -867,6 +905,38 @@ def _general_sandwich(a_list: list[np.ndarray], a_sum: np.ndarray, s_list: list[
     return cov if np.all(np.isfinite(cov)) else np.full((k, k), np.inf)
 
 
+def _influence(a_sum: np.ndarray, w_mat: np.ndarray, w_first: np.ndarray,
+               d_mat: np.ndarray) -> np.ndarray | None:
+    """``L = C + D C₁`` of :func:`_windmeijer_sandwich` (``θ̂ − θ0 ≈ L Σ g``); None
+    when singular."""
+    try:
+        aw = a_sum.T @ w_mat
+        aw1 = a_sum.T @ w_first
+        return np.linalg.solve(aw @ a_sum, aw) + d_mat @ np.linalg.solve(aw1 @ a_sum, aw1)
+    except np.linalg.LinAlgError:
+        return None
+
+
+def _fixed_b_rows(z: np.ndarray, phi: np.ndarray, segs: list[slice], equation: np.ndarray,
+                  z_equation: np.ndarray, zero_mean: bool, infl: np.ndarray | None
+                  ) -> tuple[list[np.ndarray], np.ndarray] | None:
+    """The rows :func:`vesselid.identify.fixedb.effective_b` needs: per equation the
+    instruments projected on the influence rows, and the regressors centred per
+    experiment where the residuals are (``zero_mean``); zero outside the rows used."""
+    if infl is None or not np.all(np.isfinite(infl)):
+        return None
+    n_eq = int(max(equation.max(initial=0), z_equation.max(initial=0))) + 1
+    zl = [np.zeros((z.shape[0], phi.shape[1])) for _ in range(n_eq)]
+    phi_c = np.zeros_like(phi)
+    for s in segs:
+        for e in range(n_eq):
+            cols = z_equation == e
+            if cols.any():
+                zl[e][s] = z[s][:, cols] @ infl[:, cols].T
+        phi_c[s] = phi[s] - phi[s].mean(axis=0) if zero_mean else phi[s]
+    return zl, phi_c
+
+
 def _windmeijer_sandwich(a_sum: np.ndarray, s_list: list[np.ndarray], w_mat: np.ndarray,
                          w_first: np.ndarray, d_mat: np.ndarray) -> np.ndarray:
     """Windmeijer (2005) corrected covariance of a pooled two-step GMM estimate:
@@ -874,11 +944,8 @@ def _windmeijer_sandwich(a_sum: np.ndarray, s_list: list[np.ndarray], w_mat: np.
     ``C₁ = (AᵀW₁A)⁻¹AᵀW₁`` (see :meth:`CovarianceEstimator.estimate`); all-``inf`` when
     singular."""
     k = a_sum.shape[1]
-    try:
-        aw = a_sum.T @ w_mat
-        aw1 = a_sum.T @ w_first
-        infl = np.linalg.solve(aw @ a_sum, aw) + d_mat @ np.linalg.solve(aw1 @ a_sum, aw1)
-    except np.linalg.LinAlgError:
+    infl = _influence(a_sum, w_mat, w_first, d_mat)
+    if infl is None:
         return np.full((k, k), np.inf)
     cov = infl @ sum(s_list) @ infl.T
     cov = 0.5 * (cov + cov.T)
@@ -1157,11 +1224,15 @@ def get_covariance_estimator(cov_type: str = DEFAULT_COV_TYPE, **cov_config: Any
     windmeijer = cov_config.pop("windmeijer", True)
     if not isinstance(windmeijer, bool | np.bool_):
         raise CovarianceError(f"windmeijer must be True or False, got {windmeijer!r}")
+    fixed_b = cov_config.pop("fixed_b", True)
+    if not isinstance(fixed_b, bool | np.bool_):
+        raise CovarianceError(f"fixed_b must be True or False, got {fixed_b!r}")
     try:
         est = COVARIANCE_ESTIMATORS[cov_type](**cov_config)
     except TypeError as exc:
         raise CovarianceError(f"invalid options for cov_type {cov_type!r}: {exc}") from None
     est.windmeijer = bool(windmeijer)
+    est.fixed_b = bool(fixed_b)
     return est
 
 
