@@ -567,6 +567,7 @@ class CovarianceEstimator:
         combine: str = "pooled",
         skip_first: bool = True,
         weight_jacobian: np.ndarray | None = None,
+        fixed_b_square: bool = False,
     ) -> CovarianceResult:
         """Covariance of the estimates from instruments, regressors and residuals.
 
@@ -615,6 +616,10 @@ class CovarianceEstimator:
             parameter's effective bandwidth ratio (:mod:`vesselid.identify.fixedb`), so
             that ``±1.96 SE`` is the fixed-b interval (``config``: ``effective_b``,
             ``critical_value``).
+        fixed_b_square : bool
+            Apply the same fixed-b scaling to a pooled just-identified estimate
+            (``K == P``, no ``weight``; influence ``A⁻¹``) — the refined IV of
+            :class:`vesselid.identify.efficient.InstrumentalGMM` (SRIV) asks for it.
 
         Returns
         -------
@@ -667,6 +672,15 @@ class CovarianceEstimator:
                 fixed_b = _fixed_b_rows(z, phi, segs, equation, z_equation, zero_mean,
                                         _influence(a_sum, w_mat, w_first, d_s * np.outer(
                                             sc.phi_scale, 1.0 / sc.phi_scale)))
+        square_b = (fixed_b_square and self.fixed_b and n_ins == n_par and weight is None
+                    and combine == "pooled" and getattr(self, "kernel", None) == "bartlett"
+                    and not getattr(self, "prewhiten", False))
+        if square_b:
+            try:
+                fixed_b = _fixed_b_rows(z, phi, segs, equation, z_equation, zero_mean,
+                                        np.linalg.inv(a_sum))
+            except np.linalg.LinAlgError:
+                fixed_b = None
         if not self.meat_uses_z:  # the scores carry all the meat needs
             if late:
                 every_row = sum(s.stop - s.start for s in segs) == z.shape[0]
@@ -695,7 +709,7 @@ class CovarianceEstimator:
             cov = sandwich_from_sums(a_list, s_list, n_list, row_weight=np.diag(w_mat))
         else:
             cov = _general_sandwich(a_list, a_sum, s_list, w_mat, n_list, combine)
-        if weight_jacobian is not None and windmeijer:
+        if (weight_jacobian is not None and windmeijer) or square_b:
             used["fixed_b"] = bool(self.fixed_b and fixed_b is not None)
         if fixed_b is not None and np.all(np.isfinite(cov)) and "bandwidth" in used:
             from vesselid.identify.fixedb import (

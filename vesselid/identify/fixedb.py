@@ -24,7 +24,12 @@ the same Bartlett weights ``w`` (per experiment); ``Σ_k s(k) = ((I + D) u_p)_p`
 a fixed weight. With a constant ``z φᵀ`` it is
 ``M/T`` up to ``O(M²/T²)``: the fixed-b ratio; it is the *effective* ratio otherwise.
 The reported interval uses the Kiefer–Vogelsang (2005) Bartlett critical value at
-``b_p`` (their cubic fit of the quantile, valid for ``0 ≤ b ≤ 1``).
+``b_p`` (their cubic fit of the quantile, valid for ``0 ≤ b ≤ 1``): the covariance
+scales each standard error by ``q(b_p)/1.96``
+(:meth:`vesselid.identify.covariance.CovarianceEstimator.estimate`), for two-step GMM
+estimates (``gmm``, ``auto`` with the delayed instruments; influence ``C + D C₁``) and
+the refined IV (``sriv``, ``auto``'s fallback; influence ``A⁻¹``). Evidence:
+``scripts/robustness_study.py`` (short logs) and ``scripts/calibration.py``.
 """
 
 from __future__ import annotations
