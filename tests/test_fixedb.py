@@ -58,6 +58,26 @@ def test_effective_b_of_a_homogeneous_design_is_m_over_t():
     assert abs(b[0] - m / t) < (m / t) ** 2
 
 
+def test_effective_b_per_equation_and_block_forms_agree():
+    """Two equations, each parameter's influence within its own instruments: the one-array
+    form equals the per-equation form; a joint covariance across equations is allowed."""
+    rng = np.random.default_rng(2)
+    t, eq = 60, np.array([0, 0, 1, 1, 1])
+    zl_block = rng.normal(size=(t, 5))
+    zl_list = [np.where(eq[None, :] == e, zl_block, 0.0) for e in range(2)]
+    phi = rng.normal(size=(t, 5))
+    r = rng.normal(size=(5, 5))
+    cov = r @ r.T + np.eye(5)
+    segs = [slice(0, 25), slice(25, t)]
+    got = effective_b(zl_block, phi, cov, eq, 3, segs)
+    np.testing.assert_allclose(got, effective_b(zl_list, phi, cov, eq, 3, segs), rtol=1e-12)
+    # by hand for one parameter of the second equation
+    u = cov[:, 3] / cov[3, 3]
+    s = zl_block[:, 3] * (phi[:, 2:] @ u[2:])
+    want = sum(s[sl] @ _bartlett_matrix(sl.stop - sl.start, 3) @ s[sl] for sl in segs)
+    assert got[3] == pytest.approx(want, rel=1e-12)
+
+
 def test_critical_values_are_kiefer_vogelsangs():
     assert bartlett_critical_value(0.0) == pytest.approx(1.96)
     # KV (2005) Bartlett, b = 0.1 and 1 (two-sided 5 %)

@@ -933,22 +933,34 @@ def _influence(a_sum: np.ndarray, w_mat: np.ndarray, w_first: np.ndarray,
 
 def _fixed_b_rows(z: np.ndarray, phi: np.ndarray, segs: list[slice], equation: np.ndarray,
                   z_equation: np.ndarray, zero_mean: bool, infl: np.ndarray | None
-                  ) -> tuple[list[np.ndarray], np.ndarray] | None:
-    """The rows :func:`vesselid.identify.fixedb.effective_b` needs: per equation the
-    instruments projected on the influence rows, and the regressors centred per
-    experiment where the residuals are (``zero_mean``); zero outside the rows used."""
+                  ) -> tuple[list[np.ndarray] | np.ndarray, np.ndarray] | None:
+    """The rows :func:`vesselid.identify.fixedb.effective_b` needs: the instruments
+    projected on the influence rows (one (T, P) array when every parameter's influence
+    row stays within its own equation's instruments, as for estimates per equation;
+    else one per equation), and the regressors centred per experiment where the
+    residuals are (``zero_mean``); zero outside the rows used."""
     if infl is None or not np.all(np.isfinite(infl)):
         return None
     n_eq = int(max(equation.max(initial=0), z_equation.max(initial=0))) + 1
-    zl = [np.zeros((z.shape[0], phi.shape[1])) for _ in range(n_eq)]
+    own = equation[:, None] == z_equation[None, :]
     phi_c = np.zeros_like(phi)
+    if not np.any(infl[~own]):
+        zl = np.zeros((z.shape[0], phi.shape[1]))
+        for s in segs:
+            for e in range(n_eq):
+                cols, pars = z_equation == e, equation == e
+                if cols.any() and pars.any():
+                    zl[s, pars] = z[s][:, cols] @ infl[np.ix_(pars, cols)].T
+            phi_c[s] = phi[s] - phi[s].mean(axis=0) if zero_mean else phi[s]
+        return zl, phi_c
+    zls = [np.zeros((z.shape[0], phi.shape[1])) for _ in range(n_eq)]
     for s in segs:
         for e in range(n_eq):
             cols = z_equation == e
             if cols.any():
-                zl[e][s] = z[s][:, cols] @ infl[:, cols].T
+                zls[e][s] = z[s][:, cols] @ infl[:, cols].T
         phi_c[s] = phi[s] - phi[s].mean(axis=0) if zero_mean else phi[s]
-    return zl, phi_c
+    return zls, phi_c
 
 
 def _windmeijer_sandwich(a_sum: np.ndarray, s_list: list[np.ndarray], w_mat: np.ndarray,

@@ -107,15 +107,17 @@ def _moving_sums(x: np.ndarray, lags: int) -> np.ndarray:
     return (c - lagged)[1:]
 
 
-def effective_b(zl: list[np.ndarray], phi: np.ndarray, cov: np.ndarray,
+def effective_b(zl: list[np.ndarray] | np.ndarray, phi: np.ndarray, cov: np.ndarray,
                 param_eq: np.ndarray, lags: int, segments: list[slice]) -> np.ndarray:
     """Effective Bartlett bandwidth ratio ``b_p`` of every parameter (module docstring).
 
     Parameters
     ----------
-    zl : list of ndarray (T, P)
+    zl : list of ndarray (T, P), or ndarray (T, P)
         Per equation ``e``: ``z(k)[cols_e] · ℓ_p[cols_e]`` for every parameter ``p``
-        (the instruments of that equation projected on the influence rows).
+        (the instruments of that equation projected on the influence rows); one array
+        when each ``ℓ_p`` is zero outside its own equation's instruments (column ``p``:
+        ``z(k) · ℓ_p``).
     phi : ndarray (T, P)
         Regressors in the units of ``cov``, centred per experiment where the residuals
         are.
@@ -130,8 +132,13 @@ def effective_b(zl: list[np.ndarray], phi: np.ndarray, cov: np.ndarray,
     ok = np.isfinite(diag) & (diag > 0)
     u = np.where(ok[None, :], cov / np.where(ok, diag, 1.0)[None, :], 0.0)
     s = np.zeros((phi.shape[0], cov.shape[0]))
-    for e, zle in enumerate(zl):
-        cols = param_eq == e
-        s += zle * (phi[:, cols] @ u[cols])
+    if isinstance(zl, np.ndarray):
+        for e in np.unique(param_eq):
+            cols = param_eq == e
+            s[:, cols] = zl[:, cols] * (phi[:, cols] @ u[np.ix_(cols, cols)])
+    else:
+        for e, zle in enumerate(zl):
+            cols = param_eq == e
+            s += zle * (phi[:, cols] @ u[cols])
     b = bartlett_cross(s, s, lags, segments)
     return np.where(ok & np.isfinite(b), b, 0.0)
