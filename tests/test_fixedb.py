@@ -5,9 +5,7 @@ off, and Monte Carlo coverage on short logs (slow)."""
 from __future__ import annotations
 
 import math
-import sys
 import warnings
-from pathlib import Path
 
 import linearmodels.iv as lm_iv
 import numpy as np
@@ -177,10 +175,11 @@ def test_auto_covers_on_short_white_logs():
     in ~95 % of runs): every parameter's 95 % interval covers θ0 within three binomial
     standard errors of 95 %, and the intervals stay honest in width (mean SE / Monte
     Carlo sd below 1.25)."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-    import robustness_study as rs
+    from _scripts import load_script
 
     from vesselid.identify import identify
+
+    rs = load_script("robustness_study")
 
     runs = 600
     seeds = np.random.SeedSequence(7).spawn(runs)
