@@ -43,6 +43,7 @@ CANDIDATES = {
     "hac (default: Bartlett, Newey-West bandwidth)": (DEFAULT_COV_TYPE, {}),
     "unadjusted": ("unadjusted", {}),
     "hac default without the Windmeijer correction": (DEFAULT_COV_TYPE, {"windmeijer": False}),
+    "hac default without the fixed-b critical values": (DEFAULT_COV_TYPE, {"fixed_b": False}),
     "hac Bartlett, Andrews AR(1) bandwidth": ("hac", {"kernel": "bartlett",
                                                        "bandwidth": "andrews"}),
     "hac QS, Newey-West bandwidth": ("hac", {"kernel": "qs"}),

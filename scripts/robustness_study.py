@@ -57,10 +57,14 @@ METHODS = ("auto", "iv-zero-mean", "pem", "lagged-2sls")
 #: sensor-noise variance always estimated without its bound at zero where the likelihood
 #: does not establish it (``pem_boundary="unbounded"``), or always bounded
 #: (``pem_boundary="bounded"``); ``auto`` itself chooses by the shape of the smoothed
-#: current (``scripts/pem_boundary_study.py``).
-VARIANTS = ("auto-unbounded", "auto-bounded")
+#: current (``scripts/pem_boundary_study.py``); ``auto-no-fixed-b``: ``auto`` with
+#: normal critical values for its GMM and SRIV intervals (:data:`COV_CONFIG`).
+VARIANTS = ("auto-unbounded", "auto-bounded", "auto-no-fixed-b")
+#: ``cov_config`` of a variant (``auto-no-fixed-b``: ``auto``'s intervals without the
+#: fixed-b critical values of :mod:`vesselid.identify.fixedb`).
+COV_CONFIG = {"auto-no-fixed-b": {"fixed_b": False}}
 #: The methods whose choices are tabulated.
-AUTOS = ("auto", "auto-unbounded", "auto-bounded")
+AUTOS = ("auto", "auto-unbounded", "auto-bounded", "auto-no-fixed-b")
 PARAMS = ("a", "n", "f")
 SPEC = ModelSpec(name="heave-robustness", states=["w"], inputs=["tau"],
                  equations={"w": ["w", "w*|w|", "tau"]},
@@ -159,6 +163,8 @@ def simulate(design: Design, rng: np.random.Generator, n: int) -> pd.DataFrame:
 
 def estimator(method: str):
     """The registered estimator ``method``, or a study variant (:data:`VARIANTS`)."""
+    if method == "auto-no-fixed-b":
+        return "auto"
     if method in ("auto-unbounded", "auto-bounded"):
         from vesselid.identify.efficient import InstrumentalGMM
         from vesselid.identify.registry import entry
@@ -179,7 +185,8 @@ def one_run(design: Design, seed: np.random.SeedSequence, n: int,
         try:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
-                res = identify(log, SPEC, estimator(method))
+                cfg = {"cov_config": COV_CONFIG[method]} if method in COV_CONFIG else {}
+                res = identify(log, SPEC, estimator(method), **cfg)
         except Exception as exc:
             for p, th in zip(PARAMS, THETA0, strict=True):
                 rows.append({**base, "param": p, "theta0": th, "estimate": np.nan,

@@ -357,7 +357,8 @@ def test_sriv_covariance_matches_iv2sls_on_its_prefiltered_rows(kernel):
     regressors and residuals after the AR noise-model prefilter, instruments centred.
     Its standard errors equal linearmodels ``IV2SLS`` with a constant on exactly those
     rows (``y = ε + φθ``) with the same kernel and bandwidth, and ``identify`` reports
-    them."""
+    them (``fixed_b=False``; by default, Bartlett kernel, each scaled by its fixed-b
+    critical value over 1.96)."""
     import warnings
 
     from vesselid.identify import identify
@@ -384,5 +385,18 @@ def test_sriv_covariance_matches_iv2sls_on_its_prefiltered_rows(kernel):
     assert _rel(res.cov, fit.cov.to_numpy()[1:, 1:]) < 1e-8
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        fitted = identify(log, method="sriv", cov_config={"kernel": kernel, "bandwidth": bw})
+        fitted = identify(log, method="sriv", cov_config={"kernel": kernel, "bandwidth": bw,
+                                                          "fixed_b": False})
+        scaled = identify(log, method="sriv", cov_config={"kernel": kernel, "bandwidth": bw})
     assert _rel(fitted.cov.to_numpy(), res.cov) < 1e-10
+    fb = get_covariance_estimator("hac", kernel=kernel, bandwidth=bw).estimate(
+        d.z, d.phi, d.resid, d.starts, zero_mean=True, skip_first=False, fixed_b_square=True)
+    assert _rel(scaled.cov.to_numpy(), fb.cov) < 1e-10
+    if kernel == "bartlett":
+        from vesselid.identify.fixedb import bartlett_critical_value
+
+        q = bartlett_critical_value(np.asarray(fb.config["effective_b"])) / 1.96
+        assert np.all(q > 1.0)
+        np.testing.assert_allclose(fb.cov, res.cov * np.outer(q, q), rtol=1e-10)
+    else:  # the kernel's fixed-b quantiles are Bartlett's only
+        np.testing.assert_array_equal(fb.cov, res.cov)

@@ -88,6 +88,10 @@ class EquationDesign:
     (P, P) the derivative ``∂θ₂/∂θ₁`` of a two-step GMM estimate with respect to its
     2SLS first step through the estimated weight (None: the weight is not estimated),
     from which the covariance adds Windmeijer's (2005) finite-sample correction.
+    ``fixed_b``: a just-identified estimate whose Bartlett-HAC standard errors are scaled
+    to the fixed-b critical value at the effective bandwidth ratio
+    (:mod:`vesselid.identify.fixedb`; two-step GMM estimates with ``weight_jacobian``
+    always are).
     ``owned``: ``z`` and ``phi`` are the estimator's own buffers (no other array of the
     fit, the log or the caller shares them), which the last step that reads them may
     overwrite.
@@ -101,6 +105,7 @@ class EquationDesign:
     zero_mean: bool = False
     weight_jacobian: np.ndarray | None = None
     owned: bool = False
+    fixed_b: bool = False
 
 
 class _Warner:

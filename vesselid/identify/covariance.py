@@ -541,6 +541,10 @@ class CovarianceEstimator:
     #: Add Windmeijer's (2005) finite-sample correction to two-step GMM estimates whose
     #: design carries ``weight_jacobian`` (``cov_config`` ``windmeijer=False`` turns it off).
     windmeijer: bool = True
+    #: With the Windmeijer correction and a Bartlett kernel: scale each standard error by
+    #: the fixed-b critical value at its effective bandwidth ratio over 1.96
+    #: (:mod:`vesselid.identify.fixedb`; ``cov_config`` ``fixed_b=False`` turns it off).
+    fixed_b: bool = True
     #: Whether :meth:`meat` reads the instruments ``z`` (else it gets None, and the
     #: equilibrated copies of ``z`` and ``φ`` are released before it runs: a long log's
     #: HAC meat then holds only the scores).
@@ -578,6 +582,7 @@ class CovarianceEstimator:
         skip_first: bool = True,
         weight_jacobian: np.ndarray | None = None,
         overwrite: bool = False,
+        fixed_b_square: bool = False,
     ) -> CovarianceResult:
         """Covariance of the estimates from instruments, regressors and residuals.
 
@@ -621,6 +626,15 @@ class CovarianceEstimator:
             ``C₁ = (AᵀW₁A)⁻¹AᵀW₁`` (``W₁ = (Σ zzᵀ)⁻¹``) map the moments to the two-step
             and first-step estimates (``θ₂ − θ0 ≈ C ḡ + D (θ₁ − θ0)``); with
             ``S = W⁻¹`` it is Windmeijer's ``V + DV + VDᵀ + D V₁ Dᵀ``. Pooled only.
+            With :attr:`fixed_b` and a Bartlett kernel (not pre-whitened) each standard
+            error is then scaled by ``q(b_p)/1.96``, the fixed-b 95 % critical value at the
+            parameter's effective bandwidth ratio (:mod:`vesselid.identify.fixedb`), so
+            that ``±1.96 SE`` is the fixed-b interval (``config``: ``effective_b``,
+            ``critical_value``).
+        fixed_b_square : bool
+            Apply the same fixed-b scaling to a pooled just-identified estimate
+            (``K == P``, no ``weight``; influence ``A⁻¹``) — the refined IV of
+            :class:`vesselid.identify.efficient.InstrumentalGMM` (SRIV) asks for it.
         overwrite : bool
             The caller hands ``z`` over (a float64 array it needs no more): it is
             equilibrated in its own buffer instead of a copy (the same numbers; on a long
@@ -640,9 +654,11 @@ class CovarianceEstimator:
         if combine not in ("pooled", "stacked"):
             raise CovarianceError(f"combine must be 'pooled' or 'stacked', got {combine!r}")
         if np.shape(z)[0] > LARGE_ROWS:  # one long experiment: every sum in blocks
-            blocks = self._estimate_in_blocks(z, phi, resid, starts, equation, z_equation,
-                                              weight, zero_mean, combine, skip_first,
-                                              weight_jacobian)
+            blocks = (None if self._fixed_b_applies(weight, weight_jacobian, fixed_b_square,
+                                                    combine)
+                      else self._estimate_in_blocks(z, phi, resid, starts, equation,
+                                                    z_equation, weight, zero_mean, combine,
+                                                    skip_first, weight_jacobian))
             if blocks is not None:
                 return blocks
         # a long log whose meat needs the scores only: they are formed in the
@@ -673,6 +689,25 @@ class CovarianceEstimator:
         windmeijer = weight_jacobian is not None and self.windmeijer
         w_first = (_block_inverse(sum(z[s].T @ z[s] for s in segs) * same_z, z_equation)
                    if windmeijer and weight is not None and n_ins != n_par else None)
+        fixed_b = None
+        if (windmeijer and self.fixed_b and w_first is not None and combine == "pooled"
+                and getattr(self, "kernel", None) == "bartlett"
+                and not getattr(self, "prewhiten", False)):
+            # before the meat, which may form the scores in z's buffer
+            d_s = np.asarray(weight_jacobian, dtype=float)
+            if d_s.shape == (n_par, n_par) and np.all(np.isfinite(d_s)):
+                fixed_b = _fixed_b_rows(z, phi, segs, equation, z_equation, zero_mean,
+                                        _influence(a_sum, w_mat, w_first, d_s * np.outer(
+                                            sc.phi_scale, 1.0 / sc.phi_scale)))
+        square_b = (fixed_b_square and self.fixed_b and n_ins == n_par and weight is None
+                    and combine == "pooled" and getattr(self, "kernel", None) == "bartlett"
+                    and not getattr(self, "prewhiten", False))
+        if square_b:
+            try:
+                fixed_b = _fixed_b_rows(z, phi, segs, equation, z_equation, zero_mean,
+                                        np.linalg.inv(a_sum))
+            except np.linalg.LinAlgError:
+                fixed_b = None
         if not self.meat_uses_z:  # the scores carry all the meat needs
             if late:
                 every_row = sum(s.stop - s.start for s in segs) == z.shape[0]
@@ -683,14 +718,28 @@ class CovarianceEstimator:
         return self._sandwich(a_list, a_sum, s_list, n_list, w_mat, w_first, used,
                               weight=weight, weight_jacobian=weight_jacobian,
                               combine=combine, z_scale=sc.z_scale, phi_scale=sc.phi_scale,
-                              z_equation=z_equation, equation=equation)
+                              z_equation=z_equation, equation=equation, fixed_b=fixed_b,
+                              square_b=square_b, segs=segs)
+
+    def _fixed_b_applies(self, weight: Any, weight_jacobian: Any, fixed_b_square: bool,
+                         combine: str) -> bool:
+        """Whether :meth:`estimate` may scale the standard errors to the fixed-b critical
+        value (then the whole-array path runs: the effective bandwidth ratio reads every
+        row of the instruments and regressors)."""
+        if not (self.fixed_b and combine == "pooled"
+                and getattr(self, "kernel", None) == "bartlett"
+                and not getattr(self, "prewhiten", False)):
+            return False
+        return ((weight_jacobian is not None and self.windmeijer and weight is not None)
+                or (fixed_b_square and weight is None))
 
     def _sandwich(self, a_list: list[np.ndarray], a_sum: np.ndarray, s_list: list[np.ndarray],
                   n_list: list[int], w_mat: np.ndarray, w_first: np.ndarray | None,
                   used: dict[str, Any], *, weight: np.ndarray | None,
                   weight_jacobian: np.ndarray | None, combine: str, z_scale: np.ndarray,
-                  phi_scale: np.ndarray, z_equation: np.ndarray, equation: np.ndarray
-                  ) -> CovarianceResult:
+                  phi_scale: np.ndarray, z_equation: np.ndarray, equation: np.ndarray,
+                  fixed_b: tuple[Any, np.ndarray] | None = None, square_b: bool = False,
+                  segs: list[slice] | None = None) -> CovarianceResult:
         """The sandwich of :meth:`estimate` from its sums in the equilibrated units:
         ``a_list`` (``Σ_E zφᵀ``), the meat ``s_list`` (``S_E``), the rows ``n_list``, the
         weight ``w_mat`` (and ``w_first``, the first step's, for Windmeijer)."""
@@ -718,12 +767,31 @@ class CovarianceEstimator:
             cov = sandwich_from_sums(a_list, s_list, n_list, row_weight=np.diag(w_mat))
         else:
             cov = _general_sandwich(a_list, a_sum, s_list, w_mat, n_list, combine)
+        if (weight_jacobian is not None and windmeijer) or square_b:
+            used["fixed_b"] = bool(self.fixed_b and fixed_b is not None)
+        if fixed_b is not None and np.all(np.isfinite(cov)) and "bandwidth" in used:
+            from vesselid.identify.fixedb import (
+                BARTLETT_QUANTILES,
+                bartlett_critical_value,
+                effective_b,
+            )
+
+            zl, phi_c = fixed_b
+            b_eff = effective_b(zl, phi_c, cov, equation, math.floor(used["bandwidth"]), segs)
+            crit = bartlett_critical_value(b_eff)
+            scale = crit / BARTLETT_QUANTILES[0.975][0]
+            cov = cov * np.outer(scale, scale)
+            used["effective_b"] = [float(x) for x in b_eff]
+            used["critical_value"] = [float(x) for x in crit]
         if np.all(np.isfinite(cov)):
             cov = cov / np.outer(phi_scale, phi_scale)
         config = {**self.config(), **used}
         label = self.label(config)
         if config.get("windmeijer"):
             label += "; Windmeijer (2005) correction for the estimated two-step GMM weight"
+        if config.get("fixed_b") and "critical_value" in config:
+            label += ("; standard errors scaled to the fixed-b (Kiefer-Vogelsang 2005) 95 % "
+                      "critical value at the effective bandwidth ratio")
         return CovarianceResult(cov=cov, cov_type=self.name, config=config,
                                 label=label,
                                 long_run=sum(s_list) * np.outer(z_scale, z_scale),
@@ -974,6 +1042,50 @@ def _general_sandwich(a_list: list[np.ndarray], a_sum: np.ndarray, s_list: list[
     return cov if np.all(np.isfinite(cov)) else np.full((k, k), np.inf)
 
 
+def _influence(a_sum: np.ndarray, w_mat: np.ndarray, w_first: np.ndarray,
+               d_mat: np.ndarray) -> np.ndarray | None:
+    """``L = C + D C₁`` of :func:`_windmeijer_sandwich` (``θ̂ − θ0 ≈ L Σ g``); None
+    when singular."""
+    try:
+        aw = a_sum.T @ w_mat
+        aw1 = a_sum.T @ w_first
+        return np.linalg.solve(aw @ a_sum, aw) + d_mat @ np.linalg.solve(aw1 @ a_sum, aw1)
+    except np.linalg.LinAlgError:
+        return None
+
+
+def _fixed_b_rows(z: np.ndarray, phi: np.ndarray, segs: list[slice], equation: np.ndarray,
+                  z_equation: np.ndarray, zero_mean: bool, infl: np.ndarray | None
+                  ) -> tuple[list[np.ndarray] | np.ndarray, np.ndarray] | None:
+    """The rows :func:`vesselid.identify.fixedb.effective_b` needs: the instruments
+    projected on the influence rows (one (T, P) array when every parameter's influence
+    row stays within its own equation's instruments, as for estimates per equation;
+    else one per equation), and the regressors centred per experiment where the
+    residuals are (``zero_mean``); zero outside the rows used."""
+    if infl is None or not np.all(np.isfinite(infl)):
+        return None
+    n_eq = int(max(equation.max(initial=0), z_equation.max(initial=0))) + 1
+    own = equation[:, None] == z_equation[None, :]
+    phi_c = np.zeros_like(phi)
+    if not np.any(infl[~own]):
+        zl = np.zeros((z.shape[0], phi.shape[1]))
+        for s in segs:
+            for e in range(n_eq):
+                cols, pars = z_equation == e, equation == e
+                if cols.any() and pars.any():
+                    zl[s, pars] = z[s][:, cols] @ infl[np.ix_(pars, cols)].T
+            phi_c[s] = phi[s] - phi[s].mean(axis=0) if zero_mean else phi[s]
+        return zl, phi_c
+    zls = [np.zeros((z.shape[0], phi.shape[1])) for _ in range(n_eq)]
+    for s in segs:
+        for e in range(n_eq):
+            cols = z_equation == e
+            if cols.any():
+                zls[e][s] = z[s][:, cols] @ infl[:, cols].T
+        phi_c[s] = phi[s] - phi[s].mean(axis=0) if zero_mean else phi[s]
+    return zls, phi_c
+
+
 def _windmeijer_sandwich(a_sum: np.ndarray, s_list: list[np.ndarray], w_mat: np.ndarray,
                          w_first: np.ndarray, d_mat: np.ndarray) -> np.ndarray:
     """Windmeijer (2005) corrected covariance of a pooled two-step GMM estimate:
@@ -981,11 +1093,8 @@ def _windmeijer_sandwich(a_sum: np.ndarray, s_list: list[np.ndarray], w_mat: np.
     ``C₁ = (AᵀW₁A)⁻¹AᵀW₁`` (see :meth:`CovarianceEstimator.estimate`); all-``inf`` when
     singular."""
     k = a_sum.shape[1]
-    try:
-        aw = a_sum.T @ w_mat
-        aw1 = a_sum.T @ w_first
-        infl = np.linalg.solve(aw @ a_sum, aw) + d_mat @ np.linalg.solve(aw1 @ a_sum, aw1)
-    except np.linalg.LinAlgError:
+    infl = _influence(a_sum, w_mat, w_first, d_mat)
+    if infl is None:
         return np.full((k, k), np.inf)
     cov = infl @ sum(s_list) @ infl.T
     cov = 0.5 * (cov + cov.T)
@@ -1327,11 +1436,15 @@ def get_covariance_estimator(cov_type: str = DEFAULT_COV_TYPE, **cov_config: Any
     windmeijer = cov_config.pop("windmeijer", True)
     if not isinstance(windmeijer, bool | np.bool_):
         raise CovarianceError(f"windmeijer must be True or False, got {windmeijer!r}")
+    fixed_b = cov_config.pop("fixed_b", True)
+    if not isinstance(fixed_b, bool | np.bool_):
+        raise CovarianceError(f"fixed_b must be True or False, got {fixed_b!r}")
     try:
         est = COVARIANCE_ESTIMATORS[cov_type](**cov_config)
     except TypeError as exc:
         raise CovarianceError(f"invalid options for cov_type {cov_type!r}: {exc}") from None
     est.windmeijer = bool(windmeijer)
+    est.fixed_b = bool(fixed_b)
     return est
 
 

@@ -102,7 +102,8 @@ def resolve(cov_type: str | None, cov_config: Mapping[str, Any] | None = None
         res = est.estimate(design.z, design.phi, design.resid, design.starts,
                            weight=design.weight, zero_mean=design.zero_mean, combine=combine,
                            skip_first=False,
-                           weight_jacobian=getattr(design, "weight_jacobian", None))
+                           weight_jacobian=getattr(design, "weight_jacobian", None),
+                           fixed_b_square=bool(getattr(design, "fixed_b", False)))
         return np.asarray(res.cov, dtype=float), str(res.label)
 
     return name, fn

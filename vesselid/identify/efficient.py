@@ -55,8 +55,8 @@ CLOSED_FORM = "closed form"
 SINGULAR = "instrument matrix singular"
 
 
-def _designs_from(sol: gmm.GMMSolution, theta: np.ndarray, spec: ModelSpec
-                  ) -> list[EquationDesign]:
+def _designs_from(sol: gmm.GMMSolution, theta: np.ndarray, spec: ModelSpec,
+                  fixed_b: bool = False) -> list[EquationDesign]:
     from vesselid.identify.data import block_starts
 
     blocks = block_starts(spec)
@@ -66,7 +66,8 @@ def _designs_from(sol: gmm.GMMSolution, theta: np.ndarray, spec: ModelSpec
         sl = slice(int(blocks[i]), int(blocks[i + 1]))
         out.append(EquationDesign(z=z, phi=phi, resid=y - phi @ theta[sl],
                                   starts=_starts_of(valid, sol), weight=w, zero_mean=True,
-                                  weight_jacobian=jacobians[i], owned=True))
+                                  weight_jacobian=jacobians[i], owned=True,
+                                  fixed_b=fixed_b))
     return out
 
 
@@ -579,7 +580,9 @@ class InstrumentalGMM(Estimator):
         sol = it.info["solution"]
         if sol.designs is None and getattr(sol, "rebuild_from", None) is not None:
             sol = self._final_rows(data, spec, sol.rebuild_from)
-        return _designs_from(sol, it.theta[0], spec)
+        # the refined IV's intervals use the fixed-b critical value at the effective
+        # bandwidth ratio, as the two-step GMM's do (vesselid.identify.fixedb)
+        return _designs_from(sol, it.theta[0], spec, fixed_b=True)
 
     def defers_designs(self, it: IterationResult) -> bool:
         sol = it.info.get("solution")

@@ -590,7 +590,8 @@ def registry_covariances(
                 try:
                     res = ce.estimate(d.z, d.phi, d.resid, d.starts, weight=d.weight,
                                       zero_mean=d.zero_mean, combine=combine, skip_first=False,
-                                      weight_jacobian=d.weight_jacobian)
+                                      weight_jacobian=d.weight_jacobian,
+                                      fixed_b_square=d.fixed_b)
                 except ValueError:
                     continue
                 out[label][g, p_sl] = res.std_errors
