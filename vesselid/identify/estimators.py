@@ -26,6 +26,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass, field
+from itertools import pairwise
 
 import numpy as np
 
@@ -456,7 +457,16 @@ def refined_iv(
         start_ok &= groups
     reason = np.full(n_groups, STOP_MAX_ITER, dtype=object)
     reason[~start_ok] = STOP_SINGULAR
-    t_theta, ok = evaluate(theta, start_ok)
+    one = None
+    if n_groups == 1:  # a fit: T of one group on Python floats (_one_group_map)
+        one = _one_group_map(evaluate, direct, data, spec, mom, limits, zero_mean)
+    if one is not None and not keep_history and bool(start_ok[0]):
+        # (a failed start's T is all NaN here: only its kept history would show it)
+        t_start = one(theta[0].tolist())
+        ok = np.array([t_start is not None])
+        t_theta = np.array([t_start]) if ok[0] else np.full_like(theta, np.nan)
+    else:
+        t_theta, ok = evaluate(theta, start_ok)
     failed = start_ok & ~ok
     reason[failed] = STOP_START_DIVERGED
     active = ok.copy()
@@ -475,7 +485,8 @@ def refined_iv(
 
     if n_groups == 1:  # one group (a fit): the same steps in Python scalars
         (act, res, b_res, best_aux, best_t, reason[0], iterations[0], oscillation[0],
-         converged[0]) = _iterate_one(evaluate, theta, t_theta, prev_dir, bool(active[0]),
+         converged[0]) = _iterate_one(one, theta[0].tolist(), t_theta[0].tolist(),
+                                      prev_dir[0].tolist(), bool(active[0]),
                                       float(residual[0]), float(best_res[0]), best_aux,
                                       best_t, reason[0], int(iterations[0]),
                                       history if keep_history else None, max_iter, tol,
@@ -548,20 +559,87 @@ def refined_iv(
     )
 
 
-def _iterate_one(evaluate: Callable, theta: np.ndarray, t_theta: np.ndarray,
-                 prev_dir: np.ndarray, active: bool, residual: float, best_res: float,
+def _one_group_map(evaluate: Callable, direct: Callable | None, data: RegressionData,
+                   spec: ModelSpec, mom: Moments, limits: np.ndarray,
+                   zero_mean: bool) -> Callable[[list], list | None]:
+    """``T`` of a one-group ``data`` on Python floats for :func:`_iterate_one`:
+    ``fn(theta)`` takes the ``P`` parameters as a list and returns ``T(θ)`` as a list, or
+    None where ``evaluate`` flags the group (a diverged auxiliary model, a singular block).
+
+    One experiment with the specialised kernel (every fit of one log): the kernel's sums
+    into ``mom``, then the equations of :func:`solve_moments`'s one-group path — the
+    centring of :func:`_segment_equations` and the block solves of
+    :func:`vesselid.identify.linalg.solve` (:func:`~vesselid.identify.linalg.solve_rows`)
+    — as the same IEEE operations in the same order on Python floats: the same bits,
+    without the arrays, masks and copies of the batched path (the iteration evaluates
+    ``T`` up to ``max_iter`` times). Elsewhere (several experiments, the numpy path, a
+    non-finite θ) it is ``evaluate`` itself."""
+    mask = np.ones(1, dtype=bool)
+
+    def generic(theta: list) -> list | None:
+        t_theta, ok = evaluate(np.array([theta], dtype=float), mask)
+        return t_theta[0].tolist() if ok[0] else None
+
+    if direct is None or data.n_segments != 1:
+        return generic
+    n_par = spec.n_params
+    eq = spec.codes.equation.tolist()
+    same = [[1.0 if ei == ej else 0.0 for ej in eq] for ei in eq]  # (a bool array's 1, 0)
+    blocks = _layout(spec)[0].tolist()
+    spans = [(int(lo), int(hi)) for lo, hi in pairwise(blocks)]
+    buf = np.empty((1, n_par))
+    zphi, zy, z, phi, y, count, status = (mom.zphi[0], mom.zy[0], mom.z[0], mom.phi[0],
+                                          mom.y[0], mom.count, mom.status)
+    isfinite, aux_ok, solve_rows = math.isfinite, kernels.AUX_OK, linalg.solve_rows
+    rng = range(n_par)
+
+    def one(theta: list) -> list | None:
+        if not all(isfinite(x) for x in theta):
+            return generic(theta)
+        buf[0] = theta
+        if not direct(buf, mask):
+            compute_moments(data, spec, buf, active=mask, out=mom, limits=limits)
+        if status[0] != aux_ok:
+            return None
+        a = zphi.tolist()
+        b = zy.tolist()
+        if zero_mean:  # _segment_equations of one segment
+            n = max(int(count[0]), 1)
+            zs, ps, ys = z.tolist(), phi.tolist(), y.tolist()
+            a = [[a[i][j] - zs[i] * ps[j] / n * same[i][j] for j in rng] for i in rng]
+            b = [b[i] - zs[i] * ys[eq[i]] / n for i in rng]
+        if len(spans) == 1:
+            return solve_rows(a, b)
+        out: list = []
+        for lo, hi in spans:
+            x = solve_rows([row[lo:hi] for row in a[lo:hi]], b[lo:hi])
+            if x is None:
+                return None
+            out += x
+        return out
+
+    return one
+
+
+def _iterate_one(evaluate: Callable[[list], list | None], theta: list, t_theta: list,
+                 prev_dir: list, active: bool, residual: float, best_res: float,
                  best_aux: np.ndarray, best_t: np.ndarray, reason: str, iterations: int,
                  history: list | None, max_iter: int, tol: float, min_step: float) -> tuple:
     """The iteration of :func:`refined_iv` for one group: the same steps, tests and
-    arithmetic on the same ``(1, P)`` arrays, with the per-group flags, counters, step
-    and residuals as Python scalars instead of masked length-1 arrays (a fit evaluates
-    ``T`` some twenty times, and the masking cost more than the evaluations' solves).
+    arithmetic, on the parameters as lists of Python floats (``evaluate``:
+    :func:`_one_group_map`) and with the per-group flags, counters, step and residuals as
+    Python scalars instead of masked length-1 arrays (a fit evaluates ``T`` some twenty
+    times, up to ``max_iter``, and the array handling cost more than the evaluations).
+    The elementwise operations are numpy's (IEEE, in the same order), the norms those of
+    :func:`_rel`, so every iterate has the bits of the batched path's.
 
     Returns ``(active, residual, best_res, best_aux, best_t, reason, iterations,
-    oscillation, converged)`` after the loop."""
+    oscillation, converged)`` after the loop (``best_aux``, ``best_t``: ``(1, P)``
+    arrays)."""
     inf = math.inf
     step, since_best, oscillation, converged = 1.0, 0, False, False
-    mask = np.ones(1, dtype=bool)
+    best = None
+    n_par = len(theta)
     for _ in range(max_iter - 1):
         if active and residual < tol:
             converged, reason, active = True, STOP_CONVERGED, False
@@ -569,29 +647,34 @@ def _iterate_one(evaluate: Callable, theta: np.ndarray, t_theta: np.ndarray,
             reason, active = STOP_STALLED, False
         if not active:
             break
-        cand = theta + step * (t_theta - theta)
-        t_cand, ok_c = evaluate(cand, mask)
+        cand = [x + step * (t - x) for x, t in zip(theta, t_theta, strict=True)]
+        t_cand = evaluate(cand)
         iterations += 1
-        ok = bool(ok_c[0])
+        ok = t_cand is not None
         if not ok:  # reject a diverging candidate: shorten the step, retry from θ
             step *= 0.5
             if step < min_step:
                 reason, active = STOP_DIVERGED, False
         good = active and ok
-        res_c = float(_rel(t_cand - cand, cand)[0]) if good else inf
-        direction = t_cand - cand
-        if good and res_c > residual:  # a sign reversal with a growing residual
-            if np.einsum("gp,gp->g", np.nan_to_num(direction), prev_dir)[0] < 0:
-                oscillation = True
-            step = max(step * 0.5, min_step)
+        res_c = inf
         if good:
+            direction = [t - c for t, c in zip(t_cand, cand, strict=True)]
+            res_c = _rel_list(direction, cand)
+            if res_c > residual:  # a sign reversal with a growing residual
+                if np.einsum("gp,gp->g", np.nan_to_num(np.array([direction])),
+                             np.array([prev_dir]))[0] < 0:
+                    oscillation = True
+                step = max(step * 0.5, min_step)
             theta, t_theta, residual, prev_dir = cand, t_cand, res_c, direction
         if active:
             since_best += 1
         if good and res_c < best_res:
-            since_best, best_res, best_aux, best_t = 0, res_c, cand, t_cand
+            since_best, best_res, best = 0, res_c, (cand, t_cand)
         if history is not None:
-            history.append(np.where(good, t_cand, np.nan))
+            history.append(np.array([t_cand], dtype=float) if good
+                           else np.full((1, n_par), np.nan))
+    if best is not None:
+        best_aux, best_t = np.array([best[0]]), np.array([best[1]])
     return (active, residual, best_res, best_aux.copy(), best_t.copy(), reason, iterations,
             oscillation, converged)
 
@@ -644,6 +727,26 @@ def _rel(diff: np.ndarray, ref: np.ndarray) -> np.ndarray:
         return np.sqrt(np.add.reduce(x * x, axis=-1))
 
     return norm(diff) / np.maximum(norm(ref), 1e-300)
+
+
+def _norm_list(x: list) -> float:
+    """``np.linalg.norm`` of one row of Python floats, as :func:`_rel` computes it: numpy's
+    ``add.reduce`` of fewer than 8 terms adds them in order (pairwise sums above)."""
+    if len(x) >= 8:
+        v = np.array(x, dtype=float)
+        return float(np.sqrt(np.add.reduce(v * v)))
+    acc = 0.0
+    for v in x:
+        acc += v * v
+    return math.sqrt(acc)
+
+
+def _rel_list(diff: list, ref: list) -> float:
+    """:func:`_rel` of one row of Python floats (``np.maximum`` keeps a NaN norm)."""
+    den = _norm_list(ref)
+    if not den >= 1e-300 and den == den:
+        den = 1e-300
+    return _norm_list(diff) / den
 
 
 METHODS = ("ls", "iv", "iv-zero-mean")
