@@ -452,21 +452,17 @@ def refined_iv(
         return t_theta, ok & active & ~diverged
 
     theta = np.array(theta_start, dtype=float, copy=True)
+    if n_groups == 1:  # a fit: the same steps on Python floats
+        return _refined_one(evaluate,
+                            _one_group_map(evaluate, direct, data, spec, mom, limits,
+                                           zero_mean),
+                            theta, groups, keep_history, max_iter, tol, min_step)
     start_ok = np.all(np.isfinite(theta), axis=1)
     if groups is not None:
         start_ok &= groups
     reason = np.full(n_groups, STOP_MAX_ITER, dtype=object)
     reason[~start_ok] = STOP_SINGULAR
-    one = None
-    if n_groups == 1:  # a fit: T of one group on Python floats (_one_group_map)
-        one = _one_group_map(evaluate, direct, data, spec, mom, limits, zero_mean)
-    if one is not None and not keep_history and bool(start_ok[0]):
-        # (a failed start's T is all NaN here: only its kept history would show it)
-        t_start = one(theta[0].tolist())
-        ok = np.array([t_start is not None])
-        t_theta = np.array([t_start]) if ok[0] else np.full_like(theta, np.nan)
-    else:
-        t_theta, ok = evaluate(theta, start_ok)
+    t_theta, ok = evaluate(theta, start_ok)
     failed = start_ok & ~ok
     reason[failed] = STOP_START_DIVERGED
     active = ok.copy()
@@ -483,58 +479,46 @@ def refined_iv(
     prev_dir = np.where(active[:, None], t_theta - theta, 0.0)
     history = [best_t.copy()] if keep_history else []
 
-    if n_groups == 1:  # one group (a fit): the same steps in Python scalars
-        (act, res, b_res, best_aux, best_t, reason[0], iterations[0], oscillation[0],
-         converged[0]) = _iterate_one(one, theta[0].tolist(), t_theta[0].tolist(),
-                                      prev_dir[0].tolist(), bool(active[0]),
-                                      float(residual[0]), float(best_res[0]), best_aux,
-                                      best_t, reason[0], int(iterations[0]),
-                                      history if keep_history else None, max_iter, tol,
-                                      min_step)
-        active = np.array([act])
-        residual = np.array([res])
-        best_res = np.array([b_res])
-    else:
-        for _ in range(max_iter - 1):
-            done = active & (residual < tol)
-            converged |= done
-            reason[done] = STOP_CONVERGED
-            active &= ~done
-            stalled = active & (since_best >= STALL_PATIENCE) & (best_res < STALL_TOL)
-            reason[stalled] = STOP_STALLED
-            active &= ~stalled
-            if not active.any():
-                break
-            cand = theta + step[:, None] * np.where(active[:, None], t_theta - theta, 0.0)
-            t_cand, ok_c = evaluate(cand, active)
-            iterations += active
-            bad = active & ~ok_c
-            # reject diverging candidates: shorten the step and retry from the same θ
-            step[bad] *= 0.5
-            give_up = bad & (step < min_step)
-            reason[give_up] = STOP_DIVERGED
-            active &= ~give_up
-            good = active & ok_c
-            res_c = np.full(n_groups, np.inf)
-            res_c[good] = _rel(t_cand[good] - cand[good], cand[good])
-            direction = t_cand - cand
-            grew = good & (res_c > residual)
-            if grew.any():  # a sign reversal of successive steps with a growing residual
-                reversed_ = grew & (np.einsum("gp,gp->g", np.nan_to_num(direction), prev_dir) < 0)
-                oscillation |= reversed_
-            step[grew] = np.maximum(step[grew] * 0.5, min_step)
-            theta[good] = cand[good]
-            t_theta[good] = t_cand[good]
-            residual[good] = res_c[good]
-            prev_dir[good] = direction[good]
-            better = good & (res_c < best_res)
-            since_best += active
-            since_best[better] = 0
-            best_res[better] = res_c[better]
-            best_aux[better] = cand[better]
-            best_t[better] = t_cand[better]
-            if keep_history:
-                history.append(np.where(good[:, None], t_cand, np.nan))
+    for _ in range(max_iter - 1):
+        done = active & (residual < tol)
+        converged |= done
+        reason[done] = STOP_CONVERGED
+        active &= ~done
+        stalled = active & (since_best >= STALL_PATIENCE) & (best_res < STALL_TOL)
+        reason[stalled] = STOP_STALLED
+        active &= ~stalled
+        if not active.any():
+            break
+        cand = theta + step[:, None] * np.where(active[:, None], t_theta - theta, 0.0)
+        t_cand, ok_c = evaluate(cand, active)
+        iterations += active
+        bad = active & ~ok_c
+        # reject diverging candidates: shorten the step and retry from the same θ
+        step[bad] *= 0.5
+        give_up = bad & (step < min_step)
+        reason[give_up] = STOP_DIVERGED
+        active &= ~give_up
+        good = active & ok_c
+        res_c = np.full(n_groups, np.inf)
+        res_c[good] = _rel(t_cand[good] - cand[good], cand[good])
+        direction = t_cand - cand
+        grew = good & (res_c > residual)
+        if grew.any():  # a sign reversal of successive steps with a growing residual
+            reversed_ = grew & (np.einsum("gp,gp->g", np.nan_to_num(direction), prev_dir) < 0)
+            oscillation |= reversed_
+        step[grew] = np.maximum(step[grew] * 0.5, min_step)
+        theta[good] = cand[good]
+        t_theta[good] = t_cand[good]
+        residual[good] = res_c[good]
+        prev_dir[good] = direction[good]
+        better = good & (res_c < best_res)
+        since_best += active
+        since_best[better] = 0
+        best_res[better] = res_c[better]
+        best_aux[better] = cand[better]
+        best_t[better] = t_cand[better]
+        if keep_history:
+            history.append(np.where(good[:, None], t_cand, np.nan))
     done = active & (residual < tol)
     converged |= done
     reason[done] = STOP_CONVERGED
@@ -554,6 +538,63 @@ def refined_iv(
         reason=reason,
         residual=best_res,
         oscillation=oscillation,
+        history=history,
+        info=info,
+    )
+
+
+def _refined_one(evaluate: Callable, one: Callable[[list], list | None], theta: np.ndarray,
+                 groups: np.ndarray | None, keep_history: bool, max_iter: int, tol: float,
+                 min_step: float) -> IterationResult:
+    """:func:`refined_iv` of one group (``theta`` (1, P), the start): its start,
+    :func:`_iterate_one` and its result, with the flags, counters and residuals as Python
+    scalars and ``T`` on Python floats (``one``, :func:`_one_group_map`); the batched
+    path's tests and arithmetic, so the same numbers. ``evaluate``: the batched ``T``
+    (a kept history's start, the stall averaging)."""
+    start_ok = (all(math.isfinite(x) for x in theta.flat)
+                and (groups is None or bool(groups[0])))
+    reason = STOP_MAX_ITER if start_ok else STOP_SINGULAR
+    if start_ok and not keep_history:  # (a failed start's T: NaN, shown by no history)
+        t_list = one(theta[0].tolist())
+        ok = t_list is not None
+        t_theta = np.array([t_list]) if ok else np.full_like(theta, np.nan)
+    else:
+        t_theta, ok_arr = evaluate(theta, np.array([start_ok]))
+        ok = bool(ok_arr[0])
+    failed = start_ok and not ok
+    if failed:
+        reason = STOP_START_DIVERGED
+    active = ok
+    th, t_th = theta[0].tolist(), t_theta[0].tolist()
+    residual = math.inf
+    prev_dir = [0.0] * len(th)
+    if active:
+        prev_dir = [t - x for t, x in zip(t_th, th, strict=True)]
+        residual = _rel_list(prev_dir, th)
+    history = [t_theta.copy()] if keep_history else []
+    (active, residual, best_res, best_aux, best_t, reason, iterations, oscillation,
+     converged) = _iterate_one(one, th, t_th, prev_dir, active, residual, residual, theta,
+                               t_theta, reason, 1 if active else 0,
+                               history if keep_history else None, max_iter, tol, min_step)
+    if active and residual < tol:
+        converged, reason = True, STOP_CONVERGED
+    est = best_t.copy()
+    iters = np.array([iterations])
+    info: dict = {}
+    n_avg = _STALL_AVERAGE.get()
+    if n_avg and reason == STOP_STALLED:
+        info["stall_average"] = _average_stall(evaluate, np.array([True]), best_aux, best_t,
+                                               n_avg, iters, est, best_aux)
+    if failed or not start_ok:
+        est[:] = np.nan
+    return IterationResult(
+        theta=est,
+        theta_aux=best_aux,
+        converged=np.array([converged]),
+        iterations=iters,
+        reason=np.array([reason], dtype=object),
+        residual=np.array([best_res]),
+        oscillation=np.array([oscillation]),
         history=history,
         info=info,
     )
