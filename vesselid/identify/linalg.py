@@ -359,6 +359,30 @@ def _bound_proves_regular(a: np.ndarray, sweeps: int, cond_max: float) -> bool:
                                          1e-9) < COND_CLEAR * cond_max
 
 
+try:  # the gufunc behind np.linalg.solve
+    from numpy.linalg import _umath_linalg as _ul
+
+    _GESV = _ul.solve
+except (ImportError, AttributeError):  # pragma: no cover
+    _GESV = None
+
+
+def _singular(err: str, flag: int) -> None:
+    raise np.linalg.LinAlgError("Singular matrix")
+
+
+def _gesv(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve(a, b)`` of float64 stacks ``a`` (G, P, P), ``b`` (G, P, K): its
+    LAPACK gufunc under its floating-point error state (a singular matrix raises
+    ``LinAlgError``), without its argument handling (one fit's refined iteration solves
+    at every step)."""
+    if _GESV is None:  # pragma: no cover
+        return np.linalg.solve(a, b)
+    with np.errstate(call=_singular, invalid="call", over="ignore", divide="ignore",
+                     under="ignore"):
+        return _GESV(a, b, signature="dd->d")
+
+
 def _pow2_one(norm: float) -> float:
     """:func:`pow2_scale` of one value (``frexp``/``ldexp`` are exact; a zero or
     non-finite norm is scaled as 1 is, by 1/2)."""
@@ -441,7 +465,7 @@ def _solve_lists(rows: list[list[float]], rhs: list[float], a: np.ndarray | None
         col.append(_pow2_one(math.sqrt(acc)))
     a_s = np.array([[[x * cj for x, cj in zip(row, col, strict=True)] for row in rows]])
     try:
-        y = np.linalg.solve(a_s, np.array(rhs, dtype=float).reshape(1, p, 1))[0, :, 0].tolist()
+        y = _gesv(a_s, np.array(rhs, dtype=float).reshape(1, p, 1))[0, :, 0].tolist()
     except np.linalg.LinAlgError:
         return False
     out = [x * cj for x, cj in zip(y, col, strict=True)]
