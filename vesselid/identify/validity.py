@@ -57,7 +57,10 @@ def _hac_iv(z: np.ndarray, phi: np.ndarray, y: np.ndarray, seg: np.ndarray
         a_inv = np.linalg.inv(a)
     except np.linalg.LinAlgError:
         return None
-    m = z * (y - phi @ theta)[:, None]
+    resid = y - phi @ theta
+    m = np.empty_like(z, dtype=float)
+    for j in range(z.shape[1]):  # z * resid[:, None], column by column (the same products)
+        np.multiply(z[:, j], resid, out=m[:, j])
     s = m.T @ m
     bw = hac_lags(m.shape[0])
     one = seg.size == 0 or seg[0] == seg[-1]  # one segment (sorted): every pair counts
@@ -72,6 +75,15 @@ def _hac_iv(z: np.ndarray, phi: np.ndarray, y: np.ndarray, seg: np.ndarray
             c = (m[lag:] * same).T @ m[:-lag]
         s += (1.0 - lag / (bw + 1.0)) * (c + c.T)
     return theta, a_inv @ s @ a_inv.T
+
+
+def _centre_columns(rows: np.ndarray) -> None:
+    """``rows -= column_means(rows)`` in place, one column at a time: the same
+    subtractions, without numpy's row-by-row broadcast over a few columns."""
+    mean = column_means(rows).tolist()
+    for j, mu in enumerate(mean):
+        col = rows[:, j]
+        col -= mu
 
 
 _SHARED = "_validity_matrices"
@@ -137,8 +149,7 @@ def _rows(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray, extra: b
         if kept.size and kept[-1] - kept[0] + 1 == kept.size:  # one run of rows: in place
             r = slice(a + int(kept[0]), a + int(kept[-1]) + 1)
             for arr in (phi, z):
-                rows = arr[r]
-                rows -= column_means(rows)
+                _centre_columns(arr[r])
             rows = y[r]
             rows -= rows.mean(axis=0)
             continue
