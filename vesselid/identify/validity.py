@@ -77,6 +77,15 @@ def _hac_iv(z: np.ndarray, phi: np.ndarray, y: np.ndarray, seg: np.ndarray
     return theta, a_inv @ s @ a_inv.T
 
 
+def _with_column(arr: np.ndarray) -> np.ndarray:
+    """A new C-ordered ``(T, K + 1)`` float array: ``arr`` (T, K) and a last column of NaN
+    (what ``np.column_stack`` of ``arr`` and a NaN column gives)."""
+    out = np.empty((arr.shape[0], arr.shape[1] + 1))
+    out[:, :-1] = arr
+    out[:, -1] = np.nan
+    return out
+
+
 def _centre_columns(rows: np.ndarray) -> None:
     """``rows -= column_means(rows)`` in place, one column at a time: the same
     subtractions, without numpy's row-by-row broadcast over a few columns."""
@@ -130,14 +139,12 @@ def _rows(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray, extra: b
         z, xhat = kernels.instrument_matrix(data.target[sl], data.u[sl], starts, theta_aux,
                                             codes.factors, codes.equation, spec.n_states)
     y = data.target[sl, 0].astype(float)
-    if extra:
-        prev = np.full((y.size, 2), np.nan)
+    if extra:  # [phi, |w(k-1)|] and [z, |x̂(k-1)|] (NaN in each experiment's first row)
+        phi, z = _with_column(phi), _with_column(z)
         for s in range(starts.size - 1):
             a, b = int(starts[s]), int(starts[s + 1])
-            prev[a + 1:b, 0] = np.abs(data.regsig[sl][a:b - 1, 0])
-            prev[a + 1:b, 1] = np.abs(xhat[a:b - 1, 0])
-        phi = np.column_stack([phi, prev[:, 0]])
-        z = np.column_stack([z, prev[:, 1]])
+            np.abs(data.regsig[sl][a:b - 1, 0], out=phi[a + 1:b, -1])
+            np.abs(xhat[a:b - 1, 0], out=z[a + 1:b, -1])
     keep = np.ones(y.size, dtype=bool)
     for arr in (phi, z):  # column by column: the same mask as a row-wise all()
         for j in range(arr.shape[1]):
