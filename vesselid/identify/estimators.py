@@ -26,6 +26,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass, field
+from itertools import pairwise
 
 import numpy as np
 
@@ -451,6 +452,11 @@ def refined_iv(
         return t_theta, ok & active & ~diverged
 
     theta = np.array(theta_start, dtype=float, copy=True)
+    if n_groups == 1:  # a fit: the same steps on Python floats
+        return _refined_one(evaluate,
+                            _one_group_map(evaluate, direct, data, spec, mom, limits,
+                                           zero_mean),
+                            theta, groups, keep_history, max_iter, tol, min_step)
     start_ok = np.all(np.isfinite(theta), axis=1)
     if groups is not None:
         start_ok &= groups
@@ -473,57 +479,46 @@ def refined_iv(
     prev_dir = np.where(active[:, None], t_theta - theta, 0.0)
     history = [best_t.copy()] if keep_history else []
 
-    if n_groups == 1:  # one group (a fit): the same steps in Python scalars
-        (act, res, b_res, best_aux, best_t, reason[0], iterations[0], oscillation[0],
-         converged[0]) = _iterate_one(evaluate, theta, t_theta, prev_dir, bool(active[0]),
-                                      float(residual[0]), float(best_res[0]), best_aux,
-                                      best_t, reason[0], int(iterations[0]),
-                                      history if keep_history else None, max_iter, tol,
-                                      min_step)
-        active = np.array([act])
-        residual = np.array([res])
-        best_res = np.array([b_res])
-    else:
-        for _ in range(max_iter - 1):
-            done = active & (residual < tol)
-            converged |= done
-            reason[done] = STOP_CONVERGED
-            active &= ~done
-            stalled = active & (since_best >= STALL_PATIENCE) & (best_res < STALL_TOL)
-            reason[stalled] = STOP_STALLED
-            active &= ~stalled
-            if not active.any():
-                break
-            cand = theta + step[:, None] * np.where(active[:, None], t_theta - theta, 0.0)
-            t_cand, ok_c = evaluate(cand, active)
-            iterations += active
-            bad = active & ~ok_c
-            # reject diverging candidates: shorten the step and retry from the same θ
-            step[bad] *= 0.5
-            give_up = bad & (step < min_step)
-            reason[give_up] = STOP_DIVERGED
-            active &= ~give_up
-            good = active & ok_c
-            res_c = np.full(n_groups, np.inf)
-            res_c[good] = _rel(t_cand[good] - cand[good], cand[good])
-            direction = t_cand - cand
-            grew = good & (res_c > residual)
-            if grew.any():  # a sign reversal of successive steps with a growing residual
-                reversed_ = grew & (np.einsum("gp,gp->g", np.nan_to_num(direction), prev_dir) < 0)
-                oscillation |= reversed_
-            step[grew] = np.maximum(step[grew] * 0.5, min_step)
-            theta[good] = cand[good]
-            t_theta[good] = t_cand[good]
-            residual[good] = res_c[good]
-            prev_dir[good] = direction[good]
-            better = good & (res_c < best_res)
-            since_best += active
-            since_best[better] = 0
-            best_res[better] = res_c[better]
-            best_aux[better] = cand[better]
-            best_t[better] = t_cand[better]
-            if keep_history:
-                history.append(np.where(good[:, None], t_cand, np.nan))
+    for _ in range(max_iter - 1):
+        done = active & (residual < tol)
+        converged |= done
+        reason[done] = STOP_CONVERGED
+        active &= ~done
+        stalled = active & (since_best >= STALL_PATIENCE) & (best_res < STALL_TOL)
+        reason[stalled] = STOP_STALLED
+        active &= ~stalled
+        if not active.any():
+            break
+        cand = theta + step[:, None] * np.where(active[:, None], t_theta - theta, 0.0)
+        t_cand, ok_c = evaluate(cand, active)
+        iterations += active
+        bad = active & ~ok_c
+        # reject diverging candidates: shorten the step and retry from the same θ
+        step[bad] *= 0.5
+        give_up = bad & (step < min_step)
+        reason[give_up] = STOP_DIVERGED
+        active &= ~give_up
+        good = active & ok_c
+        res_c = np.full(n_groups, np.inf)
+        res_c[good] = _rel(t_cand[good] - cand[good], cand[good])
+        direction = t_cand - cand
+        grew = good & (res_c > residual)
+        if grew.any():  # a sign reversal of successive steps with a growing residual
+            reversed_ = grew & (np.einsum("gp,gp->g", np.nan_to_num(direction), prev_dir) < 0)
+            oscillation |= reversed_
+        step[grew] = np.maximum(step[grew] * 0.5, min_step)
+        theta[good] = cand[good]
+        t_theta[good] = t_cand[good]
+        residual[good] = res_c[good]
+        prev_dir[good] = direction[good]
+        better = good & (res_c < best_res)
+        since_best += active
+        since_best[better] = 0
+        best_res[better] = res_c[better]
+        best_aux[better] = cand[better]
+        best_t[better] = t_cand[better]
+        if keep_history:
+            history.append(np.where(good[:, None], t_cand, np.nan))
     done = active & (residual < tol)
     converged |= done
     reason[done] = STOP_CONVERGED
@@ -548,20 +543,144 @@ def refined_iv(
     )
 
 
-def _iterate_one(evaluate: Callable, theta: np.ndarray, t_theta: np.ndarray,
-                 prev_dir: np.ndarray, active: bool, residual: float, best_res: float,
+def _refined_one(evaluate: Callable, one: Callable[[list], list | None], theta: np.ndarray,
+                 groups: np.ndarray | None, keep_history: bool, max_iter: int, tol: float,
+                 min_step: float) -> IterationResult:
+    """:func:`refined_iv` of one group (``theta`` (1, P), the start): its start,
+    :func:`_iterate_one` and its result, with the flags, counters and residuals as Python
+    scalars and ``T`` on Python floats (``one``, :func:`_one_group_map`); the batched
+    path's tests and arithmetic, so the same numbers. ``evaluate``: the batched ``T``
+    (a kept history's start, the stall averaging)."""
+    start_ok = (all(math.isfinite(x) for x in theta.flat)
+                and (groups is None or bool(groups[0])))
+    reason = STOP_MAX_ITER if start_ok else STOP_SINGULAR
+    if start_ok and not keep_history:  # (a failed start's T: NaN, shown by no history)
+        t_list = one(theta[0].tolist())
+        ok = t_list is not None
+        t_theta = np.array([t_list]) if ok else np.full_like(theta, np.nan)
+    else:
+        t_theta, ok_arr = evaluate(theta, np.array([start_ok]))
+        ok = bool(ok_arr[0])
+    failed = start_ok and not ok
+    if failed:
+        reason = STOP_START_DIVERGED
+    active = ok
+    th, t_th = theta[0].tolist(), t_theta[0].tolist()
+    residual = math.inf
+    prev_dir = [0.0] * len(th)
+    if active:
+        prev_dir = [t - x for t, x in zip(t_th, th, strict=True)]
+        residual = _rel_list(prev_dir, th)
+    history = [t_theta.copy()] if keep_history else []
+    (active, residual, best_res, best_aux, best_t, reason, iterations, oscillation,
+     converged) = _iterate_one(one, th, t_th, prev_dir, active, residual, residual, theta,
+                               t_theta, reason, 1 if active else 0,
+                               history if keep_history else None, max_iter, tol, min_step)
+    if active and residual < tol:
+        converged, reason = True, STOP_CONVERGED
+    est = best_t.copy()
+    iters = np.array([iterations])
+    info: dict = {}
+    n_avg = _STALL_AVERAGE.get()
+    if n_avg and reason == STOP_STALLED:
+        info["stall_average"] = _average_stall(evaluate, np.array([True]), best_aux, best_t,
+                                               n_avg, iters, est, best_aux)
+    if failed or not start_ok:
+        est[:] = np.nan
+    return IterationResult(
+        theta=est,
+        theta_aux=best_aux,
+        converged=np.array([converged]),
+        iterations=iters,
+        reason=np.array([reason], dtype=object),
+        residual=np.array([best_res]),
+        oscillation=np.array([oscillation]),
+        history=history,
+        info=info,
+    )
+
+
+def _one_group_map(evaluate: Callable, direct: Callable | None, data: RegressionData,
+                   spec: ModelSpec, mom: Moments, limits: np.ndarray,
+                   zero_mean: bool) -> Callable[[list], list | None]:
+    """``T`` of a one-group ``data`` on Python floats for :func:`_iterate_one`:
+    ``fn(theta)`` takes the ``P`` parameters as a list and returns ``T(θ)`` as a list, or
+    None where ``evaluate`` flags the group (a diverged auxiliary model, a singular block).
+
+    One experiment with the specialised kernel (every fit of one log): the kernel's sums
+    into ``mom``, then the equations of :func:`solve_moments`'s one-group path — the
+    centring of :func:`_segment_equations` and the block solves of
+    :func:`vesselid.identify.linalg.solve` (:func:`~vesselid.identify.linalg.solve_rows`)
+    — as the same IEEE operations in the same order on Python floats: the same bits,
+    without the arrays, masks and copies of the batched path (the iteration evaluates
+    ``T`` up to ``max_iter`` times). Elsewhere (several experiments, the numpy path, a
+    non-finite θ) it is ``evaluate`` itself."""
+    mask = np.ones(1, dtype=bool)
+
+    def generic(theta: list) -> list | None:
+        t_theta, ok = evaluate(np.array([theta], dtype=float), mask)
+        return t_theta[0].tolist() if ok[0] else None
+
+    if direct is None or data.n_segments != 1:
+        return generic
+    n_par = spec.n_params
+    eq = spec.codes.equation.tolist()
+    same = [[1.0 if ei == ej else 0.0 for ej in eq] for ei in eq]  # (a bool array's 1, 0)
+    blocks = _layout(spec)[0].tolist()
+    spans = [(int(lo), int(hi)) for lo, hi in pairwise(blocks)]
+    buf = np.empty((1, n_par))
+    zphi, zy, z, phi, y, count, status = (mom.zphi[0], mom.zy[0], mom.z[0], mom.phi[0],
+                                          mom.y[0], mom.count, mom.status)
+    isfinite, aux_ok, solve_rows = math.isfinite, kernels.AUX_OK, linalg.solve_rows
+    rng = range(n_par)
+
+    def one(theta: list) -> list | None:
+        if not all(isfinite(x) for x in theta):
+            return generic(theta)
+        buf[0] = theta
+        if not direct(buf, mask):
+            compute_moments(data, spec, buf, active=mask, out=mom, limits=limits)
+        if status[0] != aux_ok:
+            return None
+        a = zphi.tolist()
+        b = zy.tolist()
+        if zero_mean:  # _segment_equations of one segment
+            n = max(int(count[0]), 1)
+            zs, ps, ys = z.tolist(), phi.tolist(), y.tolist()
+            a = [[a[i][j] - zs[i] * ps[j] / n * same[i][j] for j in rng] for i in rng]
+            b = [b[i] - zs[i] * ys[eq[i]] / n for i in rng]
+        if len(spans) == 1:
+            return solve_rows(a, b)
+        out: list = []
+        for lo, hi in spans:
+            x = solve_rows([row[lo:hi] for row in a[lo:hi]], b[lo:hi])
+            if x is None:
+                return None
+            out += x
+        return out
+
+    return one
+
+
+def _iterate_one(evaluate: Callable[[list], list | None], theta: list, t_theta: list,
+                 prev_dir: list, active: bool, residual: float, best_res: float,
                  best_aux: np.ndarray, best_t: np.ndarray, reason: str, iterations: int,
                  history: list | None, max_iter: int, tol: float, min_step: float) -> tuple:
     """The iteration of :func:`refined_iv` for one group: the same steps, tests and
-    arithmetic on the same ``(1, P)`` arrays, with the per-group flags, counters, step
-    and residuals as Python scalars instead of masked length-1 arrays (a fit evaluates
-    ``T`` some twenty times, and the masking cost more than the evaluations' solves).
+    arithmetic, on the parameters as lists of Python floats (``evaluate``:
+    :func:`_one_group_map`) and with the per-group flags, counters, step and residuals as
+    Python scalars instead of masked length-1 arrays (a fit evaluates ``T`` some twenty
+    times, up to ``max_iter``, and the array handling cost more than the evaluations).
+    The elementwise operations are numpy's (IEEE, in the same order), the norms those of
+    :func:`_rel`, so every iterate has the bits of the batched path's.
 
     Returns ``(active, residual, best_res, best_aux, best_t, reason, iterations,
-    oscillation, converged)`` after the loop."""
+    oscillation, converged)`` after the loop (``best_aux``, ``best_t``: ``(1, P)``
+    arrays)."""
     inf = math.inf
     step, since_best, oscillation, converged = 1.0, 0, False, False
-    mask = np.ones(1, dtype=bool)
+    best = None
+    n_par = len(theta)
     for _ in range(max_iter - 1):
         if active and residual < tol:
             converged, reason, active = True, STOP_CONVERGED, False
@@ -569,29 +688,34 @@ def _iterate_one(evaluate: Callable, theta: np.ndarray, t_theta: np.ndarray,
             reason, active = STOP_STALLED, False
         if not active:
             break
-        cand = theta + step * (t_theta - theta)
-        t_cand, ok_c = evaluate(cand, mask)
+        cand = [x + step * (t - x) for x, t in zip(theta, t_theta, strict=True)]
+        t_cand = evaluate(cand)
         iterations += 1
-        ok = bool(ok_c[0])
+        ok = t_cand is not None
         if not ok:  # reject a diverging candidate: shorten the step, retry from θ
             step *= 0.5
             if step < min_step:
                 reason, active = STOP_DIVERGED, False
         good = active and ok
-        res_c = float(_rel(t_cand - cand, cand)[0]) if good else inf
-        direction = t_cand - cand
-        if good and res_c > residual:  # a sign reversal with a growing residual
-            if np.einsum("gp,gp->g", np.nan_to_num(direction), prev_dir)[0] < 0:
-                oscillation = True
-            step = max(step * 0.5, min_step)
+        res_c = inf
         if good:
+            direction = [t - c for t, c in zip(t_cand, cand, strict=True)]
+            res_c = _rel_list(direction, cand)
+            if res_c > residual:  # a sign reversal with a growing residual
+                if np.einsum("gp,gp->g", np.nan_to_num(np.array([direction])),
+                             np.array([prev_dir]))[0] < 0:
+                    oscillation = True
+                step = max(step * 0.5, min_step)
             theta, t_theta, residual, prev_dir = cand, t_cand, res_c, direction
         if active:
             since_best += 1
         if good and res_c < best_res:
-            since_best, best_res, best_aux, best_t = 0, res_c, cand, t_cand
+            since_best, best_res, best = 0, res_c, (cand, t_cand)
         if history is not None:
-            history.append(np.where(good, t_cand, np.nan))
+            history.append(np.array([t_cand], dtype=float) if good
+                           else np.full((1, n_par), np.nan))
+    if best is not None:
+        best_aux, best_t = np.array([best[0]]), np.array([best[1]])
     return (active, residual, best_res, best_aux.copy(), best_t.copy(), reason, iterations,
             oscillation, converged)
 
@@ -644,6 +768,26 @@ def _rel(diff: np.ndarray, ref: np.ndarray) -> np.ndarray:
         return np.sqrt(np.add.reduce(x * x, axis=-1))
 
     return norm(diff) / np.maximum(norm(ref), 1e-300)
+
+
+def _norm_list(x: list) -> float:
+    """``np.linalg.norm`` of one row of Python floats, as :func:`_rel` computes it: numpy's
+    ``add.reduce`` of fewer than 8 terms adds them in order (pairwise sums above)."""
+    if len(x) >= 8:
+        v = np.array(x, dtype=float)
+        return float(np.sqrt(np.add.reduce(v * v)))
+    acc = 0.0
+    for v in x:
+        acc += v * v
+    return math.sqrt(acc)
+
+
+def _rel_list(diff: list, ref: list) -> float:
+    """:func:`_rel` of one row of Python floats (``np.maximum`` keeps a NaN norm)."""
+    den = _norm_list(ref)
+    if not den >= 1e-300 and den == den:
+        den = 1e-300
+    return _norm_list(diff) / den
 
 
 METHODS = ("ls", "iv", "iv-zero-mean")

@@ -30,7 +30,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 __all__ = ["COND_MAX", "condition_number", "equilibrate", "gmm_solve", "inv_sym", "one_blas_thread",
-           "pow2_scale", "solve", "stacked_row_weights"]
+           "pow2_scale", "solve", "solve_rows", "stacked_row_weights"]
 
 #: Systems whose (equilibrated) condition number exceeds this are treated as singular.
 COND_MAX = 1e15
@@ -359,6 +359,30 @@ def _bound_proves_regular(a: np.ndarray, sweeps: int, cond_max: float) -> bool:
                                          1e-9) < COND_CLEAR * cond_max
 
 
+try:  # the gufunc behind np.linalg.solve
+    from numpy.linalg import _umath_linalg as _ul
+
+    _GESV = _ul.solve
+except (ImportError, AttributeError):  # pragma: no cover
+    _GESV = None
+
+
+def _singular(err: str, flag: int) -> None:
+    raise np.linalg.LinAlgError("Singular matrix")
+
+
+def _gesv(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve(a, b)`` of float64 stacks ``a`` (G, P, P), ``b`` (G, P, K): its
+    LAPACK gufunc under its floating-point error state (a singular matrix raises
+    ``LinAlgError``), without its argument handling (one fit's refined iteration solves
+    at every step)."""
+    if _GESV is None:  # pragma: no cover
+        return np.linalg.solve(a, b)
+    with np.errstate(call=_singular, invalid="call", over="ignore", divide="ignore",
+                     under="ignore"):
+        return _GESV(a, b, signature="dd->d")
+
+
 def _pow2_one(norm: float) -> float:
     """:func:`pow2_scale` of one value (``frexp``/``ldexp`` are exact; a zero or
     non-finite norm is scaled as 1 is, by 1/2)."""
@@ -401,18 +425,37 @@ def _solve_few(a: np.ndarray, b: np.ndarray, cond_max: float
 
 def _solve_system(a: np.ndarray, b: np.ndarray, cond_max: float, *, exact: bool
                   ) -> list[float] | bool | None:
-    """One system ``a`` (P, P), ``b`` (P,) of :func:`solve`: the finiteness checks, the
-    power-of-two column scales (the column norms are ``einsum``'s sequential sums of
-    squares, ``frexp``/``ldexp`` are exact) and the products with them in Python floats
-    (IEEE products; an overflow gives ``inf`` silently, as under ``errstate``), and the
-    same LAPACK solve of the same scaled system. Returns the solution, False for a
-    singular, ill-conditioned or non-finite system, and — without ``exact`` — None where
-    only the exact condition number (:func:`_cond_one`) could decide."""
-    rows = a.tolist()
+    """One system ``a`` (P, P), ``b`` (P,) of :func:`solve` (:func:`_solve_lists` of its
+    entries). Returns the solution, False for a singular, ill-conditioned or non-finite
+    system, and — without ``exact`` — None where only the exact condition number
+    (:func:`_cond_one`) could decide."""
+    return _solve_lists(a.tolist(), b.tolist(), a, cond_max, exact=exact)
+
+
+def solve_rows(rows: list[list[float]], rhs: list[float], cond_max: float = COND_MAX
+               ) -> list[float] | None:
+    """:func:`solve` of one system given as Python lists, ``rows`` (P lists of P floats)
+    and ``rhs`` (P floats): its solution as a list, None where :func:`solve` flags the
+    system, bit-identical to ``solve(np.array([rows]), np.array([rhs]))`` (for loops
+    that hold their few numbers as Python floats, e.g. the refined iteration of one fit).
+    """
+    x = _solve_lists(rows, rhs, None, cond_max, exact=True)
+    return None if x is False or x is None else x
+
+
+def _solve_lists(rows: list[list[float]], rhs: list[float], a: np.ndarray | None,
+                 cond_max: float, *, exact: bool) -> list[float] | bool | None:
+    """The solve of :func:`_solve_system` on the entries ``rows``, ``rhs`` (``a``: the same
+    matrix as an array, or None: made from ``rows`` where the condition check needs it):
+    the finiteness checks, the power-of-two column scales (the column norms are
+    ``einsum``'s sequential sums of squares, ``frexp``/``ldexp`` are exact) and the
+    products with them in Python floats (IEEE products; an overflow gives ``inf``
+    silently, as under ``errstate``), and the same LAPACK solve of the same scaled system.
+    """
     isfinite = math.isfinite
     p = len(rows)
     if not (all(isfinite(x) for row in rows for x in row)
-            and all(isfinite(x) for x in b.tolist())):
+            and all(isfinite(x) for x in rhs)):
         return False
     col = []
     for j in range(p):
@@ -422,12 +465,14 @@ def _solve_system(a: np.ndarray, b: np.ndarray, cond_max: float, *, exact: bool
         col.append(_pow2_one(math.sqrt(acc)))
     a_s = np.array([[[x * cj for x, cj in zip(row, col, strict=True)] for row in rows]])
     try:
-        y = np.linalg.solve(a_s, b[None, :, None])[0, :, 0].tolist()
+        y = _gesv(a_s, np.array(rhs, dtype=float).reshape(1, p, 1))[0, :, 0].tolist()
     except np.linalg.LinAlgError:
         return False
     out = [x * cj for x, cj in zip(y, col, strict=True)]
     if not all(isfinite(x) for x in out):
         return False
+    if a is None:
+        a = np.array(rows, dtype=float)
     if exact:
         return out if _cond_below(a, cond_max) else False
     return out if _bound_proves_regular(a, 50, cond_max) else None

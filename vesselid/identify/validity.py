@@ -57,7 +57,10 @@ def _hac_iv(z: np.ndarray, phi: np.ndarray, y: np.ndarray, seg: np.ndarray
         a_inv = np.linalg.inv(a)
     except np.linalg.LinAlgError:
         return None
-    m = z * (y - phi @ theta)[:, None]
+    resid = y - phi @ theta
+    m = np.empty_like(z, dtype=float)
+    for j in range(z.shape[1]):  # z * resid[:, None], column by column (the same products)
+        np.multiply(z[:, j], resid, out=m[:, j])
     s = m.T @ m
     bw = hac_lags(m.shape[0])
     one = seg.size == 0 or seg[0] == seg[-1]  # one segment (sorted): every pair counts
@@ -72,6 +75,24 @@ def _hac_iv(z: np.ndarray, phi: np.ndarray, y: np.ndarray, seg: np.ndarray
             c = (m[lag:] * same).T @ m[:-lag]
         s += (1.0 - lag / (bw + 1.0)) * (c + c.T)
     return theta, a_inv @ s @ a_inv.T
+
+
+def _with_column(arr: np.ndarray) -> np.ndarray:
+    """A new C-ordered ``(T, K + 1)`` float array: ``arr`` (T, K) and a last column of NaN
+    (what ``np.column_stack`` of ``arr`` and a NaN column gives)."""
+    out = np.empty((arr.shape[0], arr.shape[1] + 1))
+    out[:, :-1] = arr
+    out[:, -1] = np.nan
+    return out
+
+
+def _centre_columns(rows: np.ndarray) -> None:
+    """``rows -= column_means(rows)`` in place, one column at a time: the same
+    subtractions, without numpy's row-by-row broadcast over a few columns."""
+    mean = column_means(rows).tolist()
+    for j, mu in enumerate(mean):
+        col = rows[:, j]
+        col -= mu
 
 
 _SHARED = "_validity_matrices"
@@ -118,14 +139,12 @@ def _rows(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray, extra: b
         z, xhat = kernels.instrument_matrix(data.target[sl], data.u[sl], starts, theta_aux,
                                             codes.factors, codes.equation, spec.n_states)
     y = data.target[sl, 0].astype(float)
-    if extra:
-        prev = np.full((y.size, 2), np.nan)
+    if extra:  # [phi, |w(k-1)|] and [z, |x̂(k-1)|] (NaN in each experiment's first row)
+        phi, z = _with_column(phi), _with_column(z)
         for s in range(starts.size - 1):
             a, b = int(starts[s]), int(starts[s + 1])
-            prev[a + 1:b, 0] = np.abs(data.regsig[sl][a:b - 1, 0])
-            prev[a + 1:b, 1] = np.abs(xhat[a:b - 1, 0])
-        phi = np.column_stack([phi, prev[:, 0]])
-        z = np.column_stack([z, prev[:, 1]])
+            np.abs(data.regsig[sl][a:b - 1, 0], out=phi[a + 1:b, -1])
+            np.abs(xhat[a:b - 1, 0], out=z[a + 1:b, -1])
     keep = np.ones(y.size, dtype=bool)
     for arr in (phi, z):  # column by column: the same mask as a row-wise all()
         for j in range(arr.shape[1]):
@@ -137,8 +156,7 @@ def _rows(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray, extra: b
         if kept.size and kept[-1] - kept[0] + 1 == kept.size:  # one run of rows: in place
             r = slice(a + int(kept[0]), a + int(kept[-1]) + 1)
             for arr in (phi, z):
-                rows = arr[r]
-                rows -= column_means(rows)
+                _centre_columns(arr[r])
             rows = y[r]
             rows -= rows.mean(axis=0)
             continue
