@@ -456,7 +456,14 @@ def test_covariance_of_one_long_experiment_in_blocks(monkeypatch) -> None:
                     got = est.estimate(*args, **opts)
                 assert np.max(np.abs(got.cov - ref.cov)) <= 1e-11 * np.max(np.abs(ref.cov))
                 assert np.allclose(got.long_run, ref.long_run, rtol=1e-11, atol=0)
-                assert got.config == ref.config and got.label == ref.label
+                rounded = ("effective_b", "critical_value")  # read from the covariance
+                assert ({k: v for k, v in got.config.items() if k not in rounded}
+                        == {k: v for k, v in ref.config.items() if k not in rounded})
+                for key in rounded:
+                    assert (key in got.config) == (key in ref.config)
+                    if key in ref.config:
+                        assert np.allclose(got.config[key], ref.config[key], rtol=1e-11)
+                assert got.label == ref.label
 
 
 def test_first_stage_of_a_long_log_in_blocks(monkeypatch) -> None:
