@@ -466,6 +466,48 @@ def test_covariance_of_one_long_experiment_in_blocks(monkeypatch) -> None:
                 assert got.label == ref.label
 
 
+def test_fixed_b_ratios_of_one_long_experiment_in_blocks(monkeypatch) -> None:
+    """The fixed-b scaling of the block-wise sandwich (effective bandwidth ratios from
+    row blocks, never whole arrays) equals the whole-array one to rounding, for a
+    two-step GMM estimate with Windmeijer's correction and for a just-identified
+    estimate; and the block-wise Bartlett sums equal the whole-array ones."""
+    from vesselid.identify import covariance as cv
+    from vesselid.identify.fixedb import bartlett_cross, bartlett_square_blocks
+
+    rng = np.random.default_rng(21)
+    for n, lags, block in ((1000, 5, 100), (50, 80, 16), (999, 0, 7), (300, 3, 1000)):
+        x = rng.standard_normal((n, 3))
+        got = bartlett_square_blocks((x[a:a + block] for a in range(0, n, block)), lags, 3)
+        np.testing.assert_allclose(got, bartlett_cross(x, x, lags, [slice(0, n)]),
+                                   rtol=1e-13)
+    n = 4000
+    x = rng.standard_normal((n, 2))
+    z = np.column_stack([x + 0.5 * rng.standard_normal((n, 2)), rng.standard_normal((n, 2))])
+    resid = np.convolve(rng.standard_normal(n), np.ones(5), "same") + 0.1
+    w = np.linalg.inv(z.T @ z / n)
+    jac = 0.05 * rng.standard_normal((2, 2))
+    cases = [(z, {"weight": w, "weight_jacobian": jac}), (z[:, :2], {"fixed_b_square": True})]
+    for zz, kw in cases:
+        for zero_mean in (False, True):
+            est = cv.KernelCovariance()
+            opts = dict(zero_mean=zero_mean, skip_first=False, **kw)
+            ref = est.estimate(zz, x, resid, np.array([0, n]), **opts)
+            assert ref.config["fixed_b"] and "critical_value" in ref.config
+            with monkeypatch.context() as m:
+                m.setattr(cv, "LARGE_ROWS", 1000)
+                m.setattr(cv, "BLOCK_ROWS", 333)
+                got = est._estimate_in_blocks(zz, x, resid, np.array([0, n]), None, None,
+                                              kw.get("weight"), zero_mean, "pooled", False,
+                                              kw.get("weight_jacobian"),
+                                              kw.get("fixed_b_square", False))
+                assert got is not None and got.config["fixed_b"]
+                assert est.estimate(zz, x, resid, np.array([0, n]), **opts).config == got.config
+            np.testing.assert_allclose(got.config["effective_b"], ref.config["effective_b"],
+                                       rtol=1e-10)
+            np.testing.assert_allclose(got.cov, ref.cov, rtol=1e-10)
+            assert got.label == ref.label
+
+
 def test_first_stage_of_a_long_log_in_blocks(monkeypatch) -> None:
     """The first stage of a long log with the partialled-out instruments and regressors
     formed block by block (never whole) gives the whole-array partial F, partial R² and

@@ -654,11 +654,9 @@ class CovarianceEstimator:
         if combine not in ("pooled", "stacked"):
             raise CovarianceError(f"combine must be 'pooled' or 'stacked', got {combine!r}")
         if np.shape(z)[0] > LARGE_ROWS:  # one long experiment: every sum in blocks
-            blocks = (None if self._fixed_b_applies(weight, weight_jacobian, fixed_b_square,
-                                                    combine)
-                      else self._estimate_in_blocks(z, phi, resid, starts, equation,
-                                                    z_equation, weight, zero_mean, combine,
-                                                    skip_first, weight_jacobian))
+            blocks = self._estimate_in_blocks(z, phi, resid, starts, equation, z_equation,
+                                              weight, zero_mean, combine, skip_first,
+                                              weight_jacobian, fixed_b_square)
             if blocks is not None:
                 return blocks
         # a long log whose meat needs the scores only: they are formed in the
@@ -690,24 +688,18 @@ class CovarianceEstimator:
         w_first = (_block_inverse(sum(z[s].T @ z[s] for s in segs) * same_z, z_equation)
                    if windmeijer and weight is not None and n_ins != n_par else None)
         fixed_b = None
-        if (windmeijer and self.fixed_b and w_first is not None and combine == "pooled"
-                and getattr(self, "kernel", None) == "bartlett"
-                and not getattr(self, "prewhiten", False)):
-            # before the meat, which may form the scores in z's buffer
-            d_s = np.asarray(weight_jacobian, dtype=float)
-            if d_s.shape == (n_par, n_par) and np.all(np.isfinite(d_s)):
-                fixed_b = _fixed_b_rows(z, phi, segs, equation, z_equation, zero_mean,
-                                        _influence(a_sum, w_mat, w_first, d_s * np.outer(
-                                            sc.phi_scale, 1.0 / sc.phi_scale)))
-        square_b = (fixed_b_square and self.fixed_b and n_ins == n_par and weight is None
-                    and combine == "pooled" and getattr(self, "kernel", None) == "bartlett"
-                    and not getattr(self, "prewhiten", False))
-        if square_b:
-            try:
-                fixed_b = _fixed_b_rows(z, phi, segs, equation, z_equation, zero_mean,
-                                        np.linalg.inv(a_sum))
-            except np.linalg.LinAlgError:
-                fixed_b = None
+        square_b = self._fixed_b_square(fixed_b_square, weight, n_ins, n_par, combine)
+        infl = self._fixed_b_influence(square_b, windmeijer, w_first, weight_jacobian,
+                                       a_sum, w_mat, sc.phi_scale, combine)
+        if infl is not None:  # before the meat, which may form the scores in z's buffer
+            rows = _fixed_b_rows(z, phi, segs, equation, z_equation, zero_mean, infl)
+            if rows is not None:
+                zl, phi_c = rows
+
+                def fixed_b(cov: np.ndarray, lags: int) -> np.ndarray:
+                    from vesselid.identify.fixedb import effective_b
+
+                    return effective_b(zl, phi_c, cov, equation, lags, segs)
         if not self.meat_uses_z:  # the scores carry all the meat needs
             if late:
                 every_row = sum(s.stop - s.start for s in segs) == z.shape[0]
@@ -719,30 +711,54 @@ class CovarianceEstimator:
                               weight=weight, weight_jacobian=weight_jacobian,
                               combine=combine, z_scale=sc.z_scale, phi_scale=sc.phi_scale,
                               z_equation=z_equation, equation=equation, fixed_b=fixed_b,
-                              square_b=square_b, segs=segs)
+                              square_b=square_b)
 
-    def _fixed_b_applies(self, weight: Any, weight_jacobian: Any, fixed_b_square: bool,
-                         combine: str) -> bool:
-        """Whether :meth:`estimate` may scale the standard errors to the fixed-b critical
-        value (then the whole-array path runs: the effective bandwidth ratio reads every
-        row of the instruments and regressors)."""
-        if not (self.fixed_b and combine == "pooled"
+    def _fixed_b_kernel(self, combine: str) -> bool:
+        """Whether this estimator's intervals may take the fixed-b critical value
+        (:attr:`fixed_b`, a Bartlett kernel not pre-whitened, a pooled estimate)."""
+        return (self.fixed_b and combine == "pooled"
                 and getattr(self, "kernel", None) == "bartlett"
-                and not getattr(self, "prewhiten", False)):
-            return False
-        return ((weight_jacobian is not None and self.windmeijer and weight is not None)
-                or (fixed_b_square and weight is None))
+                and not getattr(self, "prewhiten", False))
+
+    def _fixed_b_square(self, fixed_b_square: bool, weight: Any, n_ins: int, n_par: int,
+                        combine: str) -> bool:
+        """Whether a just-identified estimate takes the fixed-b scaling."""
+        return (fixed_b_square and n_ins == n_par and weight is None
+                and self._fixed_b_kernel(combine))
+
+    def _fixed_b_influence(self, square_b: bool, windmeijer: bool, w_first: Any,
+                           weight_jacobian: Any, a_sum: np.ndarray, w_mat: np.ndarray,
+                           phi_scale: np.ndarray, combine: str) -> np.ndarray | None:
+        """The influence matrix (equilibrated units) of an estimate whose intervals take
+        the fixed-b critical value: ``C + D C₁`` of a two-step GMM estimate with
+        Windmeijer's correction, ``A⁻¹`` of a just-identified one (``square_b``); None
+        where the scaling does not apply."""
+        n_par = a_sum.shape[1]
+        if square_b:
+            try:
+                return np.linalg.inv(a_sum)
+            except np.linalg.LinAlgError:
+                return None
+        if not (windmeijer and w_first is not None and self._fixed_b_kernel(combine)):
+            return None
+        d_s = np.asarray(weight_jacobian, dtype=float)
+        if d_s.shape != (n_par, n_par) or not np.all(np.isfinite(d_s)):
+            return None
+        return _influence(a_sum, w_mat, w_first, d_s * np.outer(phi_scale, 1.0 / phi_scale))
 
     def _sandwich(self, a_list: list[np.ndarray], a_sum: np.ndarray, s_list: list[np.ndarray],
                   n_list: list[int], w_mat: np.ndarray, w_first: np.ndarray | None,
                   used: dict[str, Any], *, weight: np.ndarray | None,
                   weight_jacobian: np.ndarray | None, combine: str, z_scale: np.ndarray,
                   phi_scale: np.ndarray, z_equation: np.ndarray, equation: np.ndarray,
-                  fixed_b: tuple[Any, np.ndarray] | None = None, square_b: bool = False,
-                  segs: list[slice] | None = None) -> CovarianceResult:
+                  fixed_b: Callable[[np.ndarray, int], np.ndarray] | None = None,
+                  square_b: bool = False) -> CovarianceResult:
         """The sandwich of :meth:`estimate` from its sums in the equilibrated units:
         ``a_list`` (``Σ_E zφᵀ``), the meat ``s_list`` (``S_E``), the rows ``n_list``, the
-        weight ``w_mat`` (and ``w_first``, the first step's, for Windmeijer)."""
+        weight ``w_mat`` (and ``w_first``, the first step's, for Windmeijer);
+        ``fixed_b(cov, lags)``: the effective bandwidth ratios
+        (:func:`vesselid.identify.fixedb.effective_b`) where the standard errors take the
+        fixed-b critical value."""
         n_ins, n_par = a_sum.shape
         windmeijer = weight_jacobian is not None and self.windmeijer
         n_segs = len(s_list)
@@ -770,14 +786,9 @@ class CovarianceEstimator:
         if (weight_jacobian is not None and windmeijer) or square_b:
             used["fixed_b"] = bool(self.fixed_b and fixed_b is not None)
         if fixed_b is not None and np.all(np.isfinite(cov)) and "bandwidth" in used:
-            from vesselid.identify.fixedb import (
-                BARTLETT_QUANTILES,
-                bartlett_critical_value,
-                effective_b,
-            )
+            from vesselid.identify.fixedb import BARTLETT_QUANTILES, bartlett_critical_value
 
-            zl, phi_c = fixed_b
-            b_eff = effective_b(zl, phi_c, cov, equation, math.floor(used["bandwidth"]), segs)
+            b_eff = fixed_b(cov, math.floor(used["bandwidth"]))
             crit = bartlett_critical_value(b_eff)
             scale = crit / BARTLETT_QUANTILES[0.975][0]
             cov = cov * np.outer(scale, scale)
@@ -800,8 +811,8 @@ class CovarianceEstimator:
     def _estimate_in_blocks(self, z: Any, phi: Any, resid: Any, starts: np.ndarray | None,
                             equation: np.ndarray | None, z_equation: np.ndarray | None,
                             weight: np.ndarray | None, zero_mean: bool, combine: str,
-                            skip_first: bool, weight_jacobian: np.ndarray | None
-                            ) -> CovarianceResult | None:
+                            skip_first: bool, weight_jacobian: np.ndarray | None,
+                            fixed_b_square: bool = False) -> CovarianceResult | None:
         """:meth:`estimate` of one long experiment whose meat is built from the
         scores alone, every sum over :data:`BLOCK_ROWS` rows at a time (no equilibrated
         ``(T, K)`` copy, no ``(T, K)`` scores); None where that does not apply (the
@@ -846,10 +857,22 @@ class CovarianceEstimator:
         else:
             w_mat = weight * np.outer(z_scale, z_scale)
         w_first = _block_inverse(zz, eq) if need_zz and not two_sls else None
+        square_b = self._fixed_b_square(fixed_b_square, weight, n_ins, n_par, combine)
+        infl = self._fixed_b_influence(square_b, windmeijer, w_first, weight_jacobian,
+                                       a_sum, w_mat, phi_scale, combine)
+        fixed_b = None
+        if infl is not None and np.all(np.isfinite(infl)):
+            seg = _segments(np.array([0, t_len]), skip_first)[0]
+
+            def fixed_b(cov: np.ndarray, lags: int) -> np.ndarray:
+                return _effective_b_in_blocks(z, None if same else phi, z_scale, phi_scale,
+                                              infl, zero_mean, seg, cov, lags)
+
         return self._sandwich([a_sum], a_sum, [s_u], [t_len], w_mat, w_first, used,
                               weight=weight, weight_jacobian=weight_jacobian,
                               combine=combine, z_scale=z_scale, phi_scale=phi_scale,
-                              z_equation=eq, equation=np.zeros(n_par, dtype=np.int64))
+                              z_equation=eq, equation=np.zeros(n_par, dtype=np.int64),
+                              fixed_b=fixed_b, square_b=square_b)
 
     def _scaled_long_run_blocks(self, z: Any, resid: Any, starts: np.ndarray | None,
                                 z_equation: np.ndarray | None, zero_mean: bool,
@@ -1052,6 +1075,37 @@ def _influence(a_sum: np.ndarray, w_mat: np.ndarray, w_first: np.ndarray,
         return np.linalg.solve(aw @ a_sum, aw) + d_mat @ np.linalg.solve(aw1 @ a_sum, aw1)
     except np.linalg.LinAlgError:
         return None
+
+
+def _effective_b_in_blocks(z: np.ndarray, phi: np.ndarray | None, z_scale: np.ndarray,
+                           phi_scale: np.ndarray, infl: np.ndarray, zero_mean: bool,
+                           seg: slice, cov: np.ndarray, lags: int) -> np.ndarray:
+    """:func:`vesselid.identify.fixedb.effective_b` of one experiment (rows ``seg``, one
+    equation) with every row formed block by block from the caller's instruments and
+    regressors (``phi`` None: the instruments), in the equilibrated units: the same
+    ratios as :func:`_fixed_b_rows` and ``effective_b`` on the whole arrays, to
+    rounding."""
+    from vesselid.identify.fixedb import bartlett_square_blocks, influence_directions
+
+    def regressors(a: int, b: int) -> np.ndarray:
+        return (z[a:b] / z_scale) if phi is None else (phi[a:b] / phi_scale)
+
+    bounds = [(a, min(a + BLOCK_ROWS, seg.stop)) for a in range(seg.start, seg.stop,
+                                                                  BLOCK_ROWS)]
+    mean = None
+    if zero_mean:
+        mean = sum(regressors(a, b).sum(axis=0) for a, b in bounds) / (seg.stop - seg.start)
+    u, ok = influence_directions(cov)
+
+    def scores():
+        for a, b in bounds:
+            pb = regressors(a, b)
+            if mean is not None:
+                pb = pb - mean
+            yield ((z[a:b] / z_scale) @ infl.T) * (pb @ u)
+
+    b_eff = bartlett_square_blocks(scores(), lags, cov.shape[0])
+    return np.where(ok & np.isfinite(b_eff), b_eff, 0.0)
 
 
 def _fixed_b_rows(z: np.ndarray, phi: np.ndarray, segs: list[slice], equation: np.ndarray,

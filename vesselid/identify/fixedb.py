@@ -34,13 +34,17 @@ the refined IV (``sriv``, ``auto``'s fallback; influence ``A⁻¹``). Evidence:
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import numpy as np
 
 __all__ = [
     "BARTLETT_QUANTILES",
     "bartlett_critical_value",
     "bartlett_cross",
+    "bartlett_square_blocks",
     "effective_b",
+    "influence_directions",
 ]
 
 #: Kiefer & Vogelsang (2005, Table 1 fit): quantile ``q(b) = a0 + a1 b + a2 b² + a3 b³``
@@ -107,6 +111,47 @@ def _moving_sums(x: np.ndarray, lags: int) -> np.ndarray:
     return (c - lagged)[1:]
 
 
+def bartlett_square_blocks(blocks: Iterable[np.ndarray], lags: int, n_cols: int
+                           ) -> np.ndarray:
+    """``bartlett_cross(x, x, lags, [one experiment])`` of a series handed over block
+    by block (rows in order): the same moving sums, the cumulative sums carried from
+    block to block in the same order of additions, so no whole ``(T, m)`` array is
+    formed; the squares summed per block (the total rounded differently).
+
+    Parameters
+    ----------
+    blocks : iterable of ndarray (rows, m)
+        Consecutive row blocks of one experiment's series.
+    lags : int
+        Bartlett lags ``L ≥ 0``.
+    n_cols : int
+        Columns ``m``.
+    """
+    width = int(lags) + 1
+    out = np.zeros(n_cols)
+    total = np.zeros((1, n_cols))
+    tail = np.zeros((width, n_cols))  # the last L + 1 cumulative sums (0 before row 0)
+    for xb in blocks:
+        c = np.cumsum(np.vstack([total, xb]), axis=0)[1:]
+        ext = np.vstack([tail, c])  # ext[i] = C(t − L − 1) for the block's row i
+        h = c - ext[:c.shape[0]]
+        out += np.einsum("tj,tj->j", h, h)
+        tail = ext[-width:]
+        total = c[-1:]
+    h = total - tail[:width - 1]  # the L rows past the end: C(T − 1) − C(t − L − 1)
+    out += np.einsum("tj,tj->j", h, h)
+    return out / width
+
+
+def influence_directions(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``u_p = V_{·p}/V_pp`` of :func:`effective_b` (columns), and which parameters have
+    a positive finite variance."""
+    diag = np.diag(cov)
+    ok = np.isfinite(diag) & (diag > 0)
+    u = np.where(ok[None, :], cov / np.where(ok, diag, 1.0)[None, :], 0.0)
+    return u, ok
+
+
 def effective_b(zl: list[np.ndarray] | np.ndarray, phi: np.ndarray, cov: np.ndarray,
                 param_eq: np.ndarray, lags: int, segments: list[slice]) -> np.ndarray:
     """Effective Bartlett bandwidth ratio ``b_p`` of every parameter (module docstring).
@@ -128,9 +173,7 @@ def effective_b(zl: list[np.ndarray] | np.ndarray, phi: np.ndarray, cov: np.ndar
     lags, segments
         Bartlett lags and experiment rows of the HAC.
     """
-    diag = np.diag(cov)
-    ok = np.isfinite(diag) & (diag > 0)
-    u = np.where(ok[None, :], cov / np.where(ok, diag, 1.0)[None, :], 0.0)
+    u, ok = influence_directions(cov)
     s = np.zeros((phi.shape[0], cov.shape[0]))
     if isinstance(zl, np.ndarray):
         for e in np.unique(param_eq):
