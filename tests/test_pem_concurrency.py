@@ -51,14 +51,21 @@ def test_background_runs_in_the_calling_thread_when_serial():
     assert job is None or job.result() == 2
 
 
-def test_local_joint_reuses_the_last_tangent_pass_exactly():
-    data, spec, theta = _data("gm-current-random", seed=5)
+def _filter_and_start(model: str, **kwargs):
+    """The filter of a Gauss–Markov-current log (in units of each signal's spread) and
+    the start of ``model``'s scoring: ``(filter, spec, psi0, free)``."""
+    data, spec, theta = _data("gm-current-random", **kwargs)
     rows, starts = data.group_rows(0)
     y = data.target[rows, 0]
     filt = pem._Filter(y / np.std(y), data.u[rows] / np.std(data.u[rows]), starts,
                        spec.codes.factors, parallel=False)
     psi0, free, _ = pem._start(theta[0], filt.y, filt.u, filt.starts, spec.codes.factors,
-                               "current")
+                               model)
+    return filt, spec, psi0, free
+
+
+def test_local_joint_reuses_the_last_tangent_pass_exactly():
+    filt, spec, psi0, free = _filter_and_start("current", seed=5)
     fit = pem._scoring(filt, psi0, free, 100, pem.SCORING_TOL)
     assert fit["converged"] and fit["sandwich_parts"] is not None
     reused = pem._local_joint(filt, fit, spec.n_params)
@@ -94,13 +101,7 @@ def test_secant_tail_converges_in_fewer_steps_to_the_same_maximum():
     """The sensor-noise model on a Gauss–Markov current (it loses there): its Hessian
     exceeds its Fisher information, plain scoring alternates about the optimum; the
     secant steps reach the same likelihood (within the stopping tolerance) in fewer."""
-    data, spec, theta = _data("gm-current-random", seed=0, samples=10_000)
-    rows, starts = data.group_rows(0)
-    y = data.target[rows, 0]
-    filt = pem._Filter(y / np.std(y), data.u[rows] / np.std(data.u[rows]), starts,
-                       spec.codes.factors, parallel=False)
-    psi0, free, _ = pem._start(theta[0], filt.y, filt.u, filt.starts, spec.codes.factors,
-                               "sensor")
+    filt, _, psi0, free = _filter_and_start("sensor", seed=0, samples=10_000)
     plain = pem._scoring(filt, psi0, free, 100, pem.SCORING_TOL)
     # a rival far better: the secant steps engage in the tail
     fast = pem._scoring(filt, psi0, free, 100, pem.SCORING_TOL, secant=lambda: -1e300)

@@ -47,16 +47,24 @@ MEAN_CURRENT_ALPHA = 0.01
 MIN_HALF = 100
 
 
+def _solve_iv(z: np.ndarray, phi: np.ndarray, y: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray] | None:
+    """``θ = (ZᵀΦ)⁻¹ Zᵀy`` and ``(ZᵀΦ)⁻¹``; None when singular."""
+    a = z.T @ phi
+    try:
+        return np.linalg.solve(a, z.T @ y), np.linalg.inv(a)
+    except np.linalg.LinAlgError:
+        return None
+
+
 def _hac_iv(z: np.ndarray, phi: np.ndarray, y: np.ndarray, seg: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray] | None:
     """Just-identified IV ``θ = (ZᵀΦ)⁻¹ Zᵀy`` on centred rows and its Bartlett HAC
     sandwich covariance (lags not across segments ``seg``)."""
-    a = z.T @ phi
-    try:
-        theta = np.linalg.solve(a, z.T @ y)
-        a_inv = np.linalg.inv(a)
-    except np.linalg.LinAlgError:
+    solved = _solve_iv(z, phi, y)
+    if solved is None:
         return None
+    theta, a_inv = solved
     resid = y - phi @ theta
     m = np.empty_like(z, dtype=float)
     for j in range(z.shape[1]):  # z * resid[:, None], column by column (the same products)
@@ -228,12 +236,10 @@ def _hac_iv_blocks(z: np.ndarray, phi: np.ndarray, y: np.ndarray, seg: np.ndarra
     of :data:`~vesselid.identify.covariance.BLOCK_ROWS` rows at a time (the Bartlett sums
     of :func:`~vesselid.identify.covariance.bartlett_block_sums`): the same quantity
     rounded differently, memory ``O(BLOCK_ROWS)`` beyond the rows."""
-    a = z.T @ phi
-    try:
-        theta = np.linalg.solve(a, z.T @ y)
-        a_inv = np.linalg.inv(a)
-    except np.linalg.LinAlgError:
+    solved = _solve_iv(z, phi, y)
+    if solved is None:
         return None
+    theta, a_inv = solved
     n, q = z.shape
     rows = int(_covariance.BLOCK_ROWS)
 
