@@ -783,7 +783,7 @@ class CovarianceEstimator:
             cov = sandwich_from_sums(a_list, s_list, n_list, row_weight=np.diag(w_mat))
         else:
             cov = _general_sandwich(a_list, a_sum, s_list, w_mat, n_list, combine)
-        if (weight_jacobian is not None and windmeijer) or square_b:
+        if windmeijer or square_b:
             used["fixed_b"] = bool(self.fixed_b and fixed_b is not None)
         if fixed_b is not None and np.all(np.isfinite(cov)) and "bandwidth" in used:
             from vesselid.identify.fixedb import BARTLETT_QUANTILES, bartlett_critical_value
@@ -1085,26 +1085,29 @@ def _effective_b_in_blocks(z: np.ndarray, phi: np.ndarray | None, z_scale: np.nd
     regressors (``phi`` None: the instruments), in the equilibrated units: the same
     ratios as :func:`_fixed_b_rows` and ``effective_b`` on the whole arrays, to
     rounding."""
-    from vesselid.identify.fixedb import bartlett_square_blocks, influence_directions
+    from vesselid.identify.fixedb import influence_directions
 
     def regressors(a: int, b: int) -> np.ndarray:
         return (z[a:b] / z_scale) if phi is None else (phi[a:b] / phi_scale)
 
-    bounds = [(a, min(a + BLOCK_ROWS, seg.stop)) for a in range(seg.start, seg.stop,
-                                                                  BLOCK_ROWS)]
+    n_rows = seg.stop - seg.start
     mean = None
     if zero_mean:
-        mean = sum(regressors(a, b).sum(axis=0) for a, b in bounds) / (seg.stop - seg.start)
+        mean = sum(regressors(a, min(a + BLOCK_ROWS, seg.stop)).sum(axis=0)
+                   for a in range(seg.start, seg.stop, BLOCK_ROWS)) / n_rows
     u, ok = influence_directions(cov)
 
-    def scores():
-        for a, b in bounds:
-            pb = regressors(a, b)
-            if mean is not None:
-                pb = pb - mean
-            yield ((z[a:b] / z_scale) @ infl.T) * (pb @ u)
+    def scores(a: int, b: int) -> np.ndarray:
+        a, b = a + seg.start, b + seg.start
+        pb = regressors(a, b)
+        if mean is not None:
+            pb = pb - mean
+        return ((z[a:b] / z_scale) @ infl.T) * (pb @ u)
 
-    b_eff = bartlett_square_blocks(scores(), lags, cov.shape[0])
+    n_par = cov.shape[0]
+    # the Bartlett sums of the scores s(k) themselves (moving sums of s − 0)
+    b_eff = np.diag(bartlett_block_sums(scores, n_rows, n_par, np.zeros(n_par), lags,
+                                        BLOCK_ROWS)).copy()
     return np.where(ok & np.isfinite(b_eff), b_eff, 0.0)
 
 

@@ -34,15 +34,12 @@ the refined IV (``sriv``, ``auto``'s fallback; influence ``A⁻¹``). Evidence:
 
 from __future__ import annotations
 
-from collections.abc import Iterable
-
 import numpy as np
 
 __all__ = [
     "BARTLETT_QUANTILES",
     "bartlett_critical_value",
     "bartlett_cross",
-    "bartlett_square_blocks",
     "effective_b",
     "influence_directions",
 ]
@@ -109,38 +106,6 @@ def _moving_sums(x: np.ndarray, lags: int) -> np.ndarray:
     lagged = np.zeros_like(c)
     lagged[lags + 1:] = c[:n]
     return (c - lagged)[1:]
-
-
-def bartlett_square_blocks(blocks: Iterable[np.ndarray], lags: int, n_cols: int
-                           ) -> np.ndarray:
-    """``bartlett_cross(x, x, lags, [one experiment])`` of a series handed over block
-    by block (rows in order): the same moving sums, the cumulative sums carried from
-    block to block in the same order of additions, so no whole ``(T, m)`` array is
-    formed; the squares summed per block (the total rounded differently).
-
-    Parameters
-    ----------
-    blocks : iterable of ndarray (rows, m)
-        Consecutive row blocks of one experiment's series.
-    lags : int
-        Bartlett lags ``L ≥ 0``.
-    n_cols : int
-        Columns ``m``.
-    """
-    width = int(lags) + 1
-    out = np.zeros(n_cols)
-    total = np.zeros((1, n_cols))
-    tail = np.zeros((width, n_cols))  # the last L + 1 cumulative sums (0 before row 0)
-    for xb in blocks:
-        c = np.cumsum(np.vstack([total, xb]), axis=0)[1:]
-        ext = np.vstack([tail, c])  # ext[i] = C(t − L − 1) for the block's row i
-        h = c - ext[:c.shape[0]]
-        out += np.einsum("tj,tj->j", h, h)
-        tail = ext[-width:]
-        total = c[-1:]
-    h = total - tail[:width - 1]  # the L rows past the end: C(T − 1) − C(t − L − 1)
-    out += np.einsum("tj,tj->j", h, h)
-    return out / width
 
 
 def influence_directions(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
