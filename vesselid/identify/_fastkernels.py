@@ -345,14 +345,22 @@ def _moment_row(add: Callable[[str], None], ind: str, n: int, m: int, fac: np.nd
     return i2
 
 
+def _moment_layout(n: int, fac: np.ndarray, blocks: np.ndarray
+                   ) -> tuple[int, list[list[int]], list[int], list[int]]:
+    """The layout both moment-kernel generators share: the parameter count, each
+    equation's parameters, each equation's source block (:func:`_duplicate_blocks`) and
+    the regressors a distinct block accumulates (those only a duplicate block uses are
+    never computed)."""
+    blk = [list(range(int(blocks[i]), int(blocks[i + 1]))) for i in range(n)]
+    src = _duplicate_blocks(fac, blocks)
+    needed = [p for i in range(n) if src[i] == i for p in blk[i]]
+    return fac.shape[0], blk, src, needed
+
+
 def _source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.ndarray) -> str:
     if moment_products(fac, blocks) > MAX_UNROLLED_PRODUCTS:
         return _looped_source(n, m, fac, eq, blocks)
-    n_par = fac.shape[0]
-    blk = [list(range(int(blocks[i]), int(blocks[i + 1]))) for i in range(n)]
-    src = _duplicate_blocks(fac, blocks)
-    # regressors only a duplicate block uses are never accumulated: not computed
-    needed = [p for i in range(n) if src[i] == i for p in blk[i]]
+    n_par, blk, src, needed = _moment_layout(n, fac, blocks)
     ind = " " * 8
     lines: list[str] = []
     add = lines.append
@@ -414,10 +422,7 @@ def _looped_source(n: int, m: int, fac: np.ndarray, eq: np.ndarray, blocks: np.n
     receives the same products in the same order as in the unrolled form and the
     generic kernel, so the moments are the same numbers; the code grows with the number
     of parameters, not with the products."""
-    n_par = fac.shape[0]
-    blk = [list(range(int(blocks[i]), int(blocks[i + 1]))) for i in range(n)]
-    src = _duplicate_blocks(fac, blocks)
-    needed = [p for i in range(n) if src[i] == i for p in blk[i]]
+    n_par, blk, src, needed = _moment_layout(n, fac, blocks)
     ind = " " * 8
     lines: list[str] = []
     add = lines.append
