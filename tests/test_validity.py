@@ -87,6 +87,19 @@ def test_stability_test_names_a_drifting_gain_and_not_a_constant_one():
     assert ParameterDriftWarning not in cats
 
 
+@pytest.mark.parametrize("kwargs", [{"drift": 0.3}, {"vbar": 0.05}, {"gm_current": 0.08}])
+def test_validity_checks_on_a_second_thread_give_the_serial_numbers(kwargs):
+    from vesselid.core import threads
+
+    log = _log(5, **kwargs)
+    with threads.serial_here():
+        serial, _ = _fit(log)
+    threaded, _ = _fit(log)
+    for key in ("parameter_stability", "mean_current"):
+        assert serial.diagnostics[key] == threaded.diagnostics[key], key
+    np.testing.assert_array_equal(serial.params.to_numpy(), threaded.params.to_numpy())
+
+
 def test_choice_text_does_not_blame_colour_when_the_parameters_drift():
     est = InstrumentalGMM("auto", noise_order=4, pem_fallback=True)
     info = {"c_pvalue": np.array([1e-5]), "colour_pvalue": np.array([1e-4]),

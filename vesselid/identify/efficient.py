@@ -452,6 +452,20 @@ class InstrumentalGMM(Estimator):
                             theta_start=theta_start, max_iter=max_iter, tol=tol)
         n = data.n_groups
         keep = keep_history and n == 1
+        checks = _ValidityChecks.start(
+            data, spec, base,
+            self.instruments == "auto" and keep and np.all(np.isfinite(base.theta_aux[0])))
+        try:
+            return self._estimate_groups(data, spec, base, keep, checks, tol, keep_history)
+        finally:
+            checks.close()
+
+    def _estimate_groups(self, data: RegressionData, spec: ModelSpec, base: IterationResult,
+                         keep: bool, checks: _ValidityChecks, tol: float,
+                         keep_history: bool) -> IterationResult:
+        """The body of :meth:`estimate_parameters` once the base estimate is known and
+        the validity checks are under way (``checks``)."""
+        n = data.n_groups
         fused = self.instruments in ("combined", "auto") and not keep
         # the fused combined path (with auto's unfiltered colour test) needs no regressor
         # rows; the whitened colour test needs them for every group (auto's fallback then
@@ -528,11 +542,7 @@ class InstrumentalGMM(Estimator):
                     used[reject] = "simulated"
                     if keep:
                         sol = sol_s
-        if self.instruments == "auto" and keep and np.all(np.isfinite(base.theta_aux[0])):
-            info["stability"] = _guarded(validity.parameter_stability, data, spec,
-                                         validity.STABILITY_ALPHA, base.theta[0])
-            info["mean_current"] = _guarded(validity.mean_current, data, spec,
-                                            base.theta_aux[0])
+        info.update(checks.result())
         ok = np.all(np.isfinite(theta), axis=1) & np.all(np.isfinite(base.theta), axis=1)
         theta[~ok] = np.nan
         if sol is not None:
@@ -796,6 +806,49 @@ def _long_log(data: RegressionData) -> bool:
     from vesselid.identify.covariance import LARGE_ROWS
 
     return data.n_groups == 1 and int(data.starts[-1]) > LARGE_ROWS
+
+
+class _ValidityChecks:
+    """``auto``'s validity checks of one log (the split-sample stability test and the
+    mean-current test, :mod:`vesselid.identify.validity`), which read only the base
+    IV_{E{ζ}=0} estimate: run on a second thread while the estimate is refined
+    (:func:`vesselid.core.threads.background`), or here when :meth:`result` asks for
+    them where no second thread may be used. The same code on the same numbers either
+    way, so the same results."""
+
+    def __init__(self, run: Any, job: Any) -> None:
+        self._run, self._job = run, job
+
+    @classmethod
+    def start(cls, data: RegressionData, spec: ModelSpec, base: IterationResult,
+              wanted: bool) -> _ValidityChecks:
+        if not wanted:
+            return cls(None, None)
+        from vesselid.core.threads import background
+
+        def run() -> dict[str, Any]:
+            return {"stability": _guarded(validity.parameter_stability, data, spec,
+                                          validity.STABILITY_ALPHA, base.theta[0]),
+                    "mean_current": _guarded(validity.mean_current, data, spec,
+                                             base.theta_aux[0])}
+
+        return cls(run, background(run))
+
+    def result(self) -> dict[str, Any]:
+        """The checks' entries of the estimate's ``info`` (none where not wanted)."""
+        if self._run is None:
+            return {}
+        if self._job is None:
+            return self._run()
+        job, self._job = self._job, None
+        return job.result()
+
+    def close(self) -> None:
+        """Never leave while the checks still run on the other thread."""
+        if self._job is not None:
+            from concurrent.futures import wait
+
+            wait([self._job])
 
 
 def _guarded(fn, *args):
