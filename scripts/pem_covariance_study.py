@@ -74,7 +74,8 @@ def _logs(design: str, seed: int, runs: range, samples: int):
 
 
 def chunk(design: str, seed: int, start: int, stop: int, samples: int,
-          details: bool) -> list[dict]:
+          details: bool, options: tuple[tuple[str, int | float | str], ...] = ()
+          ) -> list[dict]:
     """Per run of ``range(start, stop)`` and parameter: estimate, the reported SE and,
     where ``auto`` took the likelihood estimator, each covariance's SE."""
     from vesselid.identify import from_arrays, get_estimator, pem
@@ -83,10 +84,16 @@ def chunk(design: str, seed: int, start: int, stop: int, samples: int,
 
     spec, y, u = _logs(design, seed, range(start, stop), samples)
     data = from_arrays(spec, y, u)
-    est = get_estimator("auto")
+    if options:
+        from vesselid.identify.efficient import InstrumentalGMM
+        from vesselid.identify.registry import entry
+
+        est = InstrumentalGMM(**{**entry("auto").options, **dict(options)})
+    else:
+        est = get_estimator("auto")
     it = est.estimate_parameters(data, spec)
     reported = registry_covariances(data, spec, it, "auto",
-                                    {"d": (DEFAULT_COV_TYPE, {})})["d"]
+                                    {"d": (DEFAULT_COV_TYPE, {})}, estimator=est)["d"]
     used = it.info["instrument_set"]
     model = it.info.get("pem_model", np.full(data.n_groups, "", dtype=object))
     theta0 = np.asarray(spec.theta0_vector(), dtype=float)
@@ -152,6 +159,8 @@ def summarise(df: pd.DataFrame, est_col: str = "estimate", prefix: str = "") -> 
             err = g[est_col] - g["theta0"]
             ok = np.isfinite(err)
             for c in ("reported", *COVS):
+                if prefix + "se_" + c not in g:
+                    continue
                 se = g[prefix + "se_" + c]
                 good = ok & np.isfinite(se)
                 r = int(good.sum())
@@ -172,6 +181,15 @@ def summarise(df: pd.DataFrame, est_col: str = "estimate", prefix: str = "") -> 
     return pd.DataFrame(out)
 
 
+def _value(text: str) -> int | float | str:
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("design", help="robustness:<design> or calibration:<scenario>")
@@ -184,6 +202,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--chunk", type=int, default=25, help="runs per batched estimate")
     ap.add_argument("--details", action="store_true",
                     help="also every candidate likelihood fit on the runs that took one")
+    ap.add_argument("--auto-option", action="append", default=[], metavar="KEY=VALUE",
+                    help="run auto with this InstrumentalGMM option changed (repeatable; "
+                         "e.g. colour_order=2)")
     ap.add_argument("--raw", type=Path, default=None, help="write every run's rows")
     ap.add_argument("--from-raw", type=Path, default=None,
                     help="summarise a file --raw wrote (no simulation)")
@@ -200,7 +221,10 @@ def main(argv: list[str] | None = None) -> int:
     else:
         t0 = time.perf_counter()
         bounds = [(a, min(a + args.chunk, args.runs)) for a in range(0, args.runs, args.chunk)]
-        jobs = [(args.design, seed, a, b, args.samples, args.details) for a, b in bounds]
+        options = tuple((k, _value(v)) for k, _, v in
+                        (o.partition("=") for o in args.auto_option))
+        jobs = [(args.design, seed, a, b, args.samples, args.details, options)
+                for a, b in bounds]
         rows: list[dict] = []
         if args.workers > 1:
             with ProcessPoolExecutor(args.workers) as ex:
@@ -220,10 +244,12 @@ def main(argv: list[str] | None = None) -> int:
     pd.set_option("display.width", 220)
     print(f"{args.design}: {df['run'].nunique()} runs, seed {seed}")
     print(summary.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
+    extra: dict[str, pd.DataFrame] = {}
     if "single_estimate" in df:
         pe = df[df["choice"].str.startswith("pem")]
         for pre in ("single_", "joint_", "local_"):
-            s = summarise(pe.rename(columns={}), est_col=pre + "estimate", prefix=pre)
+            s = summarise(pe, est_col=pre + "estimate", prefix=pre)
+            extra[pre.rstrip("_")] = s
             print(f"\ncandidate {pre.rstrip('_')} on the runs that took the likelihood "
                   "estimator (sd: of that candidate on those runs)")
             print(s.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
@@ -233,22 +259,42 @@ def main(argv: list[str] | None = None) -> int:
         cmd = (f"python scripts/pem_covariance_study.py {args.design} --runs "
                f"{df['run'].nunique()} --seed {seed} --samples {args.samples}"
                + (" --details" if "single_estimate" in df else "") + " --md ...")
-        atomic_write_text(args.md, markdown(summary, args.design, seed, cmd))
+        atomic_write_text(args.md, markdown(summary, args.design, seed, cmd, extra))
     return 0
 
 
-def markdown(summary: pd.DataFrame, design: str, seed: int, cmd: str) -> str:
-    """The summary as a Markdown page: per parameter, choice and covariance."""
+def markdown(summary: pd.DataFrame, design: str, seed: int, cmd: str,
+             candidates: dict[str, pd.DataFrame] | None = None) -> str:
+    """The summary as a Markdown page: per parameter, choice and covariance (and, with
+    ``candidates``, a table per candidate likelihood fit on the same runs)."""
     runs = int(summary.loc[summary["choice"] == "all", "runs"].max())
     lines = ["---", "orphan: true", "---", "",
              f"# Covariance of `auto`'s likelihood fallback: {design}", "",
-             f"{runs} runs, seed {seed}: `{cmd}`. `reported`: what `auto` reports "
-             "(`identify(log, spec, \"auto\")`); `fisher`, `sandwich`, `conservative`: "
-             "the likelihood fit's inverse Fisher information, quasi-ML sandwich and the "
-             "smallest covariance above both, on the runs that took the likelihood "
-             "estimator (the other runs' reported SE in every row). SE / MC sd: the mean "
-             "SE over the design's Monte Carlo sd (all runs); RMS SE / RMS err: within "
-             "the row's runs.", "",
+             *_table(summary, f"{runs} runs, seed {seed}: `{cmd}`. `reported`: what "
+                     "`auto` reports (`identify(log, spec, \"auto\")`); `fisher`, "
+                     "`sandwich`, `conservative`: the likelihood fit's inverse Fisher "
+                     "information, quasi-ML sandwich and the smallest covariance above "
+                     "both, on the runs that took the likelihood estimator (the other "
+                     "runs' reported SE in every row). SE / MC sd: the mean SE over the "
+                     "design's Monte Carlo sd (all runs); RMS SE / RMS err: within the "
+                     "row's runs.")]
+    for name, tab in (candidates or {}).items():
+        lines += ["", f"## Candidate fit `{name}` on the runs that took the likelihood "
+                  "estimator", "",
+                  *_table(tab, f"`{name}`: " + {
+                      "single": "the better single-process model (current or sensor "
+                                "noise)",
+                      "joint": "both processes at once, the sensor-noise variance "
+                               "bounded at zero",
+                      "local": "the joint model's unbounded one-step estimate (where "
+                               "computed)"}[name]
+                      + "; rows per `auto` choice; SE / MC sd over that candidate's "
+                        "Monte Carlo sd on these runs.")]
+    return "\n".join(lines) + "\n"
+
+
+def _table(summary: pd.DataFrame, text: str) -> list[str]:
+    lines = [text, "",
              "| parameter | choice | covariance | runs | coverage [Wilson 95 %] | bias z "
              "| SE / MC sd | RMS SE / RMS err |", "|---|---|---|---|---|---|---|---|"]
     for _, r in summary.iterrows():
@@ -256,7 +302,7 @@ def markdown(summary: pd.DataFrame, design: str, seed: int, cmd: str) -> str:
                      f"{100 * r.coverage:.1f} % [{100 * r.wilson_lo:.1f}, "
                      f"{100 * r.wilson_hi:.1f}] | {r.bias_z:+.2f} | {r.se_over_sd:.3f} | "
                      f"{r.rms_se_over_rms_err:.3f} |")
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 if __name__ == "__main__":
