@@ -204,7 +204,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="also every candidate likelihood fit on the runs that took one")
     ap.add_argument("--auto-option", action="append", default=[], metavar="KEY=VALUE",
                     help="run auto with this InstrumentalGMM option changed (repeatable; "
-                         "e.g. colour_order=2)")
+                         "e.g. colour_order=2; with --from-raw: the options the raw file "
+                         "was made with, for the page's command line)")
     ap.add_argument("--raw", type=Path, default=None, help="write every run's rows")
     ap.add_argument("--from-raw", type=Path, default=None,
                     help="summarise a file --raw wrote (no simulation)")
@@ -258,7 +259,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.md is not None:
         cmd = (f"python scripts/pem_covariance_study.py {args.design} --runs "
                f"{df['run'].nunique()} --seed {seed} --samples {args.samples}"
-               + (" --details" if "single_estimate" in df else "") + " --md ...")
+               + (" --details" if "single_estimate" in df else "")
+               + "".join(f" --auto-option {o}" for o in args.auto_option) + " --md ...")
         atomic_write_text(args.md, markdown(summary, args.design, seed, cmd, extra))
     return 0
 
