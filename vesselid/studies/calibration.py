@@ -539,14 +539,16 @@ def registry_covariances(
     covariances: Mapping[str, tuple[str, Mapping[str, Any]]],
     *,
     combine: str = "pooled",
+    estimator: Any = None,
 ) -> dict[str, np.ndarray]:
     """Standard errors (G, P) of a registry estimator's batched estimates, computed as its
     checked ``fit`` does: its ``equation_designs`` (final instruments, weight, residuals
-    of each equation) and one covariance call per equation."""
+    of each equation) and one covariance call per equation. ``estimator``: the estimator
+    object that made ``it`` where it is not the registered ``method`` (other options)."""
     from vesselid.identify.data import block_starts
     from vesselid.identify.registry import get_estimator
 
-    est = get_estimator(method)
+    est = estimator if estimator is not None else get_estimator(method)
     blocks = block_starts(spec)
     n_groups = data.n_groups
     out = {k: np.full((n_groups, spec.n_params), np.nan) for k in covariances}
