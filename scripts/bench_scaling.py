@@ -156,11 +156,12 @@ class _ChunkClock:
     def __enter__(self) -> _ChunkClock:
         original, path = self.original, self.path
 
-        def clocked(study: Any, start: int, stop: int) -> Any:
-            c0 = time.process_time()
-            out = original(study, start, stop)
+        def clocked(study: Any, start: int, stop: int, *args: Any) -> Any:
+            c0, m0 = time.process_time(), time.thread_time()
+            out = original(study, start, stop, *args)
+            c1, m1 = time.process_time(), time.thread_time()
             with open(path, "a") as fh:  # one short line per chunk (appends are atomic)
-                fh.write(f"{os.getpid()} {time.process_time() - c0!r}\n")
+                fh.write(f"{os.getpid()} {c1 - c0!r} {m1 - m0!r} {start} {stop}\n")
             return out
 
         clocked.__module__ = original.__module__
@@ -175,15 +176,16 @@ class _ChunkClock:
 
     def read(self) -> tuple[list[float], list[float]]:
         """CPU seconds per worker process (largest first) and per chunk of the last
-        run; starts the next run's record."""
+        run, the chunks in the order they were submitted (their first runs); starts the
+        next run's record."""
         cpu: dict[str, float] = {}
         chunks = []
         for line in self.path.read_text().splitlines():
-            pid, sec = line.split()
+            pid, sec, _, start, _ = line.split()
             cpu[pid] = cpu.get(pid, 0.0) + float(sec)
-            chunks.append(float(sec))
+            chunks.append((int(start), float(sec)))
         self.path.write_text("")
-        return sorted(cpu.values(), reverse=True), chunks
+        return sorted(cpu.values(), reverse=True), [c for _, c in sorted(chunks)]
 
 
 def _makespan(chunks: list[float], workers: int) -> float:
@@ -197,8 +199,107 @@ def _makespan(chunks: list[float], workers: int) -> float:
     return max(load)
 
 
+def _chunk_costs(study: Any, chunks: list[tuple[int, int]]) -> list[tuple[float, float]]:
+    """``(CPU, main-thread CPU)`` seconds of each chunk, each run in a fresh fork of this
+    process as a worker of the process pool runs it
+    (:func:`vesselid.studies.montecarlo._serial_chunk` with ``overlap``): a worker's
+    first chunk, the costliest case. The process's CPU counts the second thread that a
+    long job may take; the main thread's is the chunk's critical path on a free core."""
+    import json
+
+    from vesselid.studies import montecarlo
+
+    out = []
+    for a, b in chunks:
+        read, write = os.pipe()
+        pid = os.fork()
+        if pid == 0:  # pragma: no cover - the child
+            try:
+                os.close(read)
+                c0, m0 = time.process_time(), time.thread_time()
+                montecarlo._serial_chunk(study, a, b, True)
+                cost = [time.process_time() - c0, time.thread_time() - m0]
+                os.write(write, json.dumps(cost).encode())
+            finally:
+                os._exit(0)
+        os.close(write)
+        with os.fdopen(read, "rb") as fh:
+            text = fh.read()
+        os.waitpid(pid, 0)
+        if not text:
+            raise RuntimeError(f"the worker of runs {a}..{b} failed")
+        cpu, main = json.loads(text)
+        out.append((cpu, main))
+    return out
+
+
+def _projected_makespan(costs: list[tuple[float, float]], workers: int) -> float:
+    """The busiest of ``workers`` free cores when the chunks go in order to the least
+    loaded worker, each taking its main thread's CPU (a second thread of a long job runs
+    on a core that the other workers leave free at the end), and at least the total CPU
+    over the cores."""
+    return max(_makespan([m for _, m in costs], workers),
+               sum(c for c, _ in costs) / max(workers, 1))
+
+
+def project_mc_workers(study: Any, counts: tuple[int, ...], parent_cpu_s: float,
+                       repeats: int = 1) -> dict[str, Any]:
+    """Projected critical paths of the Monte Carlo on ``counts`` free cores, from measured
+    per-chunk CPU costs: the default schedule for that many workers
+    (:func:`vesselid.studies.montecarlo._local_chunks`), each chunk's CPU measured in a
+    fresh fork (:func:`_chunk_costs`; medians of ``repeats``), list-scheduled
+    (:func:`_projected_makespan`), plus ``parent_cpu_s`` (the parent's own CPU measured
+    with two workers: warm-up, forking, gathering) and one fork per further worker. A
+    projection on this machine's per-chunk clocks, not a measurement on that many cores
+    (memory bandwidth shared by more workers is not in it)."""
+    from vesselid.core import threads
+    from vesselid.identify.linalg import one_blas_thread
+    from vesselid.studies import montecarlo
+
+    fork_s = _fork_cost()
+    out: dict[str, Any] = {"fork_cpu_s": fork_s}
+    original = threads.n_threads
+    for n in counts:
+        threads.n_threads = lambda n=n: n  # the schedule only
+        try:
+            chunks = montecarlo._local_chunks(int(study.runs))
+        finally:
+            threads.n_threads = original
+        # forked with the BLAS on one thread, as the process pool's workers are
+        # (vesselid.studies.montecarlo._gather)
+        runs_ = [one_blas_thread(_chunk_costs)(study, chunks) for _ in range(repeats)]
+        costs = [(statistics.median(r[i][0] for r in runs_),
+                  statistics.median(r[i][1] for r in runs_)) for i in range(len(chunks))]
+        span = _projected_makespan(costs, n)
+        longest = max(range(len(chunks)), key=lambda i: costs[i][1])
+        out.update({
+            f"p{n}_chunks": len(chunks),
+            f"p{n}_chunk_cpu_total_s": sum(c for c, _ in costs),
+            f"p{n}_longest_chunk": f"{chunks[longest][0]}..{chunks[longest][1]}: "
+                                   f"{costs[longest][1]:.3f} s main thread, "
+                                   f"{costs[longest][0]:.3f} s CPU",
+            f"p{n}_makespan_s": span,
+            f"p{n}_critical_path_s": parent_cpu_s + max(n - 2, 0) * fork_s + span,
+        })
+    return out
+
+
+def _fork_cost(repeats: int = 5) -> float:
+    """This process's CPU seconds to fork a child (median)."""
+    costs = []
+    for _ in range(repeats):
+        c0 = time.process_time()
+        pid = os.fork()
+        if pid == 0:  # pragma: no cover - the child
+            os._exit(0)
+        costs.append(time.process_time() - c0)
+        os.waitpid(pid, 0)
+    return statistics.median(costs)
+
+
 def bench_mc_threads(repeats: int = 3, runs: int = 1000, samples: int = 10_000,
-                     workers: tuple[int, ...] = (1, 2)) -> dict[str, Any]:
+                     workers: tuple[int, ...] = (1, 2),
+                     project: tuple[int, ...] = (4, 8, 16)) -> dict[str, Any]:
     """The Monte Carlo part of Table 1 with each worker count of ``workers`` (``n_jobs``),
     alternated: wall, the CPU of this process and of every worker process (medians), and
     the result CSVs compared byte for byte.
@@ -212,6 +313,9 @@ def bench_mc_threads(repeats: int = 3, runs: int = 1000, samples: int = 10_000,
     CPU clocks assigned in order to the least loaded worker (:func:`_makespan`), since on
     a shared machine a descheduled worker leaves its chunks to the others and the
     measured split says more about the neighbours than about the work.
+
+    ``project``: worker counts whose critical paths are projected from measured
+    per-chunk CPU costs (:func:`project_mc_workers`), against the one-worker CPU.
     """
     from vesselid.studies.montecarlo import run_study, save_results
     from vesselid.studies.reproduce import table_study, warm_up
@@ -269,6 +373,13 @@ def bench_mc_threads(repeats: int = 3, runs: int = 1000, samples: int = 10_000,
                     "two_workers_parent_cpu_s": out["w2_parent_cpu_s"],
                     "critical_path_two_cores_s": out["w2_critical_path_s"],
                     "estimated_speedup_two_cores": out["w2_speedup_cpu_estimate"]})
+    if project:
+        parent = statistics.median(own[max(workers)]) if max(workers) > 1 else 0.0
+        proj = project_mc_workers(study, tuple(project), parent)
+        for n in project:
+            proj[f"p{n}_projected_speedup"] = base_cpu / proj[f"p{n}_critical_path_s"]
+        out.update({"projected_workers": list(project), **proj})
+    out["load_average_end"] = _load()
     return out
 
 
@@ -755,6 +866,9 @@ def main(argv: list[str] | None = None) -> None:
                              "baseline)")
     parser.add_argument("--mc-runs", type=int, help="mc_threads: Monte Carlo runs (1000)")
     parser.add_argument("--mc-repeats", type=int, help="mc_threads: alternated repeats (3)")
+    parser.add_argument("--project", nargs="*", type=int,
+                        help="mc_threads: worker counts projected from measured per-chunk "
+                             "CPU costs (default 4 8 16; none without values)")
     parser.add_argument("--docs", action="store_true", help="write docs/performance.md")
     args = parser.parse_args(argv)
     mc: dict[str, Any] = {}
@@ -764,6 +878,8 @@ def main(argv: list[str] | None = None) -> None:
         mc["runs"] = args.mc_runs
     if args.mc_repeats:
         mc["repeats"] = args.mc_repeats
+    if args.project is not None:
+        mc["project"] = tuple(args.project)
     results = run_all(args.only, memory_sizes=tuple(args.memory_sizes or ()) or None,
                       mc_options=mc or None, memory_format=args.memory_format)
     if args.docs:

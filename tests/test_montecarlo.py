@@ -255,3 +255,30 @@ def test_concurrent_chunks_in_processes_and_threads_agree(reference, monkeypatch
     in_threads = run_study(SMALL, n_jobs=2, batch_size=4, progress=False)
     pd.testing.assert_frame_equal(in_processes, reference)
     pd.testing.assert_frame_equal(in_threads, reference)
+
+
+def test_a_workers_long_fallback_overlaps_bit_identical(monkeypatch):
+    """A worker process's chunk may fit ``auto``'s prediction-error candidates on a
+    second thread (``overlap``); its frame is the serial chunk's bit for bit. Run 204 of
+    Table 1 is one where both validity tests reject and the fallback is taken."""
+    from vesselid.core import threads
+    from vesselid.studies import montecarlo as mc
+    from vesselid.studies.reproduce import table_study
+
+    if threads.n_threads() < 2:
+        pytest.skip("one core: no second thread")
+    study = table_study(1, runs=1000, samples=10_000)
+    jobs = []
+    real = threads.background
+
+    def spy(fn):
+        job = real(fn)
+        jobs.append(job)
+        return job
+
+    monkeypatch.setattr(threads, "background", spy)
+    serial = mc._serial_chunk(study, 204, 205)
+    assert jobs == [None]  # a serial worker fits the candidates in turn
+    overlapped = mc._serial_chunk(study, 204, 205, True)
+    assert len(jobs) == 2 and jobs[1] is not None
+    pd.testing.assert_frame_equal(overlapped, serial, check_exact=True)

@@ -439,21 +439,29 @@ def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[pd
     else:
         pool = ThreadPoolExecutor(workers, thread_name_prefix="vesselid-chunk")
     try:
-        return _gather(pool, study, chunks, bar)
+        return _gather(pool, study, chunks, bar, overlap=frozen)
     finally:
         if frozen:
             gc.unfreeze()
 
 
-def _gather(pool: Any, study: Study, chunks: list[tuple[int, int]], bar: Any
-            ) -> list[pd.DataFrame]:
-    """Submit every chunk to ``pool`` (:func:`_serial_chunk`) and return their frames in
-    order, shutting the pool down."""
+@one_blas_thread
+def _gather(pool: Any, study: Study, chunks: list[tuple[int, int]], bar: Any, *,
+            overlap: bool = False) -> list[pd.DataFrame]:
+    """Submit every chunk to ``pool`` (:func:`_serial_chunk`, with ``overlap``) and
+    return their frames in order, shutting the pool down.
+
+    The BLAS is on one thread meanwhile (:func:`~vesselid.identify.linalg.
+    one_blas_thread`), also while the pool forks its workers: a worker then inherits
+    that setting and its chunks keep it (:func:`run_chunk` nests in it). Restoring a
+    second BLAS thread at the end of a worker's chunk would start one (a fork has none
+    of the parent's threads) that spins for its work — measured ~40 ms of CPU per
+    worker, taken from the other workers' cores."""
     with pool, warnings.catch_warnings():
         # Python ≥ 3.12 warns on fork() in a process with threads; the children run one
         # chunk each in their only thread and start no thread pool (serial kernels)
         warnings.filterwarnings("ignore", message=".*fork.*", category=DeprecationWarning)
-        futures = [pool.submit(_serial_chunk, study, a, b) for a, b in chunks]
+        futures = [pool.submit(_serial_chunk, study, a, b, overlap) for a, b in chunks]
         frames = []
         for fut, (a, b) in zip(futures, chunks, strict=True):
             frames.append(fut.result())
@@ -461,11 +469,18 @@ def _gather(pool: Any, study: Study, chunks: list[tuple[int, int]], bar: Any
     return frames
 
 
-def _serial_chunk(study: Study, start: int, stop: int) -> pd.DataFrame:
-    """:func:`run_chunk` with serial kernels (one of several concurrent workers)."""
+def _serial_chunk(study: Study, start: int, stop: int, overlap: bool = False
+                  ) -> pd.DataFrame:
+    """:func:`run_chunk` with serial kernels (one of several concurrent workers).
+
+    ``overlap`` (a worker process): a long job may still take a second thread
+    (``serial_here(overlap=True)``): a run that costs many times the others
+    (``auto``'s prediction-error fallback) then fits its candidate models at once, so
+    the worker that drew it does not finish far behind the others. Chunk threads of one
+    process leave it off (their single background thread would queue their jobs)."""
     from vesselid.core.threads import serial_here
 
-    with serial_here():
+    with serial_here(overlap=overlap):
         return run_chunk(study, start, stop)
 
 
