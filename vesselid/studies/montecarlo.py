@@ -245,10 +245,13 @@ def run_chunk(study: Study, start: int, stop: int) -> pd.DataFrame:
         elif (base is None and _takes_base(est, study)
               and isinstance(res.info.get("base"), IterationResult)):
             base = res.info["base"]
-        frames.append(_tidy(res, method, spec, theta0, start))
+        frames.append(_tidy(res, method, spec, theta0, start, len(frames)))
     # one frame per chunk from the methods' columns (a frame per method costs more than
-    # the method's estimate on small chunks)
-    return pd.DataFrame({c: np.concatenate([f[c] for f in frames]) for c in frames[0]})
+    # the method's estimate on small chunks), its rows already in the study's order (run,
+    # method, parameter): the chunks' frames then only need concatenating
+    cols = {c: np.concatenate([f[c] for f in frames]) for c in frames[0]}
+    idx = np.lexsort((cols["_p"], cols["_m"], cols["run"]))
+    return pd.DataFrame({c: v[idx] for c, v in cols.items()})
 
 
 def _is_zero_mean_iv(est: Any, study: Study) -> bool:
@@ -265,10 +268,11 @@ def _takes_base(est: Any, study: Study) -> bool:
     return isinstance(est, InstrumentalGMM | PredictionError) and study.combine == "pooled"
 
 
-def _tidy(res, method: str, spec: ModelSpec, theta0: np.ndarray, start: int
+def _tidy(res, method: str, spec: ModelSpec, theta0: np.ndarray, start: int, m: int
           ) -> dict[str, np.ndarray]:
     """The tidy columns of one method's estimates on a chunk (:func:`run_chunk` makes
-    the frame)."""
+    the frame); ``m`` is the method's place in the study's methods (helper column
+    ``_m``, as ``_p`` is the parameter's)."""
     n_runs, n_par = res.theta.shape
     equations = [eq for eq, _ in spec.param_index]
     terms = [term for _, term in spec.param_index]
@@ -290,6 +294,7 @@ def _tidy(res, method: str, spec: ModelSpec, theta0: np.ndarray, start: int
         "iterations": np.repeat(np.asarray(res.iterations, dtype=np.int64), n_par),
         "stop_reason": np.repeat(np.asarray(res.reason, dtype=object).astype(str), n_par),
         "_p": np.tile(np.arange(n_par), n_runs),
+        "_m": np.full(n_runs * n_par, m, dtype=np.int64),
     }
 
 
@@ -500,12 +505,15 @@ def _fork_context() -> Any:
 
 
 def _order(df: pd.DataFrame, study: Study) -> pd.DataFrame:
-    """Sort by run, method (in ``study.methods`` order), parameter; drop helpers."""
-    order = {m: i for i, m in enumerate(study.methods)}
-    m_idx = df["method"].astype(str).map(order).to_numpy()
+    """Sort by run, method (in ``study.methods`` order), parameter; drop the helper
+    columns. The chunks' frames come in that order (:func:`run_chunk`) and in run
+    order, so the sort is then only checked."""
+    m_idx = df["_m"].to_numpy()
     idx = np.lexsort((df["_p"].to_numpy(), m_idx, df["run"].to_numpy()))
-    out = df.iloc[idx].drop(columns="_p").reset_index(drop=True)
-    out["method"] = pd.Categorical(out["method"].astype(str), categories=list(study.methods))
+    if not np.array_equal(idx, np.arange(idx.size)):
+        df, m_idx = df.iloc[idx], m_idx[idx]
+    out = df.drop(columns=["_p", "_m"]).reset_index(drop=True)
+    out["method"] = pd.Categorical.from_codes(m_idx, categories=list(study.methods))
     return out
 
 
