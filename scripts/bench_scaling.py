@@ -13,7 +13,9 @@ CPU clock (``time.process_time``, all threads of the process; children's CPU fro
   action space, reset on termination), and the vector environments' env-steps/s;
 * ``mc_threads``: the Monte Carlo part of ``vesselid reproduce --table 1`` (1000 runs ×
   10⁴ samples) with one and two workers (``--workers``), wall, the CPU of the parent
-  and of every worker process, and whether the result CSVs are byte-identical;
+  and of every worker process, and whether the result CSVs are byte-identical; and
+  the critical paths on 4, 8 and 16 free cores projected from the per-chunk CPU clocks
+  of a run with that many worker processes (``--project``), labelled as projections;
 * ``identify_memory``: peak resident memory and time of the whole
   ``vesselid identify`` process on one-state heave logs of several lengths (medians of
   three processes), and on the 10⁶-sample log each step of the fit with its CPU time and
@@ -174,6 +176,13 @@ class _ChunkClock:
     def __exit__(self, *exc: object) -> None:
         self.module._serial_chunk = self.original
 
+    def records(self) -> list[tuple[int, float, float]]:
+        """``(first run, CPU, main-thread CPU)`` of every chunk of the last run, in the
+        order they were submitted; starts the next run's record."""
+        rows = [line.split() for line in self.path.read_text().splitlines()]
+        self.path.write_text("")
+        return sorted((int(r[3]), float(r[1]), float(r[2])) for r in rows)
+
     def read(self) -> tuple[list[float], list[float]]:
         """CPU seconds per worker process (largest first) and per chunk of the last
         run, the chunks in the order they were submitted (their first runs); starts the
@@ -199,102 +208,62 @@ def _makespan(chunks: list[float], workers: int) -> float:
     return max(load)
 
 
-def _chunk_costs(study: Any, chunks: list[tuple[int, int]]) -> list[tuple[float, float]]:
-    """``(CPU, main-thread CPU)`` seconds of each chunk, each run in a fresh fork of this
-    process as a worker of the process pool runs it
-    (:func:`vesselid.studies.montecarlo._serial_chunk` with ``overlap``): a worker's
-    first chunk, the costliest case. The process's CPU counts the second thread that a
-    long job may take; the main thread's is the chunk's critical path on a free core."""
-    import json
-
-    from vesselid.studies import montecarlo
-
-    out = []
-    for a, b in chunks:
-        read, write = os.pipe()
-        pid = os.fork()
-        if pid == 0:  # pragma: no cover - the child
-            try:
-                os.close(read)
-                c0, m0 = time.process_time(), time.thread_time()
-                montecarlo._serial_chunk(study, a, b, True)
-                cost = [time.process_time() - c0, time.thread_time() - m0]
-                os.write(write, json.dumps(cost).encode())
-            finally:
-                os._exit(0)
-        os.close(write)
-        with os.fdopen(read, "rb") as fh:
-            text = fh.read()
-        os.waitpid(pid, 0)
-        if not text:
-            raise RuntimeError(f"the worker of runs {a}..{b} failed")
-        cpu, main = json.loads(text)
-        out.append((cpu, main))
-    return out
-
-
 def _projected_makespan(costs: list[tuple[float, float]], workers: int) -> float:
-    """The busiest of ``workers`` free cores when the chunks go in order to the least
-    loaded worker, each taking its main thread's CPU (a second thread of a long job runs
-    on a core that the other workers leave free at the end), and at least the total CPU
-    over the cores."""
+    """The busiest of ``workers`` free cores when the chunks (``(CPU, main-thread CPU)``
+    seconds, in submission order) go in order to the least loaded worker, each taking
+    its main thread's CPU (a second thread of a long job runs on a core the other
+    workers leave free at the end), and at least the total CPU over the cores."""
     return max(_makespan([m for _, m in costs], workers),
                sum(c for c, _ in costs) / max(workers, 1))
 
 
-def project_mc_workers(study: Any, counts: tuple[int, ...], parent_cpu_s: float,
-                       repeats: int = 1) -> dict[str, Any]:
+def project_mc_workers(study: Any, counts: tuple[int, ...], clock: _ChunkClock,
+                       reference: bytes, tmp: Path, repeats: int = 1) -> dict[str, Any]:
     """Projected critical paths of the Monte Carlo on ``counts`` free cores, from measured
-    per-chunk CPU costs: the default schedule for that many workers
-    (:func:`vesselid.studies.montecarlo._local_chunks`), each chunk's CPU measured in a
-    fresh fork (:func:`_chunk_costs`; medians of ``repeats``), list-scheduled
-    (:func:`_projected_makespan`), plus ``parent_cpu_s`` (the parent's own CPU measured
-    with two workers: warm-up, forking, gathering) and one fork per further worker. A
-    projection on this machine's per-chunk clocks, not a measurement on that many cores
-    (memory bandwidth shared by more workers is not in it)."""
+    per-chunk CPU costs: the study is run with that many worker processes on this
+    machine's cores (the default schedule for that many workers,
+    :func:`vesselid.studies.montecarlo._local_chunks`), every chunk's CPU clock is
+    recorded (``clock``), and the chunks are list-scheduled on that many free cores
+    (:func:`_projected_makespan`); the critical path adds the parent's own CPU in that
+    run (warm-up, forking every worker, gathering). Medians of ``repeats``. The result
+    CSV is compared with ``reference`` byte for byte. A projection from this machine's
+    per-chunk clocks, not a measurement on that many cores (memory bandwidth shared by
+    more workers is not in it)."""
     from vesselid.core import threads
-    from vesselid.identify.linalg import one_blas_thread
-    from vesselid.studies import montecarlo
+    from vesselid.studies.montecarlo import run_study, save_results
 
-    fork_s = _fork_cost()
-    out: dict[str, Any] = {"fork_cpu_s": fork_s}
+    out: dict[str, Any] = {}
     original = threads.n_threads
     for n in counts:
-        threads.n_threads = lambda n=n: n  # the schedule only
+        spans, parents, totals, longest, identical = [], [], [], [], True
+        threads.n_threads = lambda n=n: n  # that many workers (inherited by the forks)
         try:
-            chunks = montecarlo._local_chunks(int(study.runs))
+            for _ in range(repeats):
+                clock.read()
+                c0 = time.process_time()
+                df = run_study(study, progress=False)
+                parents.append(time.process_time() - c0)
+                records = clock.records()
+                costs = [(cpu, main) for _, cpu, main in records]
+                spans.append(_projected_makespan(costs, n))
+                totals.append(sum(c for c, _ in costs))
+                longest.append(max(records, key=lambda r: r[2]))
+                path = tmp / f"table1_projected_{n}.csv"
+                save_results(df, path)
+                identical &= path.read_bytes() == reference
         finally:
             threads.n_threads = original
-        # forked with the BLAS on one thread, as the process pool's workers are
-        # (vesselid.studies.montecarlo._gather)
-        runs_ = [one_blas_thread(_chunk_costs)(study, chunks) for _ in range(repeats)]
-        costs = [(statistics.median(r[i][0] for r in runs_),
-                  statistics.median(r[i][1] for r in runs_)) for i in range(len(chunks))]
-        span = _projected_makespan(costs, n)
-        longest = max(range(len(chunks)), key=lambda i: costs[i][1])
+        span, parent = statistics.median(spans), statistics.median(parents)
+        start, _, main = sorted(longest, key=lambda r: r[2])[len(longest) // 2]
         out.update({
-            f"p{n}_chunks": len(chunks),
-            f"p{n}_chunk_cpu_total_s": sum(c for c, _ in costs),
-            f"p{n}_longest_chunk": f"{chunks[longest][0]}..{chunks[longest][1]}: "
-                                   f"{costs[longest][1]:.3f} s main thread, "
-                                   f"{costs[longest][0]:.3f} s CPU",
+            f"p{n}_chunk_cpu_total_s": statistics.median(totals),
+            f"p{n}_longest_chunk": f"from run {start}: {main:.3f} s main thread",
+            f"p{n}_parent_cpu_s": parent,
             f"p{n}_makespan_s": span,
-            f"p{n}_critical_path_s": parent_cpu_s + max(n - 2, 0) * fork_s + span,
+            f"p{n}_critical_path_s": parent + span,
+            f"p{n}_csv_byte_identical": identical,
         })
     return out
-
-
-def _fork_cost(repeats: int = 5) -> float:
-    """This process's CPU seconds to fork a child (median)."""
-    costs = []
-    for _ in range(repeats):
-        c0 = time.process_time()
-        pid = os.fork()
-        if pid == 0:  # pragma: no cover - the child
-            os._exit(0)
-        costs.append(time.process_time() - c0)
-        os.waitpid(pid, 0)
-    return statistics.median(costs)
 
 
 def bench_mc_threads(repeats: int = 3, runs: int = 1000, samples: int = 10_000,
@@ -350,6 +319,8 @@ def bench_mc_threads(repeats: int = 3, runs: int = 1000, samples: int = 10_000,
                 loads.append(_load())
         first = paths[workers[0]].read_bytes()
         identical = all(paths[n].read_bytes() == first for n in workers)
+        proj = (project_mc_workers(study, tuple(project), clock, first, Path(tmp))
+                if project else {})
     base_cpu = statistics.median(cpu[workers[0]])
     base_wall = statistics.median(wall[workers[0]])
     out: dict[str, Any] = {"runs": runs, "samples": samples, "repeats": repeats,
@@ -374,8 +345,6 @@ def bench_mc_threads(repeats: int = 3, runs: int = 1000, samples: int = 10_000,
                     "critical_path_two_cores_s": out["w2_critical_path_s"],
                     "estimated_speedup_two_cores": out["w2_speedup_cpu_estimate"]})
     if project:
-        parent = statistics.median(own[max(workers)]) if max(workers) > 1 else 0.0
-        proj = project_mc_workers(study, tuple(project), parent)
         for n in project:
             proj[f"p{n}_projected_speedup"] = base_cpu / proj[f"p{n}_critical_path_s"]
         out.update({"projected_workers": list(project), **proj})
