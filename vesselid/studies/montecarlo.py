@@ -418,8 +418,10 @@ def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[pd
     kernels, loaded once in this process by a one-run warm-up first) and return small
     frames. Elsewhere the chunks run in threads.
     """
+    from vesselid.core.heap import keep_heap
     from vesselid.core.threads import n_threads, serial_here
 
+    keep_heap()  # the chunks' large arrays reuse freed heap (inherited by the workers)
     workers = min(n_threads(), len(chunks))
     if workers <= 1:
         frames = []
