@@ -26,7 +26,6 @@ __all__ = ["keep_heap"]
 
 # mallopt parameters (malloc.h)
 _M_TRIM_THRESHOLD = -1
-_M_TOP_PAD = -2
 _M_MMAP_THRESHOLD = -3
 
 #: Largest block served from the heap: glibc's limit for ``M_MMAP_THRESHOLD`` on 64-bit
@@ -34,8 +33,6 @@ _M_MMAP_THRESHOLD = -3
 MMAP_THRESHOLD = 32 * 1024 * 1024
 #: Free memory at the top of the heap kept before any is returned to the system.
 TRIM_THRESHOLD = 1024 * 1024 * 1024
-#: Extra memory requested whenever the heap grows (fewer ``brk`` calls).
-TOP_PAD = 64 * 1024 * 1024
 
 _LOCK = threading.Lock()
 _DONE: list[bool] = []
@@ -67,5 +64,4 @@ def _apply() -> bool:
     mallopt.restype = ctypes.c_int
     ok = mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD) == 1
     ok &= mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD) == 1
-    ok &= mallopt(_M_TOP_PAD, TOP_PAD) == 1
     return bool(ok)
