@@ -679,7 +679,40 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
             "share the scheduler gives this process group, and the CPU estimate is the "
             "figure that holds.",
             "",
+            "Each worker keeps the BLAS on one thread for its whole life (it is forked "
+            "with that setting), so no BLAS thread is started in a worker to spin for "
+            "work; a worker may still hand one long job to a second thread (`auto`'s "
+            "prediction-error fallback fits its candidate models at once: the same "
+            "numbers). The Monte Carlo process keeps freed memory in its heap "
+            "(`vesselid.core.heap`; `VESSELID_KEEP_HEAP=0` leaves glibc's defaults), so "
+            "the chunks' large arrays reuse it instead of faulting in fresh pages every "
+            "chunk; forked workers inherit the setting.",
+            "",
         ]
+        proj = mc.get("projected_workers") or []
+        if proj:
+            lines += [
+                "Projected, not measured: the critical path on more free cores than this "
+                "machine has, from the per-chunk CPU clocks of a run with that many "
+                "worker processes here (the default schedule for that many workers), "
+                "the chunks list-scheduled in order on that many cores (a chunk takes "
+                "its main thread's CPU; at least the total CPU over the cores), plus "
+                "the parent's own CPU in that run. Memory bandwidth shared by more "
+                "workers is not in it.",
+                "",
+                "| workers | chunks' CPU (s) | parent CPU (s) | makespan (s) "
+                "| critical path (s) | projected speed-up | longest chunk "
+                "| CSV byte-identical |",
+                "|---:|---:|---:|---:|---:|---:|---|---|",
+            ]
+            for n in proj:
+                lines.append(
+                    f"| {n} | {mc[f'p{n}_chunk_cpu_total_s']:.2f} | "
+                    f"{mc[f'p{n}_parent_cpu_s']:.2f} | {mc[f'p{n}_makespan_s']:.2f} | "
+                    f"{mc[f'p{n}_critical_path_s']:.2f} | "
+                    f"{mc[f'p{n}_projected_speedup']:.2f}× | {mc[f'p{n}_longest_chunk']} | "
+                    f"{'yes' if mc[f'p{n}_csv_byte_identical'] else '**no**'} |")
+            lines.append("")
     mem = results.get("identify_memory")
     if mem:
         lines += [
