@@ -416,7 +416,12 @@ def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[pd
     queue behind each other's glue, and more threads add GIL hand-overs until more
     threads are slower. Processes share nothing but the forked memory (the compiled
     kernels, loaded once in this process by a one-run warm-up first) and return small
-    frames. Elsewhere the chunks run in threads.
+    frames, each already in the study's row order. Elsewhere the chunks run in threads.
+
+    Either way the process first keeps freed memory in its heap
+    (:func:`vesselid.core.heap.keep_heap`, inherited by the workers): the chunks
+    allocate and free arrays of ``runs × samples`` doubles over and over, which glibc
+    would otherwise return to the system and fault in afresh.
     """
     from vesselid.core.heap import keep_heap
     from vesselid.core.threads import n_threads, serial_here
