@@ -277,8 +277,8 @@ def test_a_workers_long_fallback_overlaps_bit_identical(monkeypatch):
         return job
 
     monkeypatch.setattr(threads, "background", spy)
-    serial = mc._serial_chunk(study, 204, 205)
+    serial = pd.DataFrame(mc._serial_chunk(study, 204, 205))
     assert jobs == [None]  # a serial worker fits the candidates in turn
-    overlapped = mc._serial_chunk(study, 204, 205, True)
+    overlapped = pd.DataFrame(mc._serial_chunk(study, 204, 205, True))
     assert len(jobs) == 2 and jobs[1] is not None
     pd.testing.assert_frame_equal(overlapped, serial, check_exact=True)

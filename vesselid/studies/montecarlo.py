@@ -213,7 +213,6 @@ def regression_data(study: Study, system: System, spec: ModelSpec, sim) -> Regre
     return data
 
 
-@one_blas_thread
 def run_chunk(study: Study, start: int, stop: int) -> pd.DataFrame:
     """Simulate and estimate runs ``start … stop−1`` of ``study`` (tidy frame).
 
@@ -223,6 +222,14 @@ def run_chunk(study: Study, start: int, stop: int) -> pd.DataFrame:
     parallelism is the Monte Carlo's own, over runs, and a BLAS thread pool in each of
     several concurrent workers only oversubscribes the cores.
     """
+    return pd.DataFrame(_chunk_columns(study, start, stop))
+
+
+@one_blas_thread
+def _chunk_columns(study: Study, start: int, stop: int) -> dict[str, np.ndarray]:
+    """The columns of :func:`run_chunk`'s frame (local chunks return these: arrays
+    travel back from a worker process for a fraction of a frame's pickling, and the
+    study's frame is made once from all chunks)."""
     system = study.build_system()
     spec = study.identification_spec(system)
     sim = system.simulate(int(study.samples), run_seeds=study.run_seeds(start, stop))
@@ -251,7 +258,7 @@ def run_chunk(study: Study, start: int, stop: int) -> pd.DataFrame:
     # method, parameter): the chunks' frames then only need concatenating
     cols = {c: np.concatenate([f[c] for f in frames]) for c in frames[0]}
     idx = np.lexsort((cols["_p"], cols["_m"], cols["run"]))
-    return pd.DataFrame({c: v[idx] for c, v in cols.items()})
+    return {c: v[idx] for c, v in cols.items()}
 
 
 def _is_zero_mean_iv(est: Any, study: Study) -> bool:
@@ -354,7 +361,10 @@ def run_study(
             chunks = (_local_chunks(runs) if batch_size is None
                       else _chunks(runs, int(batch_size)))
             frames = _run_local(study, chunks, bar)
-    df = pd.concat(frames, ignore_index=True)
+    if isinstance(frames[0], dict):  # local chunks: their columns
+        df = pd.DataFrame({c: np.concatenate([f[c] for f in frames]) for c in frames[0]})
+    else:
+        df = pd.concat(frames, ignore_index=True)
     df = _order(df, study)
     df.attrs["study"] = study.describe()
     return df
@@ -403,11 +413,13 @@ def _local_batch(runs: int) -> int:
     return max(1, math.ceil(runs / n_chunks))
 
 
-def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[pd.DataFrame]:
-    """The chunks' frames, in order. With several threads (numba's thread count) and
-    chunks, the chunks run concurrently, one per worker, each with serial kernels
-    (:func:`vesselid.core.threads.serial_here`); else one after the other with the kernels
-    threaded over the chunk's runs. Each chunk is computed by the same code either way
+def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any
+               ) -> list[dict[str, np.ndarray]]:
+    """The chunks' columns (:func:`_chunk_columns`), in order. With several threads
+    (numba's thread count) and chunks, the chunks run concurrently, one per worker,
+    each with serial kernels (:func:`vesselid.core.threads.serial_here`); else one after
+    the other with the kernels threaded over the chunk's runs. Each chunk is computed by
+    the same code either way
     (bit-identical results).
 
     The workers are forked processes where the platform forks (:func:`_fork_context`):
@@ -416,7 +428,8 @@ def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[pd
     queue behind each other's glue, and more threads add GIL hand-overs until more
     threads are slower. Processes share nothing but the forked memory (the compiled
     kernels, loaded once in this process by a one-run warm-up first) and return small
-    frames, each already in the study's row order. Elsewhere the chunks run in threads.
+    columns, each chunk's already in the study's row order. Elsewhere the chunks run in
+    threads.
 
     Either way the process first keeps freed memory in its heap
     (:func:`vesselid.core.heap.keep_heap`, inherited by the workers): the chunks
@@ -431,7 +444,7 @@ def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[pd
     if workers <= 1:
         frames = []
         for a, b in chunks:
-            frames.append(run_chunk(study, a, b))
+            frames.append(_chunk_columns(study, a, b))
             bar.update(b - a)
         return frames
     from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
@@ -440,7 +453,7 @@ def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[pd
     frozen = False
     if ctx is not None:
         with serial_here():  # load (or compile) every kernel of the study here, once
-            run_chunk(study, chunks[0][0], chunks[0][0] + 1)
+            _chunk_columns(study, chunks[0][0], chunks[0][0] + 1)
         # the objects alive now (modules, compiled kernels) leave the garbage collector's
         # generations before the workers fork: a worker's collections then do not walk
         # (and so copy-on-write every page of) the parent's heap; measured ~7 % of the
@@ -459,9 +472,9 @@ def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[pd
 
 @one_blas_thread
 def _gather(pool: Any, study: Study, chunks: list[tuple[int, int]], bar: Any, *,
-            overlap: bool = False) -> list[pd.DataFrame]:
+            overlap: bool = False) -> list[dict[str, np.ndarray]]:
     """Submit every chunk to ``pool`` (:func:`_serial_chunk`, with ``overlap``) and
-    return their frames in order, shutting the pool down.
+    return their columns in order, shutting the pool down.
 
     The BLAS is on one thread meanwhile (:func:`~vesselid.identify.linalg.
     one_blas_thread`), also while the pool forks its workers: a worker then inherits
@@ -482,8 +495,9 @@ def _gather(pool: Any, study: Study, chunks: list[tuple[int, int]], bar: Any, *,
 
 
 def _serial_chunk(study: Study, start: int, stop: int, overlap: bool = False
-                  ) -> pd.DataFrame:
-    """:func:`run_chunk` with serial kernels (one of several concurrent workers).
+                  ) -> dict[str, np.ndarray]:
+    """:func:`run_chunk`'s columns with serial kernels (one of several concurrent
+    workers).
 
     ``overlap`` (a worker process): a long job may still take a second thread
     (``serial_here(overlap=True)``): a run that costs many times the others
@@ -493,7 +507,7 @@ def _serial_chunk(study: Study, start: int, stop: int, overlap: bool = False
     from vesselid.core.threads import serial_here
 
     with serial_here(overlap=overlap):
-        return run_chunk(study, start, stop)
+        return _chunk_columns(study, start, stop)
 
 
 def _fork_context() -> Any:
