@@ -679,12 +679,13 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
             "share the scheduler gives this process group, and the CPU estimate is the "
             "figure that holds.",
             "",
-            "Each worker keeps the BLAS on one thread for its whole life (it is forked "
-            "with that setting), so no BLAS thread is started in a worker to spin for "
-            "work; a worker may still hand one long job to a second thread (`auto`'s "
-            "prediction-error fallback fits its candidate models at once: the same "
-            "numbers). The Monte Carlo process keeps freed memory in its heap "
-            "(`vesselid.core.heap`; `VESSELID_KEEP_HEAP=0` leaves glibc's defaults), so "
+            "Each worker keeps the BLAS on one thread for its whole life (set when it "
+            "starts; the parent's setting is untouched), so no BLAS thread is started in "
+            "a worker to spin for work; a worker may still hand one long job to a "
+            "second thread (`auto`'s prediction-error fallback fits its candidate "
+            "models at once: the same numbers). The Monte Carlo process keeps freed "
+            "memory in its heap (`vesselid.core.heap`; `VESSELID_KEEP_HEAP=0` leaves "
+            "glibc's defaults), so "
             "the chunks' large arrays reuse it instead of faulting in fresh pages every "
             "chunk; forked workers inherit the setting.",
             "",

@@ -282,3 +282,40 @@ def test_a_workers_long_fallback_overlaps_bit_identical(monkeypatch):
     overlapped = pd.DataFrame(mc._serial_chunk(study, 204, 205, True))
     assert len(jobs) == 2 and jobs[1] is not None
     pd.testing.assert_frame_equal(overlapped, serial, check_exact=True)
+
+
+def test_forked_workers_keep_one_blas_thread_and_the_parent_its_own(monkeypatch):
+    """A worker process runs its chunks with the BLAS on one thread and keeps it so
+    between chunks (no BLAS thread started to spin for work); the parent's setting is
+    left as it was."""
+    from threadpoolctl import threadpool_info
+
+    from vesselid.studies import montecarlo as mc
+
+    def blas_threads() -> int:
+        return max([i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"],
+                   default=0)
+
+    if mc._fork_context() is None:
+        pytest.skip("no fork on this platform")
+    before = blas_threads()
+    if before < 2:
+        pytest.skip("the BLAS runs on one thread here anyway")
+    original = mc._serial_chunk
+
+    def probe(study, start, stop, *args):  # pickled by reference: the workers run it
+        cols = original(study, start, stop, *args)
+        cols["_blas"] = np.full(cols["run"].size, blas_threads())
+        return cols
+
+    probe.__module__, probe.__qualname__ = original.__module__, original.__qualname__
+    monkeypatch.setattr(mc, "_serial_chunk", probe)
+    monkeypatch.setattr("vesselid.core.threads.n_threads", lambda: 2)
+
+    class Bar:
+        def update(self, n):
+            pass
+
+    cols = mc._run_local(SMALL, mc._chunks(SMALL.runs, 3), Bar())
+    assert {int(x) for c in cols for x in np.unique(c["_blas"])} == {1}
+    assert blas_threads() == before

@@ -460,7 +460,8 @@ def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any
         # workers' CPU on Table 1
         gc.freeze()
         frozen = True
-        pool: Executor = ProcessPoolExecutor(workers, mp_context=ctx)
+        pool: Executor = ProcessPoolExecutor(workers, mp_context=ctx,
+                                             initializer=_worker_start)
     else:
         pool = ThreadPoolExecutor(workers, thread_name_prefix="vesselid-chunk")
     try:
@@ -470,18 +471,23 @@ def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any
             gc.unfreeze()
 
 
-@one_blas_thread
+def _worker_start() -> None:
+    """A forked worker's set-up: the BLAS on one thread for the worker's life (its
+    chunks' :func:`~vesselid.identify.linalg.one_blas_thread` then restores one thread).
+    A fork has none of the parent's BLAS threads; restoring more than one at the end of
+    each chunk would start one that spins for work, taking CPU from the other workers'
+    cores. The parent's setting is not touched."""
+    from vesselid.identify.linalg import _blas_controller
+
+    ctl = _blas_controller()
+    if ctl is not None:
+        ctl.limit(limits=1)  # not restored: this process only runs chunks
+
+
 def _gather(pool: Any, study: Study, chunks: list[tuple[int, int]], bar: Any, *,
             overlap: bool = False) -> list[dict[str, np.ndarray]]:
     """Submit every chunk to ``pool`` (:func:`_serial_chunk`, with ``overlap``) and
-    return their columns in order, shutting the pool down.
-
-    The BLAS is on one thread meanwhile (:func:`~vesselid.identify.linalg.
-    one_blas_thread`), also while the pool forks its workers: a worker then inherits
-    that setting and its chunks keep it (:func:`run_chunk` nests in it). Restoring a
-    second BLAS thread at the end of a worker's chunk would start one (a fork has none
-    of the parent's threads) that spins for its work — measured ~40 ms of CPU per
-    worker, taken from the other workers' cores."""
+    return their columns in order, shutting the pool down."""
     with pool, warnings.catch_warnings():
         # Python ≥ 3.12 warns on fork() in a process with threads; the children run one
         # chunk each in their only thread and start no thread pool (serial kernels)
