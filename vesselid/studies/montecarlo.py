@@ -350,6 +350,12 @@ def run_study(
     DataFrame
         Columns :data:`COLUMNS`, sorted by run, method (in ``study.methods`` order)
         and parameter. ``df.attrs["study"]`` holds ``study.describe()``.
+
+    Notes
+    -----
+    A local run sets glibc's ``malloc`` to keep freed memory in the process's heap
+    for reuse, for the rest of the process (:func:`vesselid.core.heap.keep_heap`;
+    ``VESSELID_KEEP_HEAP=0`` leaves glibc's defaults).
     """
     runs = int(study.runs)
     if batch_size is not None and int(batch_size) < 1:
