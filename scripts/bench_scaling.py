@@ -13,7 +13,9 @@ CPU clock (``time.process_time``, all threads of the process; children's CPU fro
   action space, reset on termination), and the vector environments' env-steps/s;
 * ``mc_threads``: the Monte Carlo part of ``vesselid reproduce --table 1`` (1000 runs ×
   10⁴ samples) with one and two workers (``--workers``), wall, the CPU of the parent
-  and of every worker process, and whether the result CSVs are byte-identical;
+  and of every worker process, and whether the result CSVs are byte-identical; and
+  the critical paths on 4, 8 and 16 free cores projected from the per-chunk CPU clocks
+  of a run with that many worker processes (``--project``), labelled as projections;
 * ``identify_memory``: peak resident memory and time of the whole
   ``vesselid identify`` process on one-state heave logs of several lengths (medians of
   three processes), and on the 10⁶-sample log each step of the fit with its CPU time and
@@ -156,11 +158,12 @@ class _ChunkClock:
     def __enter__(self) -> _ChunkClock:
         original, path = self.original, self.path
 
-        def clocked(study: Any, start: int, stop: int) -> Any:
-            c0 = time.process_time()
-            out = original(study, start, stop)
+        def clocked(study: Any, start: int, stop: int, *args: Any) -> Any:
+            c0, m0 = time.process_time(), time.thread_time()
+            out = original(study, start, stop, *args)
+            c1, m1 = time.process_time(), time.thread_time()
             with open(path, "a") as fh:  # one short line per chunk (appends are atomic)
-                fh.write(f"{os.getpid()} {time.process_time() - c0!r}\n")
+                fh.write(f"{os.getpid()} {c1 - c0!r} {m1 - m0!r} {start} {stop}\n")
             return out
 
         clocked.__module__ = original.__module__
@@ -173,17 +176,25 @@ class _ChunkClock:
     def __exit__(self, *exc: object) -> None:
         self.module._serial_chunk = self.original
 
+    def records(self) -> list[tuple[int, float, float]]:
+        """``(first run, CPU, main-thread CPU)`` of every chunk of the last run, in the
+        order they were submitted; starts the next run's record."""
+        rows = [line.split() for line in self.path.read_text().splitlines()]
+        self.path.write_text("")
+        return sorted((int(r[3]), float(r[1]), float(r[2])) for r in rows)
+
     def read(self) -> tuple[list[float], list[float]]:
         """CPU seconds per worker process (largest first) and per chunk of the last
-        run; starts the next run's record."""
+        run, the chunks in the order they were submitted (their first runs); starts the
+        next run's record."""
         cpu: dict[str, float] = {}
         chunks = []
         for line in self.path.read_text().splitlines():
-            pid, sec = line.split()
+            pid, sec, _, start, _ = line.split()
             cpu[pid] = cpu.get(pid, 0.0) + float(sec)
-            chunks.append(float(sec))
+            chunks.append((int(start), float(sec)))
         self.path.write_text("")
-        return sorted(cpu.values(), reverse=True), chunks
+        return sorted(cpu.values(), reverse=True), [c for _, c in sorted(chunks)]
 
 
 def _makespan(chunks: list[float], workers: int) -> float:
@@ -197,8 +208,67 @@ def _makespan(chunks: list[float], workers: int) -> float:
     return max(load)
 
 
+def _projected_makespan(costs: list[tuple[float, float]], workers: int) -> float:
+    """The busiest of ``workers`` free cores when the chunks (``(CPU, main-thread CPU)``
+    seconds, in submission order) go in order to the least loaded worker, each taking
+    its main thread's CPU (a second thread of a long job runs on a core the other
+    workers leave free at the end), and at least the total CPU over the cores."""
+    return max(_makespan([m for _, m in costs], workers),
+               sum(c for c, _ in costs) / max(workers, 1))
+
+
+def project_mc_workers(study: Any, counts: tuple[int, ...], clock: _ChunkClock,
+                       reference: bytes, tmp: Path, repeats: int = 1) -> dict[str, Any]:
+    """Projected critical paths of the Monte Carlo on ``counts`` free cores, from measured
+    per-chunk CPU costs: the study is run with that many worker processes on this
+    machine's cores (the default schedule for that many workers,
+    :func:`vesselid.studies.montecarlo._local_chunks`), every chunk's CPU clock is
+    recorded (``clock``), and the chunks are list-scheduled on that many free cores
+    (:func:`_projected_makespan`); the critical path adds the parent's own CPU in that
+    run (warm-up, forking every worker, gathering). Medians of ``repeats``. The result
+    CSV is compared with ``reference`` byte for byte. A projection from this machine's
+    per-chunk clocks, not a measurement on that many cores (memory bandwidth shared by
+    more workers is not in it)."""
+    from vesselid.core import threads
+    from vesselid.studies.montecarlo import run_study, save_results
+
+    out: dict[str, Any] = {}
+    original = threads.n_threads
+    for n in counts:
+        spans, parents, totals, longest, identical = [], [], [], [], True
+        threads.n_threads = lambda n=n: n  # that many workers (inherited by the forks)
+        try:
+            for _ in range(repeats):
+                clock.read()
+                c0 = time.process_time()
+                df = run_study(study, progress=False)
+                parents.append(time.process_time() - c0)
+                records = clock.records()
+                costs = [(cpu, main) for _, cpu, main in records]
+                spans.append(_projected_makespan(costs, n))
+                totals.append(sum(c for c, _ in costs))
+                longest.append(max(records, key=lambda r: r[2]))
+                path = tmp / f"table1_projected_{n}.csv"
+                save_results(df, path)
+                identical &= path.read_bytes() == reference
+        finally:
+            threads.n_threads = original
+        span, parent = statistics.median(spans), statistics.median(parents)
+        start, _, main = sorted(longest, key=lambda r: r[2])[len(longest) // 2]
+        out.update({
+            f"p{n}_chunk_cpu_total_s": statistics.median(totals),
+            f"p{n}_longest_chunk": f"from run {start}: {main:.3f} s main thread",
+            f"p{n}_parent_cpu_s": parent,
+            f"p{n}_makespan_s": span,
+            f"p{n}_critical_path_s": parent + span,
+            f"p{n}_csv_byte_identical": identical,
+        })
+    return out
+
+
 def bench_mc_threads(repeats: int = 3, runs: int = 1000, samples: int = 10_000,
-                     workers: tuple[int, ...] = (1, 2)) -> dict[str, Any]:
+                     workers: tuple[int, ...] = (1, 2),
+                     project: tuple[int, ...] = (4, 8, 16)) -> dict[str, Any]:
     """The Monte Carlo part of Table 1 with each worker count of ``workers`` (``n_jobs``),
     alternated: wall, the CPU of this process and of every worker process (medians), and
     the result CSVs compared byte for byte.
@@ -212,6 +282,9 @@ def bench_mc_threads(repeats: int = 3, runs: int = 1000, samples: int = 10_000,
     CPU clocks assigned in order to the least loaded worker (:func:`_makespan`), since on
     a shared machine a descheduled worker leaves its chunks to the others and the
     measured split says more about the neighbours than about the work.
+
+    ``project``: worker counts whose critical paths are projected from measured
+    per-chunk CPU costs (:func:`project_mc_workers`), against the one-worker CPU.
     """
     from vesselid.studies.montecarlo import run_study, save_results
     from vesselid.studies.reproduce import table_study, warm_up
@@ -246,6 +319,8 @@ def bench_mc_threads(repeats: int = 3, runs: int = 1000, samples: int = 10_000,
                 loads.append(_load())
         first = paths[workers[0]].read_bytes()
         identical = all(paths[n].read_bytes() == first for n in workers)
+        proj = (project_mc_workers(study, tuple(project), clock, first, Path(tmp))
+                if project else {})
     base_cpu = statistics.median(cpu[workers[0]])
     base_wall = statistics.median(wall[workers[0]])
     out: dict[str, Any] = {"runs": runs, "samples": samples, "repeats": repeats,
@@ -269,6 +344,11 @@ def bench_mc_threads(repeats: int = 3, runs: int = 1000, samples: int = 10_000,
                     "two_workers_parent_cpu_s": out["w2_parent_cpu_s"],
                     "critical_path_two_cores_s": out["w2_critical_path_s"],
                     "estimated_speedup_two_cores": out["w2_speedup_cpu_estimate"]})
+    if project:
+        for n in project:
+            proj[f"p{n}_projected_speedup"] = base_cpu / proj[f"p{n}_critical_path_s"]
+        out.update({"projected_workers": list(project), **proj})
+    out["load_average_end"] = _load()
     return out
 
 
@@ -599,7 +679,41 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
             "share the scheduler gives this process group, and the CPU estimate is the "
             "figure that holds.",
             "",
+            "Each worker keeps the BLAS on one thread for its whole life (set when it "
+            "starts; the parent's setting is untouched), so no BLAS thread is started in "
+            "a worker to spin for work; a worker may still hand one long job to a "
+            "second thread (`auto`'s prediction-error fallback fits its candidate "
+            "models at once: the same numbers). The Monte Carlo process keeps freed "
+            "memory in its heap (`vesselid.core.heap`; `VESSELID_KEEP_HEAP=0` leaves "
+            "glibc's defaults), so "
+            "the chunks' large arrays reuse it instead of faulting in fresh pages every "
+            "chunk; forked workers inherit the setting.",
+            "",
         ]
+        proj = mc.get("projected_workers") or []
+        if proj:
+            lines += [
+                "Projected, not measured: the critical path on more free cores than this "
+                "machine has, from the per-chunk CPU clocks of a run with that many "
+                "worker processes here (the default schedule for that many workers), "
+                "the chunks list-scheduled in order on that many cores (a chunk takes "
+                "its main thread's CPU; at least the total CPU over the cores), plus "
+                "the parent's own CPU in that run. Memory bandwidth shared by more "
+                "workers is not in it.",
+                "",
+                "| workers | chunks' CPU (s) | parent CPU (s) | makespan (s) "
+                "| critical path (s) | projected speed-up | longest chunk "
+                "| CSV byte-identical |",
+                "|---:|---:|---:|---:|---:|---:|---|---|",
+            ]
+            for n in proj:
+                lines.append(
+                    f"| {n} | {mc[f'p{n}_chunk_cpu_total_s']:.2f} | "
+                    f"{mc[f'p{n}_parent_cpu_s']:.2f} | {mc[f'p{n}_makespan_s']:.2f} | "
+                    f"{mc[f'p{n}_critical_path_s']:.2f} | "
+                    f"{mc[f'p{n}_projected_speedup']:.2f}× | {mc[f'p{n}_longest_chunk']} | "
+                    f"{'yes' if mc[f'p{n}_csv_byte_identical'] else '**no**'} |")
+            lines.append("")
     mem = results.get("identify_memory")
     if mem:
         lines += [
@@ -755,6 +869,9 @@ def main(argv: list[str] | None = None) -> None:
                              "baseline)")
     parser.add_argument("--mc-runs", type=int, help="mc_threads: Monte Carlo runs (1000)")
     parser.add_argument("--mc-repeats", type=int, help="mc_threads: alternated repeats (3)")
+    parser.add_argument("--project", nargs="*", type=int,
+                        help="mc_threads: worker counts projected from measured per-chunk "
+                             "CPU costs (default 4 8 16; none without values)")
     parser.add_argument("--docs", action="store_true", help="write docs/performance.md")
     args = parser.parse_args(argv)
     mc: dict[str, Any] = {}
@@ -764,6 +881,8 @@ def main(argv: list[str] | None = None) -> None:
         mc["runs"] = args.mc_runs
     if args.mc_repeats:
         mc["repeats"] = args.mc_repeats
+    if args.project is not None:
+        mc["project"] = tuple(args.project)
     results = run_all(args.only, memory_sizes=tuple(args.memory_sizes or ()) or None,
                       mc_options=mc or None, memory_format=args.memory_format)
     if args.docs:

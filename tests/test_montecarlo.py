@@ -255,3 +255,67 @@ def test_concurrent_chunks_in_processes_and_threads_agree(reference, monkeypatch
     in_threads = run_study(SMALL, n_jobs=2, batch_size=4, progress=False)
     pd.testing.assert_frame_equal(in_processes, reference)
     pd.testing.assert_frame_equal(in_threads, reference)
+
+
+def test_a_workers_long_fallback_overlaps_bit_identical(monkeypatch):
+    """A worker process's chunk may fit ``auto``'s prediction-error candidates on a
+    second thread (``overlap``); its frame is the serial chunk's bit for bit. Run 204 of
+    Table 1 is one where both validity tests reject and the fallback is taken."""
+    from vesselid.core import threads
+    from vesselid.studies import montecarlo as mc
+    from vesselid.studies.reproduce import table_study
+
+    if threads.n_threads() < 2:
+        pytest.skip("one core: no second thread")
+    study = table_study(1, runs=1000, samples=10_000)
+    jobs = []
+    real = threads.background
+
+    def spy(fn):
+        job = real(fn)
+        jobs.append(job)
+        return job
+
+    monkeypatch.setattr(threads, "background", spy)
+    serial = pd.DataFrame(mc._serial_chunk(study, 204, 205))
+    assert jobs == [None]  # a serial worker fits the candidates in turn
+    overlapped = pd.DataFrame(mc._serial_chunk(study, 204, 205, True))
+    assert len(jobs) == 2 and jobs[1] is not None
+    pd.testing.assert_frame_equal(overlapped, serial, check_exact=True)
+
+
+def test_forked_workers_keep_one_blas_thread_and_the_parent_its_own(monkeypatch):
+    """A worker process runs its chunks with the BLAS on one thread and keeps it so
+    between chunks (no BLAS thread started to spin for work); the parent's setting is
+    left as it was."""
+    from threadpoolctl import threadpool_info
+
+    from vesselid.studies import montecarlo as mc
+
+    def blas_threads() -> int:
+        return max([i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"],
+                   default=0)
+
+    if mc._fork_context() is None:
+        pytest.skip("no fork on this platform")
+    before = blas_threads()
+    if before < 2:
+        pytest.skip("the BLAS runs on one thread here anyway")
+    original = mc._serial_chunk
+
+    def probe(study, start, stop, *args):  # pickled by reference: the workers run it
+        cols = original(study, start, stop, *args)
+        cols["_blas"] = np.full(cols["run"].size, blas_threads())
+        return cols
+
+    probe.__module__, probe.__qualname__ = original.__module__, original.__qualname__
+    monkeypatch.setattr(mc, "_serial_chunk", probe)
+    monkeypatch.setattr("vesselid.core.threads.n_threads", lambda: 2)
+
+    class Bar:
+        def update(self, n):
+            pass
+
+    cols = mc._run_local(SMALL, mc._chunks(SMALL.runs, 3), Bar())
+    assert {int(x) for c in cols for x in np.unique(c["_blas"])} == {1}
+    assert blas_threads() == before

@@ -83,15 +83,25 @@ def serial() -> bool:
 class serial_here:
     """Context: the calling thread runs every :func:`run_ranges` kernel (and the
     simulation's draws) in itself, not on the pool — for a thread that is itself one
-    of several working concurrently (the Monte Carlo's chunk threads)."""
+    of several working concurrently (the Monte Carlo's chunk threads and processes).
+
+    ``overlap=True`` still lets the calling thread hand one job to a second thread
+    (:func:`background`): for a process that is one of several concurrent workers,
+    whose rare long job (the prediction-error fallback's candidate models) would
+    otherwise hold up the end of the schedule while the other workers' cores idle. The
+    job runs the same code on the same numbers in either thread.
+    """
+
+    def __init__(self, *, overlap: bool = False) -> None:
+        self.overlap = bool(overlap)
 
     def __enter__(self) -> serial_here:
-        self.old = getattr(_LOCAL, "worker", False)
-        _LOCAL.worker = True
+        self.old = getattr(_LOCAL, "worker", False), getattr(_LOCAL, "overlap", False)
+        _LOCAL.worker, _LOCAL.overlap = True, self.overlap
         return self
 
     def __exit__(self, *exc: object) -> None:
-        _LOCAL.worker = self.old
+        _LOCAL.worker, _LOCAL.overlap = self.old
 
 
 def _forget_pool() -> None:
@@ -107,11 +117,12 @@ if hasattr(os, "register_at_fork"):  # POSIX
 
 def background(fn: Callable[[], Any]) -> Future | None:
     """``fn()`` started on a second thread, where the calling thread may use more than
-    one (:func:`n_threads` above one and not :func:`serial`); ``None`` otherwise (the
-    caller runs it itself). That thread runs its kernels serially (:func:`serial`); it is
-    not one of :func:`run_ranges`'s pool, whose chunks would otherwise wait for ``fn``."""
+    one (:func:`n_threads` above one and not :func:`serial`, or inside
+    ``serial_here(overlap=True)``); ``None`` otherwise (the caller runs it itself). That
+    thread runs its kernels serially (:func:`serial`); it is not one of
+    :func:`run_ranges`'s pool, whose chunks would otherwise wait for ``fn``."""
     global _BACKGROUND
-    if serial() or n_threads() < 2:
+    if (serial() and not getattr(_LOCAL, "overlap", False)) or n_threads() < 2:
         return None
     with _LOCK:
         if _BACKGROUND is None:

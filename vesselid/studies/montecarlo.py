@@ -213,7 +213,6 @@ def regression_data(study: Study, system: System, spec: ModelSpec, sim) -> Regre
     return data
 
 
-@one_blas_thread
 def run_chunk(study: Study, start: int, stop: int) -> pd.DataFrame:
     """Simulate and estimate runs ``start … stop−1`` of ``study`` (tidy frame).
 
@@ -223,6 +222,14 @@ def run_chunk(study: Study, start: int, stop: int) -> pd.DataFrame:
     parallelism is the Monte Carlo's own, over runs, and a BLAS thread pool in each of
     several concurrent workers only oversubscribes the cores.
     """
+    return pd.DataFrame(_chunk_columns(study, start, stop))
+
+
+@one_blas_thread
+def _chunk_columns(study: Study, start: int, stop: int) -> dict[str, np.ndarray]:
+    """The columns of :func:`run_chunk`'s frame (local chunks return these: arrays
+    travel back from a worker process for a fraction of a frame's pickling, and the
+    study's frame is made once from all chunks)."""
     system = study.build_system()
     spec = study.identification_spec(system)
     sim = system.simulate(int(study.samples), run_seeds=study.run_seeds(start, stop))
@@ -245,10 +252,13 @@ def run_chunk(study: Study, start: int, stop: int) -> pd.DataFrame:
         elif (base is None and _takes_base(est, study)
               and isinstance(res.info.get("base"), IterationResult)):
             base = res.info["base"]
-        frames.append(_tidy(res, method, spec, theta0, start))
+        frames.append(_tidy(res, method, spec, theta0, start, len(frames)))
     # one frame per chunk from the methods' columns (a frame per method costs more than
-    # the method's estimate on small chunks)
-    return pd.DataFrame({c: np.concatenate([f[c] for f in frames]) for c in frames[0]})
+    # the method's estimate on small chunks), its rows already in the study's order (run,
+    # method, parameter): the chunks' frames then only need concatenating
+    cols = {c: np.concatenate([f[c] for f in frames]) for c in frames[0]}
+    idx = np.lexsort((cols["_p"], cols["_m"], cols["run"]))
+    return {c: v[idx] for c, v in cols.items()}
 
 
 def _is_zero_mean_iv(est: Any, study: Study) -> bool:
@@ -265,10 +275,11 @@ def _takes_base(est: Any, study: Study) -> bool:
     return isinstance(est, InstrumentalGMM | PredictionError) and study.combine == "pooled"
 
 
-def _tidy(res, method: str, spec: ModelSpec, theta0: np.ndarray, start: int
+def _tidy(res, method: str, spec: ModelSpec, theta0: np.ndarray, start: int, m: int
           ) -> dict[str, np.ndarray]:
     """The tidy columns of one method's estimates on a chunk (:func:`run_chunk` makes
-    the frame)."""
+    the frame); ``m`` is the method's place in the study's methods (helper column
+    ``_m``, as ``_p`` is the parameter's)."""
     n_runs, n_par = res.theta.shape
     equations = [eq for eq, _ in spec.param_index]
     terms = [term for _, term in spec.param_index]
@@ -290,6 +301,7 @@ def _tidy(res, method: str, spec: ModelSpec, theta0: np.ndarray, start: int
         "iterations": np.repeat(np.asarray(res.iterations, dtype=np.int64), n_par),
         "stop_reason": np.repeat(np.asarray(res.reason, dtype=object).astype(str), n_par),
         "_p": np.tile(np.arange(n_par), n_runs),
+        "_m": np.full(n_runs * n_par, m, dtype=np.int64),
     }
 
 
@@ -338,6 +350,12 @@ def run_study(
     DataFrame
         Columns :data:`COLUMNS`, sorted by run, method (in ``study.methods`` order)
         and parameter. ``df.attrs["study"]`` holds ``study.describe()``.
+
+    Notes
+    -----
+    A local run sets glibc's ``malloc`` to keep freed memory in the process's heap
+    for reuse, for the rest of the process (:func:`vesselid.core.heap.keep_heap`;
+    ``VESSELID_KEEP_HEAP=0`` leaves glibc's defaults).
     """
     runs = int(study.runs)
     if batch_size is not None and int(batch_size) < 1:
@@ -349,7 +367,10 @@ def run_study(
             chunks = (_local_chunks(runs) if batch_size is None
                       else _chunks(runs, int(batch_size)))
             frames = _run_local(study, chunks, bar)
-    df = pd.concat(frames, ignore_index=True)
+    if isinstance(frames[0], dict):  # local chunks: their columns
+        df = pd.DataFrame({c: np.concatenate([f[c] for f in frames]) for c in frames[0]})
+    else:
+        df = pd.concat(frames, ignore_index=True)
     df = _order(df, study)
     df.attrs["study"] = study.describe()
     return df
@@ -398,11 +419,13 @@ def _local_batch(runs: int) -> int:
     return max(1, math.ceil(runs / n_chunks))
 
 
-def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[pd.DataFrame]:
-    """The chunks' frames, in order. With several threads (numba's thread count) and
-    chunks, the chunks run concurrently, one per worker, each with serial kernels
-    (:func:`vesselid.core.threads.serial_here`); else one after the other with the kernels
-    threaded over the chunk's runs. Each chunk is computed by the same code either way
+def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any
+               ) -> list[dict[str, np.ndarray]]:
+    """The chunks' columns (:func:`_chunk_columns`), in order. With several threads
+    (numba's thread count) and chunks, the chunks run concurrently, one per worker,
+    each with serial kernels (:func:`vesselid.core.threads.serial_here`); else one after
+    the other with the kernels threaded over the chunk's runs. Each chunk is computed by
+    the same code either way
     (bit-identical results).
 
     The workers are forked processes where the platform forks (:func:`_fork_context`):
@@ -411,15 +434,23 @@ def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[pd
     queue behind each other's glue, and more threads add GIL hand-overs until more
     threads are slower. Processes share nothing but the forked memory (the compiled
     kernels, loaded once in this process by a one-run warm-up first) and return small
-    frames. Elsewhere the chunks run in threads.
+    columns, each chunk's already in the study's row order. Elsewhere the chunks run in
+    threads.
+
+    Either way the process first keeps freed memory in its heap
+    (:func:`vesselid.core.heap.keep_heap`, inherited by the workers): the chunks
+    allocate and free arrays of ``runs × samples`` doubles over and over, which glibc
+    would otherwise return to the system and fault in afresh.
     """
+    from vesselid.core.heap import keep_heap
     from vesselid.core.threads import n_threads, serial_here
 
+    keep_heap()  # the chunks' large arrays reuse freed heap (inherited by the workers)
     workers = min(n_threads(), len(chunks))
     if workers <= 1:
         frames = []
         for a, b in chunks:
-            frames.append(run_chunk(study, a, b))
+            frames.append(_chunk_columns(study, a, b))
             bar.update(b - a)
         return frames
     from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
@@ -428,32 +459,46 @@ def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[pd
     frozen = False
     if ctx is not None:
         with serial_here():  # load (or compile) every kernel of the study here, once
-            run_chunk(study, chunks[0][0], chunks[0][0] + 1)
+            _chunk_columns(study, chunks[0][0], chunks[0][0] + 1)
         # the objects alive now (modules, compiled kernels) leave the garbage collector's
         # generations before the workers fork: a worker's collections then do not walk
         # (and so copy-on-write every page of) the parent's heap; measured ~7 % of the
         # workers' CPU on Table 1
         gc.freeze()
         frozen = True
-        pool: Executor = ProcessPoolExecutor(workers, mp_context=ctx)
+        pool: Executor = ProcessPoolExecutor(workers, mp_context=ctx,
+                                             initializer=_worker_start)
     else:
         pool = ThreadPoolExecutor(workers, thread_name_prefix="vesselid-chunk")
     try:
-        return _gather(pool, study, chunks, bar)
+        return _gather(pool, study, chunks, bar, overlap=frozen)
     finally:
         if frozen:
             gc.unfreeze()
 
 
-def _gather(pool: Any, study: Study, chunks: list[tuple[int, int]], bar: Any
-            ) -> list[pd.DataFrame]:
-    """Submit every chunk to ``pool`` (:func:`_serial_chunk`) and return their frames in
-    order, shutting the pool down."""
+def _worker_start() -> None:
+    """A forked worker's set-up: the BLAS on one thread for the worker's life (its
+    chunks' :func:`~vesselid.identify.linalg.one_blas_thread` then restores one thread).
+    A fork has none of the parent's BLAS threads; restoring more than one at the end of
+    each chunk would start one that spins for work, taking CPU from the other workers'
+    cores. The parent's setting is not touched."""
+    from vesselid.identify.linalg import _blas_controller
+
+    ctl = _blas_controller()
+    if ctl is not None:
+        ctl.limit(limits=1)  # not restored: this process only runs chunks
+
+
+def _gather(pool: Any, study: Study, chunks: list[tuple[int, int]], bar: Any, *,
+            overlap: bool = False) -> list[dict[str, np.ndarray]]:
+    """Submit every chunk to ``pool`` (:func:`_serial_chunk`, with ``overlap``) and
+    return their columns in order, shutting the pool down."""
     with pool, warnings.catch_warnings():
         # Python ≥ 3.12 warns on fork() in a process with threads; the children run one
         # chunk each in their only thread and start no thread pool (serial kernels)
         warnings.filterwarnings("ignore", message=".*fork.*", category=DeprecationWarning)
-        futures = [pool.submit(_serial_chunk, study, a, b) for a, b in chunks]
+        futures = [pool.submit(_serial_chunk, study, a, b, overlap) for a, b in chunks]
         frames = []
         for fut, (a, b) in zip(futures, chunks, strict=True):
             frames.append(fut.result())
@@ -461,12 +506,20 @@ def _gather(pool: Any, study: Study, chunks: list[tuple[int, int]], bar: Any
     return frames
 
 
-def _serial_chunk(study: Study, start: int, stop: int) -> pd.DataFrame:
-    """:func:`run_chunk` with serial kernels (one of several concurrent workers)."""
+def _serial_chunk(study: Study, start: int, stop: int, overlap: bool = False
+                  ) -> dict[str, np.ndarray]:
+    """:func:`run_chunk`'s columns with serial kernels (one of several concurrent
+    workers).
+
+    ``overlap`` (a worker process): a long job may still take a second thread
+    (``serial_here(overlap=True)``): a run that costs many times the others
+    (``auto``'s prediction-error fallback) then fits its candidate models at once, so
+    the worker that drew it does not finish far behind the others. Chunk threads of one
+    process leave it off (their single background thread would queue their jobs)."""
     from vesselid.core.threads import serial_here
 
-    with serial_here():
-        return run_chunk(study, start, stop)
+    with serial_here(overlap=overlap):
+        return _chunk_columns(study, start, stop)
 
 
 def _fork_context() -> Any:
@@ -485,12 +538,15 @@ def _fork_context() -> Any:
 
 
 def _order(df: pd.DataFrame, study: Study) -> pd.DataFrame:
-    """Sort by run, method (in ``study.methods`` order), parameter; drop helpers."""
-    order = {m: i for i, m in enumerate(study.methods)}
-    m_idx = df["method"].astype(str).map(order).to_numpy()
+    """Sort by run, method (in ``study.methods`` order), parameter; drop the helper
+    columns. The chunks' frames come in that order (:func:`run_chunk`) and in run
+    order, so the sort is then only checked."""
+    m_idx = df["_m"].to_numpy()
     idx = np.lexsort((df["_p"].to_numpy(), m_idx, df["run"].to_numpy()))
-    out = df.iloc[idx].drop(columns="_p").reset_index(drop=True)
-    out["method"] = pd.Categorical(out["method"].astype(str), categories=list(study.methods))
+    if not np.array_equal(idx, np.arange(idx.size)):
+        df, m_idx = df.iloc[idx], m_idx[idx]
+    out = df.drop(columns=["_p", "_m"]).reset_index(drop=True)
+    out["method"] = pd.Categorical.from_codes(m_idx, categories=list(study.methods))
     return out
 
 
