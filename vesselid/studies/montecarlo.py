@@ -353,9 +353,10 @@ def run_study(
 
     Notes
     -----
-    A local run sets glibc's ``malloc`` to keep freed memory in the process's heap
-    for reuse, for the rest of the process (:func:`vesselid.core.heap.keep_heap`;
-    ``VESSELID_KEEP_HEAP=0`` leaves glibc's defaults).
+    While a local run computes, glibc's ``malloc`` keeps freed memory in the process's
+    heap for reuse, and gives it back when the run ends
+    (:func:`vesselid.core.heap.kept_heap`; ``VESSELID_KEEP_HEAP=0`` leaves glibc's
+    settings alone).
     """
     runs = int(study.runs)
     if batch_size is not None and int(batch_size) < 1:
@@ -437,15 +438,21 @@ def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any
     columns, each chunk's already in the study's row order. Elsewhere the chunks run in
     threads.
 
-    Either way the process first keeps freed memory in its heap
-    (:func:`vesselid.core.heap.keep_heap`, inherited by the workers): the chunks
+    Either way the process keeps freed memory in its heap meanwhile
+    (:func:`vesselid.core.heap.kept_heap`, inherited by the workers): the chunks
     allocate and free arrays of ``runs × samples`` doubles over and over, which glibc
     would otherwise return to the system and fault in afresh.
     """
-    from vesselid.core.heap import keep_heap
+    from vesselid.core.heap import kept_heap
+
+    with kept_heap():
+        return _run_chunks(study, chunks, bar)
+
+
+def _run_chunks(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[Any]:
+    """:func:`_run_local`'s chunks, in this process or in its workers."""
     from vesselid.core.threads import n_threads, serial_here
 
-    keep_heap()  # the chunks' large arrays reuse freed heap (inherited by the workers)
     workers = min(n_threads(), len(chunks))
     if workers <= 1:
         frames = []
