@@ -683,9 +683,9 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
             "starts; the parent's setting is untouched), so no BLAS thread is started in "
             "a worker to spin for work; a worker may still hand one long job to a "
             "second thread (`auto`'s prediction-error fallback fits its candidate "
-            "models at once: the same numbers). The Monte Carlo process keeps freed "
-            "memory in its heap (`vesselid.core.heap`; `VESSELID_KEEP_HEAP=0` leaves "
-            "glibc's defaults), so "
+            "models at once: the same numbers). While the study runs, the process keeps "
+            "freed memory in its heap (`vesselid.core.heap.kept_heap`; "
+            "`VESSELID_KEEP_HEAP=0` leaves glibc's settings alone), so "
             "the chunks' large arrays reuse it instead of faulting in fresh pages every "
             "chunk; forked workers inherit the setting.",
             "",
