@@ -431,8 +431,10 @@ class InstrumentalGMM(Estimator):
             sub = data if todo.all() else _subset(data, todo)
             phi_s = (phi if phi is not None and todo.all() else
                      corrected_regressor_matrix(sub, spec))
-            z_sim = (z_first if z_first is not None and todo.all() else
-                     gmm.simulated_instruments(sub, spec, theta0[todo])[0])
+            # the instruments handed over (freed inside once copied into their blocks)
+            z_sim = [z_first if z_first is not None and todo.all() else
+                     gmm.simulated_instruments(sub, spec, theta0[todo])[0]]
+            del z_first
             stat[todo], df = gmm.colour_test(sub, spec, phi_s, z_sim)
         return stat, df
 
@@ -604,10 +606,11 @@ class InstrumentalGMM(Estimator):
         """The last combined refinement step from its start ``theta`` again, keeping its
         rows and weight derivatives (the same calls on the same arrays: the same
         numbers as the step :meth:`_refine` ran)."""
-        phi = corrected_regressor_matrix(data, spec)
         blocks, _ = _combined_blocks(data, spec, theta)
-        sol = gmm.solve_equations(data, spec, phi, blocks, weight="hac", ar=None,
-                                  keep_designs=True, keep_jacobians=True, release=True)
+        # the regressor rows handed over: freed once the rows are centred
+        sol = gmm.solve_equations(data, spec, [corrected_regressor_matrix(data, spec)],
+                                  blocks, weight="hac", ar=None, keep_designs=True,
+                                  keep_jacobians=True, release=True)
         sol.segment_starts = data.starts  # type: ignore[attr-defined]
         return sol
 
