@@ -846,21 +846,18 @@ def _read_csv(path: Path, keep: Any = None) -> tuple[pd.DataFrame, dict]:
 def _read_parquet(path: Path, keep: Any = None) -> tuple[pd.DataFrame, dict]:
     pa, pq = _import_pyarrow()
     try:
-        # the file's own reader (pq.read_table goes through pyarrow.dataset: a larger
-        # import for the same rows)
-        with pq.ParquetFile(path, page_checksum_verification=True) as source:
-            schema = source.schema_arrow
-            names = list(schema.names)
-            seen: set[str] = set()
-            duplicated = sorted({c for c in names if c in seen or seen.add(c)})
-            if duplicated:
-                raise LogValidationError(f"{path}: Parquet file has duplicated column names "
-                                         f"{duplicated}")
-            if keep is not None:  # the columns asked for, from the footer's metadata
-                raw = (schema.metadata or {}).get(PARQUET_METADATA_KEY)
-                keep = keep(_read_envelope(raw, str(path)) if raw is not None else {})
-            table = source.read(columns=None if keep is None else
-                                [c for c in names if keep(c)])
+        schema = pq.read_schema(path)
+        names = list(schema.names)
+        seen: set[str] = set()
+        duplicated = sorted({c for c in names if c in seen or seen.add(c)})
+        if duplicated:
+            raise LogValidationError(f"{path}: Parquet file has duplicated column names "
+                                     f"{duplicated}")
+        if keep is not None:  # the columns asked for, from the footer's metadata
+            raw = (schema.metadata or {}).get(PARQUET_METADATA_KEY)
+            keep = keep(_read_envelope(raw, str(path)) if raw is not None else {})
+        table = pq.read_table(path, page_checksum_verification=True,
+                              columns=None if keep is None else [c for c in names if keep(c)])
         raw = (table.schema.metadata or {}).get(PARQUET_METADATA_KEY)
         envelope = _read_envelope(raw, str(path)) if raw is not None else {}
         # one block per column, each Arrow buffer freed as soon as it is converted, and

@@ -253,7 +253,8 @@ class Estimator:
     def defers_designs(self, it: IterationResult) -> bool:
         """Whether :meth:`equation_designs` of ``it`` is better called when the
         covariance needs the designs (they are formed again there instead of being held
-        through the feedback test; a long log's designs are the fit's largest arrays)."""
+        through the feedback test; a long log's designs are the fit's largest arrays).
+        It is then called with ``phi=None``: it forms the rows it needs itself."""
         return False
 
     def describe(self, it: IterationResult) -> dict[str, Any]:
@@ -465,10 +466,9 @@ class Estimator:
             from vesselid.identify.eiv import forget_regressors
 
             forget_regressors(run.data)
-            phi, run.phi = run.phi, None
-            run.designs = self.equation_designs(run.data, spec, run.it, phi,
+            run.phi = None
+            run.designs = self.equation_designs(run.data, spec, run.it, None,
                                                 run.opts.combine)
-            del phi
         if run.own_cov is not None:
             cov = np.array(run.own_cov, dtype=float)
             run.cov_name, run.cov_label = self.own_covariance_label(run.it)

@@ -816,8 +816,10 @@ class _ValidityChecks:
     mean-current test, :mod:`vesselid.identify.validity`), which read only the base
     IV_{E{ζ}=0} estimate: run on a second thread while the estimate is refined
     (:func:`vesselid.core.threads.background`), or here when :meth:`result` asks for
-    them where no second thread may be used. The same code on the same numbers either
-    way, so the same results."""
+    them where no second thread may be used and on a long log (one experiment above
+    :data:`~vesselid.identify.covariance.LARGE_ROWS` rows: the checks' rows and the
+    refinement's would be held at once). The same code on the same numbers either way,
+    so the same results."""
 
     def __init__(self, run: Any, job: Any) -> None:
         self._run, self._job = run, job
@@ -827,13 +829,16 @@ class _ValidityChecks:
               wanted: bool) -> _ValidityChecks:
         if not wanted:
             return cls(None, None)
-        from vesselid.core.threads import background
 
         def run() -> dict[str, Any]:
             return {"stability": _guarded(validity.parameter_stability, data, spec,
                                           validity.STABILITY_ALPHA, base.theta[0]),
                     "mean_current": _guarded(validity.mean_current, data, spec,
                                              base.theta_aux[0])}
+
+        if _long_log(data):  # after the refinement, on this thread
+            return cls(run, None)
+        from vesselid.core.threads import background
 
         return cls(run, background(run))
 

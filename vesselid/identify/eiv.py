@@ -49,8 +49,8 @@ import numpy as np
 from vesselid.errors import IdentificationError
 
 __all__ = ["METADATA_KEY", "correct_regressors", "corrected_regressor_matrix",
-           "forget_regressors", "modulus_bias", "noise_vector", "regressor_error_mean", "resolve_sensor_noise",
-           "signed_square_bias"]
+           "forget_regressors", "modulus_bias", "noise_vector", "regressor_error_mean",
+           "resolve_sensor_noise", "signed_square_bias"]
 
 #: Log metadata entry with the std of the white sensor noise on each regressor signal.
 METADATA_KEY = "sensor_noise_std"

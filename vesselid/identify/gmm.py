@@ -162,8 +162,9 @@ def noise_instruments(data: RegressionData, spec: ModelSpec, phi: np.ndarray,
 
 
 def colour_test(data: RegressionData, spec: ModelSpec, phi: np.ndarray,
-                z_sim: np.ndarray | list[np.ndarray], window: tuple[int, int] | None = None, *, theta: np.ndarray | None = None,
-                noise_order: int = 0) -> tuple[np.ndarray, np.ndarray]:
+                z_sim: np.ndarray | list[np.ndarray], window: tuple[int, int] | None = None,
+                *, theta: np.ndarray | None = None, noise_order: int = 0
+                ) -> tuple[np.ndarray, np.ndarray]:
     """Test of white disturbances aimed at the delayed instruments' validity.
 
     Per equation: two-step HAC GMM with the simulated instruments ``ζ`` (valid whatever
