@@ -41,7 +41,7 @@ import numpy as np
 
 from vesselid.errors import IdentifiabilityWarning, IdentificationError, ParameterDriftWarning
 from vesselid.identify import gmm, pem, validity
-from vesselid.identify.backend import kernels
+from vesselid.identify.backend import kernels, numpy_active
 from vesselid.identify.base import EquationDesign, Estimator, square_designs
 from vesselid.identify.data import RegressionData
 from vesselid.identify.eiv import corrected_regressor_matrix
@@ -816,10 +816,11 @@ class _ValidityChecks:
     mean-current test, :mod:`vesselid.identify.validity`), which read only the base
     IV_{E{ζ}=0} estimate: run on a second thread while the estimate is refined
     (:func:`vesselid.core.threads.background`), or here when :meth:`result` asks for
-    them where no second thread may be used and on a long log (one experiment above
-    :data:`~vesselid.identify.covariance.LARGE_ROWS` rows: the checks' rows and the
-    refinement's would be held at once). The same code on the same numbers either way,
-    so the same results."""
+    them where no second thread may be used, on a small log that runs the numpy kernels
+    (:mod:`vesselid.identify.backend`: the thread count would load numba) and on a long
+    log (one experiment above :data:`~vesselid.identify.covariance.LARGE_ROWS` rows: the
+    checks' rows and the refinement's would be held at once). The same code on the same
+    numbers either way, so the same results."""
 
     def __init__(self, run: Any, job: Any) -> None:
         self._run, self._job = run, job
@@ -836,7 +837,8 @@ class _ValidityChecks:
                     "mean_current": _guarded(validity.mean_current, data, spec,
                                              base.theta_aux[0])}
 
-        if _long_log(data):  # after the refinement, on this thread
+        if _long_log(data) or numpy_active():  # after the refinement, on this thread
+            # (the numpy kernels' small log: a second thread would load numba)
             return cls(run, None)
         from vesselid.core.threads import background
 
