@@ -92,9 +92,9 @@ class EquationDesign:
     to the fixed-b critical value at the effective bandwidth ratio
     (:mod:`vesselid.identify.fixedb`; two-step GMM estimates with ``weight_jacobian``
     always are).
-    ``owned``: ``z`` and ``phi`` are the estimator's own buffers (no other array of the
-    fit, the log or the caller shares them), which the last step that reads them may
-    overwrite.
+    ``owned``: ``z``, ``phi`` and ``resid`` are the estimator's own buffers (no other
+    array of the fit, the log or the caller shares them), which the last step that reads
+    them may overwrite.
     """
 
     z: np.ndarray
@@ -253,7 +253,8 @@ class Estimator:
     def defers_designs(self, it: IterationResult) -> bool:
         """Whether :meth:`equation_designs` of ``it`` is better called when the
         covariance needs the designs (they are formed again there instead of being held
-        through the feedback test; a long log's designs are the fit's largest arrays)."""
+        through the feedback test; a long log's designs are the fit's largest arrays).
+        It is then called with ``phi=None``: it forms the rows it needs itself."""
         return False
 
     def describe(self, it: IterationResult) -> dict[str, Any]:
@@ -356,13 +357,11 @@ class Estimator:
             data = replace(data, target=data.regsig)
         names = [f"{eq}: {term}" for eq, term in spec.param_index]
         blocks = block_starts(spec)
+        phi = self._regressor_rows(data, spec)
         if self.corrects_sensor_noise:
-            from vesselid.identify.eiv import corrected_regressor_matrix, remember_regressors
+            from vesselid.identify.eiv import remember_regressors
 
-            phi = corrected_regressor_matrix(data, spec)
             remember_regressors(data, spec, phi)  # the estimator's own rows (data is ours)
-        else:
-            phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
         rows = equation_rows(data)
         # one experiment: every row but the first, as a view (no gathered copy)
         _check_rank(phi[1:] if data.n_segments == 1 else phi[rows], spec, blocks, names)
@@ -379,6 +378,15 @@ class Estimator:
                 "experiments")
         run.data, run.spec, run.phi, run.rows, run.blocks = data, spec, phi, rows, blocks
         run.excitation = excitation
+
+    def _regressor_rows(self, data: RegressionData, spec: ModelSpec) -> np.ndarray:
+        """The regressor matrix of the fit (with the errors-in-variables correction where
+        the estimator applies it)."""
+        if self.corrects_sensor_noise:
+            from vesselid.identify.eiv import corrected_regressor_matrix
+
+            return corrected_regressor_matrix(data, spec)
+        return kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
 
     def _estimate(self, run: _FitRun) -> None:
         """The estimate (one IV solve with user instruments, else the estimator's
@@ -452,7 +460,14 @@ class Estimator:
         run.cov_label = run.cov_name
         run.own_cov = self.own_covariance(run.it)
         if run.designs is None:  # deferred to here (:meth:`defers_designs`)
-            run.designs = self.equation_designs(run.data, spec, run.it, run.phi,
+            # a long log's designs are formed again with their own regressor rows: the
+            # fit's are not held through them and the tests (formed again for the fit
+            # figures, the same numbers)
+            from vesselid.identify.eiv import forget_regressors
+
+            forget_regressors(run.data)
+            run.phi = None
+            run.designs = self.equation_designs(run.data, spec, run.it, None,
                                                 run.opts.combine)
         if run.own_cov is not None:
             cov = np.array(run.own_cov, dtype=float)
@@ -541,7 +556,8 @@ class Estimator:
         """One-step and free-run fit, stability, and the A10/A15 design and smoothness
         checks of the estimated model."""
         data, spec, theta, opts = run.data, run.spec, run.it.theta[0], run.opts
-        pred = run.phi @ run.pred_weights
+        phi = run.phi if run.phi is not None else self._regressor_rows(data, spec)
+        pred = phi @ run.pred_weights
         run.fit_one = {s: nrmse_fit(data.target[run.rows, i], pred[run.rows, i])
                        for i, s in enumerate(spec.states)}
         del pred
@@ -564,7 +580,7 @@ class Estimator:
                                     data.experiment_ids, threshold=opts.design_threshold)
         run.design = design_frame(design_checks)  # design_margins(...), worded from its rows
         run.smoothness = smoothness_report(data, spec, theta, sims, design_checks,
-                                           run.eta_used, opts.eta is None, run.cov, run.phi,
+                                           run.eta_used, opts.eta is None, run.cov, phi,
                                            corrected=(self.corrects_sensor_noise
                                                       and data.regressor_noise is not None))
         for rep in run.smoothness.values():
@@ -739,10 +755,15 @@ def _specification_tests(spec: ModelSpec, designs: list[EquationDesign], theta: 
     for i, s in enumerate(spec.states):
         d = designs[i]
         sl = slice(int(blocks[i]), int(blocks[i + 1]))
-        y = d.resid + d.phi @ theta[sl]
         # a long log's rows are centred in the designs' own buffers (the designs' last
-        # use: no second copy of the instruments); short logs keep them as they are
+        # use: no second copy of the instruments), its target formed in the residual's;
+        # short logs keep them as they are
         large = d.owned and np.shape(d.z)[0] > LARGE_ROWS
+        if large:
+            y = d.resid
+            y += d.phi @ theta[sl]
+        else:
+            y = d.resid + d.phi @ theta[sl]
         out[s] = fn(d.z, d.phi, y, d.starts, zero_mean=d.zero_mean, skip_first=False,
                     names=[str(t) for t in spec.equations[s]], cov_type=cov_type,
                     shared=shared if spec.n_states > 1 else None, overwrite=large)

@@ -320,13 +320,14 @@ def free_run_ratio(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
 #: coverage band the package calibrates to.
 SMOOTHNESS_BIAS_SE = 0.4155
 
-def _mean_factor(f_idx: int, n_s: int, mu: np.ndarray, sig: np.ndarray,
+def _mean_factor(f_idx: int, n_s: int, mu: Sequence[np.ndarray], sig: np.ndarray,
                  erf_t: dict[int, np.ndarray]) -> np.ndarray:
-    """``E[F_idx(μ + e)]``, ``e ~ N(0, σ²)`` per signal (closed form; inputs: σ = 0)."""
+    """``E[F_idx(μ + e)]``, ``e ~ N(0, σ²)`` per signal (closed form; inputs: σ = 0);
+    ``mu``: the signals, one column each."""
     if f_idx >= 2 * n_s:
-        return np.ones(mu.shape[0])
+        return np.ones(mu[0].shape[0])
     j = f_idx % n_s
-    m = mu[:, j]
+    m = mu[j]
     if f_idx < n_s or sig[j] <= 0:
         return m if f_idx < n_s else np.abs(m)
     s = sig[j]
@@ -375,14 +376,18 @@ def smoothness_bias(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
     n_s = n + spec.n_inputs
     # operating points: the measured regressor signals (their spread around zero holds the
     # process noise and currents the noise-free free run lacks); instruments: the free run
-    offset = data.regsig - data.target  # the aggregate relation's measured disturbance
-    x_free = np.concatenate(sims, axis=0) + offset
-    mu = np.concatenate([data.regsig, data.u], axis=1)
+    x_free = np.concatenate(sims, axis=0)
+    if data.regsig is data.target:  # nothing aggregated: a zero offset (the same sums)
+        x_free += 0.0
+    else:  # the aggregate relation's measured disturbance
+        x_free += data.regsig - data.target
+    # the signals one column each (the columns of [regsig, u], not a gathered copy)
+    mu = [data.regsig[:, j] for j in range(n)] + [data.u[:, j] for j in range(spec.n_inputs)]
     sig = np.zeros(n_s)
     sig[:n] = [float(sigma.get(s, 0.0)) for s in spec.states]
     from scipy.special import erf
 
-    erf_t = {j: erf(mu[:, j] / (sig[j] * math.sqrt(2))) for j in range(n) if sig[j] > 0}
+    erf_t = {j: erf(mu[j] / (sig[j] * math.sqrt(2))) for j in range(n) if sig[j] > 0}
     rows = np.ones(int(data.starts[-1]), dtype=bool)
     rows[data.starts[:-1]] = False
     z = kernels.regressor_matrix(np.ascontiguousarray(x_free), data.u, data.starts,
@@ -404,13 +409,13 @@ def smoothness_bias(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
         if sig[j] <= 0:
             out[st] = 0.0
             continue
-        d = np.zeros((mu.shape[0], n))
+        d = np.zeros((mu[0].shape[0], n))
         for p in range(codes.n_params):
             a, b = int(codes.factors[p, 0]), int(codes.factors[p, 1])
             if n_s + j not in (a, b):  # only the terms with |st| carry its non-smoothness
                 continue
             if a < 2 * n_s and b < 2 * n_s and a % n_s == b % n_s:  # s|s|: one noise
-                expected = _mean_square_modulus(mu[:, j], sig[j], erf_t[j])
+                expected = _mean_square_modulus(mu[j], sig[j], erf_t[j])
                 if corrected:  # the regressor is y|y| − σ² sign(y) (identify.eiv)
                     expected = expected - sig[j] ** 2 * erf_t[j]
             else:  # independent noises (or a noise-free factor): a product of means
@@ -421,9 +426,12 @@ def smoothness_bias(data: RegressionData, spec: ModelSpec, theta: np.ndarray,
             d[:, int(codes.equation[p])] += theta[p] * (expected - exact)
         # the regressor row k uses the signals at k − 1 (the first row of each experiment
         # holds no equation)
-        d_rows = np.zeros_like(d)
-        d_rows[1:] = d[:-1]
-        dr = d_rows[1:] if data.n_segments == 1 else d_rows[rows]
+        if data.n_segments == 1:  # rows 1.. take the signals of rows 0..: a view
+            dr = d[:-1]
+        else:
+            d_rows = np.zeros_like(d)
+            d_rows[1:] = d[:-1]
+            dr = d_rows[rows]
         d_sums = np.add.reduceat(dr, seg_starts, axis=0)
         worst = 0.0
         for i in range(n):

@@ -41,7 +41,7 @@ import numpy as np
 
 from vesselid.errors import IdentifiabilityWarning, IdentificationError, ParameterDriftWarning
 from vesselid.identify import gmm, pem, validity
-from vesselid.identify.backend import kernels
+from vesselid.identify.backend import kernels, numpy_active
 from vesselid.identify.base import EquationDesign, Estimator, square_designs
 from vesselid.identify.data import RegressionData
 from vesselid.identify.eiv import corrected_regressor_matrix
@@ -431,8 +431,10 @@ class InstrumentalGMM(Estimator):
             sub = data if todo.all() else _subset(data, todo)
             phi_s = (phi if phi is not None and todo.all() else
                      corrected_regressor_matrix(sub, spec))
-            z_sim = (z_first if z_first is not None and todo.all() else
-                     gmm.simulated_instruments(sub, spec, theta0[todo])[0])
+            # the instruments handed over (freed inside once copied into their blocks)
+            z_sim = [z_first if z_first is not None and todo.all() else
+                     gmm.simulated_instruments(sub, spec, theta0[todo])[0]]
+            del z_first
             stat[todo], df = gmm.colour_test(sub, spec, phi_s, z_sim)
         return stat, df
 
@@ -604,10 +606,11 @@ class InstrumentalGMM(Estimator):
         """The last combined refinement step from its start ``theta`` again, keeping its
         rows and weight derivatives (the same calls on the same arrays: the same
         numbers as the step :meth:`_refine` ran)."""
-        phi = corrected_regressor_matrix(data, spec)
         blocks, _ = _combined_blocks(data, spec, theta)
-        sol = gmm.solve_equations(data, spec, phi, blocks, weight="hac", ar=None,
-                                  keep_designs=True, keep_jacobians=True, release=True)
+        # the regressor rows handed over: freed once the rows are centred
+        sol = gmm.solve_equations(data, spec, [corrected_regressor_matrix(data, spec)],
+                                  blocks, weight="hac", ar=None, keep_designs=True,
+                                  keep_jacobians=True, release=True)
         sol.segment_starts = data.starts  # type: ignore[attr-defined]
         return sol
 
@@ -813,8 +816,11 @@ class _ValidityChecks:
     mean-current test, :mod:`vesselid.identify.validity`), which read only the base
     IV_{E{ζ}=0} estimate: run on a second thread while the estimate is refined
     (:func:`vesselid.core.threads.background`), or here when :meth:`result` asks for
-    them where no second thread may be used. The same code on the same numbers either
-    way, so the same results."""
+    them where no second thread may be used, on a small log that runs the numpy kernels
+    (:mod:`vesselid.identify.backend`: the thread count would load numba) and on a long
+    log (one experiment above :data:`~vesselid.identify.covariance.LARGE_ROWS` rows: the
+    checks' rows and the refinement's would be held at once). The same code on the same
+    numbers either way, so the same results."""
 
     def __init__(self, run: Any, job: Any) -> None:
         self._run, self._job = run, job
@@ -824,13 +830,17 @@ class _ValidityChecks:
               wanted: bool) -> _ValidityChecks:
         if not wanted:
             return cls(None, None)
-        from vesselid.core.threads import background
 
         def run() -> dict[str, Any]:
             return {"stability": _guarded(validity.parameter_stability, data, spec,
                                           validity.STABILITY_ALPHA, base.theta[0]),
                     "mean_current": _guarded(validity.mean_current, data, spec,
                                              base.theta_aux[0])}
+
+        if _long_log(data) or numpy_active():  # after the refinement, on this thread
+            # (the numpy kernels' small log: a second thread would load numba)
+            return cls(run, None)
+        from vesselid.core.threads import background
 
         return cls(run, background(run))
 

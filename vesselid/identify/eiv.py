@@ -49,8 +49,8 @@ import numpy as np
 from vesselid.errors import IdentificationError
 
 __all__ = ["METADATA_KEY", "correct_regressors", "corrected_regressor_matrix",
-           "modulus_bias", "noise_vector", "regressor_error_mean", "resolve_sensor_noise",
-           "signed_square_bias"]
+           "forget_regressors", "modulus_bias", "noise_vector", "regressor_error_mean",
+           "resolve_sensor_noise", "signed_square_bias"]
 
 #: Log metadata entry with the std of the white sensor noise on each regressor signal.
 METADATA_KEY = "sensor_noise_std"
@@ -259,3 +259,9 @@ def remember_regressors(data: Any, spec: Any, phi: np.ndarray) -> None:
     for a ``data`` that dies with the fit (the Monte Carlo's chunks must not hold rows);
     nothing writes into the rows."""
     data.__dict__[_REMEMBERED] = (spec, phi)
+
+
+def forget_regressors(data: Any) -> None:
+    """Drop the rows :func:`remember_regressors` kept on ``data`` (later calls form them
+    again: the same numbers)."""
+    getattr(data, "__dict__", {}).pop(_REMEMBERED, None)

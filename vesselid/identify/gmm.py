@@ -161,9 +161,10 @@ def noise_instruments(data: RegressionData, spec: ModelSpec, phi: np.ndarray,
                             np.asarray(data.starts, dtype=np.int64), lo, hi)
 
 
-def colour_test(data: RegressionData, spec: ModelSpec, phi: np.ndarray, z_sim: np.ndarray,
-                window: tuple[int, int] | None = None, *, theta: np.ndarray | None = None,
-                noise_order: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def colour_test(data: RegressionData, spec: ModelSpec, phi: np.ndarray,
+                z_sim: np.ndarray | list[np.ndarray], window: tuple[int, int] | None = None,
+                *, theta: np.ndarray | None = None, noise_order: int = 0
+                ) -> tuple[np.ndarray, np.ndarray]:
     """Test of white disturbances aimed at the delayed instruments' validity.
 
     Per equation: two-step HAC GMM with the simulated instruments ``ζ`` (valid whatever
@@ -190,8 +191,10 @@ def colour_test(data: RegressionData, spec: ModelSpec, phi: np.ndarray, z_sim: n
         The regression data (one or many groups) and the model.
     phi : ndarray (T, P)
         Regressors (:func:`vesselid.identify.kernels.regressor_matrix`).
-    z_sim : ndarray (T, P)
-        Instruments simulated from ``theta`` (:func:`simulated_instruments`).
+    z_sim : ndarray (T, P), or a list holding it
+        Instruments simulated from ``theta`` (:func:`simulated_instruments`). A one-item
+        list hands them over: they are taken out of it and freed once copied into the
+        equations' instrument blocks (on a long log they are as large as a block).
     window : (int, int), optional
         Noise lags averaged (:func:`noise_instruments`); default :data:`COLOUR_WINDOW`,
         or :func:`whitened_colour_window` with ``noise_order``. Must start after
@@ -218,6 +221,8 @@ def colour_test(data: RegressionData, spec: ModelSpec, phi: np.ndarray, z_sim: n
         raise ValueError("a whitened colour test (noise_order > 0) needs theta")
     blocks = block_starts(spec)
     endo = state_terms(spec)
+    if isinstance(z_sim, list):  # handed over: this frame holds the only reference
+        z_sim = z_sim.pop()
     eta = noise_instruments(data, spec, phi, z_sim, window)
     col_of = np.cumsum(endo) - 1
     z_blocks = []
@@ -225,7 +230,8 @@ def colour_test(data: RegressionData, spec: ModelSpec, phi: np.ndarray, z_sim: n
         cols = np.arange(int(blocks[i]), int(blocks[i + 1]))
         e_cols = col_of[cols[endo[cols]]]
         z_blocks.append((_gather_columns([(z_sim, cols), (eta, e_cols)]), e_cols.size))
-    del eta  # gathered into the blocks, which solve_equations frees one by one
+    # gathered into the blocks, which solve_equations frees one by one
+    del eta, z_sim
     ar = noise_model(data, spec, phi, np.asarray(theta, dtype=float), order) if order else None
     sol = solve_equations(data, spec, phi, z_blocks, weight="hac", ar=ar, release=True)
     return sol.c, sol.c_df
@@ -583,7 +589,7 @@ def _rows_of(theta: np.ndarray, data: RegressionData, shape: tuple[int, int]) ->
 def solve_equations(
     data: RegressionData,
     spec: ModelSpec,
-    phi: np.ndarray,
+    phi: np.ndarray | list[np.ndarray],
     z_blocks: list[tuple[np.ndarray, int]],
     *,
     weight: str = "hac",
@@ -597,8 +603,10 @@ def solve_equations(
 
     Parameters
     ----------
-    phi : ndarray (T, P)
-        Regressors (:func:`vesselid.identify.kernels.regressor_matrix`).
+    phi : ndarray (T, P), or a list holding it
+        Regressors (:func:`vesselid.identify.kernels.regressor_matrix`). A one-item list
+        hands them over: they are taken out of it and freed once the last equation's rows
+        are centred.
     z_blocks : list of (ndarray (T, K_i), int)
         Instruments per equation and the number of trailing lagged columns.
     weight : {"hac", "2sls"}
@@ -619,6 +627,9 @@ def solve_equations(
         a long log they are as large as the centred rows).
     """
     blocks = block_starts(spec)
+    handed = isinstance(phi, list)
+    if handed:  # this frame holds the only reference
+        phi = phi.pop()
     n_groups = data.n_groups
     theta = np.full((n_groups, spec.n_params), np.nan)
     ok = np.ones(n_groups, dtype=bool)
@@ -668,6 +679,8 @@ def solve_equations(
         if release:
             z_blocks[i] = None  # type: ignore[call-overload]
         del z, zc
+        if handed and i == spec.n_states - 1:
+            del phi  # every equation's rows are centred
         a_s, b_s, m_s, _ = ivk.cross_sums(zz, pp, yy, data.starts, valid)
         a, b, m = _group_sum(data, a_s), _group_sum(data, b_s), _group_sum(data, m_s)
         w = None

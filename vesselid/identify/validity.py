@@ -335,8 +335,11 @@ def _halves(data: RegressionData) -> RegressionData | None:
     lengths = [p.stop - p.start for p in pieces]
 
     def take(arr):
-        return None if arr is None else np.ascontiguousarray(
-            np.concatenate([arr[p] for p in pieces]))
+        if arr is None:
+            return None
+        if len(firsts) == 1 and sl == slice(0, arr.shape[0]):
+            return arr  # one experiment: its halves in order are its rows (no copy)
+        return np.ascontiguousarray(np.concatenate([arr[p] for p in pieces]))
 
     n_exp = len(firsts)
     return replace(data, target=take(data.target), regsig=take(data.regsig),
