@@ -344,3 +344,23 @@ def test_refined_iv_covers_on_short_white_logs():
     cover_off = np.mean(np.abs(err) <= 1.959964 * se_off, axis=0)
     assert np.all(np.abs(cover_on - 0.95) <= tol), cover_on
     assert np.any(cover_off < 0.95 - tol), cover_off
+
+
+def test_batched_refined_iv_covariance_is_identifys():
+    """The batched Monte Carlo covariance of ``iv-zero-mean`` (``group_covariances``)
+    takes the same fixed-b scaling as ``identify``."""
+    from vesselid.identify import identify
+    from vesselid.identify.data import from_log
+    from vesselid.identify.estimators import estimate
+    from vesselid.plant.systems import heave
+    from vesselid.studies.calibration import group_covariances
+
+    log = heave(pulse_design="random").simulate(1500, n_runs=2, seed=4).to_log()
+    data, spec = from_log(log, None)
+    it = estimate(data, spec, "iv-zero-mean")
+    cov, cfg = group_covariances(data, spec, it.theta, it.theta_aux, method="iv-zero-mean")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = identify(log, method="iv-zero-mean")
+    np.testing.assert_allclose(cov[0], res.cov.to_numpy(), rtol=1e-10)
+    assert cfg[0]["fixed_b"] and len(cfg[0]["critical_value"]) == spec.n_params
