@@ -307,6 +307,7 @@ def test_oracle_bias_by_hand(study):
     sd = est.std(ddof=1)
     assert power.loc["f", "oracle_bias_sd"] == pytest.approx((est.mean() - 0.5) / sd)
     assert power.loc["f", "oracle_bias_z"] == pytest.approx((est.mean() - 0.5) / (sd / 2))
+    assert power.loc["f", "oracle_se_over_sd"] == pytest.approx(0.05 / sd)
     df.loc[iv, "oracle_t|x|x"] = [88.0, 90.0, 91.0, 93.0]
     power = study.power_table(df, _truth(), 10000, 12).set_index("term")
     x = np.array([88.0, 90.0, 91.0, 93.0]) * 0.01
