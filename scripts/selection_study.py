@@ -25,7 +25,8 @@ zero-coefficient candidate) and of the same intervals on the true structure (the
 oracle, first ``--oracle-runs`` runs). A comparator that is
 not installed is skipped. Per true term: its keep rate by every method, the median
 ``|t|`` and the noncentrality ``|θ0|/SE`` of the oracle fit, the power of the
-selection's test at this length and the log length at which it reaches 95 %.
+selection's test at this length and the log length at which it reaches 95 %, and the
+oracle fit's bias (in Monte Carlo sd and standard errors) and mean SE over its spread.
 
 Systems (``--system``): ``heave`` (1 × 30 000 samples); ``cybership2`` (the
 catalogue's CyberShip II model with the pulse design :data:`CYBERSHIP_LEVELS`; length
