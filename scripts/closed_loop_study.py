@@ -18,13 +18,17 @@ Designs (every run its own seeds, spawned from ``--seed``):
 Per run: least squares and the open-loop IV_E{ζ}=0 (both biased under feedback), and the
 closed-loop refined IV ``cl-iv`` with its HAC 95 % intervals (its modulus regressors
 corrected for the sensor noise the log declares; ``--no-sensor-noise-correction``: not),
-on the closed-loop log; the
+on the closed-loop log — the default intervals (Bartlett HAC with the fixed-b critical
+value at each parameter's effective bandwidth ratio) and, on the same fits, those with
+the normal critical value (``cov_config`` ``fixed_b=False``); the
 feedback test (open-loop warning) on the closed-loop log and on an open-loop log of the
 same system (the catalogue input design, same noise).
 
 Reported per estimator and parameter: bias, Monte Carlo sd, ``z = bias / (sd/√R)`` (the
 bias in its own Monte Carlo standard errors) and, for ``cl-iv``, the mean HAC SE over the
-Monte Carlo sd and the 95 % coverage with its Wilson interval; and the warning rates.
+Monte Carlo sd and the 95 % coverage with its Wilson interval (``coverage_%``: the default
+intervals; ``coverage_normal_%``, ``se_normal_over_sd``: the normal critical value); and
+the warning rates.
 """
 
 from __future__ import annotations
@@ -55,12 +59,15 @@ def _one_run(d: ClosedLoopDesign, ss: np.random.SeedSequence,
     out: dict[str, Any] = {}
     for m in ("ls", "iv-zero-mean"):
         out[m] = estimate(data, spec, m).theta[0]
+    kw = {} if correct else {"sensor_noise": False}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = identify(log, d.spec, "cl-iv", cov_config=cov_config,
-                       **({} if correct else {"sensor_noise": False}))
+        res = identify(log, d.spec, "cl-iv", cov_config=cov_config, **kw)
+        normal = identify(log, d.spec, "cl-iv",
+                          cov_config={**(cov_config or {}), "fixed_b": False}, **kw)
     out["cl-iv"] = res.params.to_numpy()
     out["cl-iv se"] = res.std_errors.to_numpy()
+    out["cl-iv se normal"] = normal.std_errors.to_numpy()
     out["fired closed"] = feedback_test(log, d.spec).rejects
     ol = d.system.simulate(d.samples, n_runs=d.experiments, seed=ol_seed).to_log(aggregate=False)
     out["fired open"] = feedback_test(ol, d.system.identification_spec(aggregate=False)).rejects
@@ -76,13 +83,14 @@ def _wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
 
 
 def _save_runs(path: Path, name: str, names: list[str], theta0: np.ndarray,
-               est: dict[str, list], ses: list) -> None:
+               est: dict[str, list], ses: list, ses_normal: list) -> None:
     """Every run's estimates (one row per run and estimator, ``cl-iv se`` its HAC
-    standard errors) as CSV, for looking at the Monte Carlo distribution itself."""
+    standard errors, ``cl-iv se normal`` those with the normal critical value) as CSV,
+    for looking at the Monte Carlo distribution itself."""
     from vesselid.core.fileio import atomic_write_text
 
     frames = []
-    for m, vals in [*est.items(), ("cl-iv se", ses)]:
+    for m, vals in [*est.items(), ("cl-iv se", ses), ("cl-iv se normal", ses_normal)]:
         f = pd.DataFrame(np.asarray(vals), columns=names)
         f.insert(0, "run", np.arange(len(vals)))
         f.insert(0, "estimator", m)
@@ -107,20 +115,21 @@ def run_design(name: str, runs: int, seed: int, progress: bool = True,
     names = [f"{e}: {t}" for e, t in d.spec.param_index]
     seeds = np.random.SeedSequence(seed).spawn(runs)
     est = {m: [] for m in ("ls", "iv-zero-mean", "cl-iv")}
-    ses, fired_c, fired_o = [], 0, 0
+    ses, ses_normal, fired_c, fired_o = [], [], 0, 0
     t0 = time.perf_counter()
     for r, ss in enumerate(seeds):
         out = _one_run(d, ss, cov_config, correct)
         for m in est:
             est[m].append(out[m])
         ses.append(out["cl-iv se"])
+        ses_normal.append(out["cl-iv se normal"])
         fired_c += bool(out["fired closed"])
         fired_o += bool(out["fired open"])
         if progress and (r + 1) % 20 == 0:
             print(f"  {name}: {r + 1}/{runs} runs ({time.perf_counter() - t0:.0f} s)",
                   flush=True)
     if save_runs is not None:
-        _save_runs(Path(save_runs), name, names, theta0, est, ses)
+        _save_runs(Path(save_runs), name, names, theta0, est, ses, ses_normal)
     rows = []
     for m, vals in est.items():
         a = np.asarray(vals)
@@ -134,13 +143,15 @@ def run_design(name: str, runs: int, seed: int, progress: bool = True,
                    "estimator": m, "parameter": pname, "theta0": theta0[p],
                    "runs": int(a.shape[0]), "bias": bias[p], "mc_sd": sd[p], "z": z[p]}
             if m == "cl-iv":
-                se = np.asarray(ses)[ok]
-                cover = np.abs(a[:, p] - theta0[p]) <= 1.96 * se[:, p]
-                k = int(cover.sum())
-                lo, hi = _wilson(k, a.shape[0])
-                row |= {"se_over_sd": float(np.mean(se[:, p]) / sd[p]),
-                        "coverage_%": 100.0 * k / a.shape[0],
-                        "coverage_lo_%": 100 * lo, "coverage_hi_%": 100 * hi}
+                for tag, vals_se in (("", ses), ("_normal", ses_normal)):
+                    se = np.asarray(vals_se)[ok]
+                    cover = np.abs(a[:, p] - theta0[p]) <= 1.96 * se[:, p]
+                    k = int(cover.sum())
+                    lo, hi = _wilson(k, a.shape[0])
+                    row |= {f"se{tag}_over_sd": float(np.mean(se[:, p]) / sd[p]),
+                            f"coverage{tag}_%": 100.0 * k / a.shape[0],
+                            f"coverage{tag}_lo_%": 100 * lo,
+                            f"coverage{tag}_hi_%": 100 * hi}
             rows.append(row)
     rates = {"design": name, "samples": d.samples, "experiments": d.experiments, "runs": runs,
              "warning_closed_loop_%": 100.0 * fired_c / runs,
@@ -201,10 +212,11 @@ def main() -> None:
             print(f"{m:13} max |z| = {z.max():.1f} (median {z.median():.1f})")
         c = t[t.estimator == "cl-iv"]
         print(f"cl-iv         max |z| = {c['z'].abs().max():.2f}; coverage "
-              f"{c['coverage_%'].min():.1f}-{c['coverage_%'].max():.1f} %; SE/sd "
-              f"{c['se_over_sd'].min():.2f}-{c['se_over_sd'].max():.2f}")
-        print(c[["parameter", "theta0", "bias", "mc_sd", "z", "se_over_sd",
-                 "coverage_%"]].to_string(index=False, float_format="%.4g"))
+              f"{c['coverage_%'].min():.1f}-{c['coverage_%'].max():.1f} % (normal critical "
+              f"value: {c['coverage_normal_%'].min():.1f}-{c['coverage_normal_%'].max():.1f} "
+              f"%); SE/sd {c['se_over_sd'].min():.2f}-{c['se_over_sd'].max():.2f}")
+        print(c[["parameter", "theta0", "bias", "mc_sd", "z", "se_over_sd", "coverage_%",
+                 "coverage_normal_%"]].to_string(index=False, float_format="%.4g"))
     print()
     print(rate.to_string(index=False))
     print(f"\nwrote {out} and {out.with_name(out.stem + '_warnings.csv')}")

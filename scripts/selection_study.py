@@ -25,7 +25,8 @@ zero-coefficient candidate) and of the same intervals on the true structure (the
 oracle, first ``--oracle-runs`` runs). A comparator that is
 not installed is skipped. Per true term: its keep rate by every method, the median
 ``|t|`` and the noncentrality ``|θ0|/SE`` of the oracle fit, the power of the
-selection's test at this length and the log length at which it reaches 95 %.
+selection's test at this length and the log length at which it reaches 95 %, and the
+oracle fit's bias (in Monte Carlo sd and standard errors) and mean SE over its spread.
 
 Systems (``--system``): ``heave`` (1 × 30 000 samples); ``cybership2`` (the
 catalogue's CyberShip II model with the pulse design :data:`CYBERSHIP_LEVELS`; length
@@ -532,6 +533,7 @@ def one_run(system: System, n: int, k: int, library: str, seed, oracle: bool = T
                 row[f"oracle_se|{s}|{term}"] = float(se_true[
                     list(fit_true.params.index).index((s, term))])
                 row[f"oracle_cover|{s}|{term}"] = bool(oracle_hits[(s, term)])
+                row[f"oracle_est|{s}|{term}"] = float(fit_true.params[(s, term)])
         rows.append(row)
     return rows
 
@@ -591,10 +593,16 @@ def power_table(df: pd.DataFrame, truth: ModelSpec, n_rows: int, n_candidates: i
                 alpha: float = 0.01) -> pd.DataFrame:
     """Per true term: θ0, the median oracle ``|t|`` and the noncentrality ``δ = |θ0| /
     median SE`` of the IV fit of the true structure, the keep rate of every method, the
-    oracle interval coverage, the power of the selection's test at this length (normal
+    oracle interval coverage, the oracle's bias (``oracle_bias_sd``: in Monte Carlo sd of
+    its estimate; ``oracle_bias_z``: in its Monte Carlo standard errors, ``bias/(sd/√R)``)
+    and its mean standard error over that sd (``oracle_se_over_sd``),
+    the power of the selection's test at this length (normal
     approximation, ``P(|N(δ, 1)| ≥ c)``) and the log length (samples, all experiments)
     at which that power reaches 95 % (``δ`` grows like ``√n``; the critical value's
-    ``√log n`` part is followed)."""
+    ``√log n`` part is followed). The oracle estimates are the per-run table's
+    ``oracle_est|`` columns; a table written without them gives them as
+    ``sign(θ0)·|t|·SE`` for terms whose ``|t|`` is at least 4 in every run (the sign of
+    the estimate is then that of θ0 in every run but with a chance below 10⁻⁴)."""
     from statistics import NormalDist
 
     from vesselid.selection.engine import critical_value
@@ -621,6 +629,7 @@ def power_table(df: pd.DataFrame, truth: ModelSpec, n_rows: int, n_candidates: i
                 for _ in range(50):  # fixed point of δ·√(n/n_rows) = c(n) + z_0.95
                     need = critical_value(alpha, n_candidates, int(min(n95, 1e15))) + 1.644854
                     n95 = n_rows * (need / delta) ** 2
+            bias_sd, bias_z, se_sd = _oracle_bias(iv, s, str(t), float(theta0[(s, str(t))]))
             rows.append({
                 "equation": s, "term": str(t), "theta0": float(theta0[(s, str(t))]),
                 **{f"kept_{m}": (float(df[df.method == m][kc].mean()) if kc in df
@@ -628,8 +637,31 @@ def power_table(df: pd.DataFrame, truth: ModelSpec, n_rows: int, n_candidates: i
                 "oracle_median_t": t_med, "noncentrality": delta,
                 "oracle_coverage": (float(iv[cc].dropna().astype(float).mean())
                                     if cc in iv and iv[cc].notna().any() else math.nan),
+                "oracle_bias_sd": bias_sd, "oracle_bias_z": bias_z,
+                "oracle_se_over_sd": se_sd,
                 "power": power, "samples_for_95pct_power": n95})
     return pd.DataFrame(rows)
+
+
+def _oracle_bias(iv: pd.DataFrame, s: str, t: str, theta0: float
+                 ) -> tuple[float, float, float]:
+    """Bias of the oracle estimate of term ``t`` of equation ``s`` over the runs that fit
+    it: in Monte Carlo sd, and in Monte Carlo standard errors; and the mean standard
+    error over that sd (:func:`power_table`)."""
+    ec, tc, sc = f"oracle_est|{s}|{t}", f"oracle_t|{s}|{t}", f"oracle_se|{s}|{t}"
+    if ec in iv and iv[ec].notna().any():
+        est = iv[ec].dropna().to_numpy(float)
+    elif tc in iv and sc in iv and iv[tc].notna().any() and float(iv[tc].min()) >= 4:
+        ok = iv[tc].notna() & iv[sc].notna()
+        est = math.copysign(1.0, theta0) * (iv[tc][ok] * iv[sc][ok]).to_numpy(float)
+    else:
+        return math.nan, math.nan, math.nan
+    sd = float(est.std(ddof=1)) if est.size > 1 else 0.0
+    if sd == 0:
+        return math.nan, math.nan, math.nan
+    bias = float(est.mean()) - theta0
+    se = float(iv[sc].dropna().mean()) if sc in iv else math.nan
+    return bias / sd, bias / (sd / math.sqrt(est.size)), se / sd
 
 
 def detectable_structure(df: pd.DataFrame, power: pd.DataFrame, prefix: str = ""

@@ -104,7 +104,15 @@ def test_study_per_run_table_reproduces_summary(tmp_path) -> None:
         np.testing.assert_allclose(t["bias"].to_numpy(), a.mean(axis=0) - theta0,
                                    rtol=1e-6, atol=1e-12)
     se = runs[runs.estimator == "cl-iv se"].iloc[:, 3:].to_numpy(float)
+    se_normal = runs[runs.estimator == "cl-iv se normal"].iloc[:, 3:].to_numpy(float)
     assert np.all(se > 0)
+    # the default intervals take the fixed-b critical value (above 1.96), the normal
+    # ones are those of the same fits with fixed_b=False
+    assert np.all(se >= se_normal) and np.any(se > se_normal)
+    c = table[table.estimator == "cl-iv"]
+    err = runs[runs.estimator == "cl-iv"].iloc[:, 3:].to_numpy(float) - theta0
+    np.testing.assert_allclose(c["coverage_normal_%"].to_numpy(),
+                               100 * np.mean(np.abs(err) <= 1.96 * se_normal, axis=0))
     assert rates["runs"] == 3
 
 

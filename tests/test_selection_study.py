@@ -289,3 +289,27 @@ def test_squares_design_changes_signs(study):
             assert g[s].min() < 0 < g[s].max()
         vr = np.sign(g["v"].to_numpy() * g["r"].to_numpy())
         assert (vr > 0).mean() > 0.1 and (vr < 0).mean() > 0.1
+
+
+def test_oracle_bias_by_hand(study):
+    """The oracle's bias per term: from the ``oracle_est|`` columns where the table has
+    them, else ``sign(θ0)·|t|·SE`` for terms with ``|t| ≥ 4`` in every run (``x*|x|``,
+    ``|t| = 2``, gets none)."""
+    df = _table()
+    power = study.power_table(df, _truth(), 10000, 12).set_index("term")
+    # x and f: sign(θ0)·|t|·SE is the same in every run (no spread: undefined)
+    assert np.isnan(power.loc["x", "oracle_bias_z"])
+    assert np.isnan(power.loc["f", "oracle_bias_sd"])
+    assert np.isnan(power.loc["x*|x|", "oracle_bias_sd"])
+    iv = df.method == "ivsel"
+    df.loc[iv, "oracle_est|x|f"] = est = np.array([0.49, 0.52, 0.47, 0.55])
+    power = study.power_table(df, _truth(), 10000, 12).set_index("term")
+    sd = est.std(ddof=1)
+    assert power.loc["f", "oracle_bias_sd"] == pytest.approx((est.mean() - 0.5) / sd)
+    assert power.loc["f", "oracle_bias_z"] == pytest.approx((est.mean() - 0.5) / (sd / 2))
+    assert power.loc["f", "oracle_se_over_sd"] == pytest.approx(0.05 / sd)
+    df.loc[iv, "oracle_t|x|x"] = [88.0, 90.0, 91.0, 93.0]
+    power = study.power_table(df, _truth(), 10000, 12).set_index("term")
+    x = np.array([88.0, 90.0, 91.0, 93.0]) * 0.01
+    assert power.loc["x", "oracle_bias_z"] == pytest.approx(
+        (x.mean() - 0.9) / (x.std(ddof=1) / 2))

@@ -38,7 +38,9 @@ def _same_cov(got, ref, rtol=1e-10):
 
 @pytest.mark.parametrize(("method", "combine", "cov_type", "cov_config"), [
     ("ls", "pooled", None, None),                                   # default HAC
-    ("iv-zero-mean", "pooled", None, None),
+    ("iv-zero-mean", "pooled", None, None),                         # fixed-b scaled
+    ("iv-zero-mean", "pooled", "hac", {"fixed_b": False}),
+    ("iv", "pooled", "hac", {"bandwidth": 12}),                      # fixed-b, fixed lags
     ("iv", "stacked", "unadjusted", None),
     ("iv-zero-mean", "stacked", "cluster", None),
     ("iv-zero-mean", "pooled", "hac", {"bandwidth": "andrews", "kernel": "parzen"}),
@@ -62,6 +64,10 @@ def test_streamed_equals_in_memory(logs, method, combine, cov_type, cov_config):
     assert got.n_experiments == 4 and got.n_samples == ref.n_samples
     assert got.diagnostics["passes"] >= 2
     assert got.diagnostics["cov_label"] == ref.diagnostics["cov_label"]
+    scaled = method != "ls" and combine == "pooled" and cov_type in (None, "hac") and (
+        (cov_config or {}).get("kernel", "bartlett") == "bartlett")
+    assert ("fixed-b" in got.diagnostics["cov_label"]) == (
+        scaled and (cov_config or {}).get("fixed_b", True))
     for key in ("fit_one_step", "fit_free_run", "instrument_condition"):
         for state, value in ref.diagnostics[key].items():
             assert got.diagnostics[key][state] == pytest.approx(value, rel=1e-9)

@@ -686,7 +686,7 @@ class _UserInstrumentMixin:
                              reason=np.array([STOP_FIXED], dtype=object),
                              residual=np.zeros(1), oscillation=np.zeros(1, dtype=bool))
         return it, square_designs(data, spec, z_user, phi, theta[0], zero_mean=self.zero_mean,
-                                  combine=combine)
+                                  combine=combine, fixed_b=True)
 
 
 def center_segments(x: np.ndarray, data: RegressionData) -> np.ndarray:
@@ -699,9 +699,13 @@ def center_segments(x: np.ndarray, data: RegressionData) -> np.ndarray:
 
 
 def square_designs(data: RegressionData, spec: ModelSpec, z: np.ndarray, phi: np.ndarray,
-                   theta: np.ndarray, *, zero_mean: bool, combine: str = "pooled"
-                   ) -> list[EquationDesign]:
+                   theta: np.ndarray, *, zero_mean: bool, combine: str = "pooled",
+                   fixed_b: bool = False) -> list[EquationDesign]:
     """Designs of a just-identified estimator with full-length ``z``/``phi`` (T, P).
+
+    ``fixed_b``: the designs ask for the fixed-b critical value at each parameter's
+    effective bandwidth ratio (:attr:`EquationDesign.fixed_b`; the IV estimates: refined
+    IV, open and closed loop, and IV with given instruments).
 
     With ``combine="stacked"`` and several experiments, ``weight`` holds the row weights
     the stacked solve used (:func:`vesselid.identify.linalg.stacked_row_weights`), so
@@ -716,7 +720,7 @@ def square_designs(data: RegressionData, spec: ModelSpec, z: np.ndarray, phi: np
         sl = slice(int(blocks[i]), int(blocks[i + 1]))
         res = data.target[rows, i] - phi[rows, sl] @ theta[sl]
         d = EquationDesign(z=zc[rows, sl], phi=phi[rows, sl], resid=res, starts=starts,
-                           zero_mean=zero_mean)
+                           zero_mean=zero_mean, fixed_b=fixed_b)
         if combine == "stacked" and starts.size > 2:
             a_n = np.stack([d.z[a:b].T @ d.phi[a:b] / max(b - a, 1)
                             for a, b in itertools.pairwise(starts)])

@@ -40,7 +40,9 @@ variate (``scripts/closed_loop_bias_decomposition.py``, the closed-form conditio
 of :func:`~vesselid.identify.eiv.regressor_error_mean`). The estimate is iterated to the
 fixed point ``θ = T(θ)`` with the step control of :func:`~vesselid.identify.estimators.
 refined_iv`, from least squares. Covariance: the package's ``cov_type`` (default HAC) on
-the final instruments, regressors and residuals.
+the final instruments, regressors and residuals; with the Bartlett HAC each standard error
+is scaled to the fixed-b critical value at its effective bandwidth ratio
+(:mod:`vesselid.identify.fixedb`; ``cov_config={"fixed_b": False}`` turns it off).
 
 The log names its controller and external signals in ``metadata["closed_loop"]``
 (:func:`vesselid.plant.closedloop.closed_loop_metadata`, written by
@@ -182,7 +184,7 @@ class ClosedLoopIV(Estimator):
     def equation_designs(self, data, spec, it, phi, combine):
         z, _ = self.instruments(data, spec, it.theta_aux[0])
         return square_designs(data, spec, z, phi, it.theta[0], zero_mean=True,
-                              combine=combine)
+                              combine=combine, fixed_b=True)
 
     def describe(self, it: IterationResult) -> dict[str, Any]:
         sig = self._signals

@@ -541,7 +541,8 @@ class CovarianceEstimator:
     #: Add Windmeijer's (2005) finite-sample correction to two-step GMM estimates whose
     #: design carries ``weight_jacobian`` (``cov_config`` ``windmeijer=False`` turns it off).
     windmeijer: bool = True
-    #: With the Windmeijer correction and a Bartlett kernel: scale each standard error by
+    #: With the Windmeijer correction, or a just-identified design that asks for it
+    #: (``fixed_b_square``), and a Bartlett kernel: scale each standard error by
     #: the fixed-b critical value at its effective bandwidth ratio over 1.96
     #: (:mod:`vesselid.identify.fixedb`; ``cov_config`` ``fixed_b=False`` turns it off).
     fixed_b: bool = True

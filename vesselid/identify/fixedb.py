@@ -28,8 +28,11 @@ The reported interval uses the Kiefer–Vogelsang (2005) Bartlett critical value
 scales each standard error by ``q(b_p)/1.96``
 (:meth:`vesselid.identify.covariance.CovarianceEstimator.estimate`), for two-step GMM
 estimates (``gmm``, ``auto`` with the delayed instruments; influence ``C + D C₁``) and
-the refined IV (``sriv``, ``auto``'s fallback; influence ``A⁻¹``). Evidence:
-``scripts/robustness_study.py`` (short logs) and ``scripts/calibration.py``.
+the just-identified IV estimates (influence ``A⁻¹``): ``sriv`` (``auto``'s fallback),
+the refined IV ``iv-zero-mean`` / ``iv`` (and IV with given instruments) and the
+closed-loop refined IV ``cl-iv``. Evidence: ``scripts/robustness_study.py`` (short logs),
+``scripts/calibration.py``, ``scripts/closed_loop_study.py`` and
+``tests/test_fixedb.py`` (refined IV on short logs).
 """
 
 from __future__ import annotations

@@ -85,7 +85,7 @@ class RefinedIV(_UserInstrumentMixin, Estimator):
         z, _ = kernels.instrument_matrix(data.target, data.u, data.starts, it.theta_aux[0],
                                          codes.factors, codes.equation, spec.n_states)
         return square_designs(data, spec, z, phi, it.theta[0], zero_mean=self.zero_mean,
-                              combine=combine)
+                              combine=combine, fixed_b=True)
 
     def describe(self, it: IterationResult) -> dict[str, Any]:
         return {"instruments": "simulated (auxiliary model)" + (

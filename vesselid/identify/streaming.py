@@ -16,7 +16,10 @@ final instruments, regressors and residuals (``equation_designs``) of each exper
 are reduced to the sums the covariance sandwich needs — ``A_E = Σ z φᵀ``, ``Σ z zᵀ``,
 column norms, ``Σ ε²``, the score sum and the score lag products ``Γ_E(j)`` — from which
 the unadjusted, HAC (automatic bandwidth included) and cluster covariances of
-:mod:`vesselid.identify.covariance` follow as in memory (to ~1e-10). The result is an
+:mod:`vesselid.identify.covariance` follow as in memory (to ~1e-10). A pooled Bartlett-HAC
+covariance of the IV estimates takes, as in memory, the fixed-b critical value at each
+parameter's effective bandwidth ratio (:mod:`vesselid.identify.fixedb`): one more pass
+sums the ratios' Bartlett products per experiment once the covariance is known. The result is an
 :class:`~vesselid.identify.results.IdentificationResult`.
 
 With a Dask ``client`` the per-experiment passes run on the cluster (one task per
@@ -219,6 +222,7 @@ def _design_parts(path: Path, eid: Any, spec_dict: dict, method: str, theta, the
         n = r.shape[0]
         y = r + ph @ theta[spec.codes.equation == i]
         part = {"a": z.T @ ph, "m": z.T @ z, "n": n, "zsq": np.einsum("tk,tk->k", z, z),
+                "fixed_b": bool(d.fixed_b),
                 "psq": np.einsum("tk,tk->k", ph, ph), "ee": float(eps @ eps),
                 "rr": float(r @ r), "y": float(y.sum()), "yy": float(y @ y),
                 "gsum": g.sum(axis=0), "last": g[-1].copy()}
@@ -236,6 +240,38 @@ def _design_parts(path: Path, eid: Any, spec_dict: dict, method: str, theta, the
     den = np.sum((y_all - y_all.mean(axis=0)) ** 2, axis=0)
     return {"equations": equations, "free_num": ratio**2 * den if ok else np.zeros_like(den),
             "free_den": den if ok else np.zeros_like(den), "free_ok": bool(ok)}
+
+
+def _fixed_b_parts(path: Path, eid: Any, spec_dict: dict, method: str, theta, theta_aux,
+                   rows: list) -> list:
+    """Per state equation, this experiment's part of the effective bandwidth ratios
+    ``b_p`` (:func:`vesselid.identify.fixedb.effective_b`) of a pooled estimate whose
+    designs take the fixed-b critical value; ``rows[i]``: ``(A⁻¹, u, lags)`` of equation
+    ``i`` (influence rows, directions ``V_{·p}/V_pp``, Bartlett lags), or None."""
+    from vesselid.identify import kernels
+    from vesselid.identify.estimators import IterationResult
+    from vesselid.identify.fixedb import bartlett_cross
+    from vesselid.identify.registry import get_estimator
+
+    spec = ModelSpec.from_dict(spec_dict)
+    data = _regression_data(_read_experiment(path, eid), spec)
+    it = IterationResult(theta=np.asarray(theta, dtype=float)[None],
+                         theta_aux=np.asarray(theta_aux, dtype=float)[None],
+                         converged=np.ones(1, dtype=bool), iterations=np.zeros(1, dtype=int),
+                         reason=np.array([""], dtype=object), residual=np.zeros(1),
+                         oscillation=np.zeros(1, dtype=bool))
+    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
+    designs = get_estimator(method).equation_designs(data, spec, it, phi, "pooled")
+    out = []
+    for d, row in zip(designs, rows, strict=True):
+        if row is None:
+            out.append(None)
+            continue
+        infl, u, lags = row
+        ph = d.phi - d.phi.mean(axis=0) if d.zero_mean else d.phi
+        sums = (d.z @ np.asarray(infl).T) * (ph @ np.asarray(u))
+        out.append(bartlett_cross(sums, sums, int(lags), [slice(0, sums.shape[0])]))
+    return out
 
 
 def _auto_bandwidth(est: Any, parts: list[dict], t_total: int, cap: float) -> float:
@@ -305,6 +341,62 @@ def _sandwich(parts: list[dict], meat: list[np.ndarray], combine: str) -> np.nda
     if not np.all(np.isfinite(cov)):
         return cov
     return cov / np.outer(ps, ps)
+
+
+def _fixed_b_scaling(est: Any, parts: list[dict], bandwidths: list[float], combine: str,
+                     cov: np.ndarray, blocks: np.ndarray) -> list | None:
+    """``(A⁻¹, u, lags)`` per equation where the in-memory covariance would take the
+    fixed-b critical value (designs that ask for it, pooled, Bartlett HAC; None for an
+    equation whose covariance is not finite), or None where it does not apply."""
+    if not (getattr(est, "name", "") == "hac" and est.kernel == "bartlett"
+            and not getattr(est, "prewhiten", False) and combine == "pooled"
+            and len(bandwidths) == len(blocks) - 1
+            and all(e["fixed_b"] for p in parts for e in p["equations"])):
+        return None
+    rows: list = []
+    for i, bw in enumerate(bandwidths):
+        sl = slice(int(blocks[i]), int(blocks[i + 1]))
+        c = cov[sl, sl]
+        try:
+            infl = np.linalg.inv(sum(p["equations"][i]["a"] for p in parts))
+        except np.linalg.LinAlgError:
+            infl = None
+        if infl is None or not (np.all(np.isfinite(c)) and np.all(np.isfinite(infl))):
+            rows.append(None)
+            continue
+        from vesselid.identify.fixedb import influence_directions
+
+        u, _ = influence_directions(c)
+        rows.append((infl, u, math.floor(bw)))
+    return rows
+
+
+def _scale_to_fixed_b(cov: np.ndarray, blocks: np.ndarray, rows: list, b_parts: list,
+                      config: dict) -> None:
+    """Scale each equation's block of ``cov`` (in place) by ``q(b_p)/1.96``, the ratios
+    summed over the experiments (:func:`_fixed_b_parts`); ``config`` gets them as the
+    in-memory covariance reports them."""
+    from vesselid.identify.fixedb import (
+        BARTLETT_QUANTILES,
+        bartlett_critical_value,
+        influence_directions,
+    )
+
+    eff, crit = [], []
+    for i, row in enumerate(rows):
+        sl = slice(int(blocks[i]), int(blocks[i + 1]))
+        if row is None:
+            continue
+        _, ok = influence_directions(cov[sl, sl])
+        b = sum(p[i] for p in b_parts)
+        b = np.where(ok & np.isfinite(b), b, 0.0)
+        q = bartlett_critical_value(b)
+        scale = q / BARTLETT_QUANTILES[0.975][0]
+        cov[sl, sl] *= np.outer(scale, scale)
+        eff.extend(float(x) for x in b)
+        crit.extend(float(x) for x in q)
+    if crit:
+        config["effective_b"], config["critical_value"] = eff, crit
 
 
 def _lagged_meat(parts: list[dict], weights: np.ndarray) -> list[np.ndarray]:
@@ -525,12 +617,22 @@ def identify_stream(
         den = sum(p["yy"] for p in eq_parts) - ysum**2 / n_i
         rr = sum(p["rr"] for p in eq_parts)
         fit_one[s] = float(100 * (1 - np.sqrt(rr / den))) if den > 0 else float("nan")
+    fixed_b = _fixed_b_scaling(est, parts, bandwidths, combine, cov, blocks)
+    if fixed_b is not None:  # one more pass: the effective bandwidth ratios
+        config["fixed_b"] = bool(est.fixed_b)
+        if est.fixed_b:
+            b_parts = run(_fixed_b_parts, spec_dict=spec_dict, method=method, theta=theta,
+                          theta_aux=theta_aux, rows=fixed_b)
+            _scale_to_fixed_b(cov, blocks, fixed_b, b_parts, config)
     if bandwidths:
         config["bandwidth"] = bandwidths[0] if len(set(bandwidths)) == 1 else bandwidths
     label = est.label({**config, "bandwidth": bandwidths[0]} if bandwidths else config)
     if len(set(bandwidths)) > 1:
         label = label.replace(f"bandwidth {bandwidths[0]:.3g}", "bandwidth "
                               + "/".join(f"{b:.3g}" for b in bandwidths))
+    if config.get("fixed_b") and "critical_value" in config:
+        label += ("; standard errors scaled to the fixed-b (Kiefer-Vogelsang 2005) 95 % "
+                  "critical value at the effective bandwidth ratio")
     num = sum(p["free_num"] for p in parts)
     den = sum(p["free_den"] for p in parts)
     with np.errstate(divide="ignore", invalid="ignore"):

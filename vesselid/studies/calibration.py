@@ -144,8 +144,9 @@ def group_covariances(
                 z[r] -= z[r].mean(axis=0)
         if not np.all(np.isfinite(z[rows])):
             continue
+        # the refined IV's intervals take the fixed-b critical value, as in ``identify``
         res = est.estimate(z, np.where(rows[:, None], phi, 0.0), resid, starts, codes.equation,
-                           zero_mean=zero_mean, combine=combine)
+                           zero_mean=zero_mean, combine=combine, fixed_b_square=method != "ls")
         out[g] = res.cov
         configs[g] = dict(res.config)
     return out, configs
