@@ -273,16 +273,16 @@ def warning_shares(df: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(out)
 
 
-def markdown(summary: pd.DataFrame, ch: pd.DataFrame, df: pd.DataFrame,
+def markdown(summary: pd.DataFrame, ch: pd.DataFrame, ws: pd.DataFrame,
              args: argparse.Namespace) -> str:
+    variants = [v for v in VARIANTS if (summary["method"] == v).any()]
     lines = ["---", "orphan: true", "---", "", "# Robustness study table", "",
              f"Robustness study: {args.runs} runs × {args.samples} samples per design "
              f"(short: 10³), seed {args.seed}; θ0 = (a, n, f) = {THETA0}. "
              "`python scripts/robustness_study.py "
              f"--runs {args.runs} --samples {args.samples} --seed {args.seed}`"
-             + (f" (then `--methods {' '.join(args.methods)} --update`: those methods' "
-                "rows rerun on the same logs, the others' kept)"
-                if getattr(args, "update", False) else ""), "",
+             + (f" (the variants' rows: then `--methods {' '.join(variants)} --update`, on "
+                "the same logs)" if variants else ""), "",
              "| design | method | param | coverage [Wilson 95 %] | bias z | median rel. err "
              "| SE / MC sd | raised |", "|---|---|---|---|---|---|---|---|"]
     for _, r in summary.iterrows():
@@ -293,7 +293,6 @@ def markdown(summary: pd.DataFrame, ch: pd.DataFrame, df: pd.DataFrame,
               "|---|---|---|---|"]
     for _, r in ch.iterrows():
         lines.append(f"| {r.method} | {r.design} | {r.choice} | {r.runs} |")
-    ws = warning_shares(df)
     lines += ["", "Share of `auto`'s runs with each diagnostic's warning (and, on the mean-"
               "current design, how often the reported interval of the current's mean "
               "covers it):", "", "| design | identifiability | parameter drift | "
@@ -382,15 +381,20 @@ def _report(df: pd.DataFrame, args: argparse.Namespace) -> int:
         prev = pd.read_csv(old_ch)
         ch = pd.concat([prev[~prev["method"].isin(ch["method"].unique())], ch],
                        ignore_index=True)
+    ws = warning_shares(df)
+    old_ws = args.out / "robustness_warnings.csv"
+    if getattr(args, "update", False) and ws.empty and old_ws.is_file():
+        ws = pd.read_csv(old_ws)  # auto not rerun: its warning shares stand
     pd.set_option("display.width", 200)
     print(summary.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
     print(ch.to_string(index=False))
-    print(warning_shares(df).to_string(index=False))
+    print(ws.to_string(index=False))
     args.out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(args.out / "robustness.csv", summary.to_csv(index=False,
                                                                   float_format="%.5g"))
     atomic_write_text(args.out / "robustness_choices.csv", ch.to_csv(index=False))
-    atomic_write_text(args.out / "robustness.md", markdown(summary, ch, df, args))
+    atomic_write_text(old_ws, ws.to_csv(index=False, float_format="%.5g"))
+    atomic_write_text(args.out / "robustness.md", markdown(summary, ch, ws, args))
     return 0
 
 
