@@ -43,6 +43,8 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from robustness_study import wilson  # the scripts folder, on the path above
+
 from vesselid.core.fileio import atomic_write_text
 
 COVS = ("fisher", "sandwich", "conservative")
@@ -135,16 +137,6 @@ def chunk(design: str, seed: int, start: int, stop: int, samples: int,
                         row[pre + lab] = float(cand[pre + "psi"][k][npar + off])
             rows.append(row)
     return rows
-
-
-def wilson(k: int, n: int, z: float = Z95) -> tuple[float, float]:
-    if n == 0:
-        return float("nan"), float("nan")
-    p = k / n
-    den = 1 + z * z / n
-    c = (p + z * z / (2 * n)) / den
-    h = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    return c - h, c + h
 
 
 def summarise(df: pd.DataFrame, est_col: str = "estimate", prefix: str = "") -> pd.DataFrame:

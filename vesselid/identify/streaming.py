@@ -189,6 +189,26 @@ def _stack(parts: list) -> Any:
 KEEP_LAGS = 64
 
 
+def _experiment_designs(path: Path, eid: Any, spec_dict: dict, method: str, theta,
+                        theta_aux) -> tuple[ModelSpec, Any, list]:
+    """``(spec, data, designs)`` of one experiment: its regression data and the
+    estimator's final estimating equations at ``theta`` (auxiliary model ``theta_aux``),
+    :meth:`Estimator.equation_designs` on this experiment alone."""
+    from vesselid.identify import kernels
+    from vesselid.identify.estimators import IterationResult
+    from vesselid.identify.registry import get_estimator
+
+    spec = ModelSpec.from_dict(spec_dict)
+    data = _regression_data(_read_experiment(path, eid), spec)
+    it = IterationResult(theta=np.asarray(theta, dtype=float)[None],
+                         theta_aux=np.asarray(theta_aux, dtype=float)[None],
+                         converged=np.ones(1, dtype=bool), iterations=np.zeros(1, dtype=int),
+                         reason=np.array([""], dtype=object), residual=np.zeros(1),
+                         oscillation=np.zeros(1, dtype=bool))
+    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
+    return spec, data, get_estimator(method).equation_designs(data, spec, it, phi, "pooled")
+
+
 def _design_parts(path: Path, eid: Any, spec_dict: dict, method: str, theta, theta_aux,
                   lags: int, weights: list | None) -> dict:
     """Covariance and fit sums of one experiment (runs on a worker with Dask).
@@ -199,21 +219,11 @@ def _design_parts(path: Path, eid: Any, spec_dict: dict, method: str, theta, the
     ``Σ g``, the last score, and either the lag products ``Γ_E(j) = Σ_k g(k) g(k−j)ᵀ``
     (``j ≤ lags``) or, with known kernel ``weights``, the long-run covariance ``S_E``.
     """
-    from vesselid.identify import kernels
     from vesselid.identify.covariance import long_run_covariance
     from vesselid.identify.diagnostics import free_run_ratio
-    from vesselid.identify.estimators import IterationResult
-    from vesselid.identify.registry import get_estimator
 
-    spec = ModelSpec.from_dict(spec_dict)
-    data = _regression_data(_read_experiment(path, eid), spec)
     theta = np.asarray(theta, dtype=float)
-    it = IterationResult(theta=theta[None], theta_aux=np.asarray(theta_aux, dtype=float)[None],
-                         converged=np.ones(1, dtype=bool), iterations=np.zeros(1, dtype=int),
-                         reason=np.array([""], dtype=object), residual=np.zeros(1),
-                         oscillation=np.zeros(1, dtype=bool))
-    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
-    designs = get_estimator(method).equation_designs(data, spec, it, phi, "pooled")
+    spec, data, designs = _experiment_designs(path, eid, spec_dict, method, theta, theta_aux)
     equations = []
     for i, d in enumerate(designs):
         z, ph, r = d.z, d.phi, d.resid
@@ -248,20 +258,9 @@ def _fixed_b_parts(path: Path, eid: Any, spec_dict: dict, method: str, theta, th
     ``b_p`` (:func:`vesselid.identify.fixedb.effective_b`) of a pooled estimate whose
     designs take the fixed-b critical value; ``rows[i]``: ``(A⁻¹, u, lags)`` of equation
     ``i`` (influence rows, directions ``V_{·p}/V_pp``, Bartlett lags), or None."""
-    from vesselid.identify import kernels
-    from vesselid.identify.estimators import IterationResult
     from vesselid.identify.fixedb import bartlett_cross
-    from vesselid.identify.registry import get_estimator
 
-    spec = ModelSpec.from_dict(spec_dict)
-    data = _regression_data(_read_experiment(path, eid), spec)
-    it = IterationResult(theta=np.asarray(theta, dtype=float)[None],
-                         theta_aux=np.asarray(theta_aux, dtype=float)[None],
-                         converged=np.ones(1, dtype=bool), iterations=np.zeros(1, dtype=int),
-                         reason=np.array([""], dtype=object), residual=np.zeros(1),
-                         oscillation=np.zeros(1, dtype=bool))
-    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
-    designs = get_estimator(method).equation_designs(data, spec, it, phi, "pooled")
+    _, _, designs = _experiment_designs(path, eid, spec_dict, method, theta, theta_aux)
     out = []
     for d, row in zip(designs, rows, strict=True):
         if row is None:
