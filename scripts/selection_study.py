@@ -70,6 +70,7 @@ import sys
 import time
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 # one BLAS/OpenMP thread per process, set before numpy loads: every run is computed by the
 # same single-threaded code whatever --workers is, so the results do not depend on it
@@ -88,6 +89,9 @@ from vesselid.plant.systems import System, heave  # noqa: E402
 from vesselid.selection import select_terms  # noqa: E402
 from vesselid.selection.engine import library_factors, regressors  # noqa: E402
 from vesselid.selection.library import canonical, resolve_library  # noqa: E402
+
+if TYPE_CHECKING:
+    from vesselid.plant.vessels.hull import Hull
 
 
 # ----------------------------------------------------------------------------- designs
@@ -209,21 +213,34 @@ def _viknes_manoeuvre_system(current_u, current_v, samples: int, experiments: in
     ``v`` and ``r`` change sign within every experiment and the yaw moment reverses
     faster than the yaw rate settles, so ``r`` and ``N`` (and their products with ``u``)
     differ in the logs."""
-    from vesselid.plant.vessels.kernel import VesselModel
     from vesselid.plant.vessels.viknes830 import HULL
     from vesselid.plant.vessels.viknes830 import system as viknes830_system
+
+    return _squares_system(viknes830_system(), HULL, VIKNES_SQUARES, (6000.0, 600.0, 2500.0),
+                           None, current_u, current_v, samples, experiments)
+
+
+def _squares_system(base: System, hull: Hull, squares: tuple, forces: tuple,
+                    limits: tuple | None, current_u, current_v, samples: int,
+                    experiments: int) -> System:
+    """``base`` (its spec, noises and start) driven open loop by thruster squares, one
+    ``(hold_y, hold_n, hold_x)`` of ``squares`` per experiment in turn, with ``forces``
+    ``(thrust, sway, moment)`` and the actuator ``limits`` (None: none), under the
+    currents ``current_u``, ``current_v``."""
+    from vesselid.plant.vessels.kernel import VesselModel
     from vesselid.studies.manoeuvres import Programme, ThrusterSquare
 
-    base = viknes830_system()
     x0 = [base.x0[s] for s in base.spec.states]
-    vessel = VesselModel(HULL, base.spec.dt)
-    forces = []
+    vessel = VesselModel(hull, base.spec.dt)
+    thrust, sway, moment = forces
+    schedules = []
     for e in range(experiments):
-        hy, hn, hx = VIKNES_SQUARES[e % len(VIKNES_SQUARES)]
-        prog = Programme([ThrusterSquare(thrust=6000.0, sway=600.0, moment=2500.0,
+        hy, hn, hx = squares[e % len(squares)]
+        prog = Programme([ThrusterSquare(thrust=thrust, sway=sway, moment=moment,
                                          hold_y=hy, hold_n=hn, hold_x=hx, low=-1.0)])
-        forces.append((prog.schedule(vessel, samples, x0=x0), prog.label()))
-    inputs = {name: tuple(_Schedule(f[:, j], label) for f, label in forces)
+        schedules.append((prog.schedule(vessel, samples, x0=x0, limits=limits),
+                          prog.label()))
+    inputs = {name: tuple(_Schedule(f[:, j], label) for f, label in schedules)
               for j, name in enumerate(base.spec.inputs)}
     return System(spec=base.spec, inputs=inputs, current={"u": current_u, "v": current_v},
                   process_noise=base.process_noise, sensor_noise=base.sensor_noise,
@@ -250,25 +267,10 @@ def _cybership_squares_system(current_u, current_v, samples: int, experiments: i
     information on ``v: v*|r|`` and ``v: r*|v|`` of the trial planner's mix
     (:func:`planned_programmes`)."""
     from vesselid.plant.vessels.cybership2 import HULL, cybership2_system
-    from vesselid.plant.vessels.kernel import VesselModel
-    from vesselid.studies.manoeuvres import FORCE_LIMITS, Programme, ThrusterSquare
+    from vesselid.studies.manoeuvres import FORCE_LIMITS
 
-    base = cybership2_system()
-    x0 = [base.x0[s] for s in base.spec.states]
-    vessel = VesselModel(HULL, base.spec.dt)
-    forces = []
-    for e in range(experiments):
-        hy, hn, hx = CYBERSHIP_SQUARES[e % len(CYBERSHIP_SQUARES)]
-        prog = Programme([ThrusterSquare(thrust=FORCE_LIMITS[0], sway=FORCE_LIMITS[1],
-                                         moment=FORCE_LIMITS[2], hold_y=hy, hold_n=hn,
-                                         hold_x=hx, low=-1.0)])
-        forces.append((prog.schedule(vessel, samples, x0=x0, limits=FORCE_LIMITS),
-                       prog.label()))
-    inputs = {name: tuple(_Schedule(f[:, j], label) for f, label in forces)
-              for j, name in enumerate(base.spec.inputs)}
-    return System(spec=base.spec, inputs=inputs, current={"u": current_u, "v": current_v},
-                  process_noise=base.process_noise, sensor_noise=base.sensor_noise,
-                  x0=base.x0)
+    return _squares_system(cybership2_system(), HULL, CYBERSHIP_SQUARES, FORCE_LIMITS,
+                           FORCE_LIMITS, current_u, current_v, samples, experiments)
 
 
 SYSTEMS = ("heave", "cybership2", "cybership2-planned", "cybership2-squares", "viknes830",
@@ -310,44 +312,40 @@ def designs(quick: bool, samples: int | None = None, experiments: int | None = N
         "heave, white current": (_heave_system(Gaussian(0.0, 0.1)), n_h, 1, "vessel"),
         "heave, Gauss-Markov current": (
             _heave_system(GaussMarkov(0.0, 0.05, 5.0, 1.0, 0.15)), n_h, 1, "vessel"),
-        "CyberShip II, white current": (
-            _cybership_system(Gaussian(0.0, 0.005), Gaussian(0.0, 0.005)), n_c, k_c,
-            "vessel"),
-        "CyberShip II, Gauss-Markov current": (
-            _cybership_system(GaussMarkov(0.0, 0.002, 1.0, dt, 0.006),
-                              GaussMarkov(0.0, 0.002, 1.0, dt, 0.006)), n_c, k_c, "vessel"),
-        "Viknes 830, white current": (
-            _viknes_system(Gaussian(0.0, 0.05), Gaussian(0.0, 0.05)), n_v, k_c, "vessel"),
-        "Viknes 830, Gauss-Markov current": (
-            _viknes_system(GaussMarkov(0.0, 0.02, 1.0, dt, 0.06),
-                           GaussMarkov(0.0, 0.02, 1.0, dt, 0.06)), n_v, k_c, "vessel"),
     }
+
+    def small() -> tuple:  # CyberShip II (model scale): the currents in u and v
+        return Gaussian(0.0, 0.005), Gaussian(0.0, 0.005)
+
+    def small_gm() -> tuple:
+        return (GaussMarkov(0.0, 0.002, 1.0, dt, 0.006),
+                GaussMarkov(0.0, 0.002, 1.0, dt, 0.006))
+
+    def full() -> tuple:  # Viknes 830 (full scale)
+        return Gaussian(0.0, 0.05), Gaussian(0.0, 0.05)
+
+    def full_gm() -> tuple:
+        return GaussMarkov(0.0, 0.02, 1.0, dt, 0.06), GaussMarkov(0.0, 0.02, 1.0, dt, 0.06)
+
+    def both(label: str, build, n: int, white, coloured) -> None:
+        """The design ``label`` under a white and under a Gauss–Markov current
+        (``build(current_u, current_v)``: its system)."""
+        out[f"{label}, white current"] = (build(*white()), n, k_c, "vessel")
+        out[f"{label}, Gauss-Markov current"] = (build(*coloured()), n, k_c, "vessel")
+
+    both("CyberShip II", _cybership_system, n_c, small, small_gm)
+    both("Viknes 830", _viknes_system, n_v, full, full_gm)
     if planned:  # the planner runs only when these designs are asked for
         n_p = int(samples) if samples else (1000 if quick else 2500)
-        out["CyberShip II planned, white current"] = (
-            _cybership_planned_system(Gaussian(0.0, 0.005), Gaussian(0.0, 0.005), n_p, k_c),
-            n_p, k_c, "vessel")
-        out["CyberShip II planned, Gauss-Markov current"] = (
-            _cybership_planned_system(GaussMarkov(0.0, 0.002, 1.0, dt, 0.006),
-                                      GaussMarkov(0.0, 0.002, 1.0, dt, 0.006), n_p, k_c),
-            n_p, k_c, "vessel")
+        both("CyberShip II planned",
+             lambda cu, cv: _cybership_planned_system(cu, cv, n_p, k_c), n_p, small, small_gm)
     if squares:
         n_s = int(samples) if samples else (2500 if quick else CYBERSHIP_SQUARES_SAMPLES)
-        out["CyberShip II squares, white current"] = (
-            _cybership_squares_system(Gaussian(0.0, 0.005), Gaussian(0.0, 0.005), n_s, k_c),
-            n_s, k_c, "vessel")
-        out["CyberShip II squares, Gauss-Markov current"] = (
-            _cybership_squares_system(GaussMarkov(0.0, 0.002, 1.0, dt, 0.006),
-                                      GaussMarkov(0.0, 0.002, 1.0, dt, 0.006), n_s, k_c),
-            n_s, k_c, "vessel")
+        both("CyberShip II squares",
+             lambda cu, cv: _cybership_squares_system(cu, cv, n_s, k_c), n_s, small, small_gm)
     if manoeuvres:
-        out["Viknes 830 manoeuvres, white current"] = (
-            _viknes_manoeuvre_system(Gaussian(0.0, 0.05), Gaussian(0.0, 0.05), n_v, k_c),
-            n_v, k_c, "vessel")
-        out["Viknes 830 manoeuvres, Gauss-Markov current"] = (
-            _viknes_manoeuvre_system(GaussMarkov(0.0, 0.02, 1.0, dt, 0.06),
-                                     GaussMarkov(0.0, 0.02, 1.0, dt, 0.06), n_v, k_c),
-            n_v, k_c, "vessel")
+        both("Viknes 830 manoeuvres",
+             lambda cu, cv: _viknes_manoeuvre_system(cu, cv, n_v, k_c), n_v, full, full_gm)
     return out
 
 

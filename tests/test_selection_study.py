@@ -151,17 +151,26 @@ def test_partial_csv_is_whole(study, tmp_path):
     assert pd.read_csv(out)["a"].tolist() == [1, 2] and not (tmp_path / "runs.csv.tmp").exists()
 
 
+def _experiments_changing_sign(system, n: int, k: int) -> list:
+    """The experiments of one seeded log of ``system`` (the full 25-term CyberShip II
+    structure), after asserting that u, v and r change sign within every one."""
+    assert sum(len(v) for v in system.spec.equations.values()) == 25
+    log = system.simulate(n, k, seed=0).to_log(aggregate=False)
+    groups = [g for _, g in log.data.groupby("experiment")]
+    for g in groups:
+        for s in ("u", "v", "r"):
+            assert g[s].min() < 0 < g[s].max()
+    return groups
+
+
 @pytest.mark.slow
 def test_planned_cybership_design_changes_signs(study):
     """The planner's manoeuvres make u, v and r change sign within every experiment, so
     the planned design's truth is the hull's full 25-term structure."""
     d = study.designs(True, planned=True)
     system, n, k, _ = d["CyberShip II planned, white current"]
-    assert (n, k) == (1000, 4) and sum(len(v) for v in system.spec.equations.values()) == 25
-    log = system.simulate(n, k, seed=0).to_log(aggregate=False)
-    for _, g in log.data.groupby("experiment"):
-        for s in ("u", "v", "r"):
-            assert g[s].min() < 0 < g[s].max()
+    assert (n, k) == (1000, 4)
+    _experiments_changing_sign(system, n, k)
 
 
 @pytest.mark.slow
@@ -282,11 +291,8 @@ def test_squares_design_changes_signs(study):
     opposite signs, within every experiment: the truth is the full 25-term structure."""
     d = study.designs(True, squares=True)
     system, n, k, _ = d["CyberShip II squares, Gauss-Markov current"]
-    assert (n, k) == (2500, 4) and sum(len(v) for v in system.spec.equations.values()) == 25
-    log = system.simulate(n, k, seed=0).to_log(aggregate=False)
-    for _, g in log.data.groupby("experiment"):
-        for s in ("u", "v", "r"):
-            assert g[s].min() < 0 < g[s].max()
+    assert (n, k) == (2500, 4)
+    for g in _experiments_changing_sign(system, n, k):
         vr = np.sign(g["v"].to_numpy() * g["r"].to_numpy())
         assert (vr > 0).mean() > 0.1 and (vr < 0).mean() > 0.1
 
