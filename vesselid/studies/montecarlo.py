@@ -256,9 +256,14 @@ def _chunk_columns(study: Study, start: int, stop: int) -> dict[str, np.ndarray]
     # one frame per chunk from the methods' columns (a frame per method costs more than
     # the method's estimate on small chunks), its rows already in the study's order (run,
     # method, parameter): the chunks' frames then only need concatenating
-    cols = {c: np.concatenate([f[c] for f in frames]) for c in frames[0]}
+    cols = _concat_columns(frames)
     idx = np.lexsort((cols["_p"], cols["_m"], cols["run"]))
     return {c: v[idx] for c, v in cols.items()}
+
+
+def _concat_columns(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """The columns of ``parts`` (same names, in order) joined end to end."""
+    return {c: np.concatenate([p[c] for p in parts]) for c in parts[0]}
 
 
 def _is_zero_mean_iv(est: Any, study: Study) -> bool:
@@ -369,7 +374,7 @@ def run_study(
                       else _chunks(runs, int(batch_size)))
             frames = _run_local(study, chunks, bar)
     if isinstance(frames[0], dict):  # local chunks: their columns
-        df = pd.DataFrame({c: np.concatenate([f[c] for f in frames]) for c in frames[0]})
+        df = pd.DataFrame(_concat_columns(frames))
     else:
         df = pd.concat(frames, ignore_index=True)
     df = _order(df, study)
