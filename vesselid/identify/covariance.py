@@ -787,11 +787,10 @@ class CovarianceEstimator:
         if windmeijer or square_b:
             used["fixed_b"] = bool(self.fixed_b and fixed_b is not None)
         if fixed_b is not None and np.all(np.isfinite(cov)) and "bandwidth" in used:
-            from vesselid.identify.fixedb import BARTLETT_QUANTILES, bartlett_critical_value
+            from vesselid.identify.fixedb import critical_scaling
 
             b_eff = fixed_b(cov, math.floor(used["bandwidth"]))
-            crit = bartlett_critical_value(b_eff)
-            scale = crit / BARTLETT_QUANTILES[0.975][0]
+            crit, scale = critical_scaling(b_eff)
             cov = cov * np.outer(scale, scale)
             used["effective_b"] = [float(x) for x in b_eff]
             used["critical_value"] = [float(x) for x in crit]

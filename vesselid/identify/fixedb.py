@@ -43,6 +43,7 @@ __all__ = [
     "BARTLETT_QUANTILES",
     "bartlett_critical_value",
     "bartlett_cross",
+    "critical_scaling",
     "effective_b",
     "influence_directions",
 ]
@@ -74,6 +75,13 @@ def bartlett_critical_value(b: np.ndarray | float, quantile: float = 0.975) -> n
     a0, a1, a2, a3 = BARTLETT_QUANTILES[quantile]
     b = np.clip(np.nan_to_num(np.asarray(b, dtype=float), nan=0.0), 0.0, 1.0)
     return a0 + b * (a1 + b * (a2 + b * a3))
+
+
+def critical_scaling(b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The 95 % fixed-b critical values ``q(b)`` at the effective bandwidth ratios ``b``
+    and the factors ``q(b)/1.96`` that scale the standard errors to them."""
+    crit = bartlett_critical_value(b)
+    return crit, crit / BARTLETT_QUANTILES[0.975][0]
 
 
 def bartlett_cross(x: np.ndarray, y: np.ndarray, lags: int,

@@ -375,11 +375,7 @@ def _scale_to_fixed_b(cov: np.ndarray, blocks: np.ndarray, rows: list, b_parts: 
     """Scale each equation's block of ``cov`` (in place) by ``q(b_p)/1.96``, the ratios
     summed over the experiments (:func:`_fixed_b_parts`); ``config`` gets them as the
     in-memory covariance reports them."""
-    from vesselid.identify.fixedb import (
-        BARTLETT_QUANTILES,
-        bartlett_critical_value,
-        influence_directions,
-    )
+    from vesselid.identify.fixedb import critical_scaling, influence_directions
 
     eff, crit = [], []
     for i, row in enumerate(rows):
@@ -389,8 +385,7 @@ def _scale_to_fixed_b(cov: np.ndarray, blocks: np.ndarray, rows: list, b_parts: 
         _, ok = influence_directions(cov[sl, sl])
         b = sum(p[i] for p in b_parts)
         b = np.where(ok & np.isfinite(b), b, 0.0)
-        q = bartlett_critical_value(b)
-        scale = q / BARTLETT_QUANTILES[0.975][0]
+        q, scale = critical_scaling(b)
         cov[sl, sl] *= np.outer(scale, scale)
         eff.extend(float(x) for x in b)
         crit.extend(float(x) for x in q)
