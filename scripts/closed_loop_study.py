@@ -36,6 +36,7 @@ from __future__ import annotations
 import argparse
 import time
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -104,10 +105,61 @@ def _save_runs(path: Path, name: str, names: list[str], theta0: np.ndarray,
                       .to_csv(index=False, float_format="%.9g"))
 
 
+#: The design, instrument options and flags of the runs the worker processes compute
+#: (set in the parent before the workers fork).
+_WORK: dict[str, Any] = {}
+
+
+def _worker_start() -> None:
+    """A worker process: its BLAS and compiled kernels on one thread (each worker has a
+    core of its own), so that the results do not depend on the number of workers."""
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(1)
+    import numba
+
+    numba.set_num_threads(1)
+
+
+def _worker_run(ss: np.random.SeedSequence) -> dict[str, Any]:
+    return _one_run(_WORK["design"], ss, _WORK["cov_config"], _WORK["correct"])
+
+
+def _runs(d: ClosedLoopDesign, seeds: list[np.random.SeedSequence],
+          cov_config: dict[str, Any] | None, correct: bool, workers: int,
+          time_limit: float | None) -> Iterator[dict[str, Any]]:
+    """Every run's results in the order of ``seeds`` (each run a function of its own
+    seed alone, so the same whatever ``workers``): in this process, or the first run here
+    (compiling the kernels the forked workers then share) and the rest in ``workers``
+    forked processes. With ``time_limit`` (seconds) the study is the runs that finished,
+    in order, before it passed."""
+    start = time.perf_counter()
+
+    def in_time() -> bool:
+        return time_limit is None or time.perf_counter() - start < time_limit
+
+    if workers <= 1 or len(seeds) < 2:
+        for ss in seeds:
+            if not in_time():
+                return
+            yield _one_run(d, ss, cov_config, correct)
+        return
+    import multiprocessing
+
+    yield _one_run(d, seeds[0], cov_config, correct)
+    _WORK.update(design=d, cov_config=cov_config, correct=correct)
+    with multiprocessing.get_context("fork").Pool(workers, initializer=_worker_start) as pool:
+        for out in pool.imap(_worker_run, seeds[1:]):
+            if not in_time():
+                return  # leaving the block terminates the workers
+            yield out
+
+
 def run_design(name: str, runs: int, seed: int, progress: bool = True,
                cov_config: dict[str, Any] | None = None, samples: int | None = None,
                experiments: int | None = None, save_runs: str | Path | None = None,
-               correct: bool = True) -> tuple[pd.DataFrame, dict[str, float]]:
+               correct: bool = True, workers: int = 1, time_limit: float | None = None
+               ) -> tuple[pd.DataFrame, dict[str, float]]:
     opts = {k: v for k, v in (("samples", samples), ("experiments", experiments))
             if v is not None}
     d = DESIGNS[name](**opts)
@@ -117,8 +169,9 @@ def run_design(name: str, runs: int, seed: int, progress: bool = True,
     est = {m: [] for m in ("ls", "iv-zero-mean", "cl-iv")}
     ses, ses_normal, fired_c, fired_o = [], [], 0, 0
     t0 = time.perf_counter()
-    for r, ss in enumerate(seeds):
-        out = _one_run(d, ss, cov_config, correct)
+    done = 0
+    for r, out in enumerate(_runs(d, seeds, cov_config, correct, workers, time_limit)):
+        done = r + 1
         for m in est:
             est[m].append(out[m])
         ses.append(out["cl-iv se"])
@@ -128,6 +181,10 @@ def run_design(name: str, runs: int, seed: int, progress: bool = True,
         if progress and (r + 1) % 20 == 0:
             print(f"  {name}: {r + 1}/{runs} runs ({time.perf_counter() - t0:.0f} s)",
                   flush=True)
+    if done < runs:
+        print(f"  {name}: time limit reached after {done} of {runs} runs; the table "
+              f"reports runs 0-{done - 1}", flush=True)
+        runs = done
     if save_runs is not None:
         _save_runs(Path(save_runs), name, names, theta0, est, ses, ses_normal)
     rows = []
@@ -177,6 +234,13 @@ def main() -> None:
     ap.add_argument("--no-sensor-noise-correction", dest="correct", action="store_false",
                     help="cl-iv without the errors-in-variables correction of the modulus "
                          "regressors (identify(..., sensor_noise=False))")
+    ap.add_argument("--workers", type=int, default=1,
+                    help="processes computing runs at once (the results are the same "
+                         "whatever the number)")
+    ap.add_argument("--time-limit", type=float, default=None,
+                    help="seconds after which the study stops: it is the runs that "
+                         "finished, in order, before then (the table's runs column says "
+                         "how many)")
     ap.add_argument("--save-runs", default=None,
                     help="also write every run's estimates to this CSV (one design: the "
                          "name as given; both: <stem>_<design>.csv)")
@@ -192,7 +256,8 @@ def main() -> None:
             save = Path(save).with_name(f"{Path(save).stem}_{name}.csv")
         table, rate = run_design(name, args.runs, args.seed, cov_config=cov_config,
                                  samples=args.samples, experiments=args.experiments,
-                                 save_runs=save, correct=args.correct)
+                                 save_runs=save, correct=args.correct,
+                                 workers=args.workers, time_limit=args.time_limit)
         tables.append(table)
         rates.append(rate)
     table = pd.concat(tables, ignore_index=True)
@@ -206,7 +271,7 @@ def main() -> None:
     pd.set_option("display.width", 160)
     for name in names:
         t = table[table.design == name]
-        print(f"\n== {name}: {args.runs} runs ==")
+        print(f"\n== {name}: {int(t['runs'].max())} runs ==")
         for m in ("ls", "iv-zero-mean"):
             z = t[t.estimator == m]["z"].abs()
             print(f"{m:13} max |z| = {z.max():.1f} (median {z.median():.1f})")
