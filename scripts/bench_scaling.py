@@ -820,8 +820,16 @@ def render_kernel_paths(kp: dict[str, Any]) -> list[str]:
 
 
 def write_docs(results: dict[str, Any], path: Path = ROOT / "docs" / "performance.md") -> Path:
-    """Write the performance page atomically."""
+    """Write the performance page atomically (with the many-core section of
+    ``bench_multicore.py`` where its figures are saved beside the page)."""
     text = render(results, machine())
+    multicore = path.with_name("performance_multicore.json")
+    if multicore.exists():
+        import json
+
+        from bench_multicore import render as render_multicore
+
+        text += "\n\n" + render_multicore(json.loads(multicore.read_text()))
     tmp = path.with_suffix(".md.tmp")
     tmp.write_text(text + "\n")
     tmp.replace(path)

@@ -1,0 +1,176 @@
+"""Benchmarks for a machine with many cores: how the Monte Carlo scales with its workers,
+and the in-process timings of ``identify`` on a quiet machine.
+
+Run ``python scripts/bench_multicore.py --json docs/performance_multicore.json`` on the
+machine to measure (every core free); ``python scripts/bench.py --docs`` then adds its
+figures to ``docs/performance.md`` as a section of their own (:func:`render`).
+
+Items (each from :mod:`bench_scaling` or :mod:`bench`, run here with the machine's
+counts):
+
+* the Monte Carlo part of ``vesselid reproduce --table 1`` (1000 runs × 10⁴ samples)
+  with 1, 2, 4, … workers up to the machine's cores (:func:`bench_scaling.bench_mc_threads`:
+  wall and CPU medians, the parent's CPU, and whether the result CSVs are byte-identical
+  at every count);
+* the same with one and two workers in a child process confined to two cores
+  (``os.sched_setaffinity``): the two-core figure on an otherwise idle machine;
+* ``identify`` with the default estimator on a 10⁴-sample white heave log and on one
+  with a Gauss–Markov current, in-process (:func:`bench.bench_identify`,
+  :func:`bench_scaling.bench_pem_path`);
+* the whole ``vesselid identify`` process on 10⁵- and 10⁶-sample heave logs: wall, CPU
+  and peak resident memory (:func:`bench_scaling.bench_identify_memory`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+__all__ = ["measure", "render"]
+
+
+def _worker_counts(cores: int) -> tuple[int, ...]:
+    counts, n = [], 1
+    while n < cores:
+        counts.append(n)
+        n *= 2
+    return (*counts, cores)
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:  # pragma: no cover - not Linux
+        pass
+    return platform.processor() or "unknown"
+
+
+def _two_cores(repeats: int, runs: int) -> dict[str, Any]:
+    """One and two workers in a child process confined to the first two usable cores."""
+    code = (f"import json, os, sys; sys.path.insert(0, {str(HERE)!r}); "
+            "os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[:2]); "
+            "from bench_scaling import bench_mc_threads; "
+            f"print(json.dumps(bench_mc_threads(repeats={repeats}, runs={runs}, "
+            "workers=(1, 2), project=())))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def measure(repeats: int = 2, runs: int = 1000,
+            memory_sizes: tuple[int, ...] = (100_000, 1_000_000)) -> dict[str, Any]:
+    """Every item of the module docstring on this machine."""
+    import numpy as np
+    from bench import bench_identify
+    from bench_scaling import bench_identify_memory, bench_mc_threads, bench_pem_path
+
+    cores = len(os.sched_getaffinity(0))
+    results: dict[str, Any] = {"machine": {
+        "cpu": _cpu_model(), "cores": cores,
+        "python": platform.python_version(), "numpy": np.__version__}}
+    results["mc_threads"] = bench_mc_threads(repeats=repeats, runs=runs,
+                                             workers=_worker_counts(cores), project=())
+    if cores > 2:
+        results["mc_two_cores"] = _two_cores(repeats + 1, runs)
+    white = bench_identify()
+    results["identify"] = {"white_default_ms": white["identify_heave_1e4_default_ms"],
+                           "white_default_cpu_ms": white["identify_heave_1e4_default_cpu_ms"]}
+    results["pem_path"] = bench_pem_path()
+    results["identify_memory"] = bench_identify_memory(sizes=memory_sizes, phases_at=None)
+    return results
+
+
+def _mc_rows(mc: dict[str, Any]) -> list[str]:
+    rows = ["| workers | wall (s) | CPU, all (s) | parent CPU (s) | speed-up (wall) |",
+            "|---:|---:|---:|---:|---:|"]
+    base = mc[f"w{mc['workers'][0]}_wall_s"]
+    for n in mc["workers"]:
+        rows.append(f"| {n} | {mc[f'w{n}_wall_s']:.2f} | {mc[f'w{n}_cpu_s']:.2f} | "
+                    f"{mc[f'w{n}_parent_cpu_s']:.2f} | {base / mc[f'w{n}_wall_s']:.2f}× |")
+    return rows
+
+
+def render(results: dict[str, Any]) -> str:
+    """The performance page's section for the figures of :func:`measure`."""
+    m, mc = results["machine"], results["mc_threads"]
+    lines = [
+        "## On a machine with many cores",
+        "",
+        f"Measured by `python scripts/bench_multicore.py` on a quiet machine: {m['cpu']}, "
+        f"{m['cores']} cores, Python {m['python']}, numpy {m['numpy']}. Its cores are not "
+        "those of the tables above: compare figures within this section.",
+        "",
+        f"The Monte Carlo part of `vesselid reproduce --table 1` ({mc['runs']:,} runs × "
+        f"{mc['samples']:,} samples), medians of {mc['repeats']} alternated runs; result "
+        f"CSVs byte-identical at every worker count: "
+        f"{'yes' if mc['csv_byte_identical'] else '**no**'}.",
+        "",
+        *_mc_rows(mc),
+    ]
+    two = results.get("mc_two_cores")
+    if two:
+        lines += ["", "The same with one and two workers in a process confined to two of "
+                  "the machine's cores (`os.sched_setaffinity`), the other cores idle; "
+                  f"CSVs byte-identical: {'yes' if two['csv_byte_identical'] else '**no**'}.",
+                  "", *_mc_rows(two)]
+    ident, pem = results.get("identify"), results.get("pem_path")
+    if ident and pem:
+        lines += [
+            "",
+            "`identify` with the default estimator, in-process, on 10⁴-sample heave logs "
+            "(medians):",
+            "",
+            "| log | wall (ms) | CPU (ms) |",
+            "|---|---:|---:|",
+            f"| white | {ident['white_default_ms']:.1f} | "
+            f"{ident['white_default_cpu_ms']:.1f} |",
+            f"| Gauss–Markov current (the default fits its likelihood model) | "
+            f"{pem['identify_ms_wall']:.1f} | {pem['identify_ms_cpu']:.1f} |",
+        ]
+    mem = results.get("identify_memory")
+    if mem:
+        lines += [
+            "",
+            "The whole `vesselid identify LOG` process on one-state heave logs (Parquet), "
+            f"medians of {mem['repeats']} processes:",
+            "",
+            "| samples | wall (s) | CPU (s) | peak RSS (MB) |",
+            "|---:|---:|---:|---:|",
+        ]
+        for n in mem["sizes"]:
+            lines.append(f"| {n:,} | {mem[f'{n}_wall_s']:.2f} | {mem[f'{n}_cpu_s']:.2f} | "
+                         f"{mem[f'{n}_peak_rss_mb']:.0f} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", required=True, help="write the figures here (JSON)")
+    parser.add_argument("--repeats", type=int, default=2,
+                        help="alternated Monte Carlo repeats per worker count")
+    parser.add_argument("--runs", type=int, default=1000, help="Monte Carlo runs")
+    parser.add_argument("--memory-sizes", nargs="+", type=int, default=[100_000, 1_000_000],
+                        help="heave log lengths of the whole-process identify item")
+    args = parser.parse_args(argv)
+    results = measure(repeats=args.repeats, runs=args.runs,
+                      memory_sizes=tuple(args.memory_sizes))
+    path = Path(args.json)
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(results, indent=1, default=float) + "\n")
+    tmp.replace(path)
+    print(render(results))
+
+
+if __name__ == "__main__":
+    main()
