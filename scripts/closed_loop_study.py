@@ -181,6 +181,9 @@ def run_design(name: str, runs: int, seed: int, progress: bool = True,
         if progress and (r + 1) % 20 == 0:
             print(f"  {name}: {r + 1}/{runs} runs ({time.perf_counter() - t0:.0f} s)",
                   flush=True)
+    if done < 2:
+        raise SystemExit(f"{name}: the time limit passed after {done} finished run(s); a "
+                         "study needs at least 2")
     if done < runs:
         print(f"  {name}: time limit reached after {done} of {runs} runs; the table "
               f"reports runs 0-{done - 1}", flush=True)
@@ -245,6 +248,12 @@ def main() -> None:
                     help="also write every run's estimates to this CSV (one design: the "
                          "name as given; both: <stem>_<design>.csv)")
     args = ap.parse_args()
+    if args.runs < 2:
+        ap.error(f"--runs must be at least 2 (a Monte Carlo sd needs two runs), got {args.runs}")
+    if args.workers < 1:
+        ap.error(f"--workers must be at least 1, got {args.workers}")
+    if args.time_limit is not None and not args.time_limit > 0:
+        ap.error(f"--time-limit must be a positive number of seconds, got {args.time_limit}")
     names = list(DESIGNS) if args.design == "both" else [args.design]
     tables, rates = [], []
     for name in names:

@@ -116,6 +116,24 @@ def test_study_per_run_table_reproduces_summary(tmp_path) -> None:
     assert rates["runs"] == 3
 
 
+def test_study_runs_do_not_depend_on_workers(tmp_path) -> None:
+    """The same per-run table from one process and from forked workers; a time limit
+    that leaves fewer than two finished runs is refused."""
+    study = load_script("closed_loop_study")
+    tables = []
+    for workers in (1, 2):
+        path = tmp_path / f"runs_{workers}.csv"
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            study.run_design("heave", 4, 12, progress=False, samples=400, save_runs=path,
+                             workers=workers)
+        tables.append(path.read_bytes())
+    assert tables[0] == tables[1]
+    with warnings.catch_warnings(), pytest.raises(SystemExit, match="time limit"):
+        warnings.simplefilter("ignore")
+        study.run_design("heave", 4, 12, progress=False, samples=400, time_limit=1e-9)
+
+
 @pytest.fixture(scope="module")
 def decomposition():
     return load_script("closed_loop_bias_decomposition")
