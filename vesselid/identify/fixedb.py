@@ -39,6 +39,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from vesselid.identify.covariance import moving_sums
+
 __all__ = [
     "BARTLETT_QUANTILES",
     "bartlett_critical_value",
@@ -103,20 +105,11 @@ def bartlett_cross(x: np.ndarray, y: np.ndarray, lags: int,
     lags = int(lags)
     out = np.zeros(x.shape[1])
     for s in segments:
-        hx = _moving_sums(x[s], lags)
-        hy = hx if y is x else _moving_sums(y[s], lags)
+        # time-major rows, as the sums below have always been taken
+        hx = np.ascontiguousarray(moving_sums(x[s].T, lags).T)
+        hy = hx if y is x else np.ascontiguousarray(moving_sums(y[s].T, lags).T)
         out += np.einsum("tj,tj->j", hx, hy)
     return out / (lags + 1.0)
-
-
-def _moving_sums(x: np.ndarray, lags: int) -> np.ndarray:
-    n = x.shape[0]
-    c = np.zeros((n + lags + 1, x.shape[1]))
-    np.cumsum(x, axis=0, out=c[1:n + 1])
-    c[n + 1:] = c[n]
-    lagged = np.zeros_like(c)
-    lagged[lags + 1:] = c[:n]
-    return (c - lagged)[1:]
 
 
 def influence_directions(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
