@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 
 import numpy as np
+import pytest
 
 from vesselid.cli import main
 
@@ -573,3 +574,28 @@ def test_endogeneity_of_a_long_log_in_blocks(monkeypatch) -> None:
             assert got.df == ref.df == 1
             assert abs(got.stat - ref.stat) <= 1e-10 * abs(ref.stat), (share, config)
             assert abs(got.pvalue - ref.pvalue) <= 1e-10 * max(ref.pvalue, 1e-12)
+
+
+def test_arrow_system_allocator_before_the_import() -> None:
+    """Set before pyarrow is imported, the C library's allocator is Arrow's default pool;
+    a pool named in the environment is kept; after the import the pool is reported."""
+    import json
+    import os
+    import subprocess
+
+    pytest.importorskip("pyarrow")
+    code = ("import json, sys\n"
+            "from vesselid.core.memory import arrow_system_allocator\n"
+            "first = arrow_system_allocator()\n"
+            "import pyarrow as pa\n"
+            "print(json.dumps([first, pa.default_memory_pool().backend_name,\n"
+            "                  arrow_system_allocator()]))\n")
+    env = {k: v for k, v in os.environ.items() if k != "ARROW_DEFAULT_MEMORY_POOL"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, env=env).stdout
+    assert json.loads(out) == [True, "system", True]
+    env["ARROW_DEFAULT_MEMORY_POOL"] = "jemalloc"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, env=env).stdout
+    first, backend, after = json.loads(out)
+    assert first is False and after is (backend == "system")

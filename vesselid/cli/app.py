@@ -211,8 +211,13 @@ def cmd_identify(args: argparse.Namespace) -> int:
         raise CLIError(f"argument --method: invalid choice {args.method!r} "
                        f"(choose from {', '.join(_names.names())})")
     _check_cov(args.cov)
-    from vesselid.core import limits
     from vesselid.core import memory as _memory
+
+    # freed temporaries leave the resident memory, and a Parquet log's columns hold no
+    # more than themselves (vesselid.core.memory; Arrow's pool is chosen on its import)
+    _memory.unmap_large_blocks()
+    _memory.arrow_system_allocator()
+    from vesselid.core import limits
     from vesselid.data.logs import TrialLog, estimate_shape
     from vesselid.identify import identify
     from vesselid.model.spec import ModelSpec
@@ -222,7 +227,6 @@ def cmd_identify(args: argparse.Namespace) -> int:
     limits.check("identify", f"{args.log} (~{rows:.3g} rows × {cols} columns)",
                  memory=limits.read_memory(rows, cols), seconds=limits.read_seconds(rows, cols),
                  memory_hint=limits.STREAM_HINT)
-    _memory.unmap_large_blocks()  # freed temporaries leave the resident memory
     log = TrialLog.load(args.log, spec=spec, truth=False)  # no estimator reads the truth
     if spec is None and log.spec is None:
         raise CLIError(f"{args.log} carries no model spec; pass --model SPEC.toml")

@@ -8,19 +8,28 @@ keeps a high-water mark of every stage's temporaries in its resident memory. A f
 threshold (:func:`unmap_large_blocks`) switches the adjustment off: blocks from
 ``MMAP_THRESHOLD`` up are mapped and returned on ``free``, and the peak resident memory
 follows the arrays alive at once. Results are unchanged (only where memory comes from).
+
+Arrow (Parquet logs) allocates from its own pool, mimalloc by default, which keeps freed
+and partly used pages of its 1 GiB arena resident; a frame read from Parquet keeps the
+buffers Arrow decoded (zero-copy columns), so where Arrow allocates is where the log
+lives. :func:`arrow_system_allocator` makes the C library's allocator Arrow's default
+pool (before pyarrow is imported): with the fixed threshold each large column is then a
+mapping of its own.
 """
 
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import os
 import sys
 
-__all__ = ["MMAP_THRESHOLD", "unmap_large_blocks"]
+__all__ = ["MMAP_THRESHOLD", "arrow_system_allocator", "unmap_large_blocks"]
 
 #: Blocks of at least this many bytes are mapped (and unmapped on free).
 MMAP_THRESHOLD = 1 << 20
 _M_MMAP_THRESHOLD = -3  # mallopt parameter (malloc.h)
+_ARROW_POOL = "ARROW_DEFAULT_MEMORY_POOL"
 
 
 def unmap_large_blocks(threshold: int = MMAP_THRESHOLD) -> bool:
@@ -36,3 +45,19 @@ def unmap_large_blocks(threshold: int = MMAP_THRESHOLD) -> bool:
     mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
     mallopt.restype = ctypes.c_int
     return bool(mallopt(_M_MMAP_THRESHOLD, int(threshold)))
+
+
+def arrow_system_allocator() -> bool:
+    """Make the C library's allocator Arrow's default memory pool for this process.
+
+    Arrow chooses its default pool once, from ``ARROW_DEFAULT_MEMORY_POOL``, when pyarrow
+    is imported: this sets that variable (a value already in the environment is kept)
+    and so works only before the import. Returns whether the C library's allocator is
+    (or will be) the default pool."""
+    if "pyarrow" in sys.modules:
+        pa = sys.modules["pyarrow"]
+        try:
+            return bool(pa.default_memory_pool().backend_name == "system")
+        except AttributeError:  # pragma: no cover - a partial or very old pyarrow
+            return False
+    return os.environ.setdefault(_ARROW_POOL, "system") == "system"
