@@ -363,12 +363,11 @@ def hac_sums(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: np.ndarray
     """
     k_cols = z.shape[1]
     out = np.zeros((starts.size - 1, k_cols, k_cols))
-    ev = None
     for s, a, b, v, cnt in _valid_experiments(starts, valid):
         lag = int(min(lags, b - a - 1))
         if b - a > _covariance.LARGE_ROWS:  # the same sums in blocks: no K × n scores
-            ev = np.where(valid, e, 0.0) if ev is None else ev
-            out[s] = _bartlett_scores_in_blocks(z[a:b], ev[a:b], v, cnt, lag,
+            # (the blocks zero the invalid rows' scores themselves: e as it is)
+            out[s] = _bartlett_scores_in_blocks(z[a:b], e[a:b], v, cnt, lag,
                                                 _covariance.BLOCK_ROWS)
             continue
         g = _scores_of(z, e, a, b, v, cnt)
@@ -379,8 +378,9 @@ def hac_sums(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: np.ndarray
 
 def _bartlett_scores_in_blocks(z: np.ndarray, ev: np.ndarray, v: np.ndarray, cnt: int,
                                lag: int, rows: int) -> np.ndarray:
-    """:func:`hac_sums` of one long experiment (rows of ``z``, residuals ``ev`` zero on
-    the invalid rows ``~v``) with the scores formed ``rows`` rows at a time: their mean
+    """:func:`hac_sums` of one long experiment (rows of ``z``, residuals ``ev``; the
+    scores of the invalid rows ``~v`` are zeroed, whatever ``ev`` holds there) with the
+    scores formed ``rows`` rows at a time: their mean
     over the valid rows, then :func:`vesselid.identify.covariance.bartlett_block_sums`
     of the demeaned scores (invalid rows zero). Memory ``O(rows · K)`` instead of the
     ``K × n`` scores; the same sums rounded differently (~1e-14 relative)."""
@@ -692,7 +692,11 @@ def solve_equations(
         s_mat = None
         jac = None
         if k_i > p_i:
-            e = yy - np.einsum("tp,tp->t", pp, _rows_of(np.nan_to_num(th), data, pp.shape))
+            # e = yy − Σ_p pp θ, the difference written over the product (the same numbers)
+            e = np.einsum("tp,tp->t", pp, _rows_of(np.nan_to_num(th), data, pp.shape))
+            np.subtract(yy, e, out=e)
+            if designs is None:  # the centred regressors and target are read no more
+                del pp, yy
             s_mat = _group_sum(data, hac_sums(zz, e, data.starts, valid, bw))
             s_inv, ok_s = linalg.inv_sym(s_mat)
             if weight == "hac":
