@@ -599,3 +599,27 @@ def test_arrow_system_allocator_before_the_import() -> None:
                          check=True, env=env).stdout
     first, backend, after = json.loads(out)
     assert first is False and after is (backend == "system")
+
+
+def test_identify_command_equals_identify_on_the_log(tmp_path, capsys) -> None:
+    """``vesselid identify LOG --json -`` (which lets go of the checked time column before
+    the fit) writes the result ``identify`` gives on the whole log, byte for byte, for a
+    log of two experiments in Parquet and in CSV."""
+    import warnings
+
+    pytest.importorskip("pyarrow")
+    from vesselid.data.logs import TrialLog, concat_logs
+    from vesselid.identify import identify
+    from vesselid.plant.systems import heave
+
+    log = concat_logs([heave().simulate(1500, seed=s).to_log() for s in (3, 4)])
+    assert "time" in log.data.columns
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        want = identify(log).to_json(indent=2)
+    for suffix in (".parquet", ".csv"):
+        path = tmp_path / f"two{suffix}"
+        log.save(path)
+        assert "time" in TrialLog.load(path).data.columns
+        assert main(["identify", str(path), "--json", "-"]) == 0
+        assert capsys.readouterr().out.strip() == want.strip()

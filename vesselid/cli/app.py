@@ -233,8 +233,14 @@ def cmd_identify(args: argparse.Namespace) -> int:
     from vesselid.data.sampling import check_sampling
 
     check_sampling(log, (spec or log.spec).dt, tolerance=args.dt_tolerance)
+    dt_tolerance = args.dt_tolerance
+    if "time" in log.data.columns and "time" not in (spec or log.spec).measured_columns:
+        # the time column is validated and the sampling checked: the fit reads the rows as
+        # the samples at dt and needs the column no more (on a long log it is not held
+        # through the fit; the other columns are shared, not copied)
+        log = TrialLog(log.data.drop(columns="time"), log.metadata)
+        dt_tolerance = None
     from vesselid.errors import EstimationFailedError
-
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -243,7 +249,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
                               target=args.target, cov_type=args.cov, max_iter=args.max_iter,
                               sensor_noise=_sensor_noise(getattr(args, "sensor_noise", None)),
                               noise_order=getattr(args, "noise_order", None),
-                              dt_tolerance=args.dt_tolerance)
+                              dt_tolerance=dt_tolerance)
         except EstimationFailedError as exc:  # valid input, no finite estimate: exit 3
             msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             print(f"vesselid identify: error: no usable model: {msg}", file=sys.stderr)
