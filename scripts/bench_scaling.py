@@ -396,6 +396,8 @@ def sample():
             cell[0] = max(cell[0], r)
         time.sleep(0.002)
 threading.Thread(target=sample, daemon=True).start()
+from vesselid.core.memory import arrow_system_allocator
+arrow_system_allocator()  # as `vesselid identify` does, before pyarrow is imported
 def wrap(owner, name, label):
     fn = getattr(owner, name)
     @functools.wraps(fn)
