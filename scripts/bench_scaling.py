@@ -368,10 +368,12 @@ print(wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss * 1024.0)
 """
 
 
-def _run_measured(cmd: list[str]) -> tuple[float, float, float]:
-    """(wall s, CPU s, peak RSS bytes) of a command run as a child process."""
+def _run_measured(cmd: list[str], env: dict[str, str] | None = None
+                  ) -> tuple[float, float, float]:
+    """(wall s, CPU s, peak RSS bytes) of a command run as a child process (``env``:
+    its environment, default this process's)."""
     out = subprocess.run([sys.executable, "-c", _MEASURE, *cmd], capture_output=True,
-                         text=True, check=False)
+                         text=True, check=False, env=env)
     if out.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed: {out.stderr.strip()}")
     wall, cpu, rss = (float(x) for x in out.stdout.split())
@@ -396,6 +398,8 @@ def sample():
             cell[0] = max(cell[0], r)
         time.sleep(0.002)
 threading.Thread(target=sample, daemon=True).start()
+from vesselid.core.memory import arrow_system_allocator
+arrow_system_allocator()  # as `vesselid identify` does, before pyarrow is imported
 def wrap(owner, name, label):
     fn = getattr(owner, name)
     @functools.wraps(fn)
@@ -434,7 +438,8 @@ sys.exit(code)
 
 def bench_identify_memory(sizes: tuple[int, ...] = (100_000, 1_000_000, 4_000_000),
                           repeats: int = 3, fmt: str = "parquet",
-                          phases_at: int | None = 1_000_000) -> dict[str, Any]:
+                          phases_at: int | None = 1_000_000,
+                          floor_samples: int | None = 1_000) -> dict[str, Any]:
     """Peak RSS and time of the whole ``vesselid identify LOG`` process (default
     estimator) on one-state heave logs (``fmt``: Parquet, or CSV) of ``sizes``
     samples, medians of ``repeats`` processes per size; the growth per 10⁶ samples
@@ -442,7 +447,11 @@ def bench_identify_memory(sizes: tuple[int, ...] = (100_000, 1_000_000, 4_000_00
     growth: the two agree). ``phases_at``: on that log also where the peak is reached —
     every step of the fit with its CPU time, its resident memory at entry and its peak
     (one process sampling its own RSS every 2 ms; the sampling thread costs a little
-    CPU)."""
+    CPU). ``floor_samples``: the process on a log that short with the compiled kernels
+    (``VESSELID_KERNELS=compiled``): what it holds besides the log's own arrays (the
+    imports, numba and its loaded kernels; logs of at most
+    :data:`~vesselid.identify.backend.NUMPY_MAX_SAMPLE_TERMS` samples × parameters run on
+    the numpy kernels without numba)."""
     import json
 
     from vesselid.plant.systems import heave
@@ -466,6 +475,18 @@ def bench_identify_memory(sizes: tuple[int, ...] = (100_000, 1_000_000, 4_000_00
                     out["phases_samples"] = n
                     out["phases"] = json.loads(proc.stderr.strip().splitlines()[-1])
             path.unlink()
+        if floor_samples:
+            path = Path(tmp) / f"heave_{floor_samples}.{fmt}"
+            heave().simulate(floor_samples, seed=0).to_log().save(path)
+            env = {**os.environ, "VESSELID_KERNELS": "compiled"}
+            runs = [_run_measured([*exe, str(path)], env) for _ in range(repeats)]
+            out["floor_samples"] = floor_samples
+            out["floor_peak_rss_mb"] = statistics.median(r[2] for r in runs) / 1e6
+            from vesselid.identify.backend import NUMPY_MAX_SAMPLE_TERMS
+
+            n_params = heave().spec.n_params
+            out["numpy_kernel_sizes"] = [n for n in sizes
+                                         if n * n_params <= NUMPY_MAX_SAMPLE_TERMS]
     big = [n for n in sizes if n >= 1_000_000]
     if len(big) >= 2:  # slope per 10⁶ samples between the two largest logs
         a, b = big[-2], big[-1]
@@ -737,6 +758,15 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
                              f"{mem['rss_mb_per_1e6_samples_fit']:.0f} MB per 10⁶ samples, "
                              f"intercept {mem['rss_mb_intercept']:.0f} MB)."
                              if "rss_mb_per_1e6_samples_fit" in mem else ".")]
+        numpy_sizes = mem.get("numpy_kernel_sizes") or []
+        if "floor_peak_rss_mb" in mem:
+            lines += ["", f"A {mem['floor_samples']:,}-sample log on the compiled kernels "
+                          f"(`VESSELID_KERNELS=compiled`): {mem['floor_peak_rss_mb']:.0f} MB, "
+                          "what the process holds besides the log's own arrays (the "
+                          "imports, numba and its loaded kernels)."
+                          + (" The logs of " + ", ".join(f"{n:,}" for n in numpy_sizes)
+                             + " samples run on the numpy kernels, without numba."
+                             if numpy_sizes else "")]
         if mem.get("phases"):
             lines += render_phases(mem["phases"], mem["phases_samples"])
         lines.append("")

@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 
 import numpy as np
+import pytest
 
 from vesselid.cli import main
 
@@ -573,3 +574,52 @@ def test_endogeneity_of_a_long_log_in_blocks(monkeypatch) -> None:
             assert got.df == ref.df == 1
             assert abs(got.stat - ref.stat) <= 1e-10 * abs(ref.stat), (share, config)
             assert abs(got.pvalue - ref.pvalue) <= 1e-10 * max(ref.pvalue, 1e-12)
+
+
+def test_arrow_system_allocator_before_the_import() -> None:
+    """Set before pyarrow is imported, the C library's allocator is Arrow's default pool;
+    a pool named in the environment is kept; after the import the pool is reported."""
+    import json
+    import os
+    import subprocess
+
+    pytest.importorskip("pyarrow")
+    code = ("import json, sys\n"
+            "from vesselid.core.memory import arrow_system_allocator\n"
+            "first = arrow_system_allocator()\n"
+            "import pyarrow as pa\n"
+            "print(json.dumps([first, pa.default_memory_pool().backend_name,\n"
+            "                  arrow_system_allocator()]))\n")
+    env = {k: v for k, v in os.environ.items() if k != "ARROW_DEFAULT_MEMORY_POOL"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, env=env).stdout
+    assert json.loads(out) == [True, "system", True]
+    env["ARROW_DEFAULT_MEMORY_POOL"] = "jemalloc"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, env=env).stdout
+    first, backend, after = json.loads(out)
+    assert first is False and after is (backend == "system")
+
+
+def test_identify_command_equals_identify_on_the_log(tmp_path, capsys) -> None:
+    """``vesselid identify LOG --json -`` (which lets go of the checked time column before
+    the fit) writes the result ``identify`` gives on the whole log, byte for byte, for a
+    log of two experiments in Parquet and in CSV."""
+    import warnings
+
+    pytest.importorskip("pyarrow")
+    from vesselid.data.logs import TrialLog, concat_logs
+    from vesselid.identify import identify
+    from vesselid.plant.systems import heave
+
+    log = concat_logs([heave().simulate(1500, seed=s).to_log() for s in (3, 4)])
+    assert "time" in log.data.columns
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        want = identify(log).to_json(indent=2)
+    for suffix in (".parquet", ".csv"):
+        path = tmp_path / f"two{suffix}"
+        log.save(path)
+        assert "time" in TrialLog.load(path).data.columns
+        assert main(["identify", str(path), "--json", "-"]) == 0
+        assert capsys.readouterr().out.strip() == want.strip()

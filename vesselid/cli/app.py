@@ -211,8 +211,13 @@ def cmd_identify(args: argparse.Namespace) -> int:
         raise CLIError(f"argument --method: invalid choice {args.method!r} "
                        f"(choose from {', '.join(_names.names())})")
     _check_cov(args.cov)
-    from vesselid.core import limits
     from vesselid.core import memory as _memory
+
+    # freed temporaries leave the resident memory, and a Parquet log's columns hold no
+    # more than themselves (vesselid.core.memory; Arrow's pool is chosen on its import)
+    _memory.unmap_large_blocks()
+    _memory.arrow_system_allocator()
+    from vesselid.core import limits
     from vesselid.data.logs import TrialLog, estimate_shape
     from vesselid.identify import identify
     from vesselid.model.spec import ModelSpec
@@ -222,15 +227,20 @@ def cmd_identify(args: argparse.Namespace) -> int:
     limits.check("identify", f"{args.log} (~{rows:.3g} rows × {cols} columns)",
                  memory=limits.read_memory(rows, cols), seconds=limits.read_seconds(rows, cols),
                  memory_hint=limits.STREAM_HINT)
-    _memory.unmap_large_blocks()  # freed temporaries leave the resident memory
     log = TrialLog.load(args.log, spec=spec, truth=False)  # no estimator reads the truth
     if spec is None and log.spec is None:
         raise CLIError(f"{args.log} carries no model spec; pass --model SPEC.toml")
     from vesselid.data.sampling import check_sampling
 
     check_sampling(log, (spec or log.spec).dt, tolerance=args.dt_tolerance)
+    dt_tolerance = args.dt_tolerance
+    if "time" in log.data.columns and "time" not in (spec or log.spec).measured_columns:
+        # the time column is validated and the sampling checked: the fit reads the rows as
+        # the samples at dt and needs the column no more (on a long log it is not held
+        # through the fit; the other columns are shared, not copied)
+        log = TrialLog(log.data.drop(columns="time"), log.metadata)
+        dt_tolerance = None
     from vesselid.errors import EstimationFailedError
-
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -239,7 +249,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
                               target=args.target, cov_type=args.cov, max_iter=args.max_iter,
                               sensor_noise=_sensor_noise(getattr(args, "sensor_noise", None)),
                               noise_order=getattr(args, "noise_order", None),
-                              dt_tolerance=args.dt_tolerance)
+                              dt_tolerance=dt_tolerance)
         except EstimationFailedError as exc:  # valid input, no finite estimate: exit 3
             msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             print(f"vesselid identify: error: no usable model: {msg}", file=sys.stderr)

@@ -856,8 +856,9 @@ def _read_parquet(path: Path, keep: Any = None) -> tuple[pd.DataFrame, dict]:
         if keep is not None:  # the columns asked for, from the footer's metadata
             raw = (schema.metadata or {}).get(PARQUET_METADATA_KEY)
             keep = keep(_read_envelope(raw, str(path)) if raw is not None else {})
-        table = pq.read_table(path, page_checksum_verification=True,
-                              columns=None if keep is None else [c for c in names if keep(c)])
+        # one file, read as it is (no dataset layer: its modules stay unloaded)
+        table = pq.ParquetFile(path, page_checksum_verification=True).read(
+            columns=None if keep is None else [c for c in names if keep(c)])
         raw = (table.schema.metadata or {}).get(PARQUET_METADATA_KEY)
         envelope = _read_envelope(raw, str(path)) if raw is not None else {}
         # one block per column, each Arrow buffer freed as soon as it is converted, and

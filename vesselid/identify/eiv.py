@@ -249,6 +249,18 @@ def corrected_regressor_matrix(data: Any, spec: Any) -> np.ndarray:
                               data.regressor_noise)
 
 
+def uncorrected_regressor_matrix(data: Any, spec: Any) -> np.ndarray:
+    """:func:`vesselid.identify.kernels.regressor_matrix` of ``data``: the rows
+    :func:`remember_regressors` kept when they carry no correction (no
+    ``data.regressor_noise``: the same numbers, not formed again), else formed. Read-only
+    for the caller (the rows may be the fit's)."""
+    if data.regressor_noise is None:
+        return corrected_regressor_matrix(data, spec)
+    from vesselid.identify.backend import kernels
+
+    return kernels.regressor_matrix(data.regsig, data.u, data.starts, spec.codes.factors)
+
+
 _REMEMBERED = "_corrected_regressors"
 
 

@@ -40,6 +40,7 @@ centring) is kept for Windmeijer's (2005) corrected covariance
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -363,12 +364,11 @@ def hac_sums(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: np.ndarray
     """
     k_cols = z.shape[1]
     out = np.zeros((starts.size - 1, k_cols, k_cols))
-    ev = None
     for s, a, b, v, cnt in _valid_experiments(starts, valid):
         lag = int(min(lags, b - a - 1))
         if b - a > _covariance.LARGE_ROWS:  # the same sums in blocks: no K × n scores
-            ev = np.where(valid, e, 0.0) if ev is None else ev
-            out[s] = _bartlett_scores_in_blocks(z[a:b], ev[a:b], v, cnt, lag,
+            # (the blocks zero the invalid rows' scores themselves: e as it is)
+            out[s] = _bartlett_scores_in_blocks(z[a:b], e[a:b], v, cnt, lag,
                                                 _covariance.BLOCK_ROWS)
             continue
         g = _scores_of(z, e, a, b, v, cnt)
@@ -379,8 +379,9 @@ def hac_sums(z: np.ndarray, e: np.ndarray, starts: np.ndarray, valid: np.ndarray
 
 def _bartlett_scores_in_blocks(z: np.ndarray, ev: np.ndarray, v: np.ndarray, cnt: int,
                                lag: int, rows: int) -> np.ndarray:
-    """:func:`hac_sums` of one long experiment (rows of ``z``, residuals ``ev`` zero on
-    the invalid rows ``~v``) with the scores formed ``rows`` rows at a time: their mean
+    """:func:`hac_sums` of one long experiment (rows of ``z``, residuals ``ev``; the
+    scores of the invalid rows ``~v`` are zeroed, whatever ``ev`` holds there) with the
+    scores formed ``rows`` rows at a time: their mean
     over the valid rows, then :func:`vesselid.identify.covariance.bartlett_block_sums`
     of the demeaned scores (invalid rows zero). Memory ``O(rows · K)`` instead of the
     ``K × n`` scores; the same sums rounded differently (~1e-14 relative)."""
@@ -586,6 +587,10 @@ def _rows_of(theta: np.ndarray, data: RegressionData, shape: tuple[int, int]) ->
     return _per_row(theta, data)
 
 
+#: Rows per block of the GMM residuals written over the centred target.
+_RESIDUAL_ROWS = 1 << 16
+
+
 def solve_equations(
     data: RegressionData,
     spec: ModelSpec,
@@ -657,8 +662,14 @@ def solve_equations(
             # a long log's handed-over instruments centred in their own buffer (no second
             # T × K array); the regressors and target as below (the same numbers)
             zz = _centre_in_place(zc, valid, col[:k_i], data.starts)
-            _, pp, yy = ivk.design_centre(zc[:, :0], phi, sl.start, sl.stop, data.target, i,
-                                          valid, col[k_i:], data.starts)
+            if handed and i == spec.n_states - 1 and _own_rows(phi, sl):
+                # and the handed-over regressors, every column this equation's, in theirs
+                _, _, yy = ivk.design_centre(zc[:, :0], phi, sl.stop, sl.stop, data.target,
+                                             i, valid, col[k_i + p_i:], data.starts)
+                pp = _centre_in_place(phi, valid, col[k_i:k_i + p_i], data.starts)
+            else:
+                _, pp, yy = ivk.design_centre(zc[:, :0], phi, sl.start, sl.stop, data.target,
+                                              i, valid, col[k_i:], data.starts)
         elif ar is None:  # masked, scaled and centred in two compiled passes (bit-identical)
             zz, pp, yy = ivk.design_centre(zc, phi, sl.start, sl.stop, data.target, i,
                                            valid, col, data.starts)
@@ -692,7 +703,19 @@ def solve_equations(
         s_mat = None
         jac = None
         if k_i > p_i:
-            e = yy - np.einsum("tp,tp->t", pp, _rows_of(np.nan_to_num(th), data, pp.shape))
+            th_rows = _rows_of(np.nan_to_num(th), data, pp.shape)
+            if designs is None:
+                # e = yy − Σ_p pp θ written over yy (read no more), a block of rows at a
+                # time (the same numbers row by row); the centred regressors freed after
+                e = yy
+                for lo in range(0, e.size, _RESIDUAL_ROWS):
+                    hi = lo + _RESIDUAL_ROWS
+                    e[lo:hi] -= np.einsum("tp,tp->t", pp[lo:hi], th_rows[lo:hi])
+                del pp, yy
+            else:  # (the difference written over the product: the same numbers)
+                e = np.einsum("tp,tp->t", pp, th_rows)
+                np.subtract(yy, e, out=e)
+            del th_rows
             s_mat = _group_sum(data, hac_sums(zz, e, data.starts, valid, bw))
             s_inv, ok_s = linalg.inv_sym(s_mat)
             if weight == "hac":
@@ -748,6 +771,27 @@ def _centres_in_place(z: np.ndarray) -> bool:
     return (z.shape[0] > _covariance.LARGE_ROWS and z.ndim == 2 and z.shape[1] >= 2
             and z.dtype == np.float64 and z.flags.c_contiguous and z.flags.owndata
             and z.flags.writeable)
+
+
+def _own_rows(phi: np.ndarray, sl: slice) -> bool:
+    """Handed-over regressors :func:`solve_equations` may centre in their own buffer:
+    every column is the equation's (``sl``), :func:`_centres_in_place` holds, and no
+    other reference to the array exists (the handing-over frame's list gave its one
+    up; rows kept elsewhere, e.g. the fit's remembered ones, are never written)."""
+    return (sl.start == 0 and sl.stop == phi.shape[1] and _centres_in_place(phi)
+            and _sole_reference(phi))
+
+
+def _sole_reference(a: np.ndarray) -> bool:
+    """Whether the caller's one name is the only reference to ``a``: its count against
+    that of an array only this function names (the same calls; the interpreter's own
+    counting conventions cancel)."""
+    fresh = np.empty(0)
+    return _references(a) <= _references(fresh) + 1  # (+1: the caller's name of ``a``)
+
+
+def _references(a: object) -> int:
+    return sys.getrefcount(a)
 
 
 def _centre_in_place(z: np.ndarray, valid: np.ndarray, col: np.ndarray,

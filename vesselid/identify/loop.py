@@ -344,9 +344,12 @@ def reference_designs(data: RegressionData, spec: ModelSpec, it: Any = None) -> 
         from vesselid.identify.validity import reference_matrices
 
         phi, z, _ = reference_matrices(data, spec, it.theta_aux[0])
-    else:  # (a long log: none kept; computed here into buffers this function owns)
+    else:  # (a long log: none kept; the instruments computed here into a buffer this
+        # function owns, the regressors the fit's own rows where it kept them, read only)
+        from vesselid.identify.eiv import uncorrected_regressor_matrix
+
         codes = spec.codes
-        phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, codes.factors)
+        phi = uncorrected_regressor_matrix(data, spec)
         z, xhat = kernels.instrument_matrix(data.target, data.u, data.starts, it.theta_aux[0],
                                             codes.factors, codes.equation, spec.n_states)
         del xhat

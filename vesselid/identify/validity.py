@@ -203,12 +203,15 @@ def _long_rows(data: RegressionData, spec: ModelSpec, theta_aux: np.ndarray,
         np.abs(last[:-1], out=out[1:, -1])
         return out
 
-    phi = kernels.regressor_matrix(data.regsig, data.u, data.starts, codes.factors)
-    phi = widened(phi, data.regsig[:, 0])
+    # the instruments first (their simulation's states freed once read), then the
+    # regressors (the fit's own rows where it kept them: copied, not formed again)
     z, xhat = kernels.instrument_matrix(data.target, data.u, data.starts, theta_aux,
                                         codes.factors, codes.equation, spec.n_states)
     z = widened(z, xhat[:, 0])
     del xhat
+    from vesselid.identify.eiv import uncorrected_regressor_matrix
+
+    phi = widened(uncorrected_regressor_matrix(data, spec), data.regsig[:, 0])
     y = data.target[:, 0].astype(float)
     keep = np.ones(n, dtype=bool)
     for arr in (phi, z):  # column by column: the same mask as a row-wise all()
