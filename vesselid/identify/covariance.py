@@ -69,6 +69,7 @@ import numpy as np
 
 from vesselid.errors import CovarianceError
 from vesselid.identify.defaults import DEFAULT_COV_TYPE
+from vesselid.identify.movingsums import moving_sums
 
 __all__ = [
     "BANDWIDTH_RULES",
@@ -293,21 +294,6 @@ def long_run_covariance(
     kg = fftconvolve(g, sym, mode="same", axes=0)
     out = g.T @ kg
     return 0.5 * (out + out.T)
-
-
-def moving_sums(x: np.ndarray, lag: int) -> np.ndarray:
-    """``h(t) = Σ_{i=0}^{lag} x(t − i)`` of the zero-padded series ``x`` (q, n), for
-    ``t = 0 … n + lag − 1``: differences of one running sum (the Bartlett long-run
-    covariance is ``Σ_t h hᵀ / (lag + 1)``; :func:`bartlett_long_run`,
-    :func:`vesselid.identify.gmm.hac_sums`)."""
-    kernel = _loaded_kernel("moving_sums")
-    if kernel is not None and x.shape[1] > 0:  # the same sums in one compiled pass
-        return kernel(np.ascontiguousarray(x, dtype=float), int(lag))
-    q, n = x.shape
-    c = np.zeros((q, n + 2 * lag + 1))
-    np.cumsum(x, axis=1, out=c[:, lag + 1:n + lag + 1])
-    c[:, n + lag + 1:] = c[:, n + lag:n + lag + 1]
-    return c[:, lag + 1:] - c[:, :-(lag + 1)]
 
 
 def _loaded_kernel(name: str) -> Any:

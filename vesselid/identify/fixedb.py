@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vesselid.identify.covariance import moving_sums
+from vesselid.identify.movingsums import moving_sums
 
 __all__ = [
     "BARTLETT_QUANTILES",
