@@ -142,7 +142,10 @@ def bench_single_envs(repeats: int = 7, steps: int = 20_000, num_envs: int = 102
 # ----------------------------------------------------------------- Monte Carlo workers
 class _ChunkClock:
     """Records every worker chunk's CPU seconds (``time.process_time`` of the worker
-    process around the chunk) and its process id into a file, by wrapping
+    process around the chunk), its main thread's critical path (its CPU clock, with the
+    longest block in place of the blocks it ran itself in each call spread over idle
+    cores, :func:`vesselid.core.threads.span_clock`) and its process id into a file,
+    by wrapping
     :func:`vesselid.studies.montecarlo._serial_chunk` (what each forked worker runs): the CPU
     clock per worker, which the children's summed CPU from ``getrusage`` cannot give.
     The wrapper keeps the function's name, so the process pool pickles it by reference
@@ -158,10 +161,12 @@ class _ChunkClock:
     def __enter__(self) -> _ChunkClock:
         original, path = self.original, self.path
 
+        from vesselid.core.threads import span_clock
+
         def clocked(study: Any, start: int, stop: int, *args: Any) -> Any:
-            c0, m0 = time.process_time(), time.thread_time()
+            c0, m0 = time.process_time(), time.thread_time() + span_clock()
             out = original(study, start, stop, *args)
-            c1, m1 = time.process_time(), time.thread_time()
+            c1, m1 = time.process_time(), time.thread_time() + span_clock()
             with open(path, "a") as fh:  # one short line per chunk (appends are atomic)
                 fh.write(f"{os.getpid()} {c1 - c0!r} {m1 - m0!r} {start} {stop}\n")
             return out

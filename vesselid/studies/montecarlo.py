@@ -463,6 +463,7 @@ def _run_chunks(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[A
         frames = []
         for a, b in chunks:
             frames.append(_chunk_columns(study, a, b))
+            _ran(study)
             bar.update(b - a)
         return frames
     from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
@@ -470,16 +471,22 @@ def _run_chunks(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[A
     ctx = _fork_context()
     frozen = False
     if ctx is not None:
-        with serial_here():  # load (or compile) every kernel of the study here, once
-            _chunk_columns(study, chunks[0][0], chunks[0][0] + 1)
+        if not _has_run(study):
+            with serial_here():  # load (or compile) every kernel of the study here, once
+                _chunk_columns(study, chunks[0][0], chunks[0][0] + 1)
+            _ran(study)
         # the objects alive now (modules, compiled kernels) leave the garbage collector's
         # generations before the workers fork: a worker's collections then do not walk
         # (and so copy-on-write every page of) the parent's heap; measured ~7 % of the
         # workers' CPU on Table 1
         gc.freeze()
         frozen = True
+        # the workers count themselves while they compute a chunk: a worker whose long
+        # job still runs at the end of the schedule spreads it over the cores the others
+        # leave idle (vesselid.core.threads.idle_cores)
         pool: Executor = ProcessPoolExecutor(workers, mp_context=ctx,
-                                             initializer=_worker_start)
+                                             initializer=_worker_start,
+                                             initargs=(ctx.Value("i", 0), n_threads()))
     else:
         pool = ThreadPoolExecutor(workers, thread_name_prefix="vesselid-chunk")
     try:
@@ -489,14 +496,48 @@ def _run_chunks(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[A
             gc.unfreeze()
 
 
-def _worker_start() -> None:
+#: The studies whose chunks this process has computed (:func:`_kernel_key`, methods):
+#: their compiled kernels are loaded here, and forked workers inherit them.
+_RAN: list[tuple[tuple, frozenset[str]]] = []
+
+
+def _kernel_key(study: Study) -> tuple:
+    """What decides which compiled kernels a study's chunks call, besides its methods:
+    the plant, the model structure and the estimation settings (not the number of runs
+    or samples, the seed or the iteration limits: every kernel serves every size)."""
+    options = repr(sorted(study.options.items(), key=lambda kv: str(kv[0])))
+    return (study.system, options, study.combine, study.aggregate, study.target,
+            int(study.experiments_per_run))
+
+
+def _ran(study: Study) -> None:
+    """Record that this process computed a chunk of ``study``."""
+    key, methods = _kernel_key(study), frozenset(study.methods)
+    if not any(k == key and methods <= m for k, m in _RAN):
+        _RAN.append((key, methods))
+
+
+def _has_run(study: Study) -> bool:
+    """Whether this process has computed a chunk of a study with the same kernels
+    (:func:`_kernel_key`) and at least ``study``'s methods: then the one-run warm-up
+    before forking the workers would load nothing."""
+    key, methods = _kernel_key(study), frozenset(study.methods)
+    return any(k == key and methods <= m for k, m in _RAN)
+
+
+def _worker_start(count: Any = None, cores: int = 1) -> None:
     """A forked worker's set-up: the BLAS on one thread for the worker's life (its
     chunks' :func:`~vesselid.identify.linalg.one_blas_thread` then restores one thread).
     A fork has none of the parent's BLAS threads; restoring more than one at the end of
     each chunk would start one that spins for work, taking CPU from the other workers'
-    cores. The parent's setting is not touched."""
+    cores. The parent's setting is not touched. ``count``: the pool's shared count of
+    workers computing a chunk, on ``cores`` cores
+    (:func:`vesselid.core.threads.share_cores`)."""
+    from vesselid.core.threads import share_cores
     from vesselid.identify.linalg import _blas_controller
 
+    if count is not None:
+        share_cores(count, cores)
     ctl = _blas_controller()
     if ctl is not None:
         ctl.limit(limits=1)  # not restored: this process only runs chunks
@@ -525,12 +566,14 @@ def _serial_chunk(study: Study, start: int, stop: int, overlap: bool = False
 
     ``overlap`` (a worker process): a long job may still take a second thread
     (``serial_here(overlap=True)``): a run that costs many times the others
-    (``auto``'s prediction-error fallback) then fits its candidate models at once, so
-    the worker that drew it does not finish far behind the others. Chunk threads of one
-    process leave it off (their single background thread would queue their jobs)."""
-    from vesselid.core.threads import serial_here
+    (``auto``'s prediction-error fallback) then fits its candidate models at once, and
+    its line searches filter their trial points on the cores the other workers leave
+    idle, so the worker that drew it does not finish far behind the others. Chunk
+    threads of one process leave it off (their single background thread would queue
+    their jobs)."""
+    from vesselid.core.threads import busy, serial_here
 
-    with serial_here(overlap=overlap):
+    with serial_here(overlap=overlap), busy():
         return _chunk_columns(study, start, stop)
 
 
