@@ -242,7 +242,7 @@ def span_clock() -> float:
     """Seconds to add to the calling thread's CPU clock (``time.thread_time``) for the
     critical path of its work where every block of its :func:`run_ranges` calls over
     idle cores (``idle=True`` in a pool's worker) runs on a core of its own: the longest
-    block in place of the blocks this thread ran itself (≤ 0; accumulated over the
-    thread's life; benchmarks read it before and after a job). The blocks are timed with
+    block in place of the blocks this thread ran itself (accumulated over the thread's
+    life; benchmarks read it before and after a job). The blocks are timed with
     their threads' CPU clocks, so the figure holds whichever thread ran which block."""
     return float(getattr(_LOCAL, "span", 0.0))

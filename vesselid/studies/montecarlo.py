@@ -466,34 +466,38 @@ def _run_chunks(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[A
             _ran(study)
             bar.update(b - a)
         return frames
-    from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
-
     ctx = _fork_context()
-    frozen = False
-    if ctx is not None:
-        if not _has_run(study):
-            with serial_here():  # load (or compile) every kernel of the study here, once
-                _chunk_columns(study, chunks[0][0], chunks[0][0] + 1)
-            _ran(study)
-        # the objects alive now (modules, compiled kernels) leave the garbage collector's
-        # generations before the workers fork: a worker's collections then do not walk
-        # (and so copy-on-write every page of) the parent's heap; measured ~7 % of the
-        # workers' CPU on Table 1
-        gc.freeze()
-        frozen = True
+    if ctx is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        pool = ThreadPoolExecutor(workers, thread_name_prefix="vesselid-chunk")
+        return _gather(pool, study, chunks, bar)
+    from vesselid.core.forkpool import fork_map
+
+    if not _has_run(study):
+        with serial_here():  # load (or compile) every kernel of the study here, once
+            _chunk_columns(study, chunks[0][0], chunks[0][0] + 1)
+        _ran(study)
+    # the objects alive now (modules, compiled kernels) leave the garbage collector's
+    # generations before the workers fork: a worker's collections then do not walk
+    # (and so copy-on-write every page of) the parent's heap; measured ~7 % of the
+    # workers' CPU on Table 1
+    gc.freeze()
+    try:
         # the workers count themselves while they compute a chunk: a worker whose long
         # job still runs at the end of the schedule spreads it over the cores the others
         # leave idle (vesselid.core.threads.idle_cores)
-        pool: Executor = ProcessPoolExecutor(workers, mp_context=ctx,
-                                             initializer=_worker_start,
-                                             initargs=(ctx.Value("i", 0), n_threads()))
-    else:
-        pool = ThreadPoolExecutor(workers, thread_name_prefix="vesselid-chunk")
-    try:
-        return _gather(pool, study, chunks, bar, overlap=frozen)
+        count, cores = ctx.Value("i", 0), n_threads()
+        with warnings.catch_warnings():
+            # Python ≥ 3.12 warns on fork() in a process with threads; the children run
+            # chunks in their main thread (serial kernels; a long job's helper threads
+            # are started there)
+            warnings.filterwarnings("ignore", message=".*fork.*", category=DeprecationWarning)
+            return fork_map(lambda i: _serial_chunk(study, *chunks[i], True), len(chunks),
+                            workers, initializer=lambda: _worker_start(count, cores),
+                            on_result=lambda i: bar.update(chunks[i][1] - chunks[i][0]))
     finally:
-        if frozen:
-            gc.unfreeze()
+        gc.unfreeze()
 
 
 #: The studies whose chunks this process has computed (:func:`_kernel_key`, methods):
@@ -543,15 +547,12 @@ def _worker_start(count: Any = None, cores: int = 1) -> None:
         ctl.limit(limits=1)  # not restored: this process only runs chunks
 
 
-def _gather(pool: Any, study: Study, chunks: list[tuple[int, int]], bar: Any, *,
-            overlap: bool = False) -> list[dict[str, np.ndarray]]:
-    """Submit every chunk to ``pool`` (:func:`_serial_chunk`, with ``overlap``) and
-    return their columns in order, shutting the pool down."""
-    with pool, warnings.catch_warnings():
-        # Python ≥ 3.12 warns on fork() in a process with threads; the children run one
-        # chunk each in their only thread and start no thread pool (serial kernels)
-        warnings.filterwarnings("ignore", message=".*fork.*", category=DeprecationWarning)
-        futures = [pool.submit(_serial_chunk, study, a, b, overlap) for a, b in chunks]
+def _gather(pool: Any, study: Study, chunks: list[tuple[int, int]], bar: Any
+            ) -> list[dict[str, np.ndarray]]:
+    """Submit every chunk to the thread ``pool`` (:func:`_serial_chunk`) and return
+    their columns in order, shutting the pool down."""
+    with pool:
+        futures = [pool.submit(_serial_chunk, study, a, b) for a, b in chunks]
         frames = []
         for fut, (a, b) in zip(futures, chunks, strict=True):
             frames.append(fut.result())
