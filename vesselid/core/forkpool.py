@@ -44,28 +44,29 @@ _LAST_CHAINS: list[float] = []
 
 def start_chains() -> list[float]:
     """Of the last :func:`fork_map` in this process, for each worker: the CPU seconds
-    spent before it could take its first item by the processes that started it — its own
-    forks and every ancestor's (each ancestor's whole splitting counted, also the forks
-    after the one on the way: an upper bound), not the caller's. Benchmarks add the
-    largest to the caller's CPU for the critical path on free cores."""
+    spent before it could take its first item by the processes that started it (each
+    ancestor's CPU up to and including its fork of the next process on the way, the
+    worker's own up to its first item), not the caller's. Benchmarks add the largest to
+    the caller's CPU for the critical path on free cores."""
     return list(_LAST_CHAINS)
 
 
-def _chains(split: list[float], workers: int) -> list[float]:
-    """Each worker's start chain from every worker's own splitting CPU (``split``; the
-    process that ends up as worker ``w`` is the one created for the range starting at
-    ``w``: :func:`_worker_tree`)."""
+def _chains(split: list[float], forked: list[float], workers: int) -> list[float]:
+    """Each worker's start chain from every process's CPU when its parent had forked it
+    (``forked``) and its own before its first item (``split``). The process that ends up
+    as worker ``w`` is the one created for the range starting at ``w``
+    (:func:`_worker_tree`)."""
     out = []
     for w in range(workers):
-        lo, hi, total, current = 0, workers, split[0], 0
+        lo, hi, total = 0, workers, 0.0
         while hi - lo > 1:
             mid = (lo + hi + 1) // 2
             if w >= mid:
-                lo, current = mid, mid
-                total += split[current]
+                lo = mid
+                total += forked[mid]
             else:
                 hi = mid
-        out.append(total)
+        out.append(total + split[w])
     return out
 
 
@@ -100,6 +101,7 @@ def fork_map(fn: Callable[[int], Any], n_items: int, workers: int, *,
     counter = ctx.RawValue("l", 0)  # next item; guarded by lock
     lock = ctx.Lock()
     split = ctx.RawArray("d", workers)  # each worker's CPU before its first item
+    forked = ctx.RawArray("d", workers)  # its parent's CPU once it had forked it
     pipes = [ctx.Pipe(duplex=False) for _ in range(workers)]
     results: list[Any] = [None] * n_items
     done = [False] * n_items
@@ -108,25 +110,31 @@ def fork_map(fn: Callable[[int], Any], n_items: int, workers: int, *,
         os.setpgid(0, 0)
         # a background process group writing to the terminal (warnings) is not stopped
         signal.signal(signal.SIGTTOU, signal.SIG_IGN)
-        _worker_tree(fn, n_items, workers, counter, lock, split, pipes, initializer)
+        _worker_tree(fn, n_items, workers, counter, lock, (split, forked), pipes,
+                     initializer)
     try:  # every worker in one process group (also set in the child: no race)
         os.setpgid(pid, pid)
     except (PermissionError, ProcessLookupError):  # the child set it (and may have run)
         pass
     for _, writer in pipes:
         writer.close()
+    import selectors
+
     readers = {reader: w for w, (reader, _) in enumerate(pipes)}
     failure: tuple[int, BaseException] | None = None
     shown = 0
     finished = False
+    ready = selectors.DefaultSelector()
     try:
-        from multiprocessing.connection import wait
-
+        for reader in readers:
+            ready.register(reader, selectors.EVENT_READ)
         while readers:
-            for reader in wait(list(readers)):
+            for key, _ in ready.select():
+                reader = key.fileobj
                 try:
                     i, ok, value = reader.recv()
                 except EOFError:
+                    ready.unregister(reader)
                     del readers[reader]
                     reader.close()
                     continue
@@ -143,12 +151,13 @@ def fork_map(fn: Callable[[int], Any], n_items: int, workers: int, *,
                     shown += 1
         finished = True
     finally:
+        ready.close()
         if not finished:
             _kill(pid)
         for reader in readers:
             reader.close()
         _reap(pid)
-    _LAST_CHAINS[:] = _chains(list(split), workers)
+    _LAST_CHAINS[:] = _chains(list(split), list(forked), workers)
     if failure is not None:
         raise failure[1]
     if not all(done):
@@ -158,12 +167,14 @@ def fork_map(fn: Callable[[int], Any], n_items: int, workers: int, *,
 
 
 def _worker_tree(fn: Callable[[int], Any], n_items: int, workers: int, counter: Any,
-                 lock: Any, split: Any, pipes: list, initializer: Callable[[], None] | None
+                 lock: Any, clocks: tuple[Any, Any], pipes: list,
+                 initializer: Callable[[], None] | None
                  ) -> None:  # pragma: no cover - runs in the forked worker processes
     """The forked child of :func:`fork_map`: split ``[0, workers)`` into a tree of
     processes (each forks a child for the upper half of its range and keeps the lower
     half), then work as worker ``lo`` of its range; never returns."""
     status = 1
+    split, forked = clocks
     try:
         lo, hi = 0, workers
         children = []
@@ -173,6 +184,7 @@ def _worker_tree(fn: Callable[[int], Any], n_items: int, workers: int, counter: 
             if child == 0:
                 lo, children = mid, []
             else:
+                forked[mid] = time.process_time()
                 children.append(child)
                 hi = mid
         writer = pipes[lo][1]

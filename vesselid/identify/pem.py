@@ -218,6 +218,30 @@ class _Filter:
                    idle=idle and self.parallel)
         return eps, var
 
+    def nll_rows(self, rows: np.ndarray, *, idle: bool = False) -> np.ndarray:
+        """The negative log-likelihood ``V(ψ) = Σ ½ (log S + ε²/S)`` of each parameter
+        row (R,): each row filtered as by :meth:`run` and summed as ``np.sum`` of its
+        terms, in the thread that filtered it (``idle``: as :meth:`run`'s)."""
+        from vesselid.core.threads import run_ranges
+        from vesselid.identify._pemkernels import gaussian_filter
+
+        rows = np.ascontiguousarray(rows, dtype=np.float64)
+        n_rows = rows.shape[0]
+        eps = np.empty((n_rows, self.n))
+        var = np.empty((n_rows, self.n))
+        out = np.empty(n_rows)
+
+        def block(lo: int, hi: int, *args: Any) -> None:
+            gaussian_filter(lo, hi, *args)
+            for j in range(lo, hi):
+                out[j] = np.sum(_nll_terms(eps[j], var[j]))
+
+        run_ranges(block, n_rows,
+                   (rows, self.y, self.u, self.starts, self.p_init, *self.terms, eps, var),
+                   parallel=(self.parallel and n_rows > 1
+                             and n_rows * self.n >= PARALLEL_MIN_ROW_SAMPLES),
+                   idle=idle and self.parallel)
+        return out
 
     def tangent(self, psi: np.ndarray, idx: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
@@ -399,8 +423,9 @@ class _LineSearch:
     ``V(ψ + α δ) ≤ V(ψ) − 10⁻⁴ α · slope`` is taken.
 
     The trial points are filtered several at a time, as rows of one filter call
-    (:meth:`_Filter.run`: the rows advance together, so a row costs about two thirds of
-    one filtered alone, and rows may run on threads that would otherwise idle): as many
+    (:meth:`_Filter.nll_rows`: the rows advance together, so a row costs about two thirds
+    of one filtered alone, and rows may run on threads that would otherwise idle, each
+    summing its rows' likelihoods): as many
     as the previous search needed, the rows past the accepted step being work thrown
     away. Each row is filtered on its own and the steps are judged in the same order, so
     the step taken (and every number after it) is the one-at-a-time search's."""
@@ -420,7 +445,8 @@ class _LineSearch:
             trial = psi.copy()
             trial[idx] += delta
             ahead = self.filt.tangent(trial, idx)
-            if self._descends(ahead[0], ahead[1], f0, 1.0, slope):
+            if self._descends(float(np.sum(_nll_terms(ahead[0], ahead[1]))), f0, 1.0,
+                              slope):
                 self.width = 1
                 return trial, 1.0, ahead
             k = 1
@@ -429,9 +455,9 @@ class _LineSearch:
             alphas = 0.5 ** np.arange(k, k + count, dtype=float)
             trials = np.repeat(psi[None], count, axis=0)
             trials[:, idx] += alphas[:, None] * delta
-            eps, var = self.filt.run(trials, idle=True)
+            values = self.filt.nll_rows(trials, idle=True)
             for i in range(count):
-                if self._descends(eps[i], var[i], f0, float(alphas[i]), slope):
+                if self._descends(float(values[i]), f0, float(alphas[i]), slope):
                     self.width = k + i + 1
                     return trials[i].copy(), float(alphas[i]), None
             k += count
@@ -439,9 +465,8 @@ class _LineSearch:
         return None
 
     @staticmethod
-    def _descends(eps: np.ndarray, var: np.ndarray, f0: float, alpha: float,
-                  slope: float) -> bool:
-        f1 = float(np.sum(_nll_terms(eps, var)))
+    def _descends(f1: float, f0: float, alpha: float, slope: float) -> bool:
+        """Armijo's condition on the trial value ``f1``."""
         return bool(np.isfinite(f1) and f1 <= f0 - 1e-4 * alpha * slope)
 
 
