@@ -109,3 +109,18 @@ def test_idle_cores_and_spread_ranges_in_a_pool_worker(monkeypatch):
         threads.run_ranges(kernel, 7, (out,), parallel=False, idle=True)
     assert seen == [(0, 7)]
     assert threads.span_clock() == span  # nothing spread, nothing to account for
+
+
+def test_jobs_computed_ahead_only_on_idle_cores_of_a_pool_worker(monkeypatch):
+    from vesselid.core import threads
+
+    assert threads.ahead(lambda: 1) is None  # not a pool's worker
+    count = multiprocessing.Value("i", 0)
+    monkeypatch.setattr(threads, "_SHARED", (count, 2))
+    with threads.serial_here():  # a worker that may not overlap
+        assert threads.ahead(lambda: 1) is None
+    with threads.serial_here(overlap=True), threads.busy():
+        job = threads.ahead(lambda: 7)
+        assert job is not None and threads.collect(job) == 7
+        with threads.busy():  # both cores busy: nothing ahead
+            assert threads.ahead(lambda: 1) is None

@@ -27,8 +27,9 @@ from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from typing import Any
 
-__all__ = ["CHUNKS_PER_THREAD", "background", "busy", "idle_cores", "n_threads", "run_ranges",
-           "serial", "serial_here", "share_cores", "span_clock", "usable_cores"]
+__all__ = ["CHUNKS_PER_THREAD", "ahead", "background", "busy", "collect", "idle_cores",
+           "n_threads", "run_ranges", "serial", "serial_here", "share_cores", "span_clock",
+           "usable_cores"]
 
 #: Chunks per thread (several, so that uneven items — early divergence, converged groups
 #: skipped — still balance).
@@ -36,6 +37,10 @@ CHUNKS_PER_THREAD = 4
 
 _POOL: ThreadPoolExecutor | None = None
 _BACKGROUND: ThreadPoolExecutor | None = None
+_AHEAD: ThreadPoolExecutor | None = None
+_AHEAD_JOBS: list[Future] = []
+#: Jobs computed ahead at once (:func:`ahead`).
+AHEAD_JOBS = 2
 _POOL_SIZE = 0
 _LOCK = threading.Lock()
 _LOCAL = threading.local()
@@ -111,8 +116,9 @@ class serial_here:
 def _forget_pool() -> None:
     """In a forked child: the parent's pool threads do not exist there, so start afresh
     (a pool whose threads are gone would never run the submitted chunks)."""
-    global _POOL, _POOL_SIZE, _LOCK, _BACKGROUND, _SHARED
+    global _POOL, _POOL_SIZE, _LOCK, _BACKGROUND, _SHARED, _AHEAD, _AHEAD_JOBS
     _POOL, _POOL_SIZE, _LOCK, _BACKGROUND, _SHARED = None, 0, threading.Lock(), None, None
+    _AHEAD, _AHEAD_JOBS = None, []
 
 
 def share_cores(count: Any, cores: int) -> None:
@@ -170,6 +176,48 @@ def background(fn: Callable[[], Any]) -> Future | None:
             _BACKGROUND = ThreadPoolExecutor(max_workers=1, thread_name_prefix="vesselid-bg",
                                              initializer=_mark_worker)
         return _BACKGROUND.submit(fn)
+
+
+def ahead(fn: Callable[[], Any]) -> Future | None:
+    """``fn()`` computed ahead on an idle core: in a pool's worker that may overlap
+    (``serial_here(overlap=True)``) while a core is idle (:func:`idle_cores`, less the
+    jobs computed ahead that still run; at most :data:`AHEAD_JOBS` of them); ``None``
+    otherwise. For work the caller will likely need next (a guess: an unused result is
+    work thrown away); collect it with :func:`collect`, which also keeps
+    :func:`span_clock` honest."""
+    global _AHEAD
+    if not (getattr(_LOCAL, "worker", False) and getattr(_LOCAL, "overlap", False)):
+        return None
+    _AHEAD_JOBS[:] = [j for j in _AHEAD_JOBS if not j.done()]
+    if len(_AHEAD_JOBS) >= AHEAD_JOBS or idle_cores() <= len(_AHEAD_JOBS):
+        return None
+    start = time.thread_time() + span_clock()
+
+    def timed() -> tuple[Any, float]:
+        c0 = time.thread_time()
+        out = fn()
+        return out, time.thread_time() - c0
+
+    with _LOCK:
+        if _AHEAD is None:
+            _AHEAD = ThreadPoolExecutor(max_workers=AHEAD_JOBS,
+                                        thread_name_prefix="vesselid-ahead",
+                                        initializer=_mark_worker)
+        job = _AHEAD.submit(timed)
+    job.started = start  # type: ignore[attr-defined]
+    _AHEAD_JOBS.append(job)
+    return job
+
+
+def collect(job: Future) -> Any:
+    """The result of a job of :func:`ahead` (waiting for it). The calling thread's
+    critical path (:func:`span_clock`) then runs at least to the job's end: the job's
+    CPU from when it was started, where that is more than this thread's since."""
+    out, cpu = job.result()
+    mine = time.thread_time() + span_clock() - job.started  # type: ignore[attr-defined]
+    if cpu > mine:
+        _LOCAL.span = getattr(_LOCAL, "span", 0.0) + (cpu - mine)
+    return out
 
 
 def run_ranges(kernel: Callable[..., Any], n_items: int, args: tuple, *,

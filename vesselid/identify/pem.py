@@ -83,6 +83,7 @@ import itertools
 import math
 from collections.abc import Callable
 from concurrent.futures import wait
+from functools import partial
 from typing import Any, ClassVar
 
 import numpy as np
@@ -433,13 +434,20 @@ class _LineSearch:
     def __init__(self, filt: _Filter) -> None:
         self.filt = filt
         self.width = 1  # trial points filtered together: the last search's count
+        self.taken: tuple[int, int] = (-1, -1)  # the last two steps taken (halvings)
 
     def step(self, psi: np.ndarray, idx: np.ndarray, delta: np.ndarray, f0: float,
              slope: float, full: bool) -> tuple[np.ndarray, float, Any] | None:
         """``(ψ + α δ, α, tangent pass or None)`` of the accepted step, ``None`` where no
         step descends. ``full``: the last step was the full one, so this one likely is
         too and its trial point is filtered with its sensitivities (which the next
-        scoring step needs; the innovations are the filter's, bit for bit)."""
+        scoring step needs; the innovations are the filter's, bit for bit). Elsewhere
+        the tangent passes at the steps the last two searches took are computed
+        meanwhile on idle cores where there are some (:func:`vesselid.core.threads.ahead`)
+        and handed on where such a step is taken again (the same pass the next scoring
+        step would compute)."""
+        from vesselid.core import threads
+
         k = 0
         if full:
             trial = psi.copy()
@@ -448,6 +456,7 @@ class _LineSearch:
             if self._descends(float(np.sum(_nll_terms(ahead[0], ahead[1]))), f0, 1.0,
                               slope):
                 self.width = 1
+                self.taken = (0, self.taken[0])
                 return trial, 1.0, ahead
             k = 1
         while k < LINE_STEPS:
@@ -455,11 +464,23 @@ class _LineSearch:
             alphas = 0.5 ** np.arange(k, k + count, dtype=float)
             trials = np.repeat(psi[None], count, axis=0)
             trials[:, idx] += alphas[:, None] * delta
+            # on idle cores: the tangent passes at the steps the last two searches took
+            # (the likely ones again: the steps settle or alternate), which the next
+            # scoring step then needs not compute
+            jobs = {}
+            for guess in dict.fromkeys(self.taken):
+                if self.filt.parallel and k <= guess < k + count:
+                    job = threads.ahead(partial(self.filt.tangent, trials[guess - k].copy(),
+                                                idx))
+                    if job is not None:
+                        jobs[guess - k] = job
             values = self.filt.nll_rows(trials, idle=True)
             for i in range(count):
                 if self._descends(float(values[i]), f0, float(alphas[i]), slope):
                     self.width = k + i + 1
-                    return trials[i].copy(), float(alphas[i]), None
+                    self.taken = (k + i, self.taken[0])
+                    return (trials[i].copy(), float(alphas[i]),
+                            threads.collect(jobs[i]) if i in jobs else None)
             k += count
             self.width = 2 * k  # more halvings than the last search: look further ahead
         return None
