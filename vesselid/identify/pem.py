@@ -434,7 +434,7 @@ class _LineSearch:
     def __init__(self, filt: _Filter) -> None:
         self.filt = filt
         self.width = 1  # trial points filtered together: the last search's count
-        self.taken: tuple[int, int] = (-1, -1)  # the last two steps taken (halvings)
+        self.taken = (-1, -1, -1)  # the last three steps taken (halvings), latest first
 
     def step(self, psi: np.ndarray, idx: np.ndarray, delta: np.ndarray, f0: float,
              slope: float, full: bool) -> tuple[np.ndarray, float, Any] | None:
@@ -442,10 +442,9 @@ class _LineSearch:
         step descends. ``full``: the last step was the full one, so this one likely is
         too and its trial point is filtered with its sensitivities (which the next
         scoring step needs; the innovations are the filter's, bit for bit). Elsewhere
-        the tangent passes at the steps the last two searches took are computed
-        meanwhile on idle cores where there are some (:func:`vesselid.core.threads.ahead`)
-        and handed on where such a step is taken again (the same pass the next scoring
-        step would compute)."""
+        the tangent pass at the likely step is computed meanwhile on an idle core where
+        there is one (:func:`vesselid.core.threads.ahead`) and handed on where that step
+        is taken (the same pass the next scoring step would compute)."""
         from vesselid.core import threads
 
         k = 0
@@ -456,7 +455,7 @@ class _LineSearch:
             if self._descends(float(np.sum(_nll_terms(ahead[0], ahead[1]))), f0, 1.0,
                               slope):
                 self.width = 1
-                self.taken = (0, self.taken[0])
+                self.taken = (0, *self.taken[:2])
                 return trial, 1.0, ahead
             k = 1
         while k < LINE_STEPS:
@@ -464,23 +463,21 @@ class _LineSearch:
             alphas = 0.5 ** np.arange(k, k + count, dtype=float)
             trials = np.repeat(psi[None], count, axis=0)
             trials[:, idx] += alphas[:, None] * delta
-            # on idle cores: the tangent passes at the steps the last two searches took
-            # (the likely ones again: the steps settle or alternate), which the next
-            # scoring step then needs not compute
-            jobs = {}
-            for guess in dict.fromkeys(self.taken):
-                if self.filt.parallel and k <= guess < k + count:
-                    job = threads.ahead(partial(self.filt.tangent, trials[guess - k].copy(),
-                                                idx))
-                    if job is not None:
-                        jobs[guess - k] = job
+            # on an idle core: the tangent pass at the likely step (the steps settle or
+            # alternate: the last one taken, or the one before where they alternate),
+            # which the next scoring step then needs not compute
+            t1, t2, t3 = self.taken
+            guess = (t2 if t1 != t2 and t3 == t1 else t1) - k
+            job = (threads.ahead(partial(self.filt.tangent, trials[guess].copy(), idx))
+                   if self.filt.parallel and 0 <= guess < count else None)
             values = self.filt.nll_rows(trials, idle=True)
             for i in range(count):
                 if self._descends(float(values[i]), f0, float(alphas[i]), slope):
                     self.width = k + i + 1
-                    self.taken = (k + i, self.taken[0])
+                    self.taken = (k + i, t1, t2)
                     return (trials[i].copy(), float(alphas[i]),
-                            threads.collect(jobs[i]) if i in jobs else None)
+                            threads.collect(job) if job is not None and i == guess
+                            else None)
             k += count
             self.width = 2 * k  # more halvings than the last search: look further ahead
         return None

@@ -439,9 +439,12 @@ def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any
     holds the GIL for about a fifth of its time, so chunks in threads of one process
     queue behind each other's glue, and more threads add GIL hand-overs until more
     threads are slower. Processes share nothing but the forked memory (the compiled
-    kernels, loaded once in this process by a one-run warm-up first) and return small
-    columns, each chunk's already in the study's row order. Elsewhere the chunks run in
-    threads.
+    kernels, loaded once in this process by a one-run warm-up first where it has not run
+    the study's kernels yet) and return small columns, each chunk's already in the
+    study's row order. They fork each other as a tree
+    (:func:`vesselid.core.forkpool.fork_map`: this process forks one, and every worker
+    starts on the chunks once its own forks are done), and each takes the next chunk
+    when it finishes one. Elsewhere the chunks run in threads.
 
     Either way the process keeps freed memory in its heap meanwhile
     (:func:`vesselid.core.heap.kept_heap`, inherited by the workers): the chunks
