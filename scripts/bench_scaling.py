@@ -699,8 +699,10 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
             "second thread (`auto`'s prediction-error fallback fits its candidate "
             "models at once: the same numbers), and that fallback's line searches filter "
             "their trial steps together, on the cores the other workers leave idle once "
-            "they have run out of chunks (`vesselid.core.threads.idle_cores`; each trial "
-            "step filtered on its own, the steps judged in order: the same numbers). "
+            "they have run out of chunks (`vesselid.core.threads.idle_cores`), with the "
+            "tangent pass at the likely step computed ahead on one of them (each trial "
+            "step filtered on its own, the steps judged in order, a pass computed ahead "
+            "used only where its step is taken: the same numbers). "
             "While the study runs, the process keeps "
             "freed memory in its heap (`vesselid.core.heap.kept_heap`; "
             "`VESSELID_KEEP_HEAP=0` leaves glibc's settings alone), so "
@@ -716,10 +718,11 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
                 "worker processes here (the default schedule for that many workers), "
                 "the chunks list-scheduled in order on that many cores (a chunk takes "
                 "its main thread's CPU, with the longest block in place of the blocks it "
-                "ran itself where a line search was spread over idle cores; at least the "
-                "total CPU over the cores), plus the parent's own CPU in that run and the "
-                "longest chain of forks that started a worker. Memory bandwidth shared "
-                "by more workers is not in it.",
+                "ran itself where a line search was spread over idle cores, and a pass "
+                "computed ahead counted from when it started where the main thread waited "
+                "for it; at least the total CPU over the cores), plus the parent's own "
+                "CPU in that run and the longest chain of forks that started a worker. "
+                "Memory bandwidth shared by more workers is not in it.",
                 "",
                 "| workers | chunks' CPU (s) | parent CPU (s) | makespan (s) "
                 "| critical path (s) | projected speed-up | longest chunk "

@@ -16,6 +16,13 @@ results are bit-identical to a serial loop.
 The number of threads is numba's (``numba.get_num_threads()``, i.e. ``NUMBA_NUM_THREADS``
 or :func:`numba.set_num_threads` in the calling thread), so ``n_jobs`` of the Monte Carlo
 runner keeps working.
+
+A worker process of a pool (the Monte Carlo's) runs its kernels in its own thread
+(:class:`serial_here`); the pool's workers count themselves while they compute
+(:func:`share_cores`, :class:`busy`), so that a worker whose long job still runs when the
+others have run out of work can spread it over the cores they leave idle
+(:func:`idle_cores`: ``run_ranges(idle=True)``, :func:`ahead`). Where work goes never
+changes a number.
 """
 
 from __future__ import annotations
@@ -269,7 +276,6 @@ def run_ranges(kernel: Callable[..., Any], n_items: int, args: tuple, *,
                     mine[0] += blocks[-1]
 
     caller = threading.current_thread()
-    c0 = time.thread_time()
     kernel(0, 0, *args)  # compile (or load) in the calling thread first, over no item
     pool = _pool(threads - 1)
     futures = [pool.submit(work) for _ in range(threads - 1)]
@@ -282,8 +288,7 @@ def run_ranges(kernel: Callable[..., Any], n_items: int, args: tuple, *,
     if spread and blocks:
         # this thread's CPU in the call had every block run on a core of its own: its
         # own CPU outside the blocks plus the longest block (span_clock)
-        own = time.thread_time() - c0
-        _LOCAL.span = getattr(_LOCAL, "span", 0.0) + (own - mine[0] + max(blocks)) - own
+        _LOCAL.span = getattr(_LOCAL, "span", 0.0) + max(blocks) - mine[0]
 
 
 def span_clock() -> float:
