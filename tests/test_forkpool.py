@@ -124,3 +124,25 @@ def test_jobs_computed_ahead_only_on_idle_cores_of_a_pool_worker(monkeypatch):
         assert job is not None and threads.collect(job) == 7
         with threads.busy():  # both cores busy: nothing ahead
             assert threads.ahead(lambda: 1) is None
+
+
+def test_the_caller_leaving_early_kills_every_worker():
+    """An exception in the caller while workers still compute (here from ``on_result``;
+    a KeyboardInterrupt alike) kills the workers at once and leaves no process behind."""
+    import time
+
+    before = _children()
+
+    def slow(i):
+        if i > 0:
+            time.sleep(30)
+        return i
+
+    def stop(i):
+        raise KeyboardInterrupt
+
+    t0 = time.perf_counter()
+    with pytest.raises(KeyboardInterrupt):
+        forkpool.fork_map(slow, 8, 4, on_result=stop)
+    assert time.perf_counter() - t0 < 10
+    assert _children() == before
