@@ -277,7 +277,9 @@ def run_ranges(kernel: Callable[..., Any], n_items: int, args: tuple, *,
 
     caller = threading.current_thread()
     kernel(0, 0, *args)  # compile (or load) in the calling thread first, over no item
-    pool = _pool(threads - 1)
+    # over idle cores: a pool for every core at once (the idle cores grow as the other
+    # workers finish; a pool that grew with them would be made anew each time)
+    pool = _pool(max(threads, _SHARED[1] if spread and _SHARED is not None else 0) - 1)
     futures = [pool.submit(work) for _ in range(threads - 1)]
     try:
         work()  # the calling thread takes chunks too
