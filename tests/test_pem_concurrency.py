@@ -173,10 +173,20 @@ def test_line_search_several_trial_steps_at_once_takes_the_same_steps(model, mon
     original = pem._LineSearch.step
 
     def one_at_a_time(self, *args):
-        self.width = 1
+        self.taken = (0, 0, 0)  # one trial point expected, then one at a time
         return original(self, *args)
 
     monkeypatch.setattr(pem._LineSearch, "step", one_at_a_time)
+    monkeypatch.setattr(pem, "LINE_STEPS_MORE", 1)
+    calls = []
+    real_nll_rows = pem._Filter.nll_rows
+
+    def spy(self, rows, **kwargs):
+        calls.append(rows.shape[0])
+        return real_nll_rows(self, rows, **kwargs)
+
+    monkeypatch.setattr(pem._Filter, "nll_rows", spy)
     single = _scoring_fits(filt, psi0, free)
+    assert calls and set(calls) == {1}  # the reference searched one step at a time
     _same_fit(batched, single)
     _same_fit(spread, single)

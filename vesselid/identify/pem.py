@@ -416,6 +416,8 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
 #: Halvings of the step before the line search gives up (its smallest step is
 #: ``2**-(LINE_STEPS - 1)``, the last above 10⁻⁴).
 LINE_STEPS = 14
+#: Trial points filtered together once the expected ones all failed.
+LINE_STEPS_MORE = 2
 
 
 class _LineSearch:
@@ -426,15 +428,15 @@ class _LineSearch:
     The trial points are filtered several at a time, as rows of one filter call
     (:meth:`_Filter.nll_rows`: the rows advance together, so a row costs about two thirds
     of one filtered alone, and rows may run on threads that would otherwise idle, each
-    summing its rows' likelihoods): as many
-    as the previous search needed, the rows past the accepted step being work thrown
+    summing its rows' likelihoods): as many as the likely step needs (the step the last
+    search took, or the larger of the last two where the steps alternate), then
+    :data:`LINE_STEPS_MORE` at a time; the rows past the accepted step are work thrown
     away. Each row is filtered on its own and the steps are judged in the same order, so
     the step taken (and every number after it) is the one-at-a-time search's."""
 
     def __init__(self, filt: _Filter) -> None:
         self.filt = filt
-        self.width = 1  # trial points filtered together: the last search's count
-        self.taken = (-1, -1, -1)  # the last three steps taken (halvings), latest first
+        self.taken = (0, 0, 0)  # the last three steps taken (halvings), latest first
 
     def step(self, psi: np.ndarray, idx: np.ndarray, delta: np.ndarray, f0: float,
              slope: float, full: bool) -> tuple[np.ndarray, float, Any] | None:
@@ -454,32 +456,33 @@ class _LineSearch:
             ahead = self.filt.tangent(trial, idx)
             if self._descends(float(np.sum(_nll_terms(ahead[0], ahead[1]))), f0, 1.0,
                               slope):
-                self.width = 1
                 self.taken = (0, *self.taken[:2])
                 return trial, 1.0, ahead
             k = 1
+        # the steps settle or alternate: the likely step is the last one taken, or the
+        # one before where they alternate (then the trial points cover both)
+        t1, t2, t3 = self.taken
+        alternate = t1 != t2 and t3 == t1
+        likely = t2 if alternate else t1
+        count = min(max((max(t1, t2) if alternate else t1) + 1 - k, 1), LINE_STEPS - k)
         while k < LINE_STEPS:
-            count = min(max(self.width - k, 1), LINE_STEPS - k)
             alphas = 0.5 ** np.arange(k, k + count, dtype=float)
             trials = np.repeat(psi[None], count, axis=0)
             trials[:, idx] += alphas[:, None] * delta
-            # on an idle core: the tangent pass at the likely step (the steps settle or
-            # alternate: the last one taken, or the one before where they alternate),
-            # which the next scoring step then needs not compute
-            t1, t2, t3 = self.taken
-            guess = (t2 if t1 != t2 and t3 == t1 else t1) - k
+            # on an idle core: the tangent pass at the likely step, which the next scoring
+            # step then needs not compute
+            guess = likely - k
             job = (threads.ahead(partial(self.filt.tangent, trials[guess].copy(), idx))
                    if self.filt.parallel and 0 <= guess < count else None)
             values = self.filt.nll_rows(trials, idle=True)
             for i in range(count):
                 if self._descends(float(values[i]), f0, float(alphas[i]), slope):
-                    self.width = k + i + 1
                     self.taken = (k + i, t1, t2)
                     return (trials[i].copy(), float(alphas[i]),
                             threads.collect(job) if job is not None and i == guess
                             else None)
             k += count
-            self.width = 2 * k  # more halvings than the last search: look further ahead
+            count = min(LINE_STEPS_MORE, LINE_STEPS - k)  # more halvings than expected
         return None
 
     @staticmethod
