@@ -107,11 +107,15 @@ def fork_map(fn: Callable[[int], Any], n_items: int, workers: int, *,
     done = [False] * n_items
     pid = os.fork()
     if pid == 0:  # pragma: no cover - runs in the forked worker processes
-        os.setpgid(0, 0)
-        # a background process group writing to the terminal (warnings) is not stopped
-        signal.signal(signal.SIGTTOU, signal.SIG_IGN)
-        _worker_tree(fn, n_items, workers, counter, lock, (split, forked), pipes,
-                     initializer)
+        try:
+            os.setpgid(0, 0)
+            # a background process group writing to the terminal (warnings) is not
+            # stopped
+            signal.signal(signal.SIGTTOU, signal.SIG_IGN)
+            _worker_tree(fn, n_items, workers, counter, lock, (split, forked), pipes,
+                         initializer)
+        finally:
+            os._exit(1)  # (_worker_tree exits itself; never run the caller's code here)
     try:  # every worker in one process group (also set in the child: no race)
         os.setpgid(pid, pid)
     except (PermissionError, ProcessLookupError):  # the child set it (and may have run)
@@ -141,8 +145,7 @@ def fork_map(fn: Callable[[int], Any], n_items: int, workers: int, *,
                 if not ok:
                     if failure is None or i < failure[0]:
                         failure = (i, value)
-                    with lock:
-                        counter.value = n_items  # the others take no more items
+                    _stop(counter, lock, n_items)  # the others take no more items
                     continue
                 results[i], done[i] = value, True
                 while shown < n_items and done[shown]:
@@ -217,6 +220,17 @@ def _worker_tree(fn: Callable[[int], Any], n_items: int, workers: int, counter: 
             os.waitpid(child, 0)
     finally:
         os._exit(status)
+
+
+def _stop(counter: Any, lock: Any, n_items: int) -> None:
+    """Set the shared counter past the last item (under the lock, unless a worker that
+    died holding it keeps it: then without)."""
+    got = lock.acquire(timeout=1.0)
+    try:
+        counter.value = n_items
+    finally:
+        if got:
+            lock.release()
 
 
 def _picklable(exc: BaseException) -> BaseException:
