@@ -695,7 +695,8 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
             "",
             "Each worker keeps the BLAS on one thread for its whole life (set when it "
             "starts; the parent's setting is untouched), so no BLAS thread is started in "
-            "a worker to spin for work; a worker may still hand one long job to a "
+            "a worker to spin for work; where a worker's share of the runs is at most "
+            "250 (four or more workers here), a worker may still hand one long job to a "
             "second thread (`auto`'s prediction-error fallback fits its candidate "
             "models at once: the same numbers), and that fallback's line searches filter "
             "their trial steps together, on the cores the other workers leave idle once "
