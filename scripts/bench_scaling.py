@@ -142,11 +142,13 @@ def bench_single_envs(repeats: int = 7, steps: int = 20_000, num_envs: int = 102
 # ----------------------------------------------------------------- Monte Carlo workers
 class _ChunkClock:
     """Records every worker chunk's CPU seconds (``time.process_time`` of the worker
-    process around the chunk) and its process id into a file, by wrapping
-    :func:`vesselid.studies.montecarlo._serial_chunk` (what each forked worker runs): the CPU
-    clock per worker, which the children's summed CPU from ``getrusage`` cannot give.
-    The wrapper keeps the function's name, so the process pool pickles it by reference
-    and the forked workers run it."""
+    process around the chunk), its main thread's critical path (its CPU clock, with the
+    longest block in place of the blocks it ran itself in each call spread over idle
+    cores, :func:`vesselid.core.threads.span_clock`) and its process id into a file,
+    by wrapping :func:`vesselid.studies.montecarlo._serial_chunk` (what each forked worker
+    runs, looked up in the module when it runs a chunk): the CPU clock per worker, which
+    the children's summed CPU from ``getrusage`` cannot give. The wrapper keeps the
+    function's name (a thread pool's chunks call it by reference too)."""
 
     def __init__(self, path: Path) -> None:
         from vesselid.studies import montecarlo
@@ -158,10 +160,12 @@ class _ChunkClock:
     def __enter__(self) -> _ChunkClock:
         original, path = self.original, self.path
 
+        from vesselid.core.threads import span_clock
+
         def clocked(study: Any, start: int, stop: int, *args: Any) -> Any:
-            c0, m0 = time.process_time(), time.thread_time()
+            c0, m0 = time.process_time(), time.thread_time() + span_clock()
             out = original(study, start, stop, *args)
-            c1, m1 = time.process_time(), time.thread_time()
+            c1, m1 = time.process_time(), time.thread_time() + span_clock()
             with open(path, "a") as fh:  # one short line per chunk (appends are atomic)
                 fh.write(f"{os.getpid()} {c1 - c0!r} {m1 - m0!r} {start} {stop}\n")
             return out
@@ -225,11 +229,13 @@ def project_mc_workers(study: Any, counts: tuple[int, ...], clock: _ChunkClock,
     :func:`vesselid.studies.montecarlo._local_chunks`), every chunk's CPU clock is
     recorded (``clock``), and the chunks are list-scheduled on that many free cores
     (:func:`_projected_makespan`); the critical path adds the parent's own CPU in that
-    run (warm-up, forking every worker, gathering). Medians of ``repeats``. The result
-    CSV is compared with ``reference`` byte for byte. A projection from this machine's
+    run (forking the first worker, gathering) and the longest chain of forks that started
+    a worker (:func:`vesselid.core.forkpool.start_chains`). Medians of ``repeats``. The
+    result CSV is compared with ``reference`` byte for byte. A projection from this machine's
     per-chunk clocks, not a measurement on that many cores (memory bandwidth shared by
     more workers is not in it)."""
     from vesselid.core import threads
+    from vesselid.core.forkpool import start_chains
     from vesselid.studies.montecarlo import run_study, save_results
 
     out: dict[str, Any] = {}
@@ -242,7 +248,9 @@ def project_mc_workers(study: Any, counts: tuple[int, ...], clock: _ChunkClock,
                 clock.read()
                 c0 = time.process_time()
                 df = run_study(study, progress=False)
-                parents.append(time.process_time() - c0)
+                # the parent's CPU and the longest chain of forks that started a worker
+                # (vesselid.core.forkpool: the workers fork each other as a tree)
+                parents.append(time.process_time() - c0 + max(start_chains(), default=0.0))
                 records = clock.records()
                 costs = [(cpu, main) for _, cpu, main in records]
                 spans.append(_projected_makespan(costs, n))
@@ -275,7 +283,8 @@ def bench_mc_threads(repeats: int = 3, runs: int = 1000, samples: int = 10_000,
 
     The speed-up of ``n`` workers on ``n`` free cores is estimated from the CPU clocks as
     well as read off the wall clock: the ``n``-worker run's critical path is this
-    process's own CPU (the one-run warm-up, forking, gathering) plus the busiest worker's
+    process's own CPU (forking, gathering; the one-run warm-up where it applies) and the
+    longest chain of forks that started a worker, plus the busiest worker's
     CPU, against the one-worker run's CPU. On a quiet machine the wall-clock ratio is the
     measurement; on a shared one it measures the neighbours, and the CPU estimate is the
     figure that holds. The busiest worker is the one of ``n`` free cores: the chunks'
@@ -286,6 +295,7 @@ def bench_mc_threads(repeats: int = 3, runs: int = 1000, samples: int = 10_000,
     ``project``: worker counts whose critical paths are projected from measured
     per-chunk CPU costs (:func:`project_mc_workers`), against the one-worker CPU.
     """
+    from vesselid.core.forkpool import start_chains
     from vesselid.studies.montecarlo import run_study, save_results
     from vesselid.studies.reproduce import table_study, warm_up
 
@@ -308,7 +318,8 @@ def bench_mc_threads(repeats: int = 3, runs: int = 1000, samples: int = 10_000,
                 df = run_study(study, n_jobs=n, progress=False)
                 wall[n].append(time.perf_counter() - t0)
                 ch1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-                own[n].append(time.process_time() - c0)
+                own[n].append(time.process_time() - c0
+                              + (max(start_chains(), default=0.0) if n > 1 else 0.0))
                 cpu[n].append(own[n][-1] + (ch1.ru_utime + ch1.ru_stime)
                               - (ch0.ru_utime + ch0.ru_stime))
                 workers_cpu, chunks = clock.read()
@@ -691,8 +702,11 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
             "",
             "CPU per worker: each forked worker process's own CPU clock over its chunks, "
             "as the pool split them in this run. The critical path of a run with several "
-            "workers on as many free cores is the parent's own CPU (the one-run warm-up, "
-            "forking, gathering) plus the busiest worker's CPU when the chunks (their "
+            "workers on as many free cores is the parent's own CPU (forking the first "
+            "worker, gathering; the one-run warm-up where this process has not run the "
+            "study's kernels yet) and the longest chain of forks that started a worker "
+            "(the workers fork each other as a tree, `vesselid.core.forkpool`), plus the "
+            "busiest worker's CPU when the chunks (their "
             "measured CPU clocks) go in order to the least loaded worker; the CPU "
             "estimate of the speed-up is the one-worker run's CPU over it. On a quiet "
             "machine the wall-clock speed-up is the "
@@ -702,9 +716,16 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
             "",
             "Each worker keeps the BLAS on one thread for its whole life (set when it "
             "starts; the parent's setting is untouched), so no BLAS thread is started in "
-            "a worker to spin for work; a worker may still hand one long job to a "
+            "a worker to spin for work; where a worker's share of the runs is at most "
+            "250 (four or more workers here), a worker may still hand one long job to a "
             "second thread (`auto`'s prediction-error fallback fits its candidate "
-            "models at once: the same numbers). While the study runs, the process keeps "
+            "models at once: the same numbers), and that fallback's line searches filter "
+            "their trial steps together, on the cores the other workers leave idle once "
+            "they have run out of chunks (`vesselid.core.threads.idle_cores`), with the "
+            "tangent pass at the likely step computed ahead on one of them (each trial "
+            "step filtered on its own, the steps judged in order, a pass computed ahead "
+            "used only where its step is taken: the same numbers). "
+            "While the study runs, the process keeps "
             "freed memory in its heap (`vesselid.core.heap.kept_heap`; "
             "`VESSELID_KEEP_HEAP=0` leaves glibc's settings alone), so "
             "the chunks' large arrays reuse it instead of faulting in fresh pages every "
@@ -718,9 +739,12 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
                 "machine has, from the per-chunk CPU clocks of a run with that many "
                 "worker processes here (the default schedule for that many workers), "
                 "the chunks list-scheduled in order on that many cores (a chunk takes "
-                "its main thread's CPU; at least the total CPU over the cores), plus "
-                "the parent's own CPU in that run. Memory bandwidth shared by more "
-                "workers is not in it.",
+                "its main thread's CPU, with the longest block in place of the blocks it "
+                "ran itself where a line search was spread over idle cores, and a pass "
+                "computed ahead counted from when it started where the main thread waited "
+                "for it; at least the total CPU over the cores), plus the parent's own "
+                "CPU in that run and the longest chain of forks that started a worker. "
+                "Memory bandwidth shared by more workers is not in it.",
                 "",
                 "| workers | chunks' CPU (s) | parent CPU (s) | makespan (s) "
                 "| critical path (s) | projected speed-up | longest chunk "

@@ -319,3 +319,34 @@ def test_forked_workers_keep_one_blas_thread_and_the_parent_its_own(monkeypatch)
     cols = mc._run_local(SMALL, mc._chunks(SMALL.runs, 3), Bar())
     assert {int(x) for c in cols for x in np.unique(c["_blas"])} == {1}
     assert blas_threads() == before
+
+
+@pytest.mark.parametrize(("workers", "expected"), [(2, False), (3, True)])
+def test_workers_overlap_a_long_job_only_where_their_shares_are_small(workers, expected,
+                                                                      monkeypatch):
+    """A worker gives a long job a second thread (``overlap``) only where a worker's
+    share of the runs is at most a default chunk."""
+    from vesselid.studies import montecarlo as mc
+
+    if mc._fork_context() is None:
+        pytest.skip("no fork on this platform")
+    original = mc._serial_chunk
+
+    def probe(study, start, stop, overlap=False):
+        cols = original(study, start, stop, overlap)
+        cols["_overlap"] = np.full(cols["run"].size, overlap)
+        return cols
+
+    monkeypatch.setattr(mc, "_serial_chunk", probe)
+    monkeypatch.setattr("vesselid.core.threads.n_threads", lambda: workers)
+    runs = workers * mc.DEFAULT_BATCH_SIZE + (0 if expected else 1)
+    assert mc._overlaps(runs, workers) is expected
+
+    class Bar:
+        def update(self, n):
+            pass
+
+    study = Study(options={"pulse_design": "alternating"}, runs=runs, samples=200, seed=5,
+                  methods=("ls",))
+    cols = mc._run_local(study, mc._chunks(runs, 200), Bar())
+    assert {bool(x) for c in cols for x in c["_overlap"]} == {expected}

@@ -142,3 +142,51 @@ def test_background_does_not_hold_up_run_ranges():
     finally:
         release.set()
         job.result()
+
+
+def _scoring_fits(filt, psi0, free):
+    return pem._scoring(filt, psi0, free, 100, pem.SCORING_TOL)
+
+
+def _same_fit(a, b):
+    for key in ("psi", "cov", "nll_terms"):
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+    assert (a["iterations"], a["reason"]) == (b["iterations"], b["reason"])
+
+
+@pytest.mark.parametrize("model", ["current", "sensor"])
+def test_line_search_several_trial_steps_at_once_takes_the_same_steps(model, monkeypatch):
+    """The line search filters several trial steps together (as many as the previous
+    search needed) and, in a pool's worker with idle cores, on threads: the fit is the
+    one-step-at-a-time search's bit for bit."""
+    import multiprocessing
+
+    filt, _, psi0, free = _filter_and_start(model, seed=5)
+    filt.parallel = True
+    batched = _scoring_fits(filt, psi0, free)
+    count = multiprocessing.Value("i", 0)
+    monkeypatch.setattr(threads, "_SHARED", (count, 4))
+    with threads.serial_here(overlap=True), threads.busy():
+        assert threads.idle_cores() == 3
+        spread = _scoring_fits(filt, psi0, free)
+    monkeypatch.setattr(threads, "_SHARED", None)
+    original = pem._LineSearch.step
+
+    def one_at_a_time(self, *args):
+        self.taken = (0, 0, 0)  # one trial point expected, then one at a time
+        return original(self, *args)
+
+    monkeypatch.setattr(pem._LineSearch, "step", one_at_a_time)
+    monkeypatch.setattr(pem, "LINE_STEPS_MORE", 1)
+    calls = []
+    real_nll_rows = pem._Filter.nll_rows
+
+    def spy(self, rows, **kwargs):
+        calls.append(rows.shape[0])
+        return real_nll_rows(self, rows, **kwargs)
+
+    monkeypatch.setattr(pem._Filter, "nll_rows", spy)
+    single = _scoring_fits(filt, psi0, free)
+    assert calls and set(calls) == {1}  # the reference searched one step at a time
+    _same_fit(batched, single)
+    _same_fit(spread, single)

@@ -16,17 +16,26 @@ results are bit-identical to a serial loop.
 The number of threads is numba's (``numba.get_num_threads()``, i.e. ``NUMBA_NUM_THREADS``
 or :func:`numba.set_num_threads` in the calling thread), so ``n_jobs`` of the Monte Carlo
 runner keeps working.
+
+A worker process of a pool (the Monte Carlo's) runs its kernels in its own thread
+(:class:`serial_here`); the pool's workers count themselves while they compute
+(:func:`share_cores`, :class:`busy`), so that a worker whose long job still runs when the
+others have run out of work can spread it over the cores they leave idle
+(:func:`idle_cores`: ``run_ranges(idle=True)``, :func:`ahead`). Where work goes never
+changes a number.
 """
 
 from __future__ import annotations
 
 import os
 import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from typing import Any
 
-__all__ = ["CHUNKS_PER_THREAD", "background", "n_threads", "run_ranges", "serial", "serial_here",
+__all__ = ["CHUNKS_PER_THREAD", "ahead", "background", "busy", "collect", "idle_cores",
+           "n_threads", "run_ranges", "serial", "serial_here", "share_cores", "span_clock",
            "usable_cores"]
 
 #: Chunks per thread (several, so that uneven items — early divergence, converged groups
@@ -35,9 +44,16 @@ CHUNKS_PER_THREAD = 4
 
 _POOL: ThreadPoolExecutor | None = None
 _BACKGROUND: ThreadPoolExecutor | None = None
+_AHEAD: ThreadPoolExecutor | None = None
+_AHEAD_JOBS: list[Future] = []
+#: Jobs computed ahead at once (:func:`ahead`).
+AHEAD_JOBS = 2
 _POOL_SIZE = 0
 _LOCK = threading.Lock()
 _LOCAL = threading.local()
+#: In a worker process of a pool of concurrent workers (:func:`share_cores`): the count
+#: of the pool's workers computing now (a shared integer) and the cores they run on.
+_SHARED: tuple[Any, int] | None = None
 
 
 def n_threads() -> int:
@@ -107,8 +123,46 @@ class serial_here:
 def _forget_pool() -> None:
     """In a forked child: the parent's pool threads do not exist there, so start afresh
     (a pool whose threads are gone would never run the submitted chunks)."""
-    global _POOL, _POOL_SIZE, _LOCK, _BACKGROUND
-    _POOL, _POOL_SIZE, _LOCK, _BACKGROUND = None, 0, threading.Lock(), None
+    global _POOL, _POOL_SIZE, _LOCK, _BACKGROUND, _SHARED, _AHEAD, _AHEAD_JOBS
+    _POOL, _POOL_SIZE, _LOCK, _BACKGROUND, _SHARED = None, 0, threading.Lock(), None, None
+    _AHEAD, _AHEAD_JOBS = None, []
+
+
+def share_cores(count: Any, cores: int) -> None:
+    """Declare this process one worker of a pool of concurrent workers on ``cores``
+    cores: ``count`` (a ``multiprocessing.Value("i")`` shared by the pool) counts the
+    workers inside :class:`busy` now. :func:`idle_cores` then tells how many cores the
+    others leave idle (the end of a schedule, where one worker still computes a long
+    job)."""
+    global _SHARED
+    _SHARED = (count, max(1, int(cores)))
+
+
+class busy:
+    """Context: this worker computes (counted in :func:`share_cores`'s count while
+    inside); nothing outside a pool's worker."""
+
+    def __enter__(self) -> busy:
+        self._add(1)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._add(-1)
+
+    @staticmethod
+    def _add(step: int) -> None:
+        if _SHARED is not None:
+            with _SHARED[0].get_lock():
+                _SHARED[0].value += step
+
+
+def idle_cores() -> int:
+    """Cores the pool's workers leave idle now (:func:`share_cores`; 0 outside a pool's
+    worker). A snapshot: a worker that takes the next job a moment later is not in it,
+    so it decides how work is split, never what is computed."""
+    if _SHARED is None:
+        return 0
+    return max(0, _SHARED[1] - int(_SHARED[0].value))
 
 
 if hasattr(os, "register_at_fork"):  # POSIX
@@ -131,8 +185,50 @@ def background(fn: Callable[[], Any]) -> Future | None:
         return _BACKGROUND.submit(fn)
 
 
+def ahead(fn: Callable[[], Any]) -> Future | None:
+    """``fn()`` computed ahead on an idle core: in a pool's worker that may overlap
+    (``serial_here(overlap=True)``) while a core is idle (:func:`idle_cores`, less the
+    jobs computed ahead that still run; at most :data:`AHEAD_JOBS` of them); ``None``
+    otherwise. For work the caller will likely need next (a guess: an unused result is
+    work thrown away); collect it with :func:`collect`, which also keeps
+    :func:`span_clock` honest."""
+    global _AHEAD
+    if not (getattr(_LOCAL, "worker", False) and getattr(_LOCAL, "overlap", False)):
+        return None
+    _AHEAD_JOBS[:] = [j for j in _AHEAD_JOBS if not j.done()]
+    if len(_AHEAD_JOBS) >= AHEAD_JOBS or idle_cores() <= len(_AHEAD_JOBS):
+        return None
+    start = time.thread_time() + span_clock()
+
+    def timed() -> tuple[Any, float]:
+        c0 = time.thread_time()
+        out = fn()
+        return out, time.thread_time() - c0
+
+    with _LOCK:
+        if _AHEAD is None:
+            _AHEAD = ThreadPoolExecutor(max_workers=AHEAD_JOBS,
+                                        thread_name_prefix="vesselid-ahead",
+                                        initializer=_mark_worker)
+        job = _AHEAD.submit(timed)
+    job.started = start  # type: ignore[attr-defined]
+    _AHEAD_JOBS.append(job)
+    return job
+
+
+def collect(job: Future) -> Any:
+    """The result of a job of :func:`ahead` (waiting for it). The calling thread's
+    critical path (:func:`span_clock`) then runs at least to the job's end: the job's
+    CPU from when it was started, where that is more than this thread's since."""
+    out, cpu = job.result()
+    mine = time.thread_time() + span_clock() - job.started  # type: ignore[attr-defined]
+    if cpu > mine:
+        _LOCAL.span = getattr(_LOCAL, "span", 0.0) + (cpu - mine)
+    return out
+
+
 def run_ranges(kernel: Callable[..., Any], n_items: int, args: tuple, *,
-               parallel: bool) -> None:
+               parallel: bool, idle: bool = False) -> None:
     """``kernel(lo, hi, *args)`` over ``[0, n_items)``: one call, or chunks in threads.
 
     Parameters
@@ -146,22 +242,44 @@ def run_ranges(kernel: Callable[..., Any], n_items: int, args: tuple, *,
         The remaining arguments.
     parallel : bool
         Split across :func:`n_threads` threads (if more than one item and thread).
+    idle : bool
+        In a pool's worker that may overlap (``serial_here(overlap=True)``): split the
+        items into one contiguous block per thread over this thread and the cores the
+        pool's other workers leave idle now (:func:`idle_cores`) — for a call whose
+        latency holds up the end of a schedule. Elsewhere ``parallel`` decides.
     """
     n_items = int(n_items)
-    threads = n_threads() if parallel and n_items > 1 else 1
-    if threads <= 1 or getattr(_LOCAL, "worker", False):
+    if getattr(_LOCAL, "worker", False):
+        threads = (min(n_items, 1 + idle_cores())
+                   if idle and getattr(_LOCAL, "overlap", False) else 1)
+        n_chunks = threads
+    else:
+        threads = n_threads() if parallel and n_items > 1 else 1
+        n_chunks = min(n_items, threads * CHUNKS_PER_THREAD)
+    if threads <= 1:
         kernel(0, n_items, *args)
         return
-    n_chunks = min(n_items, threads * CHUNKS_PER_THREAD)
     bounds = [n_items * c // n_chunks for c in range(n_chunks + 1)]
     todo = iter(range(n_chunks))  # shared: next() on it is atomic under the GIL
+    spread = getattr(_LOCAL, "worker", False)  # over idle cores: the blocks' CPU clocks
+    blocks: list[float] = []
+    mine = [0.0]
 
     def work() -> None:
+        main = threading.current_thread() is caller
         for c in todo:
+            c0 = time.thread_time() if spread else 0.0
             kernel(bounds[c], bounds[c + 1], *args)
+            if spread:
+                blocks.append(time.thread_time() - c0)
+                if main:
+                    mine[0] += blocks[-1]
 
+    caller = threading.current_thread()
     kernel(0, 0, *args)  # compile (or load) in the calling thread first, over no item
-    pool = _pool(threads - 1)
+    # over idle cores: a pool for every core at once (the idle cores grow as the other
+    # workers finish; a pool that grew with them would be made anew each time)
+    pool = _pool(max(threads, _SHARED[1] if spread and _SHARED is not None else 0) - 1)
     futures = [pool.submit(work) for _ in range(threads - 1)]
     try:
         work()  # the calling thread takes chunks too
@@ -169,3 +287,17 @@ def run_ranges(kernel: Callable[..., Any], n_items: int, args: tuple, *,
         wait(futures)
     for fut in futures:
         fut.result()
+    if spread and blocks:
+        # this thread's CPU in the call had every block run on a core of its own: its
+        # own CPU outside the blocks plus the longest block (span_clock)
+        _LOCAL.span = getattr(_LOCAL, "span", 0.0) + max(blocks) - mine[0]
+
+
+def span_clock() -> float:
+    """Seconds to add to the calling thread's CPU clock (``time.thread_time``) for the
+    critical path of its work where every block of its :func:`run_ranges` calls over
+    idle cores (``idle=True`` in a pool's worker) runs on a core of its own: the longest
+    block in place of the blocks this thread ran itself (accumulated over the thread's
+    life; benchmarks read it before and after a job). The blocks are timed with
+    their threads' CPU clocks, so the figure holds whichever thread ran which block."""
+    return float(getattr(_LOCAL, "span", 0.0))

@@ -83,6 +83,7 @@ import itertools
 import math
 from collections.abc import Callable
 from concurrent.futures import wait
+from functools import partial
 from typing import Any, ClassVar
 
 import numpy as np
@@ -201,7 +202,10 @@ class _Filter:
         # innovation samples: all but the first of each experiment
         self.count = self.n - (self.starts.size - 1)
 
-    def run(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def run(self, rows: np.ndarray, *, idle: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Innovations and their variances (R, T) of the parameter rows (R, P + 7).
+        ``idle``: in a Monte Carlo worker, the rows may also run on the cores the other
+        workers leave idle (:func:`vesselid.core.threads.run_ranges`)."""
         from vesselid.core.threads import run_ranges
         from vesselid.identify._pemkernels import gaussian_filter
 
@@ -211,9 +215,34 @@ class _Filter:
         run_ranges(gaussian_filter, rows.shape[0],
                    (rows, self.y, self.u, self.starts, self.p_init, *self.terms, eps, var),
                    parallel=(self.parallel and rows.shape[0] > 1
-                             and rows.shape[0] * self.n >= PARALLEL_MIN_ROW_SAMPLES))
+                             and rows.shape[0] * self.n >= PARALLEL_MIN_ROW_SAMPLES),
+                   idle=idle and self.parallel)
         return eps, var
 
+    def nll_rows(self, rows: np.ndarray, *, idle: bool = False) -> np.ndarray:
+        """The negative log-likelihood ``V(ψ) = Σ ½ (log S + ε²/S)`` of each parameter
+        row (R,): each row filtered as by :meth:`run` and summed as ``np.sum`` of its
+        terms, in the thread that filtered it (``idle``: as :meth:`run`'s)."""
+        from vesselid.core.threads import run_ranges
+        from vesselid.identify._pemkernels import gaussian_filter
+
+        rows = np.ascontiguousarray(rows, dtype=np.float64)
+        n_rows = rows.shape[0]
+        eps = np.empty((n_rows, self.n))
+        var = np.empty((n_rows, self.n))
+        out = np.empty(n_rows)
+
+        def block(lo: int, hi: int, *args: Any) -> None:
+            gaussian_filter(lo, hi, *args)
+            for j in range(lo, hi):
+                out[j] = np.sum(_nll_terms(eps[j], var[j]))
+
+        run_ranges(block, n_rows,
+                   (rows, self.y, self.u, self.starts, self.p_init, *self.terms, eps, var),
+                   parallel=(self.parallel and n_rows > 1
+                             and n_rows * self.n >= PARALLEL_MIN_ROW_SAMPLES),
+                   idle=idle and self.parallel)
+        return out
 
     def tangent(self, psi: np.ndarray, idx: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
@@ -320,6 +349,7 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
     psi = psi0.copy()
     idx = np.flatnonzero(free)
     d = idx.size
+    search = _LineSearch(filt)
     reason, converged, it = MAX_ITER, False, 0
     fisher = np.full((d, d), np.nan)
     eps0 = var0 = je = js = None
@@ -360,29 +390,12 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
             tail = (psi.copy(), it - 1)  # the plain scoring's state here: the same
         if extra is not None:
             last = (psi[idx].copy(), grad.copy())
-        alpha = 1.0
-        while alpha > 1e-4:
-            trial = psi.copy()
-            trial[idx] += alpha * delta
-            if alpha == 1.0 and full:
-                # the last full step was taken: this one likely is too, so filter it
-                # with its sensitivities, which the next step needs (the innovations
-                # are the filter's, bit for bit, and so is the decision below)
-                ahead = filt.tangent(trial, idx)
-                e1, v1 = ahead[0], ahead[1]
-            else:
-                ahead = None
-                e1, v1 = (r[0] for r in filt.run(trial[None]))
-            f1 = float(np.sum(_nll_terms(e1, v1)))
-            if np.isfinite(f1) and f1 <= f0 - 1e-4 * alpha * slope:
-                break
-            ahead = None
-            alpha *= 0.5
-        else:
+        found = search.step(psi, idx, delta, f0, slope, full)
+        if found is None:
             reason = NO_DESCENT
             break
+        psi, alpha, ahead = found
         full = alpha == 1.0
-        psi = trial
     cov = np.zeros((psi.size, psi.size))
     parts = None
     if np.all(np.isfinite(fisher)):
@@ -398,6 +411,84 @@ def _scoring(filt: _Filter, psi0: np.ndarray, free: np.ndarray, max_iter: int, t
     if d * filt.n > DEFER_MAX:  # the sensitivities are large: the sandwich now
         _sandwich(fit)
     return fit
+
+
+#: Halvings of the step before the line search gives up (its smallest step is
+#: ``2**-(LINE_STEPS - 1)``, the last above 10⁻⁴).
+LINE_STEPS = 14
+#: Trial points filtered together once the expected ones all failed.
+LINE_STEPS_MORE = 2
+
+
+class _LineSearch:
+    """Backtracking (Armijo) line search of :func:`_scoring`: the steps ``α = 1, ½, ¼, …``
+    (at most :data:`LINE_STEPS`) are tried in turn and the first with
+    ``V(ψ + α δ) ≤ V(ψ) − 10⁻⁴ α · slope`` is taken.
+
+    The trial points are filtered several at a time, as rows of one filter call
+    (:meth:`_Filter.nll_rows`: the rows advance together, so a row costs about two thirds
+    of one filtered alone, and rows may run on threads that would otherwise idle, each
+    summing its rows' likelihoods): as many as the likely step needs (the step the last
+    search took, or the larger of the last two where the steps alternate), then
+    :data:`LINE_STEPS_MORE` at a time; the rows past the accepted step are work thrown
+    away. Each row is filtered on its own and the steps are judged in the same order, so
+    the step taken (and every number after it) is the one-at-a-time search's."""
+
+    def __init__(self, filt: _Filter) -> None:
+        self.filt = filt
+        self.taken = (0, 0, 0)  # the last three steps taken (halvings), latest first
+
+    def step(self, psi: np.ndarray, idx: np.ndarray, delta: np.ndarray, f0: float,
+             slope: float, full: bool) -> tuple[np.ndarray, float, Any] | None:
+        """``(ψ + α δ, α, tangent pass or None)`` of the accepted step, ``None`` where no
+        step descends. ``full``: the last step was the full one, so this one likely is
+        too and its trial point is filtered with its sensitivities (which the next
+        scoring step needs; the innovations are the filter's, bit for bit). Elsewhere
+        the tangent pass at the likely step is computed meanwhile on an idle core where
+        there is one (:func:`vesselid.core.threads.ahead`) and handed on where that step
+        is taken (the same pass the next scoring step would compute)."""
+        from vesselid.core import threads
+
+        k = 0
+        if full:
+            trial = psi.copy()
+            trial[idx] += delta
+            ahead = self.filt.tangent(trial, idx)
+            if self._descends(float(np.sum(_nll_terms(ahead[0], ahead[1]))), f0, 1.0,
+                              slope):
+                self.taken = (0, *self.taken[:2])
+                return trial, 1.0, ahead
+            k = 1
+        # the steps settle or alternate: the likely step is the last one taken, or the
+        # one before where they alternate (then the trial points cover both)
+        t1, t2, t3 = self.taken
+        alternate = t1 != t2 and t3 == t1
+        likely = t2 if alternate else t1
+        count = min(max((max(t1, t2) if alternate else t1) + 1 - k, 1), LINE_STEPS - k)
+        while k < LINE_STEPS:
+            alphas = 0.5 ** np.arange(k, k + count, dtype=float)
+            trials = np.repeat(psi[None], count, axis=0)
+            trials[:, idx] += alphas[:, None] * delta
+            # on an idle core: the tangent pass at the likely step, which the next scoring
+            # step then needs not compute
+            guess = likely - k
+            job = (threads.ahead(partial(self.filt.tangent, trials[guess].copy(), idx))
+                   if self.filt.parallel and 0 <= guess < count else None)
+            values = self.filt.nll_rows(trials, idle=True)
+            for i in range(count):
+                if self._descends(float(values[i]), f0, float(alphas[i]), slope):
+                    self.taken = (k + i, t1, t2)
+                    return (trials[i].copy(), float(alphas[i]),
+                            threads.collect(job) if job is not None and i == guess
+                            else None)
+            k += count
+            count = min(LINE_STEPS_MORE, LINE_STEPS - k)  # more halvings than expected
+        return None
+
+    @staticmethod
+    def _descends(f1: float, f0: float, alpha: float, slope: float) -> bool:
+        """Armijo's condition on the trial value ``f1``."""
+        return bool(np.isfinite(f1) and f1 <= f0 - 1e-4 * alpha * slope)
 
 
 #: Largest ``d × T`` for which a fit keeps its sensitivities and computes its quasi-ML

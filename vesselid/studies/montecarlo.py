@@ -439,9 +439,12 @@ def _run_local(study: Study, chunks: list[tuple[int, int]], bar: Any
     holds the GIL for about a fifth of its time, so chunks in threads of one process
     queue behind each other's glue, and more threads add GIL hand-overs until more
     threads are slower. Processes share nothing but the forked memory (the compiled
-    kernels, loaded once in this process by a one-run warm-up first) and return small
-    columns, each chunk's already in the study's row order. Elsewhere the chunks run in
-    threads.
+    kernels, loaded once in this process by a one-run warm-up first where it has not run
+    the study's kernels yet) and return small columns, each chunk's already in the
+    study's row order. They fork each other as a tree
+    (:func:`vesselid.core.forkpool.fork_map`: this process forks one, and every worker
+    starts on the chunks once its own forks are done), and each takes the next chunk
+    when it finishes one. Elsewhere the chunks run in threads.
 
     Either way the process keeps freed memory in its heap meanwhile
     (:func:`vesselid.core.heap.kept_heap`, inherited by the workers): the chunks
@@ -463,54 +466,109 @@ def _run_chunks(study: Study, chunks: list[tuple[int, int]], bar: Any) -> list[A
         frames = []
         for a, b in chunks:
             frames.append(_chunk_columns(study, a, b))
+            _ran(study)
             bar.update(b - a)
         return frames
-    from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
-
     ctx = _fork_context()
-    frozen = False
-    if ctx is not None:
+    if ctx is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        pool = ThreadPoolExecutor(workers, thread_name_prefix="vesselid-chunk")
+        return _gather(pool, study, chunks, bar)
+    from vesselid.core.forkpool import fork_map
+
+    if not _has_run(study):
         with serial_here():  # load (or compile) every kernel of the study here, once
             _chunk_columns(study, chunks[0][0], chunks[0][0] + 1)
-        # the objects alive now (modules, compiled kernels) leave the garbage collector's
-        # generations before the workers fork: a worker's collections then do not walk
-        # (and so copy-on-write every page of) the parent's heap; measured ~7 % of the
-        # workers' CPU on Table 1
-        gc.freeze()
-        frozen = True
-        pool: Executor = ProcessPoolExecutor(workers, mp_context=ctx,
-                                             initializer=_worker_start)
-    else:
-        pool = ThreadPoolExecutor(workers, thread_name_prefix="vesselid-chunk")
+        _ran(study)
+    # the objects alive now (modules, compiled kernels) leave the garbage collector's
+    # generations before the workers fork: a worker's collections then do not walk
+    # (and so copy-on-write every page of) the parent's heap; measured ~7 % of the
+    # workers' CPU on Table 1
+    gc.freeze()
     try:
-        return _gather(pool, study, chunks, bar, overlap=frozen)
+        # the workers count themselves while they compute a chunk: a worker whose long
+        # job still runs at the end of the schedule spreads it over the cores the others
+        # leave idle (vesselid.core.threads.idle_cores)
+        count, cores = ctx.Value("i", 0), n_threads()
+        overlap = _overlaps(int(study.runs), workers)
+        with warnings.catch_warnings():
+            # Python ≥ 3.12 warns on fork() in a process with threads; the children run
+            # chunks in their main thread (serial kernels; a long job's helper threads
+            # are started there)
+            warnings.filterwarnings("ignore", message=".*fork.*", category=DeprecationWarning)
+            return fork_map(lambda i: _serial_chunk(study, *chunks[i], overlap), len(chunks),
+                            workers, initializer=lambda: _worker_start(count, cores),
+                            on_result=lambda i: bar.update(chunks[i][1] - chunks[i][0]))
     finally:
-        if frozen:
-            gc.unfreeze()
+        gc.unfreeze()
 
 
-def _worker_start() -> None:
+def _overlaps(runs: int, workers: int) -> bool:
+    """Whether the workers may give a long job more threads (``serial_here(overlap=
+    True)``, :func:`_serial_chunk`): where a worker's share of the runs is at most a
+    default chunk. A run that costs many times the others (``auto``'s prediction-error
+    fallback: up to about as much CPU as 300 ordinary runs) then outlasts a worker's
+    share and holds up the end of the schedule, and its second thread and the idle cores
+    shorten that; with larger shares every core stays busy to the end, where a second
+    thread only takes turns with the other workers on theirs (measured on two workers:
+    8 % more CPU in all)."""
+    return runs <= workers * DEFAULT_BATCH_SIZE
+
+
+#: The studies whose chunks this process has computed (:func:`_kernel_key`, methods):
+#: their compiled kernels are loaded here, and forked workers inherit them.
+_RAN: list[tuple[tuple, frozenset[str]]] = []
+
+
+def _kernel_key(study: Study) -> tuple:
+    """What decides which compiled kernels a study's chunks call, besides its methods:
+    the plant, the model structure and the estimation settings (not the number of runs
+    or samples, the seed or the iteration limits: every kernel serves every size)."""
+    options = repr(sorted(study.options.items(), key=lambda kv: str(kv[0])))
+    return (study.system, options, study.combine, study.aggregate, study.target,
+            int(study.experiments_per_run))
+
+
+def _ran(study: Study) -> None:
+    """Record that this process computed a chunk of ``study``."""
+    key, methods = _kernel_key(study), frozenset(study.methods)
+    if not any(k == key and methods <= m for k, m in _RAN):
+        _RAN.append((key, methods))
+
+
+def _has_run(study: Study) -> bool:
+    """Whether this process has computed a chunk of a study with the same kernels
+    (:func:`_kernel_key`) and at least ``study``'s methods: then the one-run warm-up
+    before forking the workers would load nothing."""
+    key, methods = _kernel_key(study), frozenset(study.methods)
+    return any(k == key and methods <= m for k, m in _RAN)
+
+
+def _worker_start(count: Any = None, cores: int = 1) -> None:
     """A forked worker's set-up: the BLAS on one thread for the worker's life (its
     chunks' :func:`~vesselid.identify.linalg.one_blas_thread` then restores one thread).
     A fork has none of the parent's BLAS threads; restoring more than one at the end of
     each chunk would start one that spins for work, taking CPU from the other workers'
-    cores. The parent's setting is not touched."""
+    cores. The parent's setting is not touched. ``count``: the pool's shared count of
+    workers computing a chunk, on ``cores`` cores
+    (:func:`vesselid.core.threads.share_cores`)."""
+    from vesselid.core.threads import share_cores
     from vesselid.identify.linalg import _blas_controller
 
+    if count is not None:
+        share_cores(count, cores)
     ctl = _blas_controller()
     if ctl is not None:
         ctl.limit(limits=1)  # not restored: this process only runs chunks
 
 
-def _gather(pool: Any, study: Study, chunks: list[tuple[int, int]], bar: Any, *,
-            overlap: bool = False) -> list[dict[str, np.ndarray]]:
-    """Submit every chunk to ``pool`` (:func:`_serial_chunk`, with ``overlap``) and
-    return their columns in order, shutting the pool down."""
-    with pool, warnings.catch_warnings():
-        # Python ≥ 3.12 warns on fork() in a process with threads; the children run one
-        # chunk each in their only thread and start no thread pool (serial kernels)
-        warnings.filterwarnings("ignore", message=".*fork.*", category=DeprecationWarning)
-        futures = [pool.submit(_serial_chunk, study, a, b, overlap) for a, b in chunks]
+def _gather(pool: Any, study: Study, chunks: list[tuple[int, int]], bar: Any
+            ) -> list[dict[str, np.ndarray]]:
+    """Submit every chunk to the thread ``pool`` (:func:`_serial_chunk`) and return
+    their columns in order, shutting the pool down."""
+    with pool:
+        futures = [pool.submit(_serial_chunk, study, a, b) for a, b in chunks]
         frames = []
         for fut, (a, b) in zip(futures, chunks, strict=True):
             frames.append(fut.result())
@@ -525,12 +583,14 @@ def _serial_chunk(study: Study, start: int, stop: int, overlap: bool = False
 
     ``overlap`` (a worker process): a long job may still take a second thread
     (``serial_here(overlap=True)``): a run that costs many times the others
-    (``auto``'s prediction-error fallback) then fits its candidate models at once, so
-    the worker that drew it does not finish far behind the others. Chunk threads of one
-    process leave it off (their single background thread would queue their jobs)."""
-    from vesselid.core.threads import serial_here
+    (``auto``'s prediction-error fallback) then fits its candidate models at once, and
+    its line searches filter their trial points on the cores the other workers leave
+    idle, so the worker that drew it does not finish far behind the others. Chunk
+    threads of one process leave it off (their single background thread would queue
+    their jobs)."""
+    from vesselid.core.threads import busy, serial_here
 
-    with serial_here(overlap=overlap):
+    with serial_here(overlap=overlap), busy():
         return _chunk_columns(study, start, stop)
 
 
