@@ -113,10 +113,11 @@ _WORK: dict[str, Any] = {}
 def _worker_start() -> None:
     """A worker process: its BLAS and compiled kernels on one thread (each worker has a
     core of its own), so that the results do not depend on the number of workers."""
-    from threadpoolctl import threadpool_limits
-
-    threadpool_limits(1)
     import numba
+
+    from vesselid.identify.linalg import pin_blas_to_one_thread
+
+    pin_blas_to_one_thread()
 
     numba.set_num_threads(1)
 

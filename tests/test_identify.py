@@ -383,6 +383,34 @@ def test_segment_abs_max_equals_the_per_segment_loop():
         np.testing.assert_array_equal(segment_abs_max(x, starts), ref)
 
 
+def test_pin_blas_to_one_thread_holds_for_the_process():
+    """A worker's setting: after a first fit has loaded every BLAS library, one BLAS
+    thread, kept after further fits (whose own one-thread setting restores the pinned
+    one). In a process of its own: the setting is for the rest of the process."""
+    import subprocess
+    import sys
+
+    code = """
+import warnings
+warnings.simplefilter("ignore")
+from threadpoolctl import threadpool_info
+from vesselid.identify import identify, linalg
+from vesselid.plant.systems import heave
+def blas():
+    return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+log = heave().simulate(500, seed=1).to_log()
+identify(log)
+linalg.pin_blas_to_one_thread()
+pinned = blas()
+identify(log)
+print(pinned, blas())
+assert pinned and set(pinned) == {1} and set(blas()) == {1}
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=False)
+    assert out.returncode == 0, out.stderr[-2000:]
+
+
 def test_fit_restores_blas_threads():
     """``fit`` runs the BLAS on one thread and restores the caller's setting."""
     from threadpoolctl import threadpool_info, threadpool_limits

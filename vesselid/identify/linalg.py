@@ -30,7 +30,8 @@ from typing import Any, TypeVar
 import numpy as np
 
 __all__ = ["COND_MAX", "condition_number", "equilibrate", "gmm_solve", "inv_sym", "one_blas_thread",
-           "pow2_scale", "solve", "solve_rows", "stacked_row_weights"]
+           "pin_blas_to_one_thread", "pow2_scale", "solve", "solve_rows",
+           "stacked_row_weights"]
 
 #: Systems whose (equilibrated) condition number exceeds this are treated as singular.
 COND_MAX = 1e15
@@ -600,6 +601,18 @@ def _blas_controller() -> Any:
 
     ctl = ThreadpoolController().select(user_api="blas")
     return ctl if ctl.lib_controllers else None
+
+
+def pin_blas_to_one_thread() -> None:
+    """Put the BLAS libraries loaded now on one thread for the rest of this process
+    (threadpoolctl; not restored): for a process that only runs fits, such as a forked
+    Monte Carlo worker (its parent has loaded the libraries with a first fit),
+    where :func:`one_blas_thread` would otherwise restore more than one thread after each
+    fit and start BLAS threads that spin for work on the other workers' cores. The
+    numbers are the same (:func:`one_blas_thread`)."""
+    ctl = _blas_controller()
+    if ctl is not None:
+        ctl.limit(limits=1)
 
 
 def one_blas_thread(fn: _F) -> _F:

@@ -554,13 +554,11 @@ def _worker_start(count: Any = None, cores: int = 1) -> None:
     workers computing a chunk, on ``cores`` cores
     (:func:`vesselid.core.threads.share_cores`)."""
     from vesselid.core.threads import share_cores
-    from vesselid.identify.linalg import _blas_controller
+    from vesselid.identify.linalg import pin_blas_to_one_thread
 
     if count is not None:
         share_cores(count, cores)
-    ctl = _blas_controller()
-    if ctl is not None:
-        ctl.limit(limits=1)  # not restored: this process only runs chunks
+    pin_blas_to_one_thread()  # this process only runs chunks
 
 
 def _gather(pool: Any, study: Study, chunks: list[tuple[int, int]], bar: Any
