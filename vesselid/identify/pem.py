@@ -202,27 +202,31 @@ class _Filter:
         # innovation samples: all but the first of each experiment
         self.count = self.n - (self.starts.size - 1)
 
-    def run(self, rows: np.ndarray, *, idle: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """Innovations and their variances (R, T) of the parameter rows (R, P + 7).
-        ``idle``: in a Monte Carlo worker, the rows may also run on the cores the other
-        workers leave idle (:func:`vesselid.core.threads.run_ranges`)."""
-        from vesselid.core.threads import run_ranges
-        from vesselid.identify._pemkernels import gaussian_filter
-
-        rows = np.ascontiguousarray(rows, dtype=np.float64)
-        eps = np.empty((rows.shape[0], self.n))
-        var = np.empty((rows.shape[0], self.n))
-        run_ranges(gaussian_filter, rows.shape[0],
-                   (rows, self.y, self.u, self.starts, self.p_init, *self.terms, eps, var),
-                   parallel=(self.parallel and rows.shape[0] > 1
-                             and rows.shape[0] * self.n >= PARALLEL_MIN_ROW_SAMPLES),
-                   idle=idle and self.parallel)
-        return eps, var
+    def run(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Innovations and their variances (R, T) of the parameter rows (R, P + 7)."""
+        return self._filter(rows)
 
     def nll_rows(self, rows: np.ndarray, *, idle: bool = False) -> np.ndarray:
         """The negative log-likelihood ``V(ψ) = Σ ½ (log S + ε²/S)`` of each parameter
         row (R,): each row filtered as by :meth:`run` and summed as ``np.sum`` of its
-        terms, in the thread that filtered it (``idle``: as :meth:`run`'s)."""
+        terms, in the thread that filtered it. ``idle``: in a Monte Carlo worker, the
+        rows may also run on the cores the other workers leave idle
+        (:func:`vesselid.core.threads.run_ranges`)."""
+        out = np.empty(np.shape(rows)[0])
+
+        def each(lo: int, hi: int, eps: np.ndarray, var: np.ndarray) -> None:
+            for j in range(lo, hi):
+                out[j] = np.sum(_nll_terms(eps[j], var[j]))
+
+        self._filter(rows, idle=idle, each=each)
+        return out
+
+    def _filter(self, rows: np.ndarray, *, idle: bool = False,
+                each: Callable[[int, int, np.ndarray, np.ndarray], None] | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`run`'s innovations and variances, the rows split over threads by
+        :func:`vesselid.core.threads.run_ranges`; ``each(lo, hi, eps, var)`` runs after
+        each block of rows ``[lo, hi)`` in the thread that filtered it."""
         from vesselid.core.threads import run_ranges
         from vesselid.identify._pemkernels import gaussian_filter
 
@@ -230,19 +234,18 @@ class _Filter:
         n_rows = rows.shape[0]
         eps = np.empty((n_rows, self.n))
         var = np.empty((n_rows, self.n))
-        out = np.empty(n_rows)
+        kernel = gaussian_filter
+        if each is not None:
+            def kernel(lo: int, hi: int, *args: Any) -> None:
+                gaussian_filter(lo, hi, *args)
+                each(lo, hi, eps, var)
 
-        def block(lo: int, hi: int, *args: Any) -> None:
-            gaussian_filter(lo, hi, *args)
-            for j in range(lo, hi):
-                out[j] = np.sum(_nll_terms(eps[j], var[j]))
-
-        run_ranges(block, n_rows,
+        run_ranges(kernel, n_rows,
                    (rows, self.y, self.u, self.starts, self.p_init, *self.terms, eps, var),
                    parallel=(self.parallel and n_rows > 1
                              and n_rows * self.n >= PARALLEL_MIN_ROW_SAMPLES),
                    idle=idle and self.parallel)
-        return out
+        return eps, var
 
     def tangent(self, psi: np.ndarray, idx: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
