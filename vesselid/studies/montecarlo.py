@@ -532,9 +532,8 @@ def _kernel_key(study: Study) -> tuple:
 
 def _ran(study: Study) -> None:
     """Record that this process computed a chunk of ``study``."""
-    key, methods = _kernel_key(study), frozenset(study.methods)
-    if not any(k == key and methods <= m for k, m in _RAN):
-        _RAN.append((key, methods))
+    if not _has_run(study):
+        _RAN.append((_kernel_key(study), frozenset(study.methods)))
 
 
 def _has_run(study: Study) -> bool:
