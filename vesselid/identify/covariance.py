@@ -702,9 +702,14 @@ class CovarianceEstimator:
 
     def _fixed_b_kernel(self, combine: str) -> bool:
         """Whether this estimator's intervals may take the fixed-b critical value
-        (:attr:`fixed_b`, a Bartlett kernel not pre-whitened, a pooled estimate)."""
-        return (self.fixed_b and combine == "pooled"
-                and getattr(self, "kernel", None) == "bartlett"
+        (:attr:`fixed_b`, and :meth:`fixed_b_applies`)."""
+        return self.fixed_b and self.fixed_b_applies(combine)
+
+    def fixed_b_applies(self, combine: str) -> bool:
+        """Whether the fixed-b critical values are defined for this covariance: a
+        Bartlett kernel not pre-whitened, a pooled estimate (whether they are used is
+        :attr:`fixed_b`)."""
+        return (combine == "pooled" and getattr(self, "kernel", None) == "bartlett"
                 and not getattr(self, "prewhiten", False))
 
     def _fixed_b_square(self, fixed_b_square: bool, weight: Any, n_ins: int, n_par: int,

@@ -347,8 +347,7 @@ def _fixed_b_scaling(est: Any, parts: list[dict], bandwidths: list[float], combi
     """``(A⁻¹, u, lags)`` per equation where the in-memory covariance would take the
     fixed-b critical value (designs that ask for it, pooled, Bartlett HAC; None for an
     equation whose covariance is not finite), or None where it does not apply."""
-    if not (getattr(est, "name", "") == "hac" and est.kernel == "bartlett"
-            and not getattr(est, "prewhiten", False) and combine == "pooled"
+    if not (getattr(est, "name", "") == "hac" and est.fixed_b_applies(combine)
             and len(bandwidths) == len(blocks) - 1
             and all(e["fixed_b"] for p in parts for e in p["equations"])):
         return None
