@@ -83,7 +83,7 @@ def measure(repeats: int = 2, runs: int = 1000,
                                              workers=_worker_counts(cores), project=())
     if cores > 2:
         results["mc_two_cores"] = _two_cores(repeats + 1, runs)
-    white = bench_identify()
+    white = bench_identify(methods=())
     results["identify"] = {"white_default_ms": white["identify_heave_1e4_default_ms"],
                            "white_default_cpu_ms": white["identify_heave_1e4_default_cpu_ms"]}
     results["pem_path"] = bench_pem_path()
