@@ -21,6 +21,9 @@ counts):
   and peak resident memory (:func:`bench_scaling.bench_identify_memory`);
 * single environments against CartPole-v1 and the vector environments
   (:func:`bench_scaling.bench_single_envs`);
+* the costliest run of that Monte Carlo (:func:`costliest_run`): every run's CPU on its
+  own, then the costliest run alone with every core free — no schedule can finish the
+  study sooner, so one worker's time over it bounds the speed-up;
 * what the machine itself allows (:func:`machine_ceiling`): the throughput of 1, 2, 4, …
   processes each doing the same fixed work, a compiled arithmetic loop (no memory traffic)
   and a numpy pass over 64 MB arrays (memory bandwidth), against one process.
@@ -133,6 +136,40 @@ def machine_ceiling(counts: tuple[int, ...]) -> dict[str, Any]:
     return out
 
 
+def costliest_run(runs: int = 1000, samples: int = 10_000, repeats: int = 3
+                  ) -> dict[str, Any]:
+    """The run of ``vesselid reproduce --table 1``'s Monte Carlo that costs the most CPU
+    (each run computed on its own, serial kernels), and its wall time computed alone in
+    this process with every core free (median of ``repeats``): its likelihood fit's
+    scoring steps follow one another, so the whole study cannot finish sooner."""
+    import time
+
+    import numpy as np
+
+    from vesselid.core.threads import serial_here
+    from vesselid.studies.montecarlo import _chunk_columns
+    from vesselid.studies.reproduce import table_study
+
+    study = table_study(1, runs=runs, samples=samples)
+    with serial_here():
+        _chunk_columns(study, 0, 1)
+        costs = []
+        for run in range(runs):
+            t0 = time.process_time()
+            _chunk_columns(study, run, run + 1)
+            costs.append(time.process_time() - t0)
+    worst = int(np.argmax(costs))
+    walls = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        _chunk_columns(study, worst, worst + 1)
+        walls.append(time.perf_counter() - t0)
+    order = np.sort(costs)[::-1]
+    return {"run": worst, "cpu_s": float(costs[worst]),
+            "alone_wall_s": float(np.median(walls)),
+            "next_cpu_s": [float(c) for c in order[1:4]], "all_cpu_s": float(np.sum(costs))}
+
+
 def measure(repeats: int = 2, runs: int = 1000,
             memory_sizes: tuple[int, ...] = (100_000, 1_000_000)) -> dict[str, Any]:
     """Every item of the module docstring on this machine."""
@@ -160,6 +197,7 @@ def measure(repeats: int = 2, runs: int = 1000,
     results["identify_memory"] = bench_identify_memory(sizes=memory_sizes, phases_at=None)
     results["envs"] = bench_single_envs(repeats=5)
     results["ceiling"] = machine_ceiling(_worker_counts(cores))
+    results["costliest_run"] = costliest_run(runs=runs)
     return results
 
 
@@ -223,6 +261,19 @@ def render(results: dict[str, Any]) -> str:
         for n in mem["sizes"]:
             lines.append(f"| {n:,} | {mem[f'{n}_wall_s']:.2f} | {mem[f'{n}_cpu_s']:.2f} | "
                          f"{mem[f'{n}_peak_rss_mb']:.0f} |")
+    worst = results.get("costliest_run")
+    if worst:
+        base = mc[f"w{mc['workers'][0]}_wall_s"]
+        lines += [
+            "",
+            f"The costliest of those runs (run {worst['run']}, where `auto` falls back to its "
+            f"likelihood model) takes {worst['cpu_s']:.2f} s of CPU on its own (the next: "
+            + ", ".join(f"{c:.2f}" for c in worst["next_cpu_s"]) + " s; all runs one by one: "
+            f"{worst['all_cpu_s']:.1f} s) and **{worst['alone_wall_s']:.2f} s** of wall time "
+            "alone with every core free. Its scoring steps follow one another, so no "
+            "schedule finishes the study sooner: at most "
+            f"{base / worst['alone_wall_s']:.1f}× one worker's time.",
+        ]
     ceiling = results.get("ceiling")
     if ceiling:
         lines += [
