@@ -35,9 +35,11 @@ def check_action(action: Any, shape: tuple[int, ...], *, name: str = "action") -
     Raises
     ------
     InvalidActionError
-        Not numeric, wrong shape, or NaN/±inf (the message gives the first index).
+        Not real numbers, wrong shape, or NaN/±inf (the message gives the first index).
     """
     try:
+        if isinstance(action, np.ndarray | np.generic) and action.dtype.kind == "c":
+            raise TypeError("complex")  # numpy would drop the imaginary part
         arr = np.asarray(action, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise InvalidActionError(
