@@ -36,6 +36,9 @@ SINGLE_BLOCK, VECTOR_BLOCK_ELEMENTS = 1024, 1 << 16
 # Per instant and env: 4 standard normals (current, ξ, e1, e2; scaled by the system's
 # Gaussian disturbances) and 3 uniforms (reference level and hold, initial velocity).
 _NZ, _NU = 4, 3
+#: Observation rows of the single environment allocated at once (a power of two dividing
+#: SINGLE_BLOCK): a kept observation keeps its 64 rows alive (about 1 kB).
+_ROWS = 64
 
 
 #: Numeric settings and their validation.
@@ -224,6 +227,8 @@ def step(self, action):
         k = 0
     else:
         self.k = k + 1
+        if not k & {mask}:
+            self._new_rows(k)
     if self.prev_done:  # stepped past the end without reset: next-step autoreset
         return self._autoreset(k)
     tau = {lo!r} + ((-1.0 if a < -1.0 else 1.0 if a > 1.0 else a) + 1.0) * 0.5 * {span!r}
@@ -240,7 +245,7 @@ def step(self, action):
     self.y2 = y2 = self.y2s[k]
     self.tau_now = tau
     self.prev_done = term = not (abs(nxt) <= {limit!r})  # also true for NaN
-    o = self.rows[k]  # y2 and w_ref are in place already (_draw, _new_reference)
+    o = self.rows[k & {mask}]  # y2 and w_ref are in place (_new_rows, _new_reference)
     o[0] = y1
     return o, -(err * err) - {cost!r} * tau * tau, term, False, {info}
 """
@@ -264,8 +269,9 @@ def _compile_step(cfg: _HeaveConfig, block: int) -> Any:
     info = ('{"w_a": nxt, "w_r": nxt - w_c, "w_c": w_c, "xi": xi, "y1": y1,' + y2
             + ' "w_ref": self.w_ref}')
     lo, hi = cfg.thrust_range
-    source = _SCALAR_STEP.format(block=int(block), lo=lo, span=hi - lo, s=s, plant=plant,
-                                 limit=cfg.velocity_limit, cost=cfg.cost, info=info)
+    source = _SCALAR_STEP.format(block=int(block), mask=_ROWS - 1, lo=lo, span=hi - lo, s=s,
+                                 plant=plant, limit=cfg.velocity_limit, cost=cfg.cost,
+                                 info=info)
     scope: dict[str, Any] = {}
     exec(compile(source, "<heave scalar step>", "exec"), scope)
     return scope["step"]
@@ -282,9 +288,10 @@ class _ScalarCore:
     system's factor layout in term order (as the compiled
     :func:`vesselid.model.regressors.advance`). What depends on the noise alone (current,
     ξ, sensor noise, the current meter) is computed for a whole block of draws at once
-    with numpy's elementwise operations, the same IEEE operations as the scalar ones;
-    the observations of a block are the rows of one float32 array, each row filled once
-    and returned (a fresh row per step, never written again).
+    with numpy's elementwise operations, the same IEEE operations as the scalar ones.
+    The observations are the rows of float32 arrays of :data:`_ROWS` rows with the
+    current meter and the reference filled in ahead (a view costs less than a new
+    array); each row is returned by one step and never written again.
     """
 
     n = 1
@@ -292,6 +299,8 @@ class _ScalarCore:
     def __init__(self, cfg: _HeaveConfig, block: int) -> None:
         self.cfg, self.block = cfg, block
         fac, eq, _ = cfg.layout
+        if block % _ROWS:  # pragma: no cover
+            raise VesselidError(f"the noise block must be a multiple of {_ROWS} instants")
         if fac.shape[0] and (int(eq.max()) != 0 or int(fac.max()) > 4):  # pragma: no cover
             raise VesselidError("the scalar heave core needs one state and one input")
         self.step = _compile_step(cfg, block).__get__(self)
@@ -309,6 +318,7 @@ class _ScalarCore:
         self.e1z: list[float] = []
         self.y2s: list[float] = []
         self.u = np.zeros((0, _NU))
+        self.y2a = np.zeros(0)
         self.rows = np.zeros((0, self.n_obs), dtype=np.float32)
 
     # the plotting and recorder helpers read the state as arrays of one element
@@ -352,11 +362,16 @@ class _ScalarCore:
         self.wc, self.y2s = w_c.tolist(), y2.tolist()
         self.xis = (c.xi[0] + c.xi[1] * z[:, 1]).tolist()
         self.e1z = (c.e1 * z[:, 2]).tolist()
-        self.rows = rows = np.empty((n, self.n_obs), dtype=np.float32)
-        if c.sensor:
-            rows[:, 1] = y2
-        rows[:, -1] = self.w_ref
+        self.y2a = y2
         self.k = 1
+        self._new_rows(0)
+
+    def _new_rows(self, k: int) -> None:
+        """The observation rows of instants ``k`` to ``k + _ROWS − 1`` of the block."""
+        self.rows = rows = np.empty((_ROWS, self.n_obs), dtype=np.float32)
+        if self.cfg.sensor:
+            rows[:, 1] = self.y2a[k:k + _ROWS]
+        rows[:, -1] = self.w_ref
 
     def _new_reference(self, u: list[float], k: int) -> None:
         """A new reference level and hold from the uniforms ``u`` of instant ``k``."""
@@ -367,7 +382,7 @@ class _ScalarCore:
         else:
             self.w_ref = lo
             self.hold = math.inf
-        self.rows[k:, -1] = self.w_ref  # the observations from instant k on
+        self.rows[k & (_ROWS - 1):, -1] = self.w_ref  # the observations from instant k on
 
     def _start(self, k: int) -> None:
         """A new episode from the draws of instant ``k``."""
