@@ -222,3 +222,24 @@ def test_single_step_info_is_a_dict_of_that_step() -> None:
     later = env.step(a)[4]
     later["episode"] = 2
     assert later.pop("episode") == 2 and len(later) == len(expected)
+
+
+def test_pickled_and_copied_env_steps_on_identically():
+    import copy
+    import pickle
+
+    env = Manoeuvring3DOFEnv()
+    env.reset(seed=4)
+    actions = np.random.default_rng(1).uniform(-1, 1, size=(1100, 3)).astype(np.float32)
+    for a in actions[:100]:
+        env.step(a)
+    clones = [copy.deepcopy(env), pickle.loads(pickle.dumps(env))]
+    for a in actions[100:]:
+        obs, r, term, trunc, info = env.step(a)
+        for clone in clones:
+            o, *rest, i = clone.step(a)
+            np.testing.assert_array_equal(o, obs)
+            assert rest == [r, term, trunc]
+            assert i.keys() == info.keys()
+            for k in info:
+                np.testing.assert_array_equal(i[k], info[k])

@@ -901,6 +901,13 @@ class VesselBatch:
         self.info_slices = ([(k, LAYOUT.slice(k)) for k in INFO_BLOCKS]
                             + LAYOUT.sensor_slices(model.sensors))
 
+    def __getstate__(self) -> dict[str, Any]:  # a copy's obs0 must view its own obs
+        return {k: v for k, v in self.__dict__.items() if k != "obs0"}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self.obs0 = self.obs[0]
+
     def set_state(self, idx: np.ndarray, nu: np.ndarray, eta: np.ndarray,
                   current_direction: np.ndarray, wind_direction: np.ndarray) -> None:
         """Initial ``ν``, ``η`` and mean directions of the vessels ``idx``."""
