@@ -261,8 +261,10 @@ def _compile_step(cfg: _HeaveConfig, block: int) -> Any:
                  if n != "1.0"]
         return " * ".join(names) or "1.0"
 
-    plant = "self.xi" + "".join(f" + {float(t)!r} * ({product(int(i), int(j))})"
-                                for (i, j), t in zip(fac, theta, strict=True))
+    plant = "self.xi" + "".join(  # and so is 1.0 · x
+        f" + {product(int(i), int(j))}" if float(t) == 1.0
+        else f" + {float(t)!r} * ({product(int(i), int(j))})"
+        for (i, j), t in zip(fac, theta, strict=True))
     s = {1.0: "self.w_a + self.w_c", -1.0: "self.w_a - self.w_c"}.get(  # exact: a + -b is a - b
         cfg.sign, f"self.w_a + {cfg.sign!r} * self.w_c")
     y2 = ' "y2": y2,' if cfg.sensor else ""
