@@ -547,7 +547,10 @@ class HeaveEnv(_HeaveBase, gym.Env[np.ndarray, np.ndarray]):
     ## Observation Space
 
     ``Box(±2·velocity_limit, (2,) or (3,), float32)``: ``y1``, ``y2`` (only with
-    ``current_sensor``) and the reference ``w_ref``.
+    ``current_sensor``) and the reference ``w_ref``. Every observation is an array of
+    its own that the environment never writes again; those of ``step`` are rows of
+    blocks of 64 (a view costs less than a new array), so one kept observation keeps
+    its block (about 1 kB) alive.
 
     ## Rewards
 
