@@ -498,7 +498,8 @@ class Manoeuvring3DOFEnv(_ManoeuvringBase, gym.Env[np.ndarray, np.ndarray]):
         self._attach(render_mode, render_window)
         self._skip = self._core.no_skip
         self._t = 0
-        if self._hist is None:  # nothing to record: a step is the core's single step
+        # nothing to record (and step not overridden): a step is the core's single step
+        if self._hist is None and type(self).step is Manoeuvring3DOFEnv.step:
             self.step = self._core.step_single  # type: ignore[method-assign]
 
     def reset(

@@ -370,3 +370,20 @@ def test_pickled_and_copied_env_steps_on_identically() -> None:
             o, *rest = clone.step(a)
             assert_array_equal(o, obs)
             assert rest == [r, term, trunc, info]
+
+
+def test_subclass_step_override_is_called() -> None:
+    class Counting(HeaveEnv):
+        calls = 0
+
+        def step(self, action):
+            Counting.calls += 1
+            return super().step(action)
+
+    sub = Counting()
+    sub.reset(seed=0)
+    out = sub.step(np.array([0.5], np.float32))
+    ref = HeaveEnv()
+    ref.reset(seed=0)
+    assert Counting.calls == 1
+    assert_array_equal(out[0], ref.step(np.array([0.5], np.float32))[0])

@@ -243,3 +243,20 @@ def test_pickled_and_copied_env_steps_on_identically():
             assert i.keys() == info.keys()
             for k in info:
                 np.testing.assert_array_equal(i[k], info[k])
+
+
+def test_subclass_step_override_is_called():
+    class Counting(Manoeuvring3DOFEnv):
+        calls = 0
+
+        def step(self, action):
+            Counting.calls += 1
+            return super().step(action)
+
+    sub = Counting()
+    sub.reset(seed=0)
+    out = sub.step(np.zeros(3, np.float32))
+    ref = Manoeuvring3DOFEnv()
+    ref.reset(seed=0)
+    assert Counting.calls == 1
+    np.testing.assert_array_equal(out[0], ref.step(np.zeros(3, np.float32))[0])
