@@ -623,3 +623,57 @@ def test_identify_command_equals_identify_on_the_log(tmp_path, capsys) -> None:
         assert "time" in TrialLog.load(path).data.columns
         assert main(["identify", str(path), "--json", "-"]) == 0
         assert capsys.readouterr().out.strip() == want.strip()
+
+
+_DROP_CODE = """
+import numpy as np
+from vesselid.core import memory
+
+assert memory.drop_library_code() == 0  # switched off: nothing is touched
+assert memory.release_library_code()
+from numba import njit
+
+@njit(cache=False)
+def before(x):
+    return np.sum(x * x)
+
+x = np.arange(1000.0)
+ref = before(x)
+
+def llvm_rss_kb():
+    kb, on = 0, False
+    for line in open("/proc/self/smaps"):
+        head = line.split()
+        if not head[0].endswith(":"):
+            on = len(head) > 5 and "libllvmlite" in head[5] and "w" not in head[1]
+        elif on and head[0] == "Rss:":
+            kb += int(head[1])
+    return kb
+
+held = llvm_rss_kb()
+advised = memory.drop_library_code()
+assert advised > 0, advised
+assert llvm_rss_kb() < held / 2, (llvm_rss_kb(), held)
+assert before(x) == ref  # a loaded kernel runs on
+
+@njit(cache=False)
+def after(x):  # and LLVM compiles again (its pages fault in again)
+    return np.sum(x * x)
+
+assert after(x) == ref
+assert memory.drop_library_code() == advised
+print("ok")
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="madvise and /proc: Linux")
+def test_dropped_llvm_code_pages_leave_kernels_working() -> None:
+    """``drop_library_code`` (switched on by ``release_library_code``) takes LLVM's clean
+    code pages out of the resident memory; compiled kernels run on and LLVM compiles
+    again afterwards (own process: the switch is process-wide)."""
+    import subprocess
+
+    out = subprocess.run([sys.executable, "-c", _DROP_CODE], capture_output=True, text=True,
+                         timeout=120, check=False)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "ok"

@@ -21,6 +21,15 @@ buffers Arrow decoded (zero-copy columns), so where Arrow allocates is where the
 lives. :func:`arrow_system_allocator` makes the C library's allocator Arrow's default
 pool (before pyarrow is imported): with the fixed threshold each large column is then a
 mapping of its own.
+
+numba loads its cached kernels with LLVM (``libllvmlite``, a 180 MB library): its
+static initialisers and the loading fault in some 50–70 MB of its code and read-only
+data, pages that the kernels never execute once loaded and that stay resident in the
+process for its whole life. :func:`release_library_code` switches on returning them
+(``madvise(MADV_DONTNEED)`` on the library's read-only mappings that hold no written
+page): :func:`drop_library_code`, called between the steps of a fit, unmaps them
+from the process; they stay in the page cache, and a later kernel load faults in the
+pages it touches again. Results are unchanged (only which pages are resident).
 """
 
 from __future__ import annotations
@@ -29,9 +38,10 @@ import ctypes
 import ctypes.util
 import os
 import sys
+from typing import Any
 
-__all__ = ["MMAP_THRESHOLD", "TRIM_THRESHOLD", "arrow_system_allocator",
-           "unmap_large_blocks"]
+__all__ = ["CODE_LIBRARIES", "MMAP_THRESHOLD", "TRIM_THRESHOLD", "arrow_system_allocator",
+           "drop_library_code", "release_library_code", "unmap_large_blocks"]
 
 #: Blocks of at least this many bytes are mapped (and unmapped on free).
 MMAP_THRESHOLD = 1 << 20
@@ -40,6 +50,18 @@ TRIM_THRESHOLD = 16 << 20
 _M_TRIM_THRESHOLD = -1  # mallopt parameters (malloc.h)
 _M_MMAP_THRESHOLD = -3
 _ARROW_POOL = "ARROW_DEFAULT_MEMORY_POOL"
+#: Shared libraries whose clean read-only pages :func:`drop_library_code` returns
+#: (file-name substrings): LLVM, which numba needs only while it loads a kernel.
+CODE_LIBRARIES = ("libllvmlite",)
+_MADV_DONTNEED = 4
+
+
+class _CodeRelease:
+    """The switch of :func:`release_library_code` and the mappings it found."""
+
+    enabled = False
+    ranges: list[tuple[int, int]] | None = None  # (start, end) once the library is mapped
+    madvise: Any = None
 
 
 def unmap_large_blocks(threshold: int = MMAP_THRESHOLD, trim: int = TRIM_THRESHOLD) -> bool:
@@ -73,3 +95,77 @@ def arrow_system_allocator() -> bool:
         except AttributeError:  # pragma: no cover - a partial or very old pyarrow
             return False
     return os.environ.setdefault(_ARROW_POOL, "system") == "system"
+
+
+def release_library_code(enabled: bool = True) -> bool:
+    """Switch :func:`drop_library_code` on (or off) for this process; returns whether it
+    can act here (Linux with a C library that has ``madvise``)."""
+    _CodeRelease.enabled = bool(enabled)
+    if not sys.platform.startswith("linux"):
+        return False
+    if _CodeRelease.madvise is None:
+        try:
+            libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+            madvise = libc.madvise
+        except (OSError, AttributeError):  # pragma: no cover - no madvise
+            return False
+        madvise.argtypes = (ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int)
+        madvise.restype = ctypes.c_int
+        _CodeRelease.madvise = madvise
+    return True
+
+
+def _clean_code_mappings(names: tuple[str, ...]) -> list[tuple[int, int]]:
+    """(start, end) of this process's mappings of the libraries ``names`` that are
+    read-only and hold no written (anonymous or dirty) page, from ``/proc/self/smaps``;
+    empty where none is mapped. A read-only mapping with no written page after the
+    library's loading (its relocations written) never gets one: discarding its pages
+    loses nothing, they are read from the file again."""
+    ranges: list[tuple[int, int]] = []
+    cur: tuple[int, int] | None = None
+    clean = False
+    with open("/proc/self/smaps") as fh:
+        for line in fh:
+            head = line.split(None, 6)
+            if not head[0].endswith(":"):  # a mapping's header line
+                if cur is not None and clean:
+                    ranges.append(cur)
+                path = head[5].strip() if len(head) > 5 else ""
+                name = path.rsplit("/", 1)[-1]
+                if "w" not in head[1] and any(n in name for n in names):
+                    start, end = (int(x, 16) for x in head[0].split("-"))
+                    cur, clean = (start, end), True
+                else:
+                    cur = None
+            elif cur is not None and head[0] in ("Anonymous:", "Private_Dirty:",
+                                                 "Shared_Dirty:") and head[1] != "0":
+                clean = False
+    if cur is not None and clean:
+        ranges.append(cur)
+    return ranges
+
+
+def drop_library_code() -> int:
+    """Unmap the resident pages of :data:`CODE_LIBRARIES`' clean read-only mappings from
+    this process where :func:`release_library_code` switched it on (else nothing): the
+    bytes of address space advised (0 where the libraries are not loaded yet). The
+    mappings are found once, when the first of the libraries is loaded; later calls
+    only advise them (microseconds)."""
+    if not _CodeRelease.enabled or _CodeRelease.madvise is None:
+        return 0
+    if _CodeRelease.ranges is None:
+        if "llvmlite.binding.ffi" not in sys.modules:  # LLVM is not loaded yet
+            return 0
+        try:
+            ranges = _clean_code_mappings(CODE_LIBRARIES)
+        except OSError:  # pragma: no cover - no /proc
+            _CodeRelease.enabled = False
+            return 0
+        if not ranges:
+            return 0
+        _CodeRelease.ranges = ranges
+    done = 0
+    for start, end in _CodeRelease.ranges:
+        if _CodeRelease.madvise(start, end - start, _MADV_DONTNEED) == 0:
+            done += end - start
+    return done

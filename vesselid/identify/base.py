@@ -27,6 +27,7 @@ from typing import Any, ClassVar
 import numpy as np
 import pandas as pd
 
+from vesselid.core.memory import drop_library_code
 from vesselid.errors import (
     ConvergenceWarning,
     EstimationFailedError,
@@ -316,11 +317,18 @@ class Estimator:
         run = _FitRun(FitOptions.of(options, **overrides), _Warner())
         self._resolve(run)
         self._regression(run, log, spec)
+        # between the steps, the pages of LLVM's code that loading the compiled kernels
+        # faulted in leave the process where the command asked for it (core.memory)
+        drop_library_code()
         self._estimate(run)
+        drop_library_code()
         self._feedback(run, log)
+        drop_library_code()
         self._covariance(run)
         self._convergence(run)
+        drop_library_code()
         self._specification(run)
+        drop_library_code()
         self._fit_quality(run)
         self._estimator_warnings(run)
         return self._result(run)
