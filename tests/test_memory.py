@@ -662,15 +662,27 @@ def after(x):  # and LLVM compiles again (its pages fault in again)
 
 assert after(x) == ref
 assert memory.drop_library_code() == advised
+try:  # Arrow's code as well (the parquet extra): reading runs on after the drop
+    import io
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+except ImportError:
+    pass
+else:
+    buf = io.BytesIO()
+    pq.write_table(pa.table({"a": x}), buf)
+    assert memory.drop_library_code() > advised
+    assert np.array_equal(pq.read_table(io.BytesIO(buf.getvalue()))["a"].to_numpy(), x)
 print("ok")
 """
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="madvise and /proc: Linux")
 def test_dropped_llvm_code_pages_leave_kernels_working() -> None:
-    """``drop_library_code`` (switched on by ``release_library_code``) takes LLVM's clean
-    code pages out of the resident memory; compiled kernels run on and LLVM compiles
-    again afterwards (own process: the switch is process-wide)."""
+    """``drop_library_code`` (switched on by ``release_library_code``) takes LLVM's (and
+    Arrow's) clean code pages out of the resident memory; compiled kernels run on, LLVM
+    compiles and Parquet reads again afterwards (own process: the switch is
+    process-wide)."""
     import subprocess
 
     out = subprocess.run([sys.executable, "-c", _DROP_CODE], capture_output=True, text=True,

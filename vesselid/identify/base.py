@@ -316,9 +316,11 @@ class Estimator:
         """
         run = _FitRun(FitOptions.of(options, **overrides), _Warner())
         self._resolve(run)
+        # between the steps, the code pages of the libraries that read the log and
+        # loaded the compiled kernels leave the process where the command asked for it
+        # (core.memory)
+        drop_library_code()
         self._regression(run, log, spec)
-        # between the steps, the pages of LLVM's code that loading the compiled kernels
-        # faulted in leave the process where the command asked for it (core.memory)
         drop_library_code()
         self._estimate(run)
         drop_library_code()
