@@ -689,3 +689,34 @@ def test_dropped_llvm_code_pages_leave_kernels_working() -> None:
                          timeout=120, check=False)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "ok"
+
+
+def test_one_state_regression_data_shares_the_log_columns(monkeypatch) -> None:
+    """A one-state, one-input log's target and input are the log's own float64 columns
+    (views, read-only: nothing writes into them), not copies held beside the log; the
+    estimate is that of copied arrays."""
+    import warnings
+
+    from vesselid.identify import identify
+    from vesselid.identify.data import from_log
+    from vesselid.plant.systems import heave
+
+    log = heave().simulate(3000, seed=4).to_log()
+    data, spec = from_log(log)
+    assert list(spec.states) == ["w"] and list(spec.inputs) == ["tau"]
+    assert np.shares_memory(data.target, log.data["w"].to_numpy())
+    assert np.shares_memory(data.u, log.data["tau"].to_numpy())
+    assert not data.target.flags.writeable
+    assert data.target.flags.c_contiguous and data.u.flags.c_contiguous
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        got = identify(log)
+        from vesselid.identify import data as data_mod
+
+        # the copying form: fresh, writeable arrays
+        monkeypatch.setattr(data_mod, "_columns", lambda frame, names: np.column_stack(
+            [frame[c].to_numpy(float) for c in names]))
+        assert data_mod.from_log(log)[0].target.flags.writeable
+        ref = identify(log)
+    np.testing.assert_array_equal(got.params.to_numpy(), ref.params.to_numpy())
+    np.testing.assert_array_equal(got.cov.to_numpy(), ref.cov.to_numpy())
