@@ -777,8 +777,10 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
             "Arrow and Parquet (once the log is read) with `madvise(MADV_DONTNEED)` "
             "(`vesselid.core.memory`): they leave the process's resident set and stay in "
             "the page cache, and a later step that runs that code faults in the pages it "
-            "touches. The peak is then the log's arrays and the fit's temporaries on top "
-            "of the imports and numba's own Python objects.",
+            "touches. A one-state log's measured state and input are read in place (the "
+            "fit's target and input are views of the log's columns, not copies). The peak "
+            "is then the log's arrays and the fit's temporaries on top of the imports and "
+            "numba's own Python objects.",
             "",
             "| samples | peak RSS (MB) | wall (s) | CPU (s) | load average |",
             "|---:|---:|---:|---:|---:|",
