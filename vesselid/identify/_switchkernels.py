@@ -9,13 +9,14 @@ One state equation of Definition 2.1 with a two-level Markov ("telegraph") curre
     y(k)   = x(k) + e(k)                         e white, std σ_e
 
 The level is hidden, so the filter keeps one Gaussian ``N(m_j, P_j)`` of ``x(k)`` per
-level ``j`` with its probability ``μ_j`` (Blom & Bar-Shalom's interacting multiple
-model): each level's Gaussian is propagated through ``h(r) = c₀ + c₁ r + c₂|r| + c₃ r|r|
-+ c₄ r²`` with the exact mean and variance of ``h`` under a Gaussian ``r`` (``h`` is a
-quadratic on each side of ``r = 0``, so both follow from the truncated normal moments
-of orders 0–4), the predictions are mixed by the chain's transition probabilities into
-one Gaussian per next level, and each is updated with the measurement by the Kalman
-update. The likelihood of ``y(k)`` is the mixture ``Σ_j μ_j⁻ N(y; m_j⁻, P_j⁻ + σ_e²)``.
+level ``j`` of ``v(k − 1)`` — the level that moved the state to ``x(k)``, which ``y(k)``
+discriminates — with its probability ``μ_j`` (Blom & Bar-Shalom's interacting multiple
+model): the posteriors are mixed by the chain's transition probabilities into one
+Gaussian per level of ``v(k)`` (the interaction step), each is propagated through
+``h(r) = c₀ + c₁ r + c₂|r| + c₃ r|r| + c₄ r²`` with the exact mean and variance of ``h``
+under a Gaussian ``r`` (``h`` is a quadratic on each side of ``r = 0``, so both follow
+from the truncated normal moments of orders 0–4), and updated with the measurement by
+the Kalman update. The likelihood of ``y(k)`` is the mixture ``Σ_j μ_j⁻ N(y; m_j⁻, P_j⁻ + σ_e²)``.
 
 Parameter rows ``ψ = [θ (P), μ_w, log c, logit 2p, log σ_w, log σ_e]`` (``p = ½ / (1 +
 e^{−z})`` in ``(0, ½)``: a persistent chain).
@@ -156,13 +157,8 @@ def switching_filter(psi, y, u, starts, p_init, kind, fa, fb, ll, total):  # pra
                     coef[t] = 0.0
                 for t in range(n_par):
                     coef[kind[t]] += psi[j, t] * fv[fa[t]] * fv[fb[t]]
-                for i in range(2):
-                    lev = c if i == 1 else -c
-                    eh, vh = _predict(mx[i] + lev, px[i], coef[0], coef[1], coef[2],
-                                      coef[3], coef[4], mp, mn)
-                    hm[i] = eh + mw
-                    hp[i] = vh + sw2
-                # mix into one Gaussian per level at k+1
+                # mix the posteriors of x(k) (indexed by the level at k − 1) into one
+                # Gaussian per level at k (IMM's interaction step) ...
                 w00 = (1.0 - p) * mu[0]
                 w10 = p * mu[1]
                 w11 = (1.0 - p) * mu[1]
@@ -171,22 +167,29 @@ def switching_filter(psi, y, u, starts, p_init, kind, fa, fb, ll, total):  # pra
                 c1l = w11 + w01
                 if c0l > _TINY:
                     a1, a2 = w00 / c0l, w10 / c0l
-                    m0n = a1 * hm[0] + a2 * hm[1]
-                    p0n = (a1 * (hp[0] + (hm[0] - m0n) ** 2)
-                           + a2 * (hp[1] + (hm[1] - m0n) ** 2))
+                    m0n = a1 * mx[0] + a2 * mx[1]
+                    p0n = (a1 * (px[0] + (mx[0] - m0n) ** 2)
+                           + a2 * (px[1] + (mx[1] - m0n) ** 2))
                 else:
-                    m0n, p0n = hm[0], hp[0]
+                    m0n, p0n = mx[0], px[0]
                 if c1l > _TINY:
                     a1, a2 = w11 / c1l, w01 / c1l
-                    m1n = a1 * hm[1] + a2 * hm[0]
-                    p1n = (a1 * (hp[1] + (hm[1] - m1n) ** 2)
-                           + a2 * (hp[0] + (hm[0] - m1n) ** 2))
+                    m1n = a1 * mx[1] + a2 * mx[0]
+                    p1n = (a1 * (px[1] + (mx[1] - m1n) ** 2)
+                           + a2 * (px[0] + (mx[0] - m1n) ** 2))
                 else:
-                    m1n, p1n = hm[1], hp[1]
-                mx[0], px[0], mx[1], px[1] = m0n, p0n, m1n, p1n
+                    m1n, p1n = mx[1], px[1]
+                hm[0], hp[0], hm[1], hp[1] = m0n, p0n, m1n, p1n
                 sm = c0l + c1l
                 if sm > 0.0:
                     mu[0], mu[1] = c0l / sm, c1l / sm
                 else:
                     mu[0], mu[1] = 0.5, 0.5
+                # ... and predict x(k+1) through h with that level's current
+                for i in range(2):
+                    lev = c if i == 1 else -c
+                    eh, vh = _predict(hm[i] + lev, hp[i], coef[0], coef[1], coef[2],
+                                      coef[3], coef[4], mp, mn)
+                    mx[i] = eh + mw
+                    px[i] = vh + sw2
         total[j] = acc

@@ -17,9 +17,10 @@ mean ``μ_w`` and std ``σ_w``, white sensor noise ``e`` with std ``σ_e``). The
 maximises the log-likelihood ``Σ_k log p(y(k) | y(<k))`` of that filter over
 ``ψ = [θ, μ_w, log c, logit 2p, log σ_w, log σ_e]``, from the consistent IV_{E{ζ}=0}
 estimate, by BHHH steps (the outer product of finite-difference per-sample scores)
-with a backtracking line search, finished with Newton steps on the finite-difference
-Hessian ``H`` (stop: squared Newton decrement ``gᵀH⁻¹g`` below :data:`TOL`, the step
-at most 0.01 standard errors).
+with a backtracking line search until the squared decrement falls below :data:`TOL`,
+then confirmed (or finished) by Newton steps on the finite-difference Hessian ``H``
+(stop: squared Newton decrement ``gᵀH⁻¹g`` below :data:`TOL`, the step at most 0.01
+standard errors).
 
 Covariances (θ block): ``fisher`` is the inverse observed information ``H⁻¹``;
 ``sandwich`` is ``H⁻¹ Ŝ H⁻¹`` with ``Ŝ`` the Bartlett HAC long-run variance of the
@@ -186,13 +187,14 @@ def _maximise(log: _Log, psi0: np.ndarray, max_iter: int, tol: float) -> dict[st
     reason = MAX_ITER
     it = 0
     newton = False
-    allow_newton = True
+    hess = None
     while it < max_iter:
         it += 1
         sc, f0 = log.scores(psi, idx)
         g = -sc.sum(axis=0)  # gradient of the negative log-likelihood
         if newton:
-            curv = log.hessian(psi, idx)
+            hess = log.hessian(psi, idx)
+            curv = hess
         else:
             curv = sc.T @ sc
         try:
@@ -204,20 +206,18 @@ def _maximise(log: _Log, psi0: np.ndarray, max_iter: int, tol: float) -> dict[st
             reason = NO_DESCENT
             break
         if lam[0] <= 1e-10 * lam[-1]:
-            if newton:  # not positive definite: BHHH steps to the end
-                newton = allow_newton = False
-                continue
+            if newton:  # the Hessian is not positive definite: stop at the BHHH optimum
+                reason = HESSIAN
+                break
             lam = np.maximum(lam, 1e-10 * lam[-1])
         step = -(vec @ ((vec.T @ g) / lam))
         dec = float(-(g @ step))
-        if newton and dec < tol:
-            reason = CONVERGED
-            break
-        if not newton and dec < 10 * tol:
-            if not allow_newton:
+        if dec < tol:
+            if newton:
                 reason = CONVERGED
                 break
-            newton = True  # near the optimum: finish with Newton steps
+            newton = True  # BHHH has converged: confirm (or finish) with Newton steps
+            it -= 1
             continue
         alpha, moved = 1.0, False
         for _ in range(30):
@@ -228,13 +228,12 @@ def _maximise(log: _Log, psi0: np.ndarray, max_iter: int, tol: float) -> dict[st
                 break
             alpha *= 0.5
         if not moved:
-            if dec < 100 * tol:  # the decrease is at the level of rounding
-                reason = CONVERGED
-            else:
-                reason = NO_DESCENT
+            reason = CONVERGED if dec < 100 * tol else NO_DESCENT
             break
+        hess = None
     sc, f0 = log.scores(psi, idx)
-    hess = log.hessian(psi, idx)
+    if hess is None:
+        hess = log.hessian(psi, idx)
     ok = reason == CONVERGED
     if ok and not np.all(np.linalg.eigvalsh(0.5 * (hess + hess.T)) > 0):
         ok, reason = False, HESSIAN
@@ -270,9 +269,10 @@ def _covariances(fit: dict[str, Any], starts: np.ndarray) -> tuple[np.ndarray, .
 
 
 def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *,
-               max_iter: int = 100, tol: float = TOL) -> dict[str, np.ndarray]:
-    """Fit the switching-current model to every group of ``data`` from the rows of
-    ``theta_start`` (G, P).
+               max_iter: int = 100, tol: float = TOL,
+               groups: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Fit the switching-current model to every group of ``data`` (or the ``groups``
+    mask's) from the rows of ``theta_start`` (G, P).
 
     Returns per-group arrays: ``theta`` (G, P), ``cov``/``cov_sandwich``/
     ``cov_conservative`` (G, P, P), ``noise`` (G, 5: μ_w, c, p, σ_w, σ_e in the log's
@@ -302,7 +302,7 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
     }
     for g in range(n):
         th0 = np.asarray(theta_start[g], dtype=float)
-        if not np.all(np.isfinite(th0)):
+        if (groups is not None and not groups[g]) or not np.all(np.isfinite(th0)):
             continue
         rows, starts = data.group_rows(g)
         cx = _unit(data.target[rows, 0])
@@ -365,6 +365,83 @@ def vuong_switching(terms_a: np.ndarray, terms_b: np.ndarray, free_a: int,
     if not sd > 0:
         return 0.0 if lr == 0 else math.copysign(math.inf, lr)
     return lr / (math.sqrt(t) * sd)
+
+
+#: One-sided level of Vuong's test of the switching model against the Gauss–Markov
+#: model that ``auto`` reports it instead of (:func:`compare_with_gaussian`).
+VUONG_ALPHA = 0.05
+#: The Gauss–Markov models of :mod:`vesselid.identify.pem` with a current state, and
+#: their free noise parameters (beside θ).
+GAUSSIAN_FREE = {"current": 5, "joint": 7, "joint-local": 7}
+#: Free noise parameters of the switching model (μ_w, c, p, σ_w, σ_e).
+SWITCHING_FREE = 5
+
+
+def gaussian_terms(data: RegressionData, g: int, psi: np.ndarray,
+                   fac: np.ndarray, n_par: int) -> np.ndarray | None:
+    """Per-sample log-likelihoods ``−½ (log 2π + log S + ε²/S)`` (T,; NaN at each
+    experiment's first sample) of group ``g`` under the Gaussian filter of
+    :mod:`vesselid.identify.pem` at its row ``psi`` (the log's units), or None."""
+    from vesselid.identify.pem import _Filter
+
+    if not np.all(np.isfinite(psi[:n_par])):
+        return None
+    rows, starts = data.group_rows(g)
+    filt = _Filter(data.target[rows, 0], data.u[rows], starts, fac, parallel=False)
+    eps, var = filt.run(psi[None, :])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        terms = -0.5 * (math.log(2.0 * math.pi) + np.log(var[0]) + eps[0] ** 2 / var[0])
+    first = np.zeros(terms.size, dtype=bool)
+    first[starts[:-1]] = True
+    return np.where(first, np.nan, terms)
+
+
+def compare_with_gaussian(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray,
+                          pem_res: dict[str, np.ndarray], candidates: np.ndarray, *,
+                          alpha: float = VUONG_ALPHA) -> dict[str, Any]:
+    """Fit the switching model to the ``candidates`` groups and test it against their
+    Gauss–Markov fit ``pem_res`` (:func:`vesselid.identify.pem.fit_groups`) by Vuong's
+    test (:func:`vuong_switching`). ``taken`` (G,): the switching model converged and
+    fits better at one-sided level ``alpha`` (z above the normal quantile).
+
+    Returns the switching fit's arrays (:func:`fit_groups`, for every group; NaN where
+    not fitted) with ``vuong`` (G,; z of the switching model against the Gauss–Markov
+    one) and ``taken``."""
+    from vesselid.identify._special import norm_ppf
+
+    n = data.n_groups
+    candidates = np.asarray(candidates, dtype=bool)
+    out: dict[str, Any] = {"vuong": np.full(n, np.nan), "taken": np.zeros(n, dtype=bool)}
+    n_par = spec.n_params
+    shapes = {"theta": (n_par,), "cov": (n_par, n_par), "cov_sandwich": (n_par, n_par),
+              "cov_conservative": (n_par, n_par), "noise": (5,), "psi": (n_par + 5,),
+              "loglik": ()}
+    for key, shape in shapes.items():
+        out[key] = np.full((n, *shape), np.nan)
+    for key, fill, dtype in (("converged", False, bool), ("iterations", 0, np.int64),
+                             ("reason", "", object), ("model", "", object)):
+        out[key] = np.full(n, fill, dtype=dtype)
+    if not candidates.any():
+        return out
+    fit = fit_groups(data, spec, theta_start, groups=candidates)
+    crit = float(norm_ppf(1.0 - alpha))
+    fac = spec.codes.factors
+    for g in np.flatnonzero(candidates):
+        for key in (*shapes, "converged", "iterations", "reason", "model"):
+            out[key][g] = fit[key][g]
+        terms = fit["terms"][g]
+        model = str(pem_res["model"][g])
+        if terms is None or model not in GAUSSIAN_FREE:
+            continue
+        other = gaussian_terms(data, int(g), pem_res["psi"][g], fac, n_par)
+        if other is None:
+            continue
+        z = vuong_switching(terms, other, n_par + SWITCHING_FREE,
+                            n_par + GAUSSIAN_FREE[model])
+        out["vuong"][g] = z
+        out["taken"][g] = bool(fit["converged"][g] and np.isfinite(z) and z > crit
+                               and np.all(np.isfinite(fit["cov_conservative"][g])))
+    return out
 
 
 def covariance_label(kind: str) -> tuple[str, str]:
@@ -502,4 +579,26 @@ def describe_fit(info: dict[str, Any], g: int, prefix: str) -> dict[str, Any]:
             "noise_parameters": {k: float(v) for k, v in zip(NOISE_NAMES, noise,
                                                                strict=True)},
             "log_likelihood": float(info[prefix + "loglik"][g]),
+            "assumption": ASSUMPTION}
+
+
+def describe_auto(info: dict[str, Any], g: int) -> dict[str, Any]:
+    """``auto``'s report of group ``g`` where it took the switching model: the model,
+    and the Gauss–Markov model it was preferred to (JSON-ready)."""
+    noise = info["pem_switch_noise"][g]
+    gauss = str(info["pem_gaussian_model"][g])
+    z = float(info["pem_switch_vuong"][g])
+    p = 0.5 * math.erfc(z / math.sqrt(2.0)) if np.isfinite(z) else float("nan")
+    return {"disturbance_model": "switching",
+            "noise_model": noise_text(noise),
+            "noise_parameters": {k: float(v) for k, v in zip(NOISE_NAMES, noise,
+                                                               strict=True)},
+            "log_likelihood": float(info["pem_switch_loglik"][g]),
+            "model_choice": (f"switching current against the Gauss–Markov {gauss} model: "
+                             f"Vuong z = {z:.3g} (one-sided p = {p:.3g}, level "
+                             f"{VUONG_ALPHA:g})"),
+            "current_shape": {"kurtosis_z": float(info["pem_shape_z"][g]),
+                              "test": "excess kurtosis of the smoothed one-step residuals "
+                                      "of the Gauss–Markov current model (negative: a "
+                                      "bimodal, switching current)"},
             "assumption": ASSUMPTION}
