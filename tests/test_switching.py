@@ -194,6 +194,19 @@ def test_auto_takes_the_switching_model_on_a_telegraph_log_only():
     assert gm.diagnostics["choice"] in ("pem-current", "pem-joint", "pem-joint-local")
 
 
+def test_auto_keeps_the_gaussian_model_where_vuong_does_not_prefer_switching(monkeypatch):
+    """A telegraph log with Vuong's level made unreachable: auto reports the bounded
+    Gauss–Markov joint fit and says that the switching model fitted no better."""
+    from vesselid.identify import switching
+
+    monkeypatch.setattr(switching, "VUONG_ALPHA", 1e-300)
+    res = _fit(telegraph_log(10_000, 11), "auto")
+    d = res.diagnostics
+    assert d["choice"] == "pem-joint"
+    assert "fits no better" in d["choice_reason"]
+    assert d["switching_current"]["vuong_z"] > 1.645
+
+
 @pytest.mark.slow
 def test_coverage_and_bias_on_the_telegraph_design():
     """30 telegraph logs (the robustness study's design, 10⁴ samples): each parameter's

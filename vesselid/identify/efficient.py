@@ -690,6 +690,13 @@ class InstrumentalGMM(Estimator):
         elif info["instrument_set"][0] == "pem":  # its disturbance model; the tests below
             out: dict[str, Any] = {**pem.describe_fit(info, 0, it.theta.shape[1]),
                                    "instruments": "none: prediction-error estimator (PEM)"}
+            vz = info.get("pem_switch_vuong")
+            if vz is not None and np.isfinite(vz[0]):  # the switching model lost
+                out["switching_current"] = {
+                    "vuong_z": float(vz[0]),
+                    "test": "Vuong's test of the two-level switching-current likelihood "
+                            "against the Gauss–Markov one (positive: switching fits "
+                            "better); not preferred at its level"}
         else:
             if info["instrument_set"][0] == "simulated" and self.noise_order:
                 order = info["noise_order"]
@@ -779,12 +786,17 @@ class InstrumentalGMM(Estimator):
             zs = float(zs[0]) if zs is not None else float("nan")
             if str(info.get("pem_boundary", [""])[0]) == "bounded" and np.isfinite(zs) \
                     and self.pem_boundary == "auto":
+                vz = info.get("pem_switch_vuong")
+                vz = float(vz[0]) if vz is not None else float("nan")
+                tried = ("" if not np.isfinite(vz) else
+                         f" and a two-level switching current fits no better, Vuong z = "
+                         f"{vz:.2f}")
                 local = (" (the sensor-noise variance bounded at zero: the smoothed current "
                          f"looks bimodal, kurtosis z = {zs:.2f}, as a switching current "
-                         "would; no model of the estimator describes such a current, so "
-                         "the estimate can be biased by a fraction of its standard error, "
-                         "and its intervals include the spread between the bounded and the "
-                         "unbounded fit)")
+                         f"would{tried}; no model of the estimator describes such a "
+                         "current, so the estimate can be biased by a fraction of its "
+                         "standard error, and its intervals include the spread between the "
+                         "bounded and the unbounded fit)")
             return (f"auto used the prediction-error estimator with a Gauss–Markov current "
                     f"and Gauss–Markov sensor noise as filter states{local} because the "
                     f"{why} rejected white disturbances, and on a one-state log without a "

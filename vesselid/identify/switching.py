@@ -398,7 +398,7 @@ def gaussian_terms(data: RegressionData, g: int, psi: np.ndarray,
 
 def compare_with_gaussian(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray,
                           pem_res: dict[str, np.ndarray], candidates: np.ndarray, *,
-                          alpha: float = VUONG_ALPHA) -> dict[str, Any]:
+                          alpha: float | None = None) -> dict[str, Any]:
     """Fit the switching model to the ``candidates`` groups and test it against their
     Gauss–Markov fit ``pem_res`` (:func:`vesselid.identify.pem.fit_groups`) by Vuong's
     test (:func:`vuong_switching`). ``taken`` (G,): the switching model converged and
@@ -406,7 +406,7 @@ def compare_with_gaussian(data: RegressionData, spec: ModelSpec, theta_start: np
 
     Returns the switching fit's arrays (:func:`fit_groups`, for every group; NaN where
     not fitted) with ``vuong`` (G,; z of the switching model against the Gauss–Markov
-    one) and ``taken``."""
+    one) and ``taken``. ``alpha``: :data:`VUONG_ALPHA` unless given."""
     from vesselid.identify._special import norm_ppf
 
     n = data.n_groups
@@ -424,7 +424,7 @@ def compare_with_gaussian(data: RegressionData, spec: ModelSpec, theta_start: np
     if not candidates.any():
         return out
     fit = fit_groups(data, spec, theta_start, groups=candidates)
-    crit = float(norm_ppf(1.0 - alpha))
+    crit = float(norm_ppf(1.0 - (VUONG_ALPHA if alpha is None else alpha)))
     fac = spec.codes.factors
     for g in np.flatnonzero(candidates):
         for key in (*shapes, "converged", "iterations", "reason", "model"):
