@@ -385,7 +385,7 @@ def _report(df: pd.DataFrame, args: argparse.Namespace) -> int:
                                                    strict=True)]
         ch = pd.concat([prev[~np.array(stale, dtype=bool)], ch], ignore_index=True)
         ch = ch.sort_values(
-            ["method", "design"], kind="stable",
+            ["design", "method"], kind="stable",
             key=lambda c: c.map({m: i for i, m in enumerate(AUTOS)}) if c.name == "method"
             else c.map({d: i for i, d in enumerate(DESIGNS)})).reset_index(drop=True)
     ws = warning_shares(df)

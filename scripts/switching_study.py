@@ -53,10 +53,13 @@ def one_run(design: rs.Design, seed: np.random.SeedSequence, n: int) -> dict:
            "shape_z": float(res["shape_z"][0]), "bimodal": bool(res["shape_bimodal"][0]),
            "vuong": float(cmp["vuong"][0]), "vuong_prefers": bool(cmp["taken"][0]),
            "converged": bool(cmp["converged"][0]), "gm_s": t1 - t0, "switch_s": t2 - t1}
-    se = np.sqrt(np.diag(cmp["cov_conservative"][0]))
+    ses = {k: np.sqrt(np.diag(cmp[switching.COVARIANCE_KEYS[k]][0]))
+           for k in switching.COVARIANCES}
     for i, p in enumerate(rs.PARAMS):
         row[f"est_{p}"] = float(cmp["theta"][0, i])
-        row[f"se_{p}"] = float(se[i])
+        row[f"se_{p}"] = float(ses["conservative"][i])
+        for k in ("fisher", "sandwich"):
+            row[f"se_{k}_{p}"] = float(ses[k][i])
     row.update({f"noise_{k}": float(v) for k, v in zip(switching.NOISE_NAMES,
                                                          cmp["noise"][0], strict=True)})
     return row
@@ -83,6 +86,10 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
             row[f"coverage_{p}"] = float((np.abs(err) <= 1.959964 * ok[f"se_{p}"]).mean())
             row[f"bias_z_{p}"] = float(err.mean() / (sd / np.sqrt(len(ok))))
             row[f"se_over_sd_{p}"] = float(ok[f"se_{p}"].mean() / sd)
+            for k in ("fisher", "sandwich"):  # the other covariances of the same fits
+                row[f"coverage_{k}_{p}"] = float(
+                    (np.abs(err) <= 1.959964 * ok[f"se_{k}_{p}"]).mean())
+                row[f"se_over_sd_{k}_{p}"] = float(ok[f"se_{k}_{p}"].mean() / sd)
         out.append(row)
     return pd.DataFrame(out)
 
