@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import warnings
 
@@ -74,7 +75,9 @@ def test_noise_light_telegraph_log_is_recovered(light):
     assert noise["c"] == pytest.approx(0.06, rel=0.03)
     assert noise["p"] == pytest.approx(0.02, rel=0.25)
     assert noise["sigma_w"] == pytest.approx(0.002, rel=0.25)
-    assert res.diagnostics["disturbance_model"] == "switching"
+    assert res.disturbance_model == "switching"
+    assert np.isfinite(res.log_likelihood["switching"])
+    assert res.noise_parameters["c"] == noise["c"]
     assert res.converged
 
 
@@ -190,6 +193,9 @@ def test_auto_takes_the_switching_model_on_a_telegraph_log_only():
     assert d["choice"] == "pem-switching"
     assert "two-level switching" in d["choice_reason"] and "Vuong" in d["choice_reason"]
     assert d["choice_reason"].count(". ") == 0
+    assert np.isfinite(res.log_likelihood["switching"])
+    assert res.noise_parameters["c"] == pytest.approx(0.06, rel=0.15)
+    json.dumps(res.to_dict())  # the report is JSON-ready
     gm = _fit(telegraph_log(10_000, 11, current="gm", c=0.1), "auto")
     assert gm.diagnostics["choice"] in ("pem-current", "pem-joint", "pem-joint-local")
 

@@ -578,7 +578,7 @@ def describe_fit(info: dict[str, Any], g: int, prefix: str) -> dict[str, Any]:
             "noise_model": noise_text(noise),
             "noise_parameters": {k: float(v) for k, v in zip(NOISE_NAMES, noise,
                                                                strict=True)},
-            "log_likelihood": float(info[prefix + "loglik"][g]),
+            "log_likelihood": {"switching": float(info[prefix + "loglik"][g])},
             "assumption": ASSUMPTION}
 
 
@@ -593,7 +593,7 @@ def describe_auto(info: dict[str, Any], g: int) -> dict[str, Any]:
             "noise_model": noise_text(noise),
             "noise_parameters": {k: float(v) for k, v in zip(NOISE_NAMES, noise,
                                                                strict=True)},
-            "log_likelihood": float(info["pem_switch_loglik"][g]),
+            "log_likelihood": {"switching": float(info["pem_switch_loglik"][g])},
             "model_choice": (f"switching current against the Gauss–Markov {gauss} model: "
                              f"Vuong z = {z:.3g} (one-sided p = {p:.3g}, level "
                              f"{VUONG_ALPHA:g})"),
