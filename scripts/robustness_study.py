@@ -59,13 +59,15 @@ METHODS = ("auto", "iv-zero-mean", "pem", "lagged-2sls", "pem-switching")
 #: does not establish it (``pem_boundary="unbounded"``), or always bounded
 #: (``pem_boundary="bounded"``); ``auto`` itself chooses by the shape of the smoothed
 #: current (``scripts/pem_boundary_study.py``); ``auto-no-fixed-b``: ``auto`` with
-#: normal critical values for its GMM and SRIV intervals (:data:`COV_CONFIG`).
-VARIANTS = ("auto-unbounded", "auto-bounded", "auto-no-fixed-b")
+#: normal critical values for its GMM and SRIV intervals (:data:`COV_CONFIG`);
+#: ``auto-no-switching``: ``auto`` without its switching-current model
+#: (``pem_switching=False``: the Gauss–Markov likelihood models alone).
+VARIANTS = ("auto-unbounded", "auto-bounded", "auto-no-fixed-b", "auto-no-switching")
 #: ``cov_config`` of a variant (``auto-no-fixed-b``: ``auto``'s intervals without the
 #: fixed-b critical values of :mod:`vesselid.identify.fixedb`).
 COV_CONFIG = {"auto-no-fixed-b": {"fixed_b": False}}
 #: The methods whose choices are tabulated.
-AUTOS = ("auto", "auto-unbounded", "auto-bounded", "auto-no-fixed-b")
+AUTOS = ("auto", "auto-unbounded", "auto-bounded", "auto-no-fixed-b", "auto-no-switching")
 PARAMS = ("a", "n", "f")
 SPEC = ModelSpec(name="heave-robustness", states=["w"], inputs=["tau"],
                  equations={"w": ["w", "w*|w|", "tau"]},
@@ -172,6 +174,11 @@ def estimator(method: str):
 
         return InstrumentalGMM(**{**entry("auto").options,
                                   "pem_boundary": method.removeprefix("auto-")})
+    if method == "auto-no-switching":
+        from vesselid.identify.efficient import InstrumentalGMM
+        from vesselid.identify.registry import entry
+
+        return InstrumentalGMM(**{**entry("auto").options, "pem_switching": False})
     return method
 
 
