@@ -185,6 +185,22 @@ def test_cli_bad_input_exits_two(tmp_path, capsys):
     assert code == 2 and "one state equation" in err and len(err.strip().splitlines()) == 1
 
 
+def test_cli_identifies_with_pem_switching(tmp_path, capsys):
+    from vesselid.cli import main
+
+    path = tmp_path / "tele.csv"
+    telegraph_log(4000, 8).to_csv(path, index=False)
+    toml = tmp_path / "heave.toml"
+    toml.write_text('name = "heave"\nstates = ["w"]\ninputs = ["tau"]\ndt = 1.0\n'
+                    '[equations]\nw = ["w", "w*|w|", "tau"]\n')
+    code = main(["identify", str(path), "--model", str(toml), "--method", "pem-switching",
+                 "--json", "-"])
+    out = capsys.readouterr().out
+    assert code == 0
+    payload = json.loads(out[out.index("{"):])
+    assert "telegraph current" in json.dumps(payload, ensure_ascii=False)
+
+
 def test_auto_takes_the_switching_model_on_a_telegraph_log_only():
     """auto's default chain: a telegraph log ends at the switching model (with the
     reason in one sentence), a Gauss–Markov-current log at the Gauss–Markov models."""
