@@ -8,7 +8,8 @@ Heave of an underwater vehicle with its own θ0 (not the paper's),
 random pulses τ of random sign, simulated here (independently of the library's
 simulator), and identified through the public API exactly as a user does
 (``identify(log, spec, method)``, default options) with ``auto``, ``iv-zero-mean``,
-``pem`` and ``lagged-2sls`` on the same logs. Designs (one disturbance class each):
+``pem``, ``lagged-2sls`` and ``pem-switching`` (the telegraph-current likelihood) on the
+same logs. Designs (one disturbance class each):
 
 * ``white``: white current inside the modulus, white process and sensor noise;
 * ``gm-current``: a Gauss–Markov current (``pem``'s own model);
@@ -52,19 +53,21 @@ from vesselid.model.spec import ModelSpec
 
 #: The study's own true parameters (a, n, f): not the paper's.
 THETA0 = (0.9, -0.2, 0.8)
-METHODS = ("auto", "iv-zero-mean", "pem", "lagged-2sls")
+METHODS = ("auto", "iv-zero-mean", "pem", "lagged-2sls", "pem-switching")
 #: Study variants beyond the registry (``--methods``): ``auto`` with the joint model's
 #: sensor-noise variance always estimated without its bound at zero where the likelihood
 #: does not establish it (``pem_boundary="unbounded"``), or always bounded
 #: (``pem_boundary="bounded"``); ``auto`` itself chooses by the shape of the smoothed
 #: current (``scripts/pem_boundary_study.py``); ``auto-no-fixed-b``: ``auto`` with
-#: normal critical values for its GMM and SRIV intervals (:data:`COV_CONFIG`).
-VARIANTS = ("auto-unbounded", "auto-bounded", "auto-no-fixed-b")
+#: normal critical values for its GMM and SRIV intervals (:data:`COV_CONFIG`);
+#: ``auto-no-switching``: ``auto`` without its switching-current model
+#: (``pem_switching=False``: the Gauss–Markov likelihood models alone).
+VARIANTS = ("auto-unbounded", "auto-bounded", "auto-no-fixed-b", "auto-no-switching")
 #: ``cov_config`` of a variant (``auto-no-fixed-b``: ``auto``'s intervals without the
 #: fixed-b critical values of :mod:`vesselid.identify.fixedb`).
 COV_CONFIG = {"auto-no-fixed-b": {"fixed_b": False}}
 #: The methods whose choices are tabulated.
-AUTOS = ("auto", "auto-unbounded", "auto-bounded", "auto-no-fixed-b")
+AUTOS = ("auto", "auto-unbounded", "auto-bounded", "auto-no-fixed-b", "auto-no-switching")
 PARAMS = ("a", "n", "f")
 SPEC = ModelSpec(name="heave-robustness", states=["w"], inputs=["tau"],
                  equations={"w": ["w", "w*|w|", "tau"]},
@@ -171,6 +174,11 @@ def estimator(method: str):
 
         return InstrumentalGMM(**{**entry("auto").options,
                                   "pem_boundary": method.removeprefix("auto-")})
+    if method == "auto-no-switching":
+        from vesselid.identify.efficient import InstrumentalGMM
+        from vesselid.identify.registry import entry
+
+        return InstrumentalGMM(**{**entry("auto").options, "pem_switching": False})
     return method
 
 
@@ -379,12 +387,24 @@ def _report(df: pd.DataFrame, args: argparse.Namespace) -> int:
     old_ch = args.out / "robustness_choices.csv"
     if getattr(args, "update", False) and old_ch.is_file():
         prev = pd.read_csv(old_ch)
-        ch = pd.concat([prev[~prev["method"].isin(ch["method"].unique())], ch],
-                       ignore_index=True)
+        redone = set(zip(ch["method"], ch["design"], strict=True))
+        stale = [(m, d) in redone for m, d in zip(prev["method"], prev["design"],
+                                                   strict=True)]
+        ch = pd.concat([prev[~np.array(stale, dtype=bool)], ch], ignore_index=True)
+        ch = ch.sort_values(
+            ["design", "method"], kind="stable",
+            key=lambda c: c.map({m: i for i, m in enumerate(AUTOS)}) if c.name == "method"
+            else c.map({d: i for i, d in enumerate(DESIGNS)})).reset_index(drop=True)
     ws = warning_shares(df)
     old_ws = args.out / "robustness_warnings.csv"
-    if getattr(args, "update", False) and ws.empty and old_ws.is_file():
-        ws = pd.read_csv(old_ws)  # auto not rerun: its warning shares stand
+    if getattr(args, "update", False) and old_ws.is_file():
+        # auto's warning shares of the designs not rerun stand
+        prev = pd.read_csv(old_ws)
+        ws = pd.concat([prev[~prev["design"].isin(ws["design"])] if len(ws) else prev, ws],
+                       ignore_index=True)
+        ws = ws.sort_values("design", kind="stable",
+                            key=lambda c: c.map({d: i for i, d in enumerate(DESIGNS)})
+                            ).reset_index(drop=True)
     pd.set_option("display.width", 200)
     print(summary.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
     print(ch.to_string(index=False))

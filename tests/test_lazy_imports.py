@@ -76,7 +76,7 @@ def test_registry_names_are_the_estimators_and_covariances() -> None:
         est = registry.get_estimator(e.name)
         assert est.name == e.name
         assert e.closed_loop == (not getattr(est, "open_loop", True))
-        assert e.multi_state == (e.name != "pem")
+        assert e.multi_state == (e.name not in ("pem", "pem-switching"))
     assert registry.DEFAULT_METHOD in registry.names()
     assert set(registry.STREAM_METHODS) == {"ls", "iv", "iv-zero-mean"}
     assert registry.DEFAULT_STREAM_METHOD in registry.STREAM_METHODS

@@ -58,7 +58,7 @@ def _all_estimators() -> list[tuple[str, str]]:
 
     # the log of this module has a current sensor ([aggregate]), which pem does not model:
     # its units test is below, on a log without one; cl-iv needs a closed-loop log
-    open_loop = [m for m in ESTIMATORS if m not in ("pem", "cl-iv")]
+    open_loop = [m for m in ESTIMATORS if m not in ("pem", "pem-switching", "cl-iv")]
     out = [(m, "pooled") for m in open_loop]
     out += [(m, "stacked") for m in open_loop if "stacked" in ESTIMATORS[m].multi_experiment]
     return out

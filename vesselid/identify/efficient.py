@@ -224,12 +224,13 @@ class InstrumentalGMM(Estimator):
                  short: str | None = None,
                  colour_order: int = 0, pem_fallback: bool = False,
                  pem_cov: str = "conservative", pem_level: float = 0.1,
-                 pem_boundary: str = "auto") -> None:
+                 pem_boundary: str = "auto", pem_switching: bool = True) -> None:
         super().__init__(instruments=instruments, noise_order=noise_order, alpha=alpha,
                          colour_alpha=colour_alpha, refine=refine,
                          fallback_refine=fallback_refine, colour_order=colour_order,
                          pem_fallback=pem_fallback, pem_cov=pem_cov, pem_level=pem_level,
-                         pem_boundary=pem_boundary)
+                         pem_boundary=pem_boundary, pem_switching=pem_switching)
+        self.pem_switching = pem_switching
         self.pem_boundary = pem_boundary
         self.pem_fallback = bool(pem_fallback)
         self.pem_level = pem_level
@@ -279,6 +280,9 @@ class InstrumentalGMM(Estimator):
         if self.pem_cov not in pem.COVARIANCES:
             raise IdentificationError(
                 f"pem_cov must be one of {list(pem.COVARIANCES)}, got {self.pem_cov!r}")
+        if not isinstance(self.pem_switching, bool | np.bool_):
+            raise IdentificationError(
+                f"pem_switching must be True or False, got {self.pem_switching!r}")
 
     def check_options(self, *, combine: str) -> None:
         super().check_options(combine=combine)
@@ -584,6 +588,36 @@ class InstrumentalGMM(Estimator):
         theta[take] = res["theta"][ok]
         iters[take] += res["iterations"][ok]
         used[take] = "pem"
+        if self.pem_switching:
+            self._switching(sub, spec, theta0[reject], res, ok, idx, theta, iters, info)
+
+    @staticmethod
+    def _switching(sub, spec, theta0, res, ok, idx, theta, iters, info) -> None:
+        """Where the smoothed current of the Gauss–Markov fit looks bimodal, the
+        switching-current model of :mod:`vesselid.identify.switching`, reported instead
+        where Vuong's test prefers its likelihood (in place)."""
+        from vesselid.identify import switching
+
+        gate = ok & res["shape_bimodal"] & np.isin(res["model"].astype(str),
+                                                   list(switching.GAUSSIAN_FREE))
+        n = theta.shape[0]
+        info["pem_switch_vuong"] = np.full(n, np.nan)
+        info["pem_switch_noise"] = np.full((n, 5), np.nan)
+        info["pem_switch_loglik"] = np.full(n, np.nan)
+        info["pem_gaussian_model"] = info["pem_model"].copy()
+        if not gate.any():
+            return
+        cmp = switching.compare_with_gaussian(sub, spec, theta0, res, gate)
+        info["pem_switch_vuong"][idx] = cmp["vuong"]
+        info["pem_switch_noise"][idx] = cmp["noise"]
+        info["pem_switch_loglik"][idx] = cmp["loglik"]
+        for j in np.flatnonzero(cmp["taken"]):
+            g = idx[j]
+            theta[g] = cmp["theta"][j]
+            iters[g] += cmp["iterations"][j]
+            info["pem_model"][g] = "switching"
+            for key in ("cov", "cov_sandwich", "cov_conservative"):
+                info[f"pem_{key}"][g] = cmp[key][j]
 
     def equation_designs(self, data, spec, it, phi, combine):
         if it.info["instrument_set"][0] == "pem":  # diagnostics only (own covariance)
@@ -620,6 +654,11 @@ class InstrumentalGMM(Estimator):
         return None
 
     def own_covariance_label(self, it: IterationResult) -> tuple[str, str]:
+        model = it.info.get("pem_model")
+        if model is not None and str(model[0]) == "switching":
+            from vesselid.identify.switching import covariance_label
+
+            return covariance_label(self.pem_cov)
         return pem.covariance_label(self.pem_cov)
 
     def _fallback_order(self, data: RegressionData) -> int:
@@ -643,9 +682,21 @@ class InstrumentalGMM(Estimator):
     def describe(self, it: IterationResult) -> dict[str, Any]:
         info = it.info
         noise_model = "none"
-        if info["instrument_set"][0] == "pem":  # its disturbance model; the tests below
+        if info["instrument_set"][0] == "pem" and info["pem_model"][0] == "switching":
+            from vesselid.identify import switching
+
+            out = {**switching.describe_auto(info, 0),
+                   "instruments": "none: maximum likelihood, switching current"}
+        elif info["instrument_set"][0] == "pem":  # its disturbance model; the tests below
             out: dict[str, Any] = {**pem.describe_fit(info, 0, it.theta.shape[1]),
                                    "instruments": "none: prediction-error estimator (PEM)"}
+            vz = info.get("pem_switch_vuong")
+            if vz is not None and np.isfinite(vz[0]):  # the switching model lost
+                out["switching_current"] = {
+                    "vuong_z": float(vz[0]),
+                    "test": "Vuong's test of the two-level switching-current likelihood "
+                            "against the Gauss–Markov one (positive: switching fits "
+                            "better); not preferred at its level"}
         else:
             if info["instrument_set"][0] == "simulated" and self.noise_order:
                 order = info["noise_order"]
@@ -709,6 +760,19 @@ class InstrumentalGMM(Estimator):
         if st is not None and st["rejected"]:
             why += (f" (the split-sample stability test, p = {st['pvalue']:.2g}, says the "
                     "parameters may drift instead)")
+        if used == "pem" and str(info["pem_model"][0]) == "switching":
+            from vesselid.identify.current_shape import SHAPE_ALPHA
+            from vesselid.identify.switching import VUONG_ALPHA
+
+            return (f"auto used the maximum-likelihood estimator with a two-level switching "
+                    f"(telegraph) current because the {why} rejected white disturbances "
+                    "(a coloured current, which biases every instrument built from the "
+                    "input), the smoothed current of the Gauss–Markov fit looks bimodal "
+                    f"(kurtosis z = {float(info['pem_shape_z'][0]):.2f}, level "
+                    f"{SHAPE_ALPHA:g}) and Vuong's test prefers the switching model's "
+                    f"likelihood (z = {float(info['pem_switch_vuong'][0]):.2f}, one-sided "
+                    f"level {VUONG_ALPHA:g}); its intervals are the larger of the quasi-ML "
+                    "sandwich and the inverse observed information.")
         if used == "pem":
             cov = {"sandwich": "quasi-ML sandwich", "fisher": "inverse Fisher",
                    "conservative": "larger of the quasi-ML sandwich and inverse Fisher"
@@ -722,12 +786,17 @@ class InstrumentalGMM(Estimator):
             zs = float(zs[0]) if zs is not None else float("nan")
             if str(info.get("pem_boundary", [""])[0]) == "bounded" and np.isfinite(zs) \
                     and self.pem_boundary == "auto":
+                vz = info.get("pem_switch_vuong")
+                vz = float(vz[0]) if vz is not None else float("nan")
+                tried = ("" if not np.isfinite(vz) else
+                         f" and a two-level switching current fits no better, Vuong z = "
+                         f"{vz:.2f}")
                 local = (" (the sensor-noise variance bounded at zero: the smoothed current "
                          f"looks bimodal, kurtosis z = {zs:.2f}, as a switching current "
-                         "would; no model of the estimator describes such a current, so "
-                         "the estimate can be biased by a fraction of its standard error, "
-                         "and its intervals include the spread between the bounded and the "
-                         "unbounded fit)")
+                         f"would{tried}; no model of the estimator describes such a "
+                         "current, so the estimate can be biased by a fraction of its "
+                         "standard error, and its intervals include the spread between the "
+                         "bounded and the unbounded fit)")
             return (f"auto used the prediction-error estimator with a Gauss–Markov current "
                     f"and Gauss–Markov sensor noise as filter states{local} because the "
                     f"{why} rejected white disturbances, and on a one-state log without a "
@@ -763,6 +832,11 @@ class InstrumentalGMM(Estimator):
                     "rejects constant parameters)")
         else:
             look = "the disturbances look coloured"
+        if info["instrument_set"][0] == "pem" and info["pem_model"][0] == "switching":
+            return ("maximum likelihood with a two-level switching current (interacting "
+                    "multiple-model filter): the delayed measurements are not valid "
+                    f"instruments on this log — {look}, and the current switches between "
+                    "two levels; rejected by the " + " and the ".join(why))
         if info["instrument_set"][0] == "pem":
             return ("prediction-error estimator with the disturbances as Gauss–Markov filter "
                     f"states ({info['pem_model'][0]} model): the delayed measurements are not "

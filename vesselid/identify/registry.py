@@ -121,6 +121,8 @@ _BUILTIN: tuple[EstimatorEntry, ...] = (
         "pem_fallback": True, "label": _AUTO_LABEL, "short": "auto"}),
     EstimatorEntry("pem", "vesselid.identify.pem:PredictionError", multi_state=False,
                    own_covariance=True),
+    EstimatorEntry("pem-switching", "vesselid.identify.switching:SwitchingCurrent",
+                   multi_state=False, own_covariance=True),
     EstimatorEntry("cl-iv", "vesselid.identify.closedloop:ClosedLoopIV", closed_loop=True),
 )
 
