@@ -130,6 +130,16 @@ def _jdict(j: np.ndarray, df: np.ndarray) -> list[dict[str, float]]:
             for i in range(len(df))]
 
 
+def _pvalues(stat: np.ndarray, df: np.ndarray, n: int, n_states: int) -> np.ndarray:
+    """χ² p-values (n, n_states) of the per-equation statistics ``stat`` with ``df``
+    degrees of freedom (1 where ``df`` is 0)."""
+    out = np.ones((n, n_states))
+    for i in range(n_states):
+        if df[i]:
+            out[:, i] = _chi2_sf(stat[:, i], df[i])
+    return out
+
+
 def _named(key: str) -> property:
     """A read-only property returning the instance's configured ``key`` name."""
     return property(lambda self: self._names[key])
@@ -355,14 +365,20 @@ class InstrumentalGMM(Estimator):
 
     # ------------------------------------------------------------------ core
     def _refine(self, data, spec, phi, lagged, theta, kind, order, keep, tol, steps=None,
-                colour=False, first_z: list | None = None):
+                colour=False, first_z: list | None = None, z_start: tuple | None = None,
+                keep_final: bool = True):
         """``refine`` refinement steps of one instrument set from the consistent start
         ``theta`` (instruments re-simulated from, and the noise model re-estimated at,
         the latest estimate); returns ``(solution, theta, steps)``. ``colour``: on the
         fused path, the first step (instruments simulated from ``theta``) also runs the
         colour test (``solution.colour``, :func:`vesselid.identify.gmm.combined_solution`).
         ``first_z`` (a list) receives the instruments simulated from ``theta`` when the
-        rows are formed (the explicit colour test of the fit path needs the same ones)."""
+        rows are formed (the explicit colour test of the fit path needs the same ones).
+        ``z_start``: ``(instruments, ok)`` simulated from ``theta`` already (the first
+        step's, :func:`vesselid.identify.gmm.simulated_instruments` of the same arrays).
+        ``keep_final=False``: the last step's rows are not kept where ``keep`` would keep
+        them (no later step reads them: the colour test rejected the delayed instruments,
+        so the estimate is another set's; the same estimate and tests)."""
         n = data.n_groups
         iters = np.zeros(n, dtype=np.int64)
         active = np.all(np.isfinite(theta), axis=1)
@@ -383,7 +399,8 @@ class InstrumentalGMM(Estimator):
                     blocks, ok_sim = _combined_blocks(data, spec, theta)
                     ar = None
                 else:
-                    z_sim, ok_sim = gmm.simulated_instruments(data, spec, theta)
+                    z_sim, ok_sim = (z_start if z_start is not None and step == 0 else
+                                     gmm.simulated_instruments(data, spec, theta))
                     if first_z is not None and step == 0:
                         first_z.append(z_sim)
                     ar = gmm.noise_model(data, spec, phi, theta, order) if order else None
@@ -393,7 +410,7 @@ class InstrumentalGMM(Estimator):
                 if last and lagged:  # gathered for the last time (the caller's list)
                     lagged.clear()
                 sol = None  # the previous step's rows: only the last step's are kept
-                keep_rows = keep and last and not defer
+                keep_rows = keep and last and not defer and keep_final
                 sol = gmm.solve_equations(data, spec, phi, blocks, weight="hac", ar=ar,
                                           keep_designs=keep_rows,
                                           keep_jacobians=keep_rows, release=True)
@@ -413,9 +430,9 @@ class InstrumentalGMM(Estimator):
         """The colour test of the instruments simulated from ``theta0``: the statistic
         fused into the first combined step where it has it (``sol.colour_ok``), else
         :func:`vesselid.identify.gmm.colour_test` on explicit rows (the fit path; no
-        generated kernel; ``theta0`` not finite or non-finite sums). ``z_first``: those
-        instruments when the first refinement step simulated them already (the same call
-        on the same arrays). ``(stat, df)``."""
+        generated kernel; ``theta0`` not finite or non-finite sums; ``sol`` None: before
+        the refinement). ``z_first``: those instruments when they were simulated already
+        (the same call on the same arrays; read, not changed). ``(stat, df)``."""
         n = data.n_groups
         if self.colour_order:  # the whitened test: explicit rows, batched over groups
             phi = phi if phi is not None else corrected_regressor_matrix(data, spec)
@@ -423,7 +440,7 @@ class InstrumentalGMM(Estimator):
                      gmm.simulated_instruments(data, spec, theta0)[0])
             return gmm.colour_test(data, spec, phi, z_sim, theta=theta0,
                                    noise_order=int(self.colour_order))
-        if sol.colour is not None:
+        if sol is not None and sol.colour is not None:
             stat, df, todo = sol.colour.copy(), sol.colour_df, ~sol.colour_ok
         else:
             stat, df, todo = np.zeros((n, spec.n_states)), None, np.ones(n, dtype=bool)
@@ -454,7 +471,7 @@ class InstrumentalGMM(Estimator):
                             theta_start=theta_start, max_iter=max_iter, tol=tol)
         n = data.n_groups
         keep = keep_history and n == 1
-        checks = _ValidityChecks.start(
+        checks = _ValidityChecks.prepare(
             data, spec, base,
             self.instruments == "auto" and keep and np.all(np.isfinite(base.theta_aux[0])))
         try:
@@ -465,8 +482,8 @@ class InstrumentalGMM(Estimator):
     def _estimate_groups(self, data: RegressionData, spec: ModelSpec, base: IterationResult,
                          keep: bool, checks: _ValidityChecks, tol: float,
                          keep_history: bool) -> IterationResult:
-        """The body of :meth:`estimate_parameters` once the base estimate is known and
-        the validity checks are under way (``checks``)."""
+        """The body of :meth:`estimate_parameters` once the base estimate is known
+        (``checks``: the validity checks, started here)."""
         n = data.n_groups
         fused = self.instruments in ("combined", "auto") and not keep
         # the fused combined path (with auto's unfiltered colour test) needs no regressor
@@ -487,64 +504,23 @@ class InstrumentalGMM(Estimator):
         # the AR order of the simulated-instrument set (sriv; auto's fallback)
         info: dict[str, Any] = {"noise_order": (self._ar_order(data) if self.instruments
                                                 == "simulated" else self._fallback_order(data))}
-        if self.instruments == "simulated":
-            sol, theta, iters = self._refine(data, spec, phi, None, theta0, "simulated",
-                                             info["noise_order"], keep, tol)
-        else:
-            first_z: list = []
-            sol, theta, iters = self._refine(data, spec, phi, lagged, theta0, "combined", 0,
-                                             keep, tol,
-                                             colour=self.instruments == "auto"
-                                             and not self.colour_order,
-                                             first_z=first_z)
-            lagged = None  # (the delayed regressors serve the combined steps only)
-            pvals = np.ones((n, spec.n_states))
-            for i in range(spec.n_states):
-                if sol.c_df[i]:
-                    pvals[:, i] = _chi2_sf(sol.c[:, i], sol.c_df[i])
-            c_p = pvals.min(axis=1)
-            info.update(c_stat=sol.c.copy(), c_df=sol.c_df.copy(), c_pvalue=c_p,
-                        j_stat=sol.j.copy(), j_df=sol.df.copy())
-            used[:] = "combined"
-            if self.instruments == "auto":
-                w_stat, w_df = self._colour_test(data, spec, phi, theta0, sol,
-                                                 z_first=first_z.pop() if first_z else None)
-                w_p = np.ones((n, spec.n_states))
-                for i in range(spec.n_states):
-                    if w_df[i]:
-                        w_p[:, i] = _chi2_sf(w_stat[:, i], w_df[i])
-                info.update(colour_stat=w_stat, colour_df=w_df, colour_pvalue=w_p.min(axis=1),
-                            colour_order=int(self.colour_order))
-                c_rej = c_p < float(self.alpha)
-                w_rej = w_p.min(axis=1) < float(self.colour_alpha)
-                reject = c_rej | w_rej
-                # a test rejects white disturbances: on a one-state log without a
-                # disturbance sensor a coloured current inside the modulus biases every
-                # instrument built from the input — model both processes instead
-                # the likelihood model only on strong evidence (each test's p-value below
-                # pem_level times its level): a coloured current, the one disturbance
-                # that biases every instrument, is rejected far beyond that at 10⁴ samples
-                strong = reject & ((c_p < float(self.alpha) * float(self.pem_level))
-                                   | (w_p.min(axis=1)
-                                      < float(self.colour_alpha) * float(self.pem_level)))
-                info["pem_strong"] = strong
-                if strong.any() and self.pem_fallback and pem.supports(spec, data):
-                    self._pem_fallback(data, spec, theta0, strong, theta, iters, used, info)
-                    reject = reject & (used != "pem")
-                info["pem_applies"] = bool(self.pem_fallback and pem.supports(spec, data))
-                if reject.any():
-                    sub = _subset(data, reject)
-                    phi_s = (phi[_rows(data, reject)] if phi is not None else
-                             corrected_regressor_matrix(sub, spec))
-                    sol_s, th_s, it_s = self._refine(
-                        sub, spec, phi_s, None, theta0[reject], "simulated",
-                        info["noise_order"], keep, tol, steps=self.fallback_refine)
-                    theta[reject] = th_s
-                    iters[reject] = it_s
-                    used[reject] = "simulated"
-                    if keep:
-                        sol = sol_s
-        info.update(checks.result())
+        aside: list = []  # a likelihood fit started on a thread of its own
+        try:
+            if self.instruments == "simulated":
+                checks.start()
+                sol, theta, iters = self._refine(data, spec, phi, None, theta0, "simulated",
+                                                 info["noise_order"], keep, tol)
+                checked = None
+            else:
+                sol, theta, iters, checked = self._combined(
+                    data, spec, phi, lagged, theta0, keep, tol, checks, used, info, aside)
+                lagged = None
+            info.update(checks.result() if checked is None else checked)
+        finally:
+            if aside:  # never leave while the fit still runs aside
+                from concurrent.futures import wait
+
+                wait(aside)
         ok = np.all(np.isfinite(theta), axis=1) & np.all(np.isfinite(base.theta), axis=1)
         theta[~ok] = np.nan
         if sol is not None:
@@ -563,16 +539,121 @@ class InstrumentalGMM(Estimator):
             history=[theta.copy()] if keep_history else [],
         )
 
-    def _pem_fallback(self, data, spec, theta0, reject, theta, iters, used, info) -> None:
-        """The prediction-error estimator on the groups ``reject``, from their IV_{E{ζ}=0}
-        estimates; taken where its likelihood maximisation converged (in place; the
-        others fall back to SRIV)."""
-        sub = _subset(data, reject)
-        res = pem.fit_groups(sub, spec, theta0[reject], joint=True,
-                             boundary=self.pem_boundary)
+    def _combined(self, data: RegressionData, spec: ModelSpec, phi: np.ndarray | None,
+                  lagged: list | None, theta0: np.ndarray, keep: bool, tol: float,
+                  checks: _ValidityChecks, used: np.ndarray, info: dict[str, Any],
+                  aside: list) -> tuple:
+        """The combined refinement and, for ``auto``, its tests and fallbacks (the body of
+        :meth:`_estimate_groups` for ``combined`` and ``auto``); fills ``used`` and
+        ``info``. Returns ``(solution, theta, iterations, checked)``: ``checked`` the
+        validity checks' entries where they ran here while the likelihood fit ran on a
+        thread of its own (its job appended to ``aside``, which the caller waits for
+        whatever happens), else None (:meth:`_ValidityChecks.result` gives them).
+
+        On the fit path of ``auto`` (one log, the unfiltered colour test, not a long log)
+        the colour test comes first, on the instruments simulated from ``theta0`` that
+        the first refinement step then uses (the same arrays, so the same numbers as
+        after the refinement). Where it rejects, the delayed instruments are out
+        whatever the C test says: the last step's rows are not kept (the estimate is
+        SRIV's or the likelihood fit's), and where it rejects beyond ``pem_level`` times
+        its level the likelihood fit is certain to be wanted and starts at once on a
+        thread of its own (:func:`vesselid.core.threads.aside`), from the same start, while
+        this thread refines and runs the validity checks (their Python-level iterations
+        overlap its compiled filter passes)."""
+        n = data.n_groups
+        auto = self.instruments == "auto"
+        early = auto and keep and not self.colour_order and not _long_log(data)
+        first_z: list = []
+        z_start = colour = job = checked = None
+        keep_final = True
+        if early:
+            z_start = gmm.simulated_instruments(data, spec, theta0)
+            colour = self._colour_test(data, spec, phi, theta0, None, z_first=z_start[0])
+            w_first = _pvalues(*colour, n, spec.n_states).min(axis=1)
+            keep_final = not bool(np.any(w_first < float(self.colour_alpha)))
+            strong_w = w_first < float(self.colour_alpha) * float(self.pem_level)
+            if (bool(strong_w.all()) and self.pem_fallback and pem.supports(spec, data)
+                    and not numpy_active()):
+                from vesselid.core.threads import aside as start_aside
+
+                job = start_aside(lambda: self._pem_fit(data, spec, theta0, strong_w))
+                if job is not None:
+                    aside.append(job)
+        if job is None:
+            checks.start()
+        sol, theta, iters = self._refine(data, spec, phi, lagged, theta0, "combined", 0,
+                                         keep, tol, colour=auto and not self.colour_order,
+                                         first_z=None if early else first_z,
+                                         z_start=z_start, keep_final=keep_final)
+        lagged = z_start = None  # (they serve the combined steps only)
+        pvals = np.ones((n, spec.n_states))
+        for i in range(spec.n_states):
+            if sol.c_df[i]:
+                pvals[:, i] = _chi2_sf(sol.c[:, i], sol.c_df[i])
+        c_p = pvals.min(axis=1)
+        info.update(c_stat=sol.c.copy(), c_df=sol.c_df.copy(), c_pvalue=c_p,
+                    j_stat=sol.j.copy(), j_df=sol.df.copy())
+        used[:] = "combined"
+        if not auto:
+            return sol, theta, iters, checked
+        if job is not None:  # the checks here, while the likelihood fit runs aside
+            checked = checks.result()
+        w_stat, w_df = (colour if colour is not None else
+                        self._colour_test(data, spec, phi, theta0, sol,
+                                          z_first=first_z.pop() if first_z else None))
+        w_p = _pvalues(w_stat, w_df, n, spec.n_states)
+        info.update(colour_stat=w_stat, colour_df=w_df, colour_pvalue=w_p.min(axis=1),
+                    colour_order=int(self.colour_order))
+        c_rej = c_p < float(self.alpha)
+        w_rej = w_p.min(axis=1) < float(self.colour_alpha)
+        reject = c_rej | w_rej
+        # a test rejects white disturbances: on a one-state log without a
+        # disturbance sensor a coloured current inside the modulus biases every
+        # instrument built from the input — model both processes instead
+        # the likelihood model only on strong evidence (each test's p-value below
+        # pem_level times its level): a coloured current, the one disturbance
+        # that biases every instrument, is rejected far beyond that at 10⁴ samples
+        strong = reject & ((c_p < float(self.alpha) * float(self.pem_level))
+                           | (w_p.min(axis=1)
+                              < float(self.colour_alpha) * float(self.pem_level)))
+        info["pem_strong"] = strong
+        if strong.any() and self.pem_fallback and pem.supports(spec, data):
+            # (a fit started aside is of the same groups: the colour test alone made
+            # every group strong there)
+            res = (job.result() if job is not None else
+                   self._pem_fit(data, spec, theta0, strong))
+            self._pem_apply(res, strong, theta, iters, used, info)
+            reject = reject & (used != "pem")
+        info["pem_applies"] = bool(self.pem_fallback and pem.supports(spec, data))
+        if reject.any():
+            sub = _subset(data, reject)
+            phi_s = (phi[_rows(data, reject)] if phi is not None else
+                     corrected_regressor_matrix(sub, spec))
+            sol_s, th_s, it_s = self._refine(
+                sub, spec, phi_s, None, theta0[reject], "simulated",
+                info["noise_order"], keep, tol, steps=self.fallback_refine)
+            theta[reject] = th_s
+            iters[reject] = it_s
+            used[reject] = "simulated"
+            if keep:
+                sol = sol_s
+        return sol, theta, iters, checked
+
+    def _pem_fit(self, data: RegressionData, spec: ModelSpec, theta0: np.ndarray,
+                 reject: np.ndarray) -> dict[str, np.ndarray]:
+        """The prediction-error fit of the groups ``reject`` from their IV_{E{ζ}=0}
+        estimates (:func:`vesselid.identify.pem.fit_groups`, ``auto``'s settings)."""
+        return pem.fit_groups(_subset(data, reject), spec, theta0[reject], joint=True,
+                              boundary=self.pem_boundary)
+
+    def _pem_apply(self, res: dict[str, np.ndarray], reject: np.ndarray, theta: np.ndarray,
+                   iters: np.ndarray, used: np.ndarray, info: dict[str, Any]) -> None:
+        """The prediction-error fit ``res`` of the groups ``reject`` (:meth:`_pem_fit`)
+        taken where its likelihood maximisation converged (in place; the others fall
+        back to SRIV)."""
         ok = res["converged"] & np.all(np.isfinite(res["theta"]), axis=1)
         idx = np.flatnonzero(reject)
-        n = data.n_groups
+        n = reject.size
         for key in ("psi", "cov", "cov_sandwich", "cov_conservative", "loglik", "vuong",
                     "model", "lr_joint", "local_z", "shape_z", "boundary"):
             arr = res[key]
@@ -815,21 +896,24 @@ class _ValidityChecks:
     """``auto``'s validity checks of one log (the split-sample stability test and the
     mean-current test, :mod:`vesselid.identify.validity`), which read only the base
     IV_{E{ζ}=0} estimate: run on a second thread while the estimate is refined
-    (:func:`vesselid.core.threads.background`), or here when :meth:`result` asks for
-    them where no second thread may be used, on a small log that runs the numpy kernels
-    (:mod:`vesselid.identify.backend`: the thread count would load numba) and on a long
-    log (one experiment above :data:`~vesselid.identify.covariance.LARGE_ROWS` rows: the
-    checks' rows and the refinement's would be held at once). The same code on the same
-    numbers either way, so the same results."""
+    (:meth:`start`, :func:`vesselid.core.threads.background`), or here when :meth:`result`
+    asks for them where no second thread may be used, on a small log that runs the numpy
+    kernels (:mod:`vesselid.identify.backend`: the thread count would load numba), on a
+    long log (one experiment above :data:`~vesselid.identify.covariance.LARGE_ROWS` rows:
+    the checks' rows and the refinement's would be held at once), and where they were
+    not started (the likelihood fit runs aside meanwhile: the checks' Python-level
+    iterations then overlap its compiled filter passes instead of the refinement's). The
+    same code on the same numbers either way, so the same results."""
 
-    def __init__(self, run: Any, job: Any) -> None:
-        self._run, self._job = run, job
+    def __init__(self, run: Any, here: bool) -> None:
+        self._run, self._here, self._job = run, here, None
 
     @classmethod
-    def start(cls, data: RegressionData, spec: ModelSpec, base: IterationResult,
-              wanted: bool) -> _ValidityChecks:
+    def prepare(cls, data: RegressionData, spec: ModelSpec, base: IterationResult,
+                wanted: bool) -> _ValidityChecks:
+        """The checks of ``data`` (none where not ``wanted``), not started yet."""
         if not wanted:
-            return cls(None, None)
+            return cls(None, True)
 
         def run() -> dict[str, Any]:
             return {"stability": _guarded(validity.parameter_stability, data, spec,
@@ -837,12 +921,16 @@ class _ValidityChecks:
                     "mean_current": _guarded(validity.mean_current, data, spec,
                                              base.theta_aux[0])}
 
-        if _long_log(data) or numpy_active():  # after the refinement, on this thread
-            # (the numpy kernels' small log: a second thread would load numba)
-            return cls(run, None)
+        # a long log or the numpy kernels' small log: after the refinement, on this thread
+        return cls(run, _long_log(data) or numpy_active())
+
+    def start(self) -> None:
+        """Start the checks on the second thread where they may run there."""
+        if self._run is None or self._here or self._job is not None:
+            return
         from vesselid.core.threads import background
 
-        return cls(run, background(run))
+        self._job = background(self._run)
 
     def result(self) -> dict[str, Any]:
         """The checks' entries of the estimate's ``info`` (none where not wanted)."""
