@@ -471,7 +471,7 @@ class InstrumentalGMM(Estimator):
                             theta_start=theta_start, max_iter=max_iter, tol=tol)
         n = data.n_groups
         keep = keep_history and n == 1
-        checks = _ValidityChecks.prepare(
+        checks = _ValidityChecks.start(
             data, spec, base,
             self.instruments == "auto" and keep and np.all(np.isfinite(base.theta_aux[0])))
         try:
@@ -482,8 +482,8 @@ class InstrumentalGMM(Estimator):
     def _estimate_groups(self, data: RegressionData, spec: ModelSpec, base: IterationResult,
                          keep: bool, checks: _ValidityChecks, tol: float,
                          keep_history: bool) -> IterationResult:
-        """The body of :meth:`estimate_parameters` once the base estimate is known
-        (``checks``: the validity checks, started here)."""
+        """The body of :meth:`estimate_parameters` once the base estimate is known and
+        the validity checks are under way (``checks``)."""
         n = data.n_groups
         fused = self.instruments in ("combined", "auto") and not keep
         # the fused combined path (with auto's unfiltered colour test) needs no regressor
@@ -507,15 +507,13 @@ class InstrumentalGMM(Estimator):
         aside: list = []  # a likelihood fit started on a thread of its own
         try:
             if self.instruments == "simulated":
-                checks.start()
                 sol, theta, iters = self._refine(data, spec, phi, None, theta0, "simulated",
                                                  info["noise_order"], keep, tol)
-                checked = None
             else:
-                sol, theta, iters, checked = self._combined(
-                    data, spec, phi, lagged, theta0, keep, tol, checks, used, info, aside)
+                sol, theta, iters = self._combined(data, spec, phi, lagged, theta0, keep,
+                                                   tol, used, info, aside)
                 lagged = None
-            info.update(checks.result() if checked is None else checked)
+            info.update(checks.result())
         finally:
             if aside:  # never leave while the fit still runs aside
                 from concurrent.futures import wait
@@ -541,14 +539,11 @@ class InstrumentalGMM(Estimator):
 
     def _combined(self, data: RegressionData, spec: ModelSpec, phi: np.ndarray | None,
                   lagged: list | None, theta0: np.ndarray, keep: bool, tol: float,
-                  checks: _ValidityChecks, used: np.ndarray, info: dict[str, Any],
-                  aside: list) -> tuple:
+                  used: np.ndarray, info: dict[str, Any], aside: list) -> tuple:
         """The combined refinement and, for ``auto``, its tests and fallbacks (the body of
         :meth:`_estimate_groups` for ``combined`` and ``auto``); fills ``used`` and
-        ``info``. Returns ``(solution, theta, iterations, checked)``: ``checked`` the
-        validity checks' entries where they ran here while the likelihood fit ran on a
-        thread of its own (its job appended to ``aside``, which the caller waits for
-        whatever happens), else None (:meth:`_ValidityChecks.result` gives them).
+        ``info``; ``(solution, theta, iterations)``. A likelihood fit started on a thread
+        of its own is appended to ``aside`` (the caller waits for it whatever happens).
 
         On the fit path of ``auto`` (one log, the unfiltered colour test, not a long log)
         the colour test comes first, on the instruments simulated from ``theta0`` that
@@ -558,13 +553,12 @@ class InstrumentalGMM(Estimator):
         SRIV's or the likelihood fit's), and where it rejects beyond ``pem_level`` times
         its level the likelihood fit is certain to be wanted and starts at once on a
         thread of its own (:func:`vesselid.core.threads.aside`), from the same start, while
-        this thread refines and runs the validity checks (their Python-level iterations
-        overlap its compiled filter passes)."""
+        this thread refines (the refinement's steps overlap its compiled filter passes)."""
         n = data.n_groups
         auto = self.instruments == "auto"
         early = auto and keep and not self.colour_order and not _long_log(data)
         first_z: list = []
-        z_start = colour = job = checked = None
+        z_start = colour = job = None
         keep_final = True
         if early:
             z_start = gmm.simulated_instruments(data, spec, theta0)
@@ -579,8 +573,6 @@ class InstrumentalGMM(Estimator):
                 job = start_aside(lambda: self._pem_fit(data, spec, theta0, strong_w))
                 if job is not None:
                     aside.append(job)
-        if job is None:
-            checks.start()
         sol, theta, iters = self._refine(data, spec, phi, lagged, theta0, "combined", 0,
                                          keep, tol, colour=auto and not self.colour_order,
                                          first_z=None if early else first_z,
@@ -595,9 +587,7 @@ class InstrumentalGMM(Estimator):
                     j_stat=sol.j.copy(), j_df=sol.df.copy())
         used[:] = "combined"
         if not auto:
-            return sol, theta, iters, checked
-        if job is not None:  # the checks here, while the likelihood fit runs aside
-            checked = checks.result()
+            return sol, theta, iters
         w_stat, w_df = (colour if colour is not None else
                         self._colour_test(data, spec, phi, theta0, sol,
                                           z_first=first_z.pop() if first_z else None))
@@ -637,7 +627,7 @@ class InstrumentalGMM(Estimator):
             used[reject] = "simulated"
             if keep:
                 sol = sol_s
-        return sol, theta, iters, checked
+        return sol, theta, iters
 
     def _pem_fit(self, data: RegressionData, spec: ModelSpec, theta0: np.ndarray,
                  reject: np.ndarray) -> dict[str, np.ndarray]:
@@ -896,24 +886,21 @@ class _ValidityChecks:
     """``auto``'s validity checks of one log (the split-sample stability test and the
     mean-current test, :mod:`vesselid.identify.validity`), which read only the base
     IV_{E{ζ}=0} estimate: run on a second thread while the estimate is refined
-    (:meth:`start`, :func:`vesselid.core.threads.background`), or here when :meth:`result`
-    asks for them where no second thread may be used, on a small log that runs the numpy
-    kernels (:mod:`vesselid.identify.backend`: the thread count would load numba), on a
-    long log (one experiment above :data:`~vesselid.identify.covariance.LARGE_ROWS` rows:
-    the checks' rows and the refinement's would be held at once), and where they were
-    not started (the likelihood fit runs aside meanwhile: the checks' Python-level
-    iterations then overlap its compiled filter passes instead of the refinement's). The
-    same code on the same numbers either way, so the same results."""
+    (:func:`vesselid.core.threads.background`), or here when :meth:`result` asks for
+    them where no second thread may be used, on a small log that runs the numpy kernels
+    (:mod:`vesselid.identify.backend`: the thread count would load numba) and on a long
+    log (one experiment above :data:`~vesselid.identify.covariance.LARGE_ROWS` rows: the
+    checks' rows and the refinement's would be held at once). The same code on the same
+    numbers either way, so the same results."""
 
-    def __init__(self, run: Any, here: bool) -> None:
-        self._run, self._here, self._job = run, here, None
+    def __init__(self, run: Any, job: Any) -> None:
+        self._run, self._job = run, job
 
     @classmethod
-    def prepare(cls, data: RegressionData, spec: ModelSpec, base: IterationResult,
-                wanted: bool) -> _ValidityChecks:
-        """The checks of ``data`` (none where not ``wanted``), not started yet."""
+    def start(cls, data: RegressionData, spec: ModelSpec, base: IterationResult,
+              wanted: bool) -> _ValidityChecks:
         if not wanted:
-            return cls(None, True)
+            return cls(None, None)
 
         def run() -> dict[str, Any]:
             return {"stability": _guarded(validity.parameter_stability, data, spec,
@@ -921,16 +908,12 @@ class _ValidityChecks:
                     "mean_current": _guarded(validity.mean_current, data, spec,
                                              base.theta_aux[0])}
 
-        # a long log or the numpy kernels' small log: after the refinement, on this thread
-        return cls(run, _long_log(data) or numpy_active())
-
-    def start(self) -> None:
-        """Start the checks on the second thread where they may run there."""
-        if self._run is None or self._here or self._job is not None:
-            return
+        if _long_log(data) or numpy_active():  # after the refinement, on this thread
+            # (the numpy kernels' small log: a second thread would load numba)
+            return cls(run, None)
         from vesselid.core.threads import background
 
-        self._job = background(self._run)
+        return cls(run, background(run))
 
     def result(self) -> dict[str, Any]:
         """The checks' entries of the estimate's ``info`` (none where not wanted)."""
