@@ -573,33 +573,3 @@ def test_auto_with_the_whitened_colour_test():
         gmm.colour_test(data, spec, phi, z, (2, 10), theta=theta0, noise_order=2)
     with pytest.raises(ValueError, match="needs theta"):
         gmm.colour_test(data, spec, phi, z, noise_order=2)
-
-
-@pytest.mark.parametrize("scenario", ["table1-random", "gm-sensor-random"])
-def test_combined_refinement_without_its_final_rows_gives_the_same_numbers(scenario):
-    """``auto``'s fit path does not keep the last combined step's rows where the colour
-    test rejects (no later step reads them): the estimate, C and J statistics are those
-    of the step that keeps them, bit for bit."""
-    from vesselid.identify import gmm
-    from vesselid.identify.eiv import corrected_regressor_matrix
-    from vesselid.identify.estimators import estimate
-    from vesselid.studies.calibration import heave_scenario
-
-    system, aggregate, _ = heave_scenario(scenario)
-    spec = system.identification_spec(aggregate=aggregate)
-    sim = system.simulate(3000, seed=5)
-    data = from_arrays(spec, sim.y, sim.u)
-    theta = estimate(data, spec, "iv-zero-mean").theta
-    est = get_estimator("auto")
-    phi = corrected_regressor_matrix(data, spec)
-    out = []
-    for keep_final in (True, False):
-        lagged = [gmm.lagged_regressors(data, spec, lag) for lag in gmm.LAGS]
-        out.append(est._refine(data, spec, phi, lagged, theta.copy(), "combined", 0, True,
-                               1e-9, keep_final=keep_final))
-    (kept, th_k, it_k), (bare, th_b, it_b) = out
-    assert kept.designs is not None and bare.designs is None
-    np.testing.assert_array_equal(th_k, th_b)
-    np.testing.assert_array_equal(it_k, it_b)
-    for field in ("theta", "ok", "j", "c", "df", "c_df"):
-        np.testing.assert_array_equal(getattr(kept, field), getattr(bare, field))

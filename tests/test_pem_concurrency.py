@@ -207,9 +207,9 @@ def test_aside_runs_in_a_copy_of_the_callers_context():
 
 
 def test_auto_with_the_likelihood_fit_aside_gives_the_serial_numbers(monkeypatch):
-    """``auto`` on a coloured-current log starts its likelihood fit on a thread of its
-    own once the colour test rejects far beyond its level, while this thread refines
-    and runs the validity checks: every number of the result is the serial fit's."""
+    """``auto`` on a coloured-current log runs its likelihood fit on a thread of its own
+    (its candidate models then on two threads): every number of the result is the
+    serial fit's."""
     import warnings
 
     from vesselid.identify import identify

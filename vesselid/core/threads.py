@@ -50,8 +50,6 @@ _ASIDE: ThreadPoolExecutor | None = None
 _AHEAD_JOBS: list[Future] = []
 #: Jobs computed ahead at once (:func:`ahead`).
 AHEAD_JOBS = 2
-#: Longest wait (seconds) of :func:`aside` for its thread to start.
-ASIDE_START_WAIT = 0.02
 _POOL_SIZE = 0
 _LOCK = threading.Lock()
 _LOCAL = threading.local()
@@ -196,27 +194,15 @@ def aside(fn: Callable[[], Any]) -> Future | None:
     a worker (:func:`serial`); ``None`` otherwise (the caller runs it itself). Unlike
     :func:`background`'s thread, this one may hand a job of its own to
     :func:`background`: for work that runs on two threads itself (a likelihood fit's
-    candidate models) while the caller goes on with work that holds the interpreter
-    (Python-level iterations), which then overlaps the compiled kernels of both."""
+    candidate models)."""
     global _ASIDE
     if serial() or n_threads() < 2:
         return None
     ctx = contextvars.copy_context()
-    started = threading.Event()
-
-    def run() -> Any:
-        started.set()
-        return ctx.run(fn)
-
     with _LOCK:
         if _ASIDE is None:
             _ASIDE = ThreadPoolExecutor(max_workers=1, thread_name_prefix="vesselid-aside")
-        job = _ASIDE.submit(run)
-    # hand the interpreter over until the thread has started (a thread that waits for it
-    # behind Python-level work of the caller's would start a switch interval late);
-    # bounded: a thread still busy with an earlier job is not waited for
-    started.wait(ASIDE_START_WAIT)
-    return job
+        return _ASIDE.submit(ctx.run, fn)
 
 
 def ahead(fn: Callable[[], Any]) -> Future | None:

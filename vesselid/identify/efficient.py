@@ -130,16 +130,6 @@ def _jdict(j: np.ndarray, df: np.ndarray) -> list[dict[str, float]]:
             for i in range(len(df))]
 
 
-def _pvalues(stat: np.ndarray, df: np.ndarray, n: int, n_states: int) -> np.ndarray:
-    """χ² p-values (n, n_states) of the per-equation statistics ``stat`` with ``df``
-    degrees of freedom (1 where ``df`` is 0)."""
-    out = np.ones((n, n_states))
-    for i in range(n_states):
-        if df[i]:
-            out[:, i] = _chi2_sf(stat[:, i], df[i])
-    return out
-
-
 def _named(key: str) -> property:
     """A read-only property returning the instance's configured ``key`` name."""
     return property(lambda self: self._names[key])
@@ -365,20 +355,14 @@ class InstrumentalGMM(Estimator):
 
     # ------------------------------------------------------------------ core
     def _refine(self, data, spec, phi, lagged, theta, kind, order, keep, tol, steps=None,
-                colour=False, first_z: list | None = None, z_start: tuple | None = None,
-                keep_final: bool = True):
+                colour=False, first_z: list | None = None):
         """``refine`` refinement steps of one instrument set from the consistent start
         ``theta`` (instruments re-simulated from, and the noise model re-estimated at,
         the latest estimate); returns ``(solution, theta, steps)``. ``colour``: on the
         fused path, the first step (instruments simulated from ``theta``) also runs the
         colour test (``solution.colour``, :func:`vesselid.identify.gmm.combined_solution`).
         ``first_z`` (a list) receives the instruments simulated from ``theta`` when the
-        rows are formed (the explicit colour test of the fit path needs the same ones).
-        ``z_start``: ``(instruments, ok)`` simulated from ``theta`` already (the first
-        step's, :func:`vesselid.identify.gmm.simulated_instruments` of the same arrays).
-        ``keep_final=False``: the last step's rows are not kept where ``keep`` would keep
-        them (no later step reads them: the colour test rejected the delayed instruments,
-        so the estimate is another set's; the same estimate and tests)."""
+        rows are formed (the explicit colour test of the fit path needs the same ones)."""
         n = data.n_groups
         iters = np.zeros(n, dtype=np.int64)
         active = np.all(np.isfinite(theta), axis=1)
@@ -399,8 +383,7 @@ class InstrumentalGMM(Estimator):
                     blocks, ok_sim = _combined_blocks(data, spec, theta)
                     ar = None
                 else:
-                    z_sim, ok_sim = (z_start if z_start is not None and step == 0 else
-                                     gmm.simulated_instruments(data, spec, theta))
+                    z_sim, ok_sim = gmm.simulated_instruments(data, spec, theta)
                     if first_z is not None and step == 0:
                         first_z.append(z_sim)
                     ar = gmm.noise_model(data, spec, phi, theta, order) if order else None
@@ -410,7 +393,7 @@ class InstrumentalGMM(Estimator):
                 if last and lagged:  # gathered for the last time (the caller's list)
                     lagged.clear()
                 sol = None  # the previous step's rows: only the last step's are kept
-                keep_rows = keep and last and not defer and keep_final
+                keep_rows = keep and last and not defer
                 sol = gmm.solve_equations(data, spec, phi, blocks, weight="hac", ar=ar,
                                           keep_designs=keep_rows,
                                           keep_jacobians=keep_rows, release=True)
@@ -430,9 +413,9 @@ class InstrumentalGMM(Estimator):
         """The colour test of the instruments simulated from ``theta0``: the statistic
         fused into the first combined step where it has it (``sol.colour_ok``), else
         :func:`vesselid.identify.gmm.colour_test` on explicit rows (the fit path; no
-        generated kernel; ``theta0`` not finite or non-finite sums; ``sol`` None: before
-        the refinement). ``z_first``: those instruments when they were simulated already
-        (the same call on the same arrays; read, not changed). ``(stat, df)``."""
+        generated kernel; ``theta0`` not finite or non-finite sums). ``z_first``: those
+        instruments when the first refinement step simulated them already (the same call
+        on the same arrays). ``(stat, df)``."""
         n = data.n_groups
         if self.colour_order:  # the whitened test: explicit rows, batched over groups
             phi = phi if phi is not None else corrected_regressor_matrix(data, spec)
@@ -440,7 +423,7 @@ class InstrumentalGMM(Estimator):
                      gmm.simulated_instruments(data, spec, theta0)[0])
             return gmm.colour_test(data, spec, phi, z_sim, theta=theta0,
                                    noise_order=int(self.colour_order))
-        if sol is not None and sol.colour is not None:
+        if sol.colour is not None:
             stat, df, todo = sol.colour.copy(), sol.colour_df, ~sol.colour_ok
         else:
             stat, df, todo = np.zeros((n, spec.n_states)), None, np.ones(n, dtype=bool)
@@ -504,21 +487,64 @@ class InstrumentalGMM(Estimator):
         # the AR order of the simulated-instrument set (sriv; auto's fallback)
         info: dict[str, Any] = {"noise_order": (self._ar_order(data) if self.instruments
                                                 == "simulated" else self._fallback_order(data))}
-        aside: list = []  # a likelihood fit started on a thread of its own
-        try:
-            if self.instruments == "simulated":
-                sol, theta, iters = self._refine(data, spec, phi, None, theta0, "simulated",
-                                                 info["noise_order"], keep, tol)
-            else:
-                sol, theta, iters = self._combined(data, spec, phi, lagged, theta0, keep,
-                                                   tol, used, info, aside)
-                lagged = None
-            info.update(checks.result())
-        finally:
-            if aside:  # never leave while the fit still runs aside
-                from concurrent.futures import wait
-
-                wait(aside)
+        if self.instruments == "simulated":
+            sol, theta, iters = self._refine(data, spec, phi, None, theta0, "simulated",
+                                             info["noise_order"], keep, tol)
+        else:
+            first_z: list = []
+            sol, theta, iters = self._refine(data, spec, phi, lagged, theta0, "combined", 0,
+                                             keep, tol,
+                                             colour=self.instruments == "auto"
+                                             and not self.colour_order,
+                                             first_z=first_z)
+            lagged = None  # (the delayed regressors serve the combined steps only)
+            pvals = np.ones((n, spec.n_states))
+            for i in range(spec.n_states):
+                if sol.c_df[i]:
+                    pvals[:, i] = _chi2_sf(sol.c[:, i], sol.c_df[i])
+            c_p = pvals.min(axis=1)
+            info.update(c_stat=sol.c.copy(), c_df=sol.c_df.copy(), c_pvalue=c_p,
+                        j_stat=sol.j.copy(), j_df=sol.df.copy())
+            used[:] = "combined"
+            if self.instruments == "auto":
+                w_stat, w_df = self._colour_test(data, spec, phi, theta0, sol,
+                                                 z_first=first_z.pop() if first_z else None)
+                w_p = np.ones((n, spec.n_states))
+                for i in range(spec.n_states):
+                    if w_df[i]:
+                        w_p[:, i] = _chi2_sf(w_stat[:, i], w_df[i])
+                info.update(colour_stat=w_stat, colour_df=w_df, colour_pvalue=w_p.min(axis=1),
+                            colour_order=int(self.colour_order))
+                c_rej = c_p < float(self.alpha)
+                w_rej = w_p.min(axis=1) < float(self.colour_alpha)
+                reject = c_rej | w_rej
+                # a test rejects white disturbances: on a one-state log without a
+                # disturbance sensor a coloured current inside the modulus biases every
+                # instrument built from the input — model both processes instead
+                # the likelihood model only on strong evidence (each test's p-value below
+                # pem_level times its level): a coloured current, the one disturbance
+                # that biases every instrument, is rejected far beyond that at 10⁴ samples
+                strong = reject & ((c_p < float(self.alpha) * float(self.pem_level))
+                                   | (w_p.min(axis=1)
+                                      < float(self.colour_alpha) * float(self.pem_level)))
+                info["pem_strong"] = strong
+                if strong.any() and self.pem_fallback and pem.supports(spec, data):
+                    self._pem_fallback(data, spec, theta0, strong, theta, iters, used, info)
+                    reject = reject & (used != "pem")
+                info["pem_applies"] = bool(self.pem_fallback and pem.supports(spec, data))
+                if reject.any():
+                    sub = _subset(data, reject)
+                    phi_s = (phi[_rows(data, reject)] if phi is not None else
+                             corrected_regressor_matrix(sub, spec))
+                    sol_s, th_s, it_s = self._refine(
+                        sub, spec, phi_s, None, theta0[reject], "simulated",
+                        info["noise_order"], keep, tol, steps=self.fallback_refine)
+                    theta[reject] = th_s
+                    iters[reject] = it_s
+                    used[reject] = "simulated"
+                    if keep:
+                        sol = sol_s
+        info.update(checks.result())
         ok = np.all(np.isfinite(theta), axis=1) & np.all(np.isfinite(base.theta), axis=1)
         theta[~ok] = np.nan
         if sol is not None:
@@ -537,113 +563,16 @@ class InstrumentalGMM(Estimator):
             history=[theta.copy()] if keep_history else [],
         )
 
-    def _combined(self, data: RegressionData, spec: ModelSpec, phi: np.ndarray | None,
-                  lagged: list | None, theta0: np.ndarray, keep: bool, tol: float,
-                  used: np.ndarray, info: dict[str, Any], aside: list) -> tuple:
-        """The combined refinement and, for ``auto``, its tests and fallbacks (the body of
-        :meth:`_estimate_groups` for ``combined`` and ``auto``); fills ``used`` and
-        ``info``; ``(solution, theta, iterations)``. A likelihood fit started on a thread
-        of its own is appended to ``aside`` (the caller waits for it whatever happens).
-
-        On the fit path of ``auto`` (one log, the unfiltered colour test, not a long log)
-        the colour test comes first, on the instruments simulated from ``theta0`` that
-        the first refinement step then uses (the same arrays, so the same numbers as
-        after the refinement). Where it rejects, the delayed instruments are out
-        whatever the C test says: the last step's rows are not kept (the estimate is
-        SRIV's or the likelihood fit's), and where it rejects beyond ``pem_level`` times
-        its level the likelihood fit is certain to be wanted and starts at once on a
-        thread of its own (:func:`vesselid.core.threads.aside`), from the same start, while
-        this thread refines (the refinement's steps overlap its compiled filter passes)."""
-        n = data.n_groups
-        auto = self.instruments == "auto"
-        early = auto and keep and not self.colour_order and not _long_log(data)
-        first_z: list = []
-        z_start = colour = job = None
-        keep_final = True
-        if early:
-            z_start = gmm.simulated_instruments(data, spec, theta0)
-            colour = self._colour_test(data, spec, phi, theta0, None, z_first=z_start[0])
-            w_first = _pvalues(*colour, n, spec.n_states).min(axis=1)
-            keep_final = not bool(np.any(w_first < float(self.colour_alpha)))
-            strong_w = w_first < float(self.colour_alpha) * float(self.pem_level)
-            if (bool(strong_w.all()) and self.pem_fallback and pem.supports(spec, data)
-                    and not numpy_active()):
-                from vesselid.core.threads import aside as start_aside
-
-                job = start_aside(lambda: self._pem_fit(data, spec, theta0, strong_w))
-                if job is not None:
-                    aside.append(job)
-        sol, theta, iters = self._refine(data, spec, phi, lagged, theta0, "combined", 0,
-                                         keep, tol, colour=auto and not self.colour_order,
-                                         first_z=None if early else first_z,
-                                         z_start=z_start, keep_final=keep_final)
-        lagged = z_start = None  # (they serve the combined steps only)
-        pvals = np.ones((n, spec.n_states))
-        for i in range(spec.n_states):
-            if sol.c_df[i]:
-                pvals[:, i] = _chi2_sf(sol.c[:, i], sol.c_df[i])
-        c_p = pvals.min(axis=1)
-        info.update(c_stat=sol.c.copy(), c_df=sol.c_df.copy(), c_pvalue=c_p,
-                    j_stat=sol.j.copy(), j_df=sol.df.copy())
-        used[:] = "combined"
-        if not auto:
-            return sol, theta, iters
-        w_stat, w_df = (colour if colour is not None else
-                        self._colour_test(data, spec, phi, theta0, sol,
-                                          z_first=first_z.pop() if first_z else None))
-        w_p = _pvalues(w_stat, w_df, n, spec.n_states)
-        info.update(colour_stat=w_stat, colour_df=w_df, colour_pvalue=w_p.min(axis=1),
-                    colour_order=int(self.colour_order))
-        c_rej = c_p < float(self.alpha)
-        w_rej = w_p.min(axis=1) < float(self.colour_alpha)
-        reject = c_rej | w_rej
-        # a test rejects white disturbances: on a one-state log without a
-        # disturbance sensor a coloured current inside the modulus biases every
-        # instrument built from the input — model both processes instead
-        # the likelihood model only on strong evidence (each test's p-value below
-        # pem_level times its level): a coloured current, the one disturbance
-        # that biases every instrument, is rejected far beyond that at 10⁴ samples
-        strong = reject & ((c_p < float(self.alpha) * float(self.pem_level))
-                           | (w_p.min(axis=1)
-                              < float(self.colour_alpha) * float(self.pem_level)))
-        info["pem_strong"] = strong
-        if strong.any() and self.pem_fallback and pem.supports(spec, data):
-            # (a fit started aside is of the same groups: the colour test alone made
-            # every group strong there)
-            res = (job.result() if job is not None else
-                   self._pem_fit(data, spec, theta0, strong))
-            self._pem_apply(res, strong, theta, iters, used, info)
-            reject = reject & (used != "pem")
-        info["pem_applies"] = bool(self.pem_fallback and pem.supports(spec, data))
-        if reject.any():
-            sub = _subset(data, reject)
-            phi_s = (phi[_rows(data, reject)] if phi is not None else
-                     corrected_regressor_matrix(sub, spec))
-            sol_s, th_s, it_s = self._refine(
-                sub, spec, phi_s, None, theta0[reject], "simulated",
-                info["noise_order"], keep, tol, steps=self.fallback_refine)
-            theta[reject] = th_s
-            iters[reject] = it_s
-            used[reject] = "simulated"
-            if keep:
-                sol = sol_s
-        return sol, theta, iters
-
-    def _pem_fit(self, data: RegressionData, spec: ModelSpec, theta0: np.ndarray,
-                 reject: np.ndarray) -> dict[str, np.ndarray]:
-        """The prediction-error fit of the groups ``reject`` from their IV_{E{ζ}=0}
-        estimates (:func:`vesselid.identify.pem.fit_groups`, ``auto``'s settings)."""
-        return pem.fit_groups(_subset(data, reject), spec, theta0[reject], joint=True,
-                              boundary=self.pem_boundary)
-
-    def _pem_apply(self, res: dict[str, np.ndarray], reject: np.ndarray, theta: np.ndarray,
-                   iters: np.ndarray, used: np.ndarray, info: dict[str, Any]) -> None:
-        """The prediction-error fit ``res`` of the groups ``reject`` (:meth:`_pem_fit`)
-        taken where its likelihood maximisation converged (in place; the others fall
-        back to SRIV)."""
+    def _pem_fallback(self, data, spec, theta0, reject, theta, iters, used, info) -> None:
+        """The prediction-error estimator on the groups ``reject``, from their IV_{E{ζ}=0}
+        estimates; taken where its likelihood maximisation converged (in place; the
+        others fall back to SRIV)."""
+        sub = _subset(data, reject)
+        res = _on_own_thread(lambda: pem.fit_groups(sub, spec, theta0[reject], joint=True,
+                                                    boundary=self.pem_boundary))
         ok = res["converged"] & np.all(np.isfinite(res["theta"]), axis=1)
         idx = np.flatnonzero(reject)
-        n = reject.size
+        n = data.n_groups
         for key in ("psi", "cov", "cov_sandwich", "cov_conservative", "loglik", "vuong",
                     "model", "lr_joint", "local_z", "shape_z", "boundary"):
             arr = res[key]
@@ -930,6 +859,30 @@ class _ValidityChecks:
             from concurrent.futures import wait
 
             wait([self._job])
+
+
+def _on_own_thread(fn):
+    """``fn()`` — the likelihood fit of ``auto``'s fallback — on a thread of its own
+    (:func:`vesselid.core.threads.aside`; here where none may be used, and on the numpy
+    kernels' small log). The same code on the same numbers. Its filter passes allocate
+    and free arrays of 10⁴ × 10 samples many times over; on that thread they come from
+    a malloc arena of its own, whose memory the frees of the calling thread's work do not
+    hand back to the operating system between the passes (glibc): measured on a
+    10⁴-sample Gauss–Markov-current log, ~870 minor page faults per ``identify`` call
+    with the fit on its own thread, 1200–2500 with it on the calling thread (a few µs
+    each: 5–10 % of the call's CPU time)."""
+    from vesselid.core.threads import aside
+
+    job = None if numpy_active() else aside(fn)
+    if job is None:
+        return fn()
+    try:
+        return job.result()
+    except BaseException:
+        from concurrent.futures import wait
+
+        wait([job])  # never leave while the fit still runs
+        raise
 
 
 def _guarded(fn, *args):
