@@ -19,6 +19,8 @@ from vesselid.errors import InvalidActionError
 
 __all__ = ["check_action", "require_reset"]
 
+_NUMPY = (np.ndarray, np.generic)
+
 
 def check_action(action: Any, shape: tuple[int, ...], *, name: str = "action") -> np.ndarray:
     """``action`` as a float64 array of ``shape``, or a clear error.
@@ -35,9 +37,11 @@ def check_action(action: Any, shape: tuple[int, ...], *, name: str = "action") -
     Raises
     ------
     InvalidActionError
-        Not numeric, wrong shape, or NaN/±inf (the message gives the first index).
+        Not real numbers, wrong shape, or NaN/±inf (the message gives the first index).
     """
     try:
+        if isinstance(action, _NUMPY) and action.dtype.kind == "c":
+            raise TypeError("complex")  # numpy would drop the imaginary part
         arr = np.asarray(action, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise InvalidActionError(

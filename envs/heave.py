@@ -30,12 +30,15 @@ from vesselid.plant.systems import System, heave, truth_columns
 
 __all__ = ["HeaveEnv", "HeaveVectorEnv"]
 
-_NDARRAY, _ONE = np.ndarray, (1,)
+_ONE = (1,)
 #: Noise drawn at once: time instants (single env), env-instants (vector env).
 SINGLE_BLOCK, VECTOR_BLOCK_ELEMENTS = 1024, 1 << 16
 # Per instant and env: 4 standard normals (current, ξ, e1, e2; scaled by the system's
 # Gaussian disturbances) and 3 uniforms (reference level and hold, initial velocity).
 _NZ, _NU = 4, 3
+#: Observation rows of the single environment allocated at once (a power of two dividing
+#: SINGLE_BLOCK): a kept observation keeps its 64 rows alive (about 1 kB).
+_ROWS = 64
 
 
 #: Numeric settings and their validation.
@@ -203,61 +206,76 @@ class _Core:
         return {k: s[k].copy() for k in keys if k != "y2" or self.cfg.sensor}
 
 
-#: Source of :meth:`_ScalarCore.step`; ``{plant}`` becomes ``ξ + Σ θ_p F_a F_b`` written
-#: out in term order (the sums of the compiled :func:`vesselid.model.regressors.advance`), with
-#: ``F = [s, τ, |s|, |τ|, 1]`` and ``s = w_a + sign·w_c``.
+#: Source of :meth:`_ScalarCore.step`, formatted by :func:`_compile_step`: ``{plant}``
+#: becomes ``ξ + Σ θ_p F_a F_b`` written out in term order (the sums of the compiled
+#: :func:`vesselid.model.regressors.advance`) with ``F = [s, τ, |s|, |τ|, 1]``, ``s = w_a +
+#: sign·w_c`` (``{s}``), and the other fields the environment's constants as literals.
 _SCALAR_STEP = """
-def step(self, a):
+def step(self, action):
+    # an ndarray of the action space's shape holding a finite float (what agents pass)
+    # is read directly (``a - a`` is NaN for ±inf and NaN); anything else goes through
+    # the full check, which also words the refusal
+    try:
+        (a,) = action.tolist()
+    except (AttributeError, TypeError, ValueError):
+        a = None
+    if a.__class__ is not float or not a - a == 0.0:
+        a = self.checked(action)
     k = self.k
-    if k >= self.block:
-        self._draw()
+    if k >= {block}:
+        self._draw()  # raises ResetNeeded before the first reset
         k = 0
     else:
         self.k = k + 1
-    z, i = self.z, _NZ * k  # the normals of this instant are z[i:i + 4]
+        if not k & {mask}:
+            self._new_rows(k)
     if self.prev_done:  # stepped past the end without reset: next-step autoreset
-        self._start(z[i:i + _NZ], self.u[_NU * k:_NU * k + _NU])
-        self.tau_now = nan
-        self.prev_done = False
-        return self.obs(), 0.0, False, False, self.info()
-    lo, span, sign, cost, limit, q0, q1, x0, x1, e1, e2 = self.constants
-    tau = lo + ((-1.0 if a < -1.0 else 1.0 if a > 1.0 else a) + 1.0) * 0.5 * span
-    s = self.w_a + sign * self.w_c
+        return self._autoreset(k)
+    tau = {lo!r} + ((-1.0 if a < -1.0 else 1.0 if a > 1.0 else a) + 1.0) * 0.5 * {span!r}
+    s = {s}
     nxt = {plant}
-    w_ref = self.w_ref
-    err = nxt - w_ref
+    err = nxt - self.w_ref
     self.w_a = nxt
-    self.hold -= 1.0
-    if self.hold <= 0.0:
-        self._new_reference(self.u[_NU * k:_NU * k + _NU])
-        w_ref = self.w_ref
-    self.w_c = w_c = q0 + q1 * z[i]
-    self.xi = xi = x0 + x1 * z[i + 1]
-    self.y1 = y1 = nxt + e1 * z[i + 2]
-    self.y2 = y2 = w_c + e2 * z[i + 3]
+    self.hold = hold = self.hold - 1.0
+    if hold <= 0.0:
+        self._new_reference(self.u[k].tolist(), k)
+    self.w_c = w_c = self.wc[k]
+    self.xi = xi = self.xis[k]
+    self.y1 = y1 = nxt + self.e1z[k]
+    self.y2 = y2 = self.y2s[k]
     self.tau_now = tau
-    self.prev_done = term = not (abs(nxt) <= limit)  # also true for NaN
-    o = self.buffer  # filled in place and copied: cheaper than a new array from floats
+    self.prev_done = term = not (abs(nxt) <= {limit!r})  # also true for NaN
+    o = self.rows[k & {mask}]  # y2 and w_ref are in place (_new_rows, _new_reference)
     o[0] = y1
-    o[-1] = w_ref
-    if self.sensor:
-        o[1] = y2
-        info = {{"w_a": nxt, "w_r": nxt - w_c, "w_c": w_c, "xi": xi, "y1": y1, "y2": y2,
-                "w_ref": w_ref}}
-    else:
-        info = {{"w_a": nxt, "w_r": nxt - w_c, "w_c": w_c, "xi": xi, "y1": y1,
-                "w_ref": w_ref}}
-    return o.copy(), -(err * err) - cost * tau * tau, term, False, info
+    return o, -(err * err) - {cost!r} * tau * tau, term, False, {info}
 """
 
 
-def _compile_step(factors: np.ndarray, theta: np.ndarray) -> Any:
-    """:data:`_SCALAR_STEP` for one plant (factor layout and θ of a one-state system)."""
-    names = ("s", "tau", "abs(s)", "abs(tau)", "1.0")
-    plant = "self.xi" + "".join(f" + {float(t)!r} * ({names[i]} * {names[j]})"
-                                for (i, j), t in zip(factors, theta, strict=True))
-    scope: dict[str, Any] = {"nan": math.nan, "_NZ": _NZ, "_NU": _NU}
-    exec(compile(_SCALAR_STEP.format(plant=plant), "<heave scalar step>", "exec"), scope)
+def _compile_step(cfg: _HeaveConfig, block: int) -> Any:
+    """:data:`_SCALAR_STEP` for one plant (factor layout and θ of a one-state system) and
+    the environment's constants (``repr`` of a float reads back as the same float)."""
+    fac, _, theta = cfg.layout
+
+    def product(i: int, j: int) -> str:  # a factor 1.0 is left out (x · 1.0 is x, exactly)
+        names = [n for n in (("s", "tau", "abs(s)", "abs(tau)", "1.0")[f] for f in (i, j))
+                 if n != "1.0"]
+        return " * ".join(names) or "1.0"
+
+    plant = "self.xi" + "".join(  # and so is 1.0 · x
+        f" + {product(int(i), int(j))}" if float(t) == 1.0
+        else f" + {float(t)!r} * ({product(int(i), int(j))})"
+        for (i, j), t in zip(fac, theta, strict=True))
+    s = {1.0: "self.w_a + self.w_c", -1.0: "self.w_a - self.w_c"}.get(  # exact: a + -b is a - b
+        cfg.sign, f"self.w_a + {cfg.sign!r} * self.w_c")
+    y2 = ' "y2": y2,' if cfg.sensor else ""
+    info = ('{"w_a": nxt, "w_r": nxt - w_c, "w_c": w_c, "xi": xi, "y1": y1,' + y2
+            + ' "w_ref": self.w_ref}')
+    lo, hi = cfg.thrust_range
+    source = _SCALAR_STEP.format(block=int(block), mask=_ROWS - 1, lo=lo, span=hi - lo, s=s,
+                                 plant=plant, limit=cfg.velocity_limit, cost=cfg.cost,
+                                 info=info)
+    scope: dict[str, Any] = {}
+    exec(compile(source, "<heave scalar step>", "exec"), scope)
     return scope["step"]
 
 
@@ -266,31 +284,44 @@ class _ScalarCore:
     ``n = 1``, in the same order and from the same draws, so bit-identical to it.
 
     The single environment steps one sample per call, where numpy's per-call overhead
-    on arrays of one element would dominate; the plant's one-step map ``Φᵀ(s)θ + ξ`` is
-    evaluated from the system's factor layout in term order (as the compiled
-    :func:`vesselid.model.regressors.advance`).
+    on arrays of one element would dominate. Its :meth:`step` is generated per
+    environment (:func:`_compile_step`): action check, plant, reward, observation and
+    info in one function, the plant's one-step map ``Φᵀ(s)θ + ξ`` evaluated from the
+    system's factor layout in term order (as the compiled
+    :func:`vesselid.model.regressors.advance`). What depends on the noise alone (current,
+    ξ, sensor noise, the current meter) is computed for a whole block of draws at once
+    with numpy's elementwise operations, the same IEEE operations as the scalar ones.
+    The observations are the rows of float32 arrays of :data:`_ROWS` rows with the
+    current meter and the reference filled in ahead (a view costs less than a new
+    array); each row is returned by one step and never written again.
     """
 
     n = 1
 
     def __init__(self, cfg: _HeaveConfig, block: int) -> None:
         self.cfg, self.block = cfg, block
-        fac, eq, theta = cfg.layout
+        fac, eq, _ = cfg.layout
+        if block % _ROWS:  # pragma: no cover
+            raise VesselidError(f"the noise block must be a multiple of {_ROWS} instants")
         if fac.shape[0] and (int(eq.max()) != 0 or int(fac.max()) > 4):  # pragma: no cover
             raise VesselidError("the scalar heave core needs one state and one input")
-        self.step = _compile_step(fac, theta).__get__(self)
-        self.sensor = cfg.sensor
-        lo, hi = cfg.thrust_range
-        self.constants = (lo, hi - lo, cfg.sign, cfg.cost, cfg.velocity_limit, *cfg.q, *cfg.xi,
-                          cfg.e1, cfg.e2)
+        self.step = _compile_step(cfg, block).__get__(self)
+        self.n_obs = 3 if cfg.sensor else 2
         self.w_a = self.w_c = self.xi = self.y1 = self.y2 = self.w_ref = self.hold = 0.0
         self.prev_done = False
         self.tau_now = math.nan
         self.rng: np.random.Generator | None = None
-        self.buffer = np.zeros(3 if cfg.sensor else 2, dtype=np.float32)
+        self.buffer = np.zeros(self.n_obs, dtype=np.float32)
         self.k = block
-        self.z: list = []
-        self.u: list = []
+        # per instant of the noise block: current, ξ, e1 and the current meter reading
+        # (lists of floats: cheaper to index than arrays), the uniforms, the observations
+        self.wc: list[float] = []
+        self.xis: list[float] = []
+        self.e1z: list[float] = []
+        self.y2s: list[float] = []
+        self.u = np.zeros((0, _NU))
+        self.y2a = np.zeros(0)
+        self.rows = np.zeros((0, self.n_obs), dtype=np.float32)
 
     # the plotting and recorder helpers read the state as arrays of one element
     @property
@@ -302,26 +333,50 @@ class _ScalarCore:
     def tau(self) -> np.ndarray:
         return np.array([self.tau_now])
 
-    def _draw(self) -> tuple[list[float], list[float]]:
-        if self.k >= self.block:
-            require_reset(self.rng is not None)
-            # drawn as _Core draws them for n = 1; flat lists of floats (lists of rows
-            # would cost the garbage collector more than the step)
-            self.z = self.rng.standard_normal((self.block, 1, _NZ)).ravel().tolist()
-            self.u = self.rng.random((self.block, 1, _NU)).ravel().tolist()
-            self.k = 0
-        k = self.k
-        self.k = k + 1
-        return self.z[_NZ * k:_NZ * k + _NZ], self.u[_NU * k:_NU * k + _NU]
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, float]]:
+        """One sample with the normalised ``action``: the single environment's ``(obs,
+        reward, terminated, truncated, info)``. Replaced per instance by the step
+        compiled from :data:`_SCALAR_STEP`."""
+        raise NotImplementedError  # pragma: no cover - bound in __init__
 
-    def _sense(self, z: list[float]) -> None:
-        c = self.cfg
-        self.w_c = c.q[0] + c.q[1] * z[0]
-        self.xi = c.xi[0] + c.xi[1] * z[1]
-        self.y1 = self.w_a + c.e1 * z[2]
-        self.y2 = self.w_c + c.e2 * z[3]
+    def __getstate__(self) -> dict[str, Any]:  # the generated step is made again
+        return {k: v for k, v in self.__dict__.items() if k != "step"}
 
-    def _new_reference(self, u: list[float]) -> None:
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self.step = _compile_step(self.cfg, self.block).__get__(self)
+
+    def checked(self, action: Any) -> float:
+        """The action as a float, or the clear error of :func:`check_action` (after
+        :func:`require_reset`, as every environment)."""
+        require_reset(self.rng is not None)
+        return float(check_action(action, _ONE)[0])
+
+    def _draw(self) -> None:
+        """The next noise block, drawn as :class:`_Core` draws it for ``n = 1``; the
+        step uses its instant 0."""
+        require_reset(self.rng is not None)
+        c, n = self.cfg, self.block
+        z = self.rng.standard_normal((n, 1, _NZ)).reshape(n, _NZ)
+        self.u = self.rng.random((n, 1, _NU)).reshape(n, _NU)
+        w_c = c.q[0] + c.q[1] * z[:, 0]  # the operations of _Core._sense, elementwise
+        y2 = w_c + c.e2 * z[:, 3]
+        self.wc, self.y2s = w_c.tolist(), y2.tolist()
+        self.xis = (c.xi[0] + c.xi[1] * z[:, 1]).tolist()
+        self.e1z = (c.e1 * z[:, 2]).tolist()
+        self.y2a = y2
+        self.k = 1
+        self._new_rows(0)
+
+    def _new_rows(self, k: int) -> None:
+        """The observation rows of instants ``k`` to ``k + _ROWS − 1`` of the block."""
+        self.rows = rows = np.empty((_ROWS, self.n_obs), dtype=np.float32)
+        if self.cfg.sensor:
+            rows[:, 1] = self.y2a[k:k + _ROWS]
+        rows[:, -1] = self.w_ref
+
+    def _new_reference(self, u: list[float], k: int) -> None:
+        """A new reference level and hold from the uniforms ``u`` of instant ``k``."""
         (lo, hi), (h_lo, h_hi) = self.cfg.ref, self.cfg.hold
         if self.cfg.random_reference:
             self.w_ref = lo + (hi - lo) * u[0]
@@ -329,28 +384,33 @@ class _ScalarCore:
         else:
             self.w_ref = lo
             self.hold = math.inf
+        self.rows[k & (_ROWS - 1):, -1] = self.w_ref  # the observations from instant k on
 
-    def _start(self, z: list[float], u: list[float]) -> None:
+    def _start(self, k: int) -> None:
+        """A new episode from the draws of instant ``k``."""
         lo, hi = self.cfg.w0
+        u = self.u[k].tolist()
         self.w_a = lo + (hi - lo) * u[2]
-        self._new_reference(u)
-        self._sense(z)
+        self._new_reference(u, k)
+        self.w_c, self.xi = self.wc[k], self.xis[k]
+        self.y1 = self.w_a + self.e1z[k]
+        self.y2 = self.y2s[k]
+
+    def _autoreset(self, k: int) -> tuple[np.ndarray, float, bool, bool, dict[str, float]]:
+        self._start(k)
+        self.tau_now = math.nan
+        self.prev_done = False
+        return self.obs(), 0.0, False, False, self.info()
 
     def reset(self, rng: np.random.Generator, w0: float | None = None) -> None:
-        self.rng, self.k = rng, self.block
-        z, u = self._draw()
-        self._start(z, u)
+        self.rng = rng
+        self._draw()
+        self._start(0)
         self.prev_done = False
         self.tau_now = math.nan
         if w0 is not None:
             self.y1 += w0 - self.w_a
             self.w_a = w0
-
-    def step(self, a: float) -> tuple[np.ndarray, float, bool, bool, dict[str, float]]:
-        """One sample with the normalised action ``a`` (finite): the single environment's
-        ``(obs, reward, terminated, truncated, info)``. Replaced per instance by the
-        step compiled from :data:`_SCALAR_STEP` with the plant's terms written out."""
-        raise NotImplementedError  # pragma: no cover - bound in __init__
 
     def obs(self) -> np.ndarray:
         o = self.buffer
@@ -487,7 +547,10 @@ class HeaveEnv(_HeaveBase, gym.Env[np.ndarray, np.ndarray]):
     ## Observation Space
 
     ``Box(±2·velocity_limit, (2,) or (3,), float32)``: ``y1``, ``y2`` (only with
-    ``current_sensor``) and the reference ``w_ref``.
+    ``current_sensor``) and the reference ``w_ref``. Every observation is an array of
+    its own that the environment never writes again; those of ``step`` are rows of
+    blocks of 64 (a view costs less than a new array), so one kept observation keeps
+    its block (about 1 kB) alive.
 
     ## Rewards
 
@@ -522,6 +585,12 @@ class HeaveEnv(_HeaveBase, gym.Env[np.ndarray, np.ndarray]):
                  **settings: Any) -> None:
         self._setup(1, SINGLE_BLOCK, 0, render_mode, render_window, settings)
         self.action_space, self.observation_space = self._cfg.spaces()
+        self._bind_step()
+
+    def _bind_step(self) -> None:
+        # nothing to record (and step not overridden): a step is the core's compiled step
+        if self._plot is None and type(self).step is HeaveEnv.step:
+            self.step = self._core.step  # type: ignore[method-assign]
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[np.ndarray, dict[str, float]]:
@@ -535,26 +604,22 @@ class HeaveEnv(_HeaveBase, gym.Env[np.ndarray, np.ndarray]):
             self.render()
         return self._core.obs(), self._core.info()
 
+    def __getstate__(self) -> dict[str, Any]:
+        return {k: v for k, v in self.__dict__.items() if k != "step"}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._bind_step()
+
     def step(self, action: Any) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, float]]:
-        """Apply the normalised thrust ``action`` for one sample."""
-        core = self._core
-        # an ndarray of the action space's shape (what agents pass) is read directly
-        # (``a - a == 0`` is false for ±inf and NaN); anything else goes through the full
-        # check, which also words the refusal. A step before reset finds no noise block:
-        # the core's first draw raises ResetNeeded.
-        if (action.__class__ is _NDARRAY and action.shape == _ONE
-                and action.dtype.kind == "f"):
-            a = action.item()
-            if not a - a == 0.0:
-                require_reset(core.rng is not None)
-                a = float(check_action(action, self.action_space.shape)[0])
-        else:
-            require_reset(core.rng is not None)
-            a = float(check_action(action, self.action_space.shape)[0])
-        out = core.step(a)
+        """Apply the normalised thrust ``action`` for one sample.
+
+        Without a render mode the instance's ``step`` is the core's generated step
+        (:class:`_ScalarCore`) itself; this method adds the rendering."""
+        out = self._core.step(action)
         self._t += 1
         if self._plot is not None:
-            self._record(core.tau)
+            self._record(self._core.tau)
             if self.render_mode == "human":
                 self.render()
         return out

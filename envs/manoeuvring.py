@@ -50,7 +50,7 @@ from vesselid.plant.vessels.kernel import STATUS_OK
 __all__ = ["Manoeuvring3DOFEnv", "Manoeuvring3DOFVectorEnv", "reward"]
 
 _ANGLE_CHANNELS = {"psi", "wind_angle"}
-_NDARRAY, _THREE = np.ndarray, (3,)
+_THREE = (3,)
 SINGLE_BLOCK = 1024  # disturbance rows drawn at once by a single env
 VECTOR_BLOCK_SAMPLES = 1 << 16  # rows x envs drawn at once by a vector env
 
@@ -236,12 +236,27 @@ class _Core:
                               self.reward_weights)
         self.rewards[skip] = 0.0
 
-    def step_single(self, a: list[float]) -> tuple[float, bool]:
-        """:meth:`step` for one vessel from Python floats (the single environment): the
-        same operations in one compiled call (:meth:`VesselBatch.step_one`), so
-        bit-identical; returns the reward and whether the vessel diverged."""
-        reward = self.batch.step_one(a[0], a[1], a[2], self.reward_par)
-        return reward, self.batch.st.item(0, self.i_status) != STATUS_OK
+    def step_single(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        """The single environment's ``(obs, reward, terminated, truncated, info)`` for
+        ``action``: :meth:`step` for one vessel from Python floats, the same operations
+        in one compiled call (:meth:`VesselBatch.step_one`), so bit-identical."""
+        # an ndarray of the action space's shape holding finite floats (what agents pass)
+        # is read directly (``x - x`` is 0 for finite x, NaN otherwise); anything else
+        # goes through the full check, which also words the refusal
+        try:
+            a0, a1, a2 = action.tolist()
+        except (AttributeError, TypeError, ValueError):
+            a0 = a1 = a2 = None
+        batch = self.batch
+        if not (a0.__class__ is a1.__class__ is a2.__class__ is float
+                and (a0 - a0) + (a1 - a1) + (a2 - a2) == 0.0):
+            require_reset(batch.rng is not None)
+            a0, a1, a2 = check_action(action, _THREE).tolist()
+        if batch.rng is None:
+            require_reset(False)
+        reward = batch.step_one(a0, a1, a2, self.reward_par)
+        return (batch.obs0.copy(), reward, batch.st.item(0, self.i_status) != STATUS_OK, False,
+                batch.info_one())
 
     @property
     def terminated(self) -> np.ndarray:
@@ -483,6 +498,9 @@ class Manoeuvring3DOFEnv(_ManoeuvringBase, gym.Env[np.ndarray, np.ndarray]):
         self._attach(render_mode, render_window)
         self._skip = self._core.no_skip
         self._t = 0
+        # nothing to record (and step not overridden): a step is the core's single step
+        if self._hist is None and type(self).step is Manoeuvring3DOFEnv.step:
+            self.step = self._core.step_single  # type: ignore[method-assign]
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -500,29 +518,17 @@ class Manoeuvring3DOFEnv(_ManoeuvringBase, gym.Env[np.ndarray, np.ndarray]):
     def step(
         self, action: Any
     ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
-        core = self._core
-        # an ndarray of the action space's shape (what agents pass) is read directly
-        # (``x - x`` is 0 for finite x, NaN otherwise); anything else goes through the
-        # full check, which also words the refusal
-        if (action.__class__ is _NDARRAY and action.shape == _THREE
-                and action.dtype.kind == "f"):
-            a = action.tolist()
-            if not (a[0] - a[0]) + (a[1] - a[1]) + (a[2] - a[2]) == 0.0:
-                require_reset(core.batch.rng is not None)
-                a = check_action(action, self.action_space.shape).tolist()
-        else:
-            require_reset(core.batch.rng is not None)
-            a = check_action(action, self.action_space.shape).tolist()
-        if core.batch.rng is None:
-            require_reset(False)
-        reward, terminated = core.step_single(a)
+        """Apply the normalised forces ``action`` for one sample.
+
+        Without a render mode the instance's ``step`` is the core's single step
+        (``_Core.step_single``) itself; this method adds the rendering."""
+        out = self._core.step_single(action)
         self._t += 1
         if self._hist is not None:
             self._record()
             if self.render_mode == "human":
                 self.render()
-        batch = core.batch
-        return batch.obs0.copy(), reward, terminated, False, batch.info_one()
+        return out
 
     def _record(self) -> None:
         self._append(self._t)

@@ -769,6 +769,19 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
             "resident memory from `wait4`; medians of "
             f"{mem.get('repeats', 1)} processes per log.",
             "",
+            "The command fixes glibc's mmap threshold (freed temporaries leave the "
+            "process), makes the C library's allocator Arrow's pool (a Parquet log's "
+            "columns hold no more than themselves), and between the steps of the fit "
+            "returns the clean code pages of LLVM (faulted in while numba loads the "
+            "kernels from its cache: 50–70 MB that the loaded kernels never run) and of "
+            "Arrow and Parquet (once the log is read) with `madvise(MADV_DONTNEED)` "
+            "(`vesselid.core.memory`): they leave the process's resident set and stay in "
+            "the page cache, and a later step that runs that code faults in the pages it "
+            "touches. A one-state log's measured state and input are read in place (the "
+            "fit's target and input are views of the log's columns, not copies). The peak "
+            "is then the log's arrays and the fit's temporaries on top of the imports and "
+            "numba's own Python objects.",
+            "",
             "| samples | peak RSS (MB) | wall (s) | CPU (s) | load average |",
             "|---:|---:|---:|---:|---:|",
         ]
@@ -787,7 +800,9 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
             lines += ["", f"A {mem['floor_samples']:,}-sample log on the compiled kernels "
                           f"(`VESSELID_KERNELS=compiled`): {mem['floor_peak_rss_mb']:.0f} MB, "
                           "what the process holds besides the log's own arrays (the "
-                          "imports, numba and its loaded kernels)."
+                          "imports, numba and its loaded kernels; its peak is reached "
+                          "while numba initialises LLVM and loads the first kernels, "
+                          "before their code pages are returned)."
                           + (" The logs of " + ", ".join(f"{n:,}" for n in numpy_sizes)
                              + " samples run on the numpy kernels, without numba."
                              if numpy_sizes else "")]

@@ -25,7 +25,7 @@ def test_invalid_actions_raise(name):
     shape = env.action_space.shape
     for bad, match in [(np.full(shape, np.nan), "finite"), (np.full(shape, -np.inf), "finite"),
                        (np.zeros((shape[0] + 1, *shape[1:])), "shape"),
-                       ("abc", "numbers")]:
+                       ("abc", "numbers"), (np.full(shape, 1 + 1j), "numbers")]:
         with pytest.raises(InvalidActionError, match=match):
             env.step(bad)
     obs, *_ = env.step(np.zeros(shape, dtype=np.float32))  # still usable afterwards

@@ -323,3 +323,67 @@ def test_single_env_is_the_vector_core_with_one_env(settings) -> None:
         done += term
     if "velocity_limit" in settings:
         assert done > 3  # terminations and the steps after them were exercised
+
+
+@pytest.mark.parametrize("settings", [{}, {"current_mean": 0.1, "reference_hold": (1, 3),
+                                           "reference_range": (0.5, 1.0), "velocity_limit": 1.2,
+                                           "initial_velocity": (0.0, 1.0),
+                                           "thrust_range": (-2.0, 3.0)}])
+def test_observations_stay_as_returned(settings) -> None:
+    """Every observation is an array of its own: later steps, reference changes, noise
+    blocks and resets never change one returned earlier, nor does writing into one."""
+    from vesselid.envs.heave import SINGLE_BLOCK
+
+    env = HeaveEnv(**settings)
+    obs, _ = env.reset(seed=2)
+    kept, copies, done = [obs], [obs.copy()], 0
+    actions = np.random.default_rng(0).uniform(-1, 1, size=(2 * SINGLE_BLOCK + 10, 1))
+    for i, a in enumerate(actions):
+        obs, _, term, _, _ = env.step(a)
+        kept.append(obs)
+        copies.append(obs.copy())
+        done += term
+        if term and i % 2:
+            obs, _ = env.reset()
+            kept.append(obs)
+            copies.append(obs.copy())
+    kept[5][:] = 99.0
+    copies[5][:] = 99.0
+    for obs, copy in zip(kept, copies, strict=True):
+        assert_array_equal(obs, copy)
+    assert done > 3 or not settings  # terminations, resets and autoresets were exercised
+
+
+def test_pickled_and_copied_env_steps_on_identically() -> None:
+    import copy
+    import pickle
+
+    env = HeaveEnv(current_mean=0.1)
+    env.reset(seed=4)
+    actions = np.random.default_rng(1).uniform(-1, 1, size=(1100, 1)).astype(np.float32)
+    for a in actions[:100]:
+        env.step(a)
+    clones = [copy.deepcopy(env), pickle.loads(pickle.dumps(env))]
+    for a in actions[100:]:
+        obs, r, term, trunc, info = env.step(a)
+        for clone in clones:
+            o, *rest = clone.step(a)
+            assert_array_equal(o, obs)
+            assert rest == [r, term, trunc, info]
+
+
+def test_subclass_step_override_is_called() -> None:
+    class Counting(HeaveEnv):
+        calls = 0
+
+        def step(self, action):
+            Counting.calls += 1
+            return super().step(action)
+
+    sub = Counting()
+    sub.reset(seed=0)
+    out = sub.step(np.array([0.5], np.float32))
+    ref = HeaveEnv()
+    ref.reset(seed=0)
+    assert Counting.calls == 1
+    assert_array_equal(out[0], ref.step(np.array([0.5], np.float32))[0])

@@ -222,3 +222,41 @@ def test_single_step_info_is_a_dict_of_that_step() -> None:
     later = env.step(a)[4]
     later["episode"] = 2
     assert later.pop("episode") == 2 and len(later) == len(expected)
+
+
+def test_pickled_and_copied_env_steps_on_identically():
+    import copy
+    import pickle
+
+    env = Manoeuvring3DOFEnv()
+    env.reset(seed=4)
+    actions = np.random.default_rng(1).uniform(-1, 1, size=(1100, 3)).astype(np.float32)
+    for a in actions[:100]:
+        env.step(a)
+    clones = [copy.deepcopy(env), pickle.loads(pickle.dumps(env))]
+    for n, a in enumerate(actions[100:]):  # across a disturbance block
+        obs, r, term, trunc, info = env.step(a)
+        for clone in clones:
+            o, *rest, i = clone.step(a)
+            assert o.tolist() == obs.tolist() and rest == [r, term, trunc]
+            if n % 100 == 0:
+                assert i.keys() == info.keys()
+                for k in info:
+                    np.testing.assert_array_equal(i[k], info[k])
+
+
+def test_subclass_step_override_is_called():
+    class Counting(Manoeuvring3DOFEnv):
+        calls = 0
+
+        def step(self, action):
+            Counting.calls += 1
+            return super().step(action)
+
+    sub = Counting()
+    sub.reset(seed=0)
+    out = sub.step(np.zeros(3, np.float32))
+    ref = Manoeuvring3DOFEnv()
+    ref.reset(seed=0)
+    assert Counting.calls == 1
+    np.testing.assert_array_equal(out[0], ref.step(np.zeros(3, np.float32))[0])

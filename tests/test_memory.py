@@ -623,3 +623,100 @@ def test_identify_command_equals_identify_on_the_log(tmp_path, capsys) -> None:
         assert "time" in TrialLog.load(path).data.columns
         assert main(["identify", str(path), "--json", "-"]) == 0
         assert capsys.readouterr().out.strip() == want.strip()
+
+
+_DROP_CODE = """
+import numpy as np
+from vesselid.core import memory
+
+assert memory.drop_library_code() == 0  # switched off: nothing is touched
+assert memory.release_library_code()
+from numba import njit
+
+@njit(cache=False)
+def before(x):
+    return np.sum(x * x)
+
+x = np.arange(1000.0)
+ref = before(x)
+
+def llvm_rss_kb():
+    kb, on = 0, False
+    for line in open("/proc/self/smaps"):
+        head = line.split()
+        if not head[0].endswith(":"):
+            on = len(head) > 5 and "libllvmlite" in head[5] and "w" not in head[1]
+        elif on and head[0] == "Rss:":
+            kb += int(head[1])
+    return kb
+
+held = llvm_rss_kb()
+advised = memory.drop_library_code()
+assert advised > 0, advised
+assert llvm_rss_kb() < held / 2, (llvm_rss_kb(), held)
+assert before(x) == ref  # a loaded kernel runs on
+
+@njit(cache=False)
+def after(x):  # and LLVM compiles again (its pages fault in again)
+    return np.sum(x * x)
+
+assert after(x) == ref
+assert memory.drop_library_code() == advised
+try:  # Arrow's code as well (the parquet extra): reading runs on after the drop
+    import io
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+except ImportError:
+    pass
+else:
+    buf = io.BytesIO()
+    pq.write_table(pa.table({"a": x}), buf)
+    assert memory.drop_library_code() > advised
+    assert np.array_equal(pq.read_table(io.BytesIO(buf.getvalue()))["a"].to_numpy(), x)
+print("ok")
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="madvise and /proc: Linux")
+def test_dropped_llvm_code_pages_leave_kernels_working() -> None:
+    """``drop_library_code`` (switched on by ``release_library_code``) takes LLVM's (and
+    Arrow's) clean code pages out of the resident memory; compiled kernels run on, LLVM
+    compiles and Parquet reads again afterwards (own process: the switch is
+    process-wide)."""
+    import subprocess
+
+    out = subprocess.run([sys.executable, "-c", _DROP_CODE], capture_output=True, text=True,
+                         timeout=120, check=False)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "ok"
+
+
+def test_one_state_regression_data_shares_the_log_columns(monkeypatch) -> None:
+    """A one-state, one-input log's target and input are the log's own float64 columns
+    (views, read-only: nothing writes into them), not copies held beside the log; the
+    estimate is that of copied arrays."""
+    import warnings
+
+    from vesselid.identify import identify
+    from vesselid.identify.data import from_log
+    from vesselid.plant.systems import heave
+
+    log = heave().simulate(3000, seed=4).to_log()
+    data, spec = from_log(log)
+    assert list(spec.states) == ["w"] and list(spec.inputs) == ["tau"]
+    assert np.shares_memory(data.target, log.data["w"].to_numpy())
+    assert np.shares_memory(data.u, log.data["tau"].to_numpy())
+    assert not data.target.flags.writeable
+    assert data.target.flags.c_contiguous and data.u.flags.c_contiguous
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        got = identify(log)
+        from vesselid.identify import data as data_mod
+
+        # the copying form: fresh, writeable arrays
+        monkeypatch.setattr(data_mod, "_columns", lambda frame, names: np.column_stack(
+            [frame[c].to_numpy(float) for c in names]))
+        assert data_mod.from_log(log)[0].target.flags.writeable
+        ref = identify(log)
+    np.testing.assert_array_equal(got.params.to_numpy(), ref.params.to_numpy())
+    np.testing.assert_array_equal(got.cov.to_numpy(), ref.cov.to_numpy())

@@ -217,6 +217,9 @@ def cmd_identify(args: argparse.Namespace) -> int:
     # more than themselves (vesselid.core.memory; Arrow's pool is chosen on its import)
     _memory.unmap_large_blocks()
     _memory.arrow_system_allocator()
+    # and the code pages of Arrow (once the log is read) and of LLVM (once numba has
+    # loaded the kernels) leave it between the steps of the fit
+    _memory.release_library_code()
     from vesselid.core import limits
     from vesselid.data.logs import TrialLog, estimate_shape
     from vesselid.identify import identify

@@ -31,6 +31,8 @@ from collections.abc import Callable, Iterator
 from types import ModuleType
 from typing import Any
 
+from vesselid.core.memory import drop_library_code
+
 __all__ = ["NUMPY_MAX_SAMPLE_TERMS", "choose", "chooses_kernels", "ivk", "kernels",
            "loaded_kernel", "numpy_active", "use_numpy"]
 
@@ -126,7 +128,14 @@ class _Kernels:
     @property
     def module(self) -> ModuleType:
         """The compiled module (imports numba)."""
-        return importlib.import_module(self._compiled)
+        first = self._compiled not in sys.modules
+        mod = importlib.import_module(self._compiled)
+        if first:
+            # the pages of LLVM's code that loading the library faulted in (its static
+            # initialisers) leave the process before the first kernel is loaded, where
+            # the command asked for it (vesselid.core.memory)
+            drop_library_code()
+        return mod
 
 
 #: :mod:`vesselid.identify.kernels` or its numpy counterparts.

@@ -27,6 +27,7 @@ from typing import Any, ClassVar
 import numpy as np
 import pandas as pd
 
+from vesselid.core.memory import drop_library_code
 from vesselid.errors import (
     ConvergenceWarning,
     EstimationFailedError,
@@ -315,12 +316,21 @@ class Estimator:
         """
         run = _FitRun(FitOptions.of(options, **overrides), _Warner())
         self._resolve(run)
+        # between the steps, the code pages of the libraries that read the log and
+        # loaded the compiled kernels leave the process where the command asked for it
+        # (core.memory)
+        drop_library_code()
         self._regression(run, log, spec)
+        drop_library_code()
         self._estimate(run)
+        drop_library_code()
         self._feedback(run, log)
+        drop_library_code()
         self._covariance(run)
         self._convergence(run)
+        drop_library_code()
         self._specification(run)
+        drop_library_code()
         self._fit_quality(run)
         self._estimator_warnings(run)
         return self._result(run)

@@ -199,7 +199,10 @@ def _noise_order(val: Any) -> int | None:
 
 def _columns(frame: Any, names: Sequence[str]) -> np.ndarray:
     """``frame[list(names)].to_numpy(float)`` (the same numbers, C order) without the
-    intermediate DataFrame."""
+    intermediate DataFrame; one float64 column is the column itself (a read-only view:
+    no copy of a long log's column is held beside the log)."""
+    if len(names) == 1:
+        return frame[names[0]].to_numpy(float)[:, None]
     return np.column_stack([frame[c].to_numpy(float) for c in names])
 
 

@@ -894,12 +894,24 @@ class VesselBatch:
         self.dist = np.zeros((self.n, self.block + 1, N_DIST))
         self.latent = np.zeros((self.n, N_GM))
         self.obs = np.zeros((self.n, len(self.channels)), dtype=np.float32)
-        self.obs0 = self.obs[0]  # vessel 0's readings (a view; the single environment's)
+        self._views()
         self.j = 0
         self.rng: np.random.Generator | None = None
         self.no_skip = np.zeros(self.n, dtype=np.bool_)
         self.info_slices = ([(k, LAYOUT.slice(k)) for k in INFO_BLOCKS]
                             + LAYOUT.sensor_slices(model.sensors))
+
+    def _views(self) -> None:
+        """Views of vessel 0 (the single environment's): its readings and info block."""
+        self.obs0 = self.obs[0]
+        self.info0 = self.st[0, :S_INFO]
+
+    def __getstate__(self) -> dict[str, Any]:  # a copy's views must view its own arrays
+        return {k: v for k, v in self.__dict__.items() if k not in ("obs0", "info0")}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._views()
 
     def set_state(self, idx: np.ndarray, nu: np.ndarray, eta: np.ndarray,
                   current_direction: np.ndarray, wind_direction: np.ndarray) -> None:
@@ -956,7 +968,7 @@ class VesselBatch:
     def info_one(self) -> dict[str, np.ndarray]:
         """:meth:`info` of vessel 0 of a batch of one: the fresh copy is taken now, its
         views are made when the dict is first read (:class:`LazyInfo`)."""
-        return LazyInfo(self.st[0, :S_INFO].copy(), self.info_slices)
+        return LazyInfo(self.info0.copy(), self.info_slices)
 
     def block_of(self, name: str) -> np.ndarray:
         """View of a named block of every vessel's state row (:data:`LAYOUT`)."""
