@@ -190,3 +190,48 @@ def test_line_search_several_trial_steps_at_once_takes_the_same_steps(model, mon
     assert calls and set(calls) == {1}  # the reference searched one step at a time
     _same_fit(batched, single)
     _same_fit(spread, single)
+
+
+def test_aside_runs_in_a_copy_of_the_callers_context():
+    import contextvars
+
+    var = contextvars.ContextVar("aside_probe", default="unset")
+    token = var.set("caller")
+    try:
+        job = threads.aside(var.get)
+        assert job is None or job.result() == "caller"
+        with threads.serial_here():
+            assert threads.aside(lambda: 1) is None  # a worker runs it itself
+    finally:
+        var.reset(token)
+
+
+def test_auto_with_the_likelihood_fit_aside_gives_the_serial_numbers(monkeypatch):
+    """``auto`` on a coloured-current log runs its likelihood fit on a thread of its own
+    (its candidate models then on two threads): every number of the result is the
+    serial fit's."""
+    import warnings
+
+    from vesselid.identify import identify
+
+    if threads.n_threads() < 2:
+        pytest.skip("one core: the fit runs in turn either way")
+    system, _, _ = heave_scenario("gm-current-random")
+    log = system.simulate(3000, seed=3).to_log(aggregate=False)
+    started = []
+    real = threads.aside
+
+    def spy(fn):
+        job = real(fn)
+        started.append(job is not None)
+        return job
+
+    monkeypatch.setattr(threads, "aside", spy)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        threaded = identify(log)
+        with threads.serial_here():
+            serial = identify(log)
+    assert started == [True, False]  # aside in the first fit, in turn in the second
+    assert threaded.diagnostics["choice"].startswith("pem")
+    assert threaded.to_json() == serial.to_json()

@@ -90,3 +90,30 @@ def test_bartlett_lagged_is_the_lag_sum() -> None:
         same = (seg[lag:] == seg[:-lag])[:, None]
         want += (1.0 - lag / (bw + 1.0)) * ((sc[lag:] * same).T @ sc[:-lag])
     np.testing.assert_allclose(sc.T @ out, want, rtol=1e-12, atol=1e-12)
+
+
+def test_score_and_selection_kernels_equal_their_numpy_formulations():
+    """The quasi-ML scores and the selection quadrature's sums, compiled, give the bits of
+    the numpy expressions they replace (non-finite scores zeroed, NaN counted largest)."""
+    from vesselid.identify._pemkernels import quasi_scores, selection_sums
+
+    rng = np.random.default_rng(1)
+    d, t = 7, 2000
+    je, js = rng.standard_normal((d, t)) * 1e3, rng.standard_normal((d, t))
+    eps, var = rng.standard_normal(t), rng.random(t) + 1e-3
+    var[::97], eps[::89] = 0.0, np.inf
+    with np.errstate(all="ignore"):
+        inv_s = 1.0 / var
+        sc = je * (eps * inv_s) + 0.5 * js * (inv_s - eps * eps * inv_s * inv_s)
+    out = np.empty((t, d))
+    quasi_scores(je, js, eps, var, out)
+    np.testing.assert_array_equal(out, np.where(np.isfinite(sc), sc, 0.0).T)
+    assert np.all(np.signbit(out) == np.signbit(np.where(np.isfinite(sc), sc, 0.0).T))
+    z = rng.standard_normal((5000, 6))
+    z[::250, 3] = np.nan
+    z[7] = 2.0  # a tie: the first column
+    pick = np.argmax(np.abs(z), axis=1)
+    want = np.bincount(pick, weights=z[np.arange(z.shape[0]), pick] ** 2, minlength=6)
+    got = np.empty(6)
+    selection_sums(z, got)
+    np.testing.assert_array_equal(got, want)

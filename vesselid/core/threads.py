@@ -27,6 +27,7 @@ changes a number.
 
 from __future__ import annotations
 
+import contextvars
 import os
 import threading
 import time
@@ -34,9 +35,9 @@ from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from typing import Any
 
-__all__ = ["CHUNKS_PER_THREAD", "ahead", "background", "busy", "collect", "idle_cores",
-           "n_threads", "run_ranges", "serial", "serial_here", "share_cores", "span_clock",
-           "usable_cores"]
+__all__ = ["CHUNKS_PER_THREAD", "ahead", "aside", "background", "busy", "collect",
+           "idle_cores", "n_threads", "run_ranges", "serial", "serial_here", "share_cores",
+           "span_clock", "usable_cores"]
 
 #: Chunks per thread (several, so that uneven items — early divergence, converged groups
 #: skipped — still balance).
@@ -45,6 +46,7 @@ CHUNKS_PER_THREAD = 4
 _POOL: ThreadPoolExecutor | None = None
 _BACKGROUND: ThreadPoolExecutor | None = None
 _AHEAD: ThreadPoolExecutor | None = None
+_ASIDE: ThreadPoolExecutor | None = None
 _AHEAD_JOBS: list[Future] = []
 #: Jobs computed ahead at once (:func:`ahead`).
 AHEAD_JOBS = 2
@@ -123,9 +125,9 @@ class serial_here:
 def _forget_pool() -> None:
     """In a forked child: the parent's pool threads do not exist there, so start afresh
     (a pool whose threads are gone would never run the submitted chunks)."""
-    global _POOL, _POOL_SIZE, _LOCK, _BACKGROUND, _SHARED, _AHEAD, _AHEAD_JOBS
+    global _POOL, _POOL_SIZE, _LOCK, _BACKGROUND, _SHARED, _AHEAD, _AHEAD_JOBS, _ASIDE
     _POOL, _POOL_SIZE, _LOCK, _BACKGROUND, _SHARED = None, 0, threading.Lock(), None, None
-    _AHEAD, _AHEAD_JOBS = None, []
+    _AHEAD, _AHEAD_JOBS, _ASIDE = None, [], None
 
 
 def share_cores(count: Any, cores: int) -> None:
@@ -183,6 +185,24 @@ def background(fn: Callable[[], Any]) -> Future | None:
             _BACKGROUND = ThreadPoolExecutor(max_workers=1, thread_name_prefix="vesselid-bg",
                                              initializer=_mark_worker)
         return _BACKGROUND.submit(fn)
+
+
+def aside(fn: Callable[[], Any]) -> Future | None:
+    """``fn()`` started on a thread of its own, in a copy of the caller's context
+    (:func:`contextvars.copy_context`: the kernel choice, numpy's error state), where the
+    calling thread may use more than one (:func:`n_threads` above one) and is not itself
+    a worker (:func:`serial`); ``None`` otherwise (the caller runs it itself). Unlike
+    :func:`background`'s thread, this one may hand a job of its own to
+    :func:`background`: for work that runs on two threads itself (a likelihood fit's
+    candidate models)."""
+    global _ASIDE
+    if serial() or n_threads() < 2:
+        return None
+    ctx = contextvars.copy_context()
+    with _LOCK:
+        if _ASIDE is None:
+            _ASIDE = ThreadPoolExecutor(max_workers=1, thread_name_prefix="vesselid-aside")
+        return _ASIDE.submit(ctx.run, fn)
 
 
 def ahead(fn: Callable[[], Any]) -> Future | None:

@@ -30,7 +30,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["N_NOISE", "bartlett_lagged", "gaussian_filter", "gaussian_filter_tangent",
-           "term_kinds"]
+           "quasi_scores", "selection_sums", "term_kinds"]
 
 #: Noise parameters after θ in a parameter row (μ_w, ρ_v, σ_v, ρ_c, σ_c, σ_w, σ_e).
 N_NOISE = 7
@@ -462,6 +462,45 @@ def bartlett_lagged(sc, starts, bw, out):  # pragma: no cover
                 w = 1.0 - lag / (bw + 1.0)
                 for j in range(nd):
                     out[k, j] += w * sc[k - lag, j]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def quasi_scores(je, js, eps, var, out):  # pragma: no cover
+    """The per-sample scores of the quasi-likelihood, ``out[k, j] = ∂ε_j(k) ε/S +
+    ½ ∂S_j(k) (1/S − ε²/S²)`` for sensitivities ``je``, ``js`` (d, T), innovations
+    ``eps`` and variances ``var`` (T,), 0 where not finite; (T, d). The operations of
+    the numpy expression ``je * (eps / S) + 0.5 * js * (1/S − eps·eps/S/S)`` (``/S`` as the
+    product with ``1/S``) in its order, element by element: the same numbers."""
+    d = je.shape[0]
+    for k in range(eps.size):
+        inv = 1.0 / var[k]
+        we = eps[k] * inv
+        ws = inv - eps[k] * eps[k] * inv * inv
+        for j in range(d):
+            v = je[j, k] * we + 0.5 * js[j, k] * ws
+            out[k, j] = v if np.isfinite(v) else 0.0
+
+
+@njit(cache=True, nogil=True)
+def selection_sums(z, out):  # pragma: no cover
+    """``out[j] = Σ_i z[i, J_i]²`` over the rows ``i`` of ``z`` (N, k) whose largest
+    ``|z[i, ·]|`` is in column ``J_i = j`` (the first largest; a NaN counts as the
+    largest, as in ``np.argmax``), summed in row order: ``np.bincount(J, weights=z[i,
+    J]**2)``, the same numbers."""
+    out[:] = 0.0
+    for i in range(z.shape[0]):
+        best = 0
+        top = abs(z[i, 0])
+        if not np.isnan(top):
+            for j in range(1, z.shape[1]):
+                v = abs(z[i, j])
+                if np.isnan(v):
+                    best = j
+                    break
+                if v > top:
+                    best, top = j, v
+        w = z[i, best]
+        out[best] += w * w
 
 
 def term_kinds(fac: np.ndarray, n_signals: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -271,14 +271,16 @@ class _Filter:
 
 
 def load_kernels() -> None:
-    """Load (or compile, on first use) the filter kernel with the signature every fit
-    calls it with (:mod:`vesselid.studies.precompile` compiles the same one)."""
+    """Load (or compile, on first use) the kernels with the signatures every fit calls
+    them with: the filter, its tangent pass, the scores' HAC sums and the selection
+    quadrature (:mod:`vesselid.studies.precompile` compiles the same filter kernels)."""
     fac = np.array([[0, 4], [0, 2], [1, 4]], dtype=np.int64)  # heave: x, x|x|, u
     filt = _Filter(np.zeros(4), np.zeros((4, 1)), np.array([0, 4]), fac, parallel=False)
     filt.run(np.zeros((1, fac.shape[0] + 7)))
     _, _, je, js, *_ = filt.tangent(np.zeros(fac.shape[0] + 7),
                                     np.arange(fac.shape[0] + 7))
     _score_hac(je, js, np.zeros(4), np.ones(4), filt.starts)
+    _selection_weights(np.eye(2))
 
 
 def _nll_terms(eps: np.ndarray, var: np.ndarray) -> np.ndarray:
@@ -521,15 +523,13 @@ def _score_hac(je: np.ndarray | None, js: np.ndarray | None, eps: np.ndarray,
     """Bartlett HAC long-run variance of the per-sample scores
     ``s(k) = ∂ε/∂ψ ε/S + ½ ∂S/∂ψ (1/S − ε²/S²)`` (the meat of the quasi-ML sandwich;
     Newey–West bandwidth, lags not across experiment boundaries)."""
-    from vesselid.identify._pemkernels import bartlett_lagged
+    from vesselid.identify._pemkernels import bartlett_lagged, quasi_scores
     from vesselid.identify.gmm import hac_lags
 
     if je is None or js is None:
         return None
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        inv_s = 1.0 / var
-        sc = je * (eps * inv_s) + 0.5 * js * (inv_s - eps * eps * inv_s * inv_s)
-    sc = np.ascontiguousarray(np.where(np.isfinite(sc), sc, 0.0).T)  # (T, d)
+    sc = np.empty((eps.size, je.shape[0]))  # (T, d), 0 where not finite
+    quasi_scores(np.ascontiguousarray(je), np.ascontiguousarray(js), eps, var, sc)
     # Σ_lag w_lag Σ_k s(k) s(k−lag)ᵀ = Σ_k s(k) f(k)ᵀ with f(k) = Σ_lag w_lag s(k−lag)
     # (Bartlett weights, pairs within one experiment): one product instead of one a lag
     lagged = np.empty_like(sc)
@@ -639,12 +639,14 @@ def _selection_weights(corr: np.ndarray) -> np.ndarray:
     """``w_j = E[Z_J² 1{J = j}]`` for ``Z ~ N(0, corr)`` and ``J = argmax_j |Z_j|``: the
     variance the choice of the largest ``|z|`` over the grid adds (``Σ_j w_j ≥ 1``; one grid
     point: 1)."""
+    from vesselid.identify._pemkernels import selection_sums
+
     lam, vec = np.linalg.eigh(0.5 * (corr + corr.T))
     root = vec * np.sqrt(np.maximum(lam, 0.0))
     z = _normals(corr.shape[0]) @ root.T
-    pick = np.argmax(np.abs(z), axis=1)
-    top = z[np.arange(z.shape[0]), pick] ** 2
-    return np.bincount(pick, weights=top, minlength=corr.shape[0]) / z.shape[0]
+    sums = np.empty(corr.shape[0])
+    selection_sums(np.ascontiguousarray(z), sums)  # the argmax of |z| and its bincount
+    return sums / z.shape[0]
 
 
 def _local_joint(filt: _Filter, single: dict[str, Any], n_par: int,
