@@ -235,3 +235,13 @@ def test_auto_with_the_likelihood_fit_aside_gives_the_serial_numbers(monkeypatch
     assert started == [True, False]  # aside in the first fit, in turn in the second
     assert threaded.diagnostics["choice"].startswith("pem")
     assert threaded.to_json() == serial.to_json()
+
+
+def test_aside_on_its_own_thread_runs_the_job_in_place():
+    """A job asked aside from the aside thread itself runs there (its one thread would
+    wait for a job queued behind the one it runs)."""
+    if threads.n_threads() < 2:
+        pytest.skip("aside needs two threads")
+    job = threads.aside(lambda: threads.aside(lambda: 1))
+    assert job is not None
+    assert job.result(timeout=10) is None

@@ -187,6 +187,10 @@ def background(fn: Callable[[], Any]) -> Future | None:
         return _BACKGROUND.submit(fn)
 
 
+def _mark_aside() -> None:
+    _LOCAL.aside = True
+
+
 def aside(fn: Callable[[], Any]) -> Future | None:
     """``fn()`` started on a thread of its own, in a copy of the caller's context
     (:func:`contextvars.copy_context`: the kernel choice, numpy's error state), where the
@@ -194,14 +198,16 @@ def aside(fn: Callable[[], Any]) -> Future | None:
     a worker (:func:`serial`); ``None`` otherwise (the caller runs it itself). Unlike
     :func:`background`'s thread, this one may hand a job of its own to
     :func:`background`: for work that runs on two threads itself (a likelihood fit's
-    candidate models)."""
+    candidate models). ``None`` on the aside thread itself: its one thread would wait
+    for a job queued behind the one it runs."""
     global _ASIDE
-    if serial() or n_threads() < 2:
+    if serial() or n_threads() < 2 or getattr(_LOCAL, "aside", False):
         return None
     ctx = contextvars.copy_context()
     with _LOCK:
         if _ASIDE is None:
-            _ASIDE = ThreadPoolExecutor(max_workers=1, thread_name_prefix="vesselid-aside")
+            _ASIDE = ThreadPoolExecutor(max_workers=1, thread_name_prefix="vesselid-aside",
+                                        initializer=_mark_aside)
         return _ASIDE.submit(ctx.run, fn)
 
 
