@@ -96,7 +96,8 @@ from vesselid.identify.estimators import IterationResult, estimate
 from vesselid.model.spec import ModelSpec
 
 __all__ = ["BOUNDARIES", "COVARIANCES", "DISTURBANCE_MODELS", "JOINT", "JOINT_LOCAL",
-           "PredictionError", "assumption_text", "fit_groups", "load_kernels", "supports"]
+           "OneStateLikelihood", "PredictionError", "assumption_text", "fit_groups",
+           "load_kernels", "supports"]
 
 #: The disturbance models fitted (see module docstring).
 DISTURBANCE_MODELS = ("current", "sensor")
@@ -1038,7 +1039,79 @@ def conservative_covariance(fisher: np.ndarray, sandwich: np.ndarray) -> np.ndar
     return fisher + (vec * np.maximum(lam, 0.0)) @ vec.T
 
 
-class PredictionError(Estimator):
+class OneStateLikelihood(Estimator):
+    """The frame of a likelihood estimator of one state equation without a disturbance
+    sensor (:func:`supports`), started from IV_{E{ζ}=0}: the fit of every group by
+    :meth:`fit_groups_from` (a dict of per-group arrays with ``theta``, ``converged``,
+    ``iterations``, ``reason`` and the covariances of :data:`COVARIANCE_KEYS`, kept in the
+    result's ``info`` under :attr:`info_prefix`), its own covariance as reported
+    (``covariance``) and the measured regressors as the diagnostics' design."""
+
+    uses_instruments: ClassVar[bool] = False
+    multi_experiment: ClassVar[tuple[str, ...]] = ("pooled",)
+    reports_convergence: ClassVar[bool] = True
+    #: The prefix of the fit's arrays in the result's ``info``.
+    info_prefix: ClassVar[str] = ""
+    covariance: str
+
+    def fit_groups_from(self, data: RegressionData, spec: ModelSpec,
+                        theta_start: np.ndarray) -> dict[str, np.ndarray]:
+        """Every group of ``data`` fitted from the rows of ``theta_start`` (G, P)."""
+        raise NotImplementedError
+
+    def covariance_label(self) -> tuple[str, str]:
+        """``(cov_type, label)`` of the reported covariance."""
+        raise NotImplementedError
+
+    def _check_spec(self, spec: ModelSpec) -> None:
+        if not supports(spec):
+            has = ([f"{spec.n_states} state equations"] if spec.n_states != 1 else []) + (
+                ["an [aggregate] relation (a disturbance sensor)"] if spec.aggregate else [])
+            raise IdentificationError(
+                f"method {self.name!r} models one state equation without a disturbance "
+                f"sensor; this spec has {' and '.join(has)} — use 'auto' or 'iv-zero-mean'")
+
+    def _check_data(self, data: RegressionData) -> None:
+        """One-line reasons for a log the model does not describe (none here)."""
+
+    def estimate_parameters(self, data: RegressionData, spec: ModelSpec, *,
+                            combine: str = "pooled", theta_start: np.ndarray | None = None,
+                            max_iter: int = 100, tol: float = 1e-9,
+                            keep_history: bool = False,
+                            base: IterationResult | None = None) -> IterationResult:
+        """Every group from its IV_{E{ζ}=0} estimate (``base`` if given)."""
+        self._validate(spec)
+        self._check_data(data)
+        if base is None:
+            base = estimate(data, spec, "iv-zero-mean", combine="pooled",
+                            theta_start=theta_start, max_iter=max_iter, tol=tol)
+        res = self.fit_groups_from(data, spec, base.theta)
+        theta = res.pop("theta")
+        n = data.n_groups
+        reason = np.where(np.isfinite(base.theta).all(axis=1), res["reason"], base.reason)
+        prefix = self.info_prefix
+        return IterationResult(
+            theta=theta, theta_aux=theta.copy(), converged=res["converged"].copy(),
+            iterations=res["iterations"].copy(), reason=reason.astype(object),
+            residual=np.zeros(n), oscillation=np.zeros(n, dtype=bool), start=base.start,
+            info={"base": base, **{f"{prefix}{k}": v for k, v in res.items()}},
+            history=[theta.copy()] if keep_history else [],
+        )
+
+    def equation_designs(self, data, spec, it, phi, combine):
+        # the measured regressors and one-step residuals (diagnostics only: the
+        # covariance is the likelihood's own, :meth:`own_covariance`)
+        return square_designs(data, spec, phi, phi, it.theta[0], zero_mean=False,
+                              combine=combine)
+
+    def own_covariance(self, it: IterationResult) -> np.ndarray | None:
+        return it.info[self.info_prefix + COVARIANCE_KEYS[self.covariance]][0]
+
+    def own_covariance_label(self, it: IterationResult) -> tuple[str, str]:
+        return self.covariance_label()
+
+
+class PredictionError(OneStateLikelihood):
     """Prediction-error / quasi-ML estimator with the current or the sensor noise as a
     Gauss–Markov filter state (module docstring).
 
@@ -1064,9 +1137,7 @@ class PredictionError(Estimator):
                             "noise as filter states")
     short: ClassVar[str] = "PEM"
     plot_label: ClassVar[str] = "PEM"
-    uses_instruments: ClassVar[bool] = False
-    multi_experiment: ClassVar[tuple[str, ...]] = ("pooled",)
-    reports_convergence: ClassVar[bool] = True
+    info_prefix: ClassVar[str] = "pem_"
 
     def __init__(self, scoring_iter: int = 100, scoring_tol: float = SCORING_TOL,
                  joint: bool = False, covariance: str = "fisher") -> None:
@@ -1086,12 +1157,7 @@ class PredictionError(Estimator):
             raise IdentificationError(
                 f"scoring_tol must be a positive number, got {self.scoring_tol!r}")
         check_pem_options(self.joint, self.covariance)
-        if not supports(spec):
-            has = ([f"{spec.n_states} state equations"] if spec.n_states != 1 else []) + (
-                ["an [aggregate] relation (a disturbance sensor)"] if spec.aggregate else [])
-            raise IdentificationError(
-                "method 'pem' models one state equation without a disturbance sensor; "
-                f"this spec has {' and '.join(has)} — use 'auto' or 'iv-zero-mean'")
+        self._check_spec(spec)
 
     def check_covariance(self, cov_type: str | None) -> None:
         if cov_type is not None:
@@ -1099,39 +1165,12 @@ class PredictionError(Estimator):
                 "method 'pem' reports the inverse Fisher information of its likelihood; "
                 f"cov_type {cov_type!r} applies to the instrumental-variable estimators")
 
-    def estimate_parameters(self, data: RegressionData, spec: ModelSpec, *,
-                            combine: str = "pooled", theta_start: np.ndarray | None = None,
-                            max_iter: int = 100, tol: float = 1e-9,
-                            keep_history: bool = False,
-                            base: IterationResult | None = None) -> IterationResult:
-        """Every group from its IV_{E{ζ}=0} estimate (``base`` if given)."""
-        self._validate(spec)
-        if base is None:
-            base = estimate(data, spec, "iv-zero-mean", combine="pooled",
-                            theta_start=theta_start, max_iter=max_iter, tol=tol)
-        res = fit_groups(data, spec, base.theta, max_iter=int(self.scoring_iter),
-                         tol=float(self.scoring_tol), joint=bool(self.joint))
-        theta = res.pop("theta")
-        n = data.n_groups
-        reason = np.where(np.isfinite(base.theta).all(axis=1), res["reason"], base.reason)
-        return IterationResult(
-            theta=theta, theta_aux=theta.copy(), converged=res["converged"].copy(),
-            iterations=res["iterations"].copy(), reason=reason.astype(object),
-            residual=np.zeros(n), oscillation=np.zeros(n, dtype=bool), start=base.start,
-            info={"base": base, **{f"pem_{k}": v for k, v in res.items()}},
-            history=[theta.copy()] if keep_history else [],
-        )
+    def fit_groups_from(self, data: RegressionData, spec: ModelSpec,
+                        theta_start: np.ndarray) -> dict[str, np.ndarray]:
+        return fit_groups(data, spec, theta_start, max_iter=int(self.scoring_iter),
+                          tol=float(self.scoring_tol), joint=bool(self.joint))
 
-    def equation_designs(self, data, spec, it, phi, combine):
-        # the measured regressors and one-step residuals (diagnostics only: the
-        # covariance is the likelihood's own, :meth:`own_covariance`)
-        return square_designs(data, spec, phi, phi, it.theta[0], zero_mean=False,
-                              combine=combine)
-
-    def own_covariance(self, it: IterationResult) -> np.ndarray | None:
-        return it.info["pem_" + COVARIANCE_KEYS[self.covariance]][0]
-
-    def own_covariance_label(self, it: IterationResult) -> tuple[str, str]:
+    def covariance_label(self) -> tuple[str, str]:
         return covariance_label(self.covariance)
 
     def describe(self, it: IterationResult) -> dict[str, Any]:

@@ -47,17 +47,14 @@ from typing import Any, ClassVar
 import numpy as np
 
 from vesselid.errors import IdentificationError
-from vesselid.identify.base import Estimator, square_designs
 from vesselid.identify.data import RegressionData
-from vesselid.identify.estimators import IterationResult, estimate
+from vesselid.identify.estimators import IterationResult
+from vesselid.identify.pem import COVARIANCES, OneStateLikelihood
 from vesselid.model.spec import ModelSpec
 
 __all__ = ["COVARIANCES", "SwitchingCurrent", "fit_groups", "switching_loglik_terms",
            "vuong_switching"]
 
-COVARIANCES = ("fisher", "sandwich", "conservative")
-COVARIANCE_KEYS = {"fisher": "cov", "sandwich": "cov_sandwich",
-                   "conservative": "cov_conservative"}
 NOISE_NAMES = ("mu_w", "c", "p", "sigma_w", "sigma_e")
 
 CONVERGED = "converged"
@@ -469,7 +466,7 @@ ASSUMPTION = ("this estimate assumes the current inside the modulus switches bet
               "and 'pem'")
 
 
-class SwitchingCurrent(Estimator):
+class SwitchingCurrent(OneStateLikelihood):
     """Maximum likelihood with a two-level Markov-switching current inside the modulus
     (interacting-multiple-model filter; module docstring).
 
@@ -489,9 +486,7 @@ class SwitchingCurrent(Estimator):
                             "current inside the modulus (IMM filter)")
     short: ClassVar[str] = "PEM switching"
     plot_label: ClassVar[str] = "PEM (switching)"
-    uses_instruments: ClassVar[bool] = False
-    multi_experiment: ClassVar[tuple[str, ...]] = ("pooled",)
-    reports_convergence: ClassVar[bool] = True
+    info_prefix: ClassVar[str] = "sw_"
 
     def __init__(self, max_iter: int = 100, tol: float = TOL,
                  covariance: str = "conservative") -> None:
@@ -512,12 +507,7 @@ class SwitchingCurrent(Estimator):
         if self.covariance not in COVARIANCES:
             raise IdentificationError(
                 f"covariance must be one of {list(COVARIANCES)}, got {self.covariance!r}")
-        if not supports(spec):
-            has = ([f"{spec.n_states} state equations"] if spec.n_states != 1 else []) + (
-                ["an [aggregate] relation (a disturbance sensor)"] if spec.aggregate else [])
-            raise IdentificationError(
-                "method 'pem-switching' models one state equation without a disturbance "
-                f"sensor; this spec has {' and '.join(has)} — use 'auto' or 'iv-zero-mean'")
+        self._check_spec(spec)
 
     def check_covariance(self, cov_type: str | None) -> None:
         if cov_type is not None:
@@ -525,42 +515,18 @@ class SwitchingCurrent(Estimator):
                 "method 'pem-switching' reports its likelihood's own covariance; "
                 f"cov_type {cov_type!r} applies to the instrumental-variable estimators")
 
-    def estimate_parameters(self, data: RegressionData, spec: ModelSpec, *,
-                            combine: str = "pooled", theta_start: np.ndarray | None = None,
-                            max_iter: int = 100, tol: float = 1e-9,
-                            keep_history: bool = False,
-                            base: IterationResult | None = None) -> IterationResult:
-        """Every group from its IV_{E{ζ}=0} estimate (``base`` if given)."""
-        self._validate(spec)
+    def _check_data(self, data: RegressionData) -> None:
         if data.lowpassed:
             raise IdentificationError(
                 "method 'pem-switching' needs an unfiltered log (the low-pass filter is "
                 "not part of its model) — use 'auto'")
-        if base is None:
-            base = estimate(data, spec, "iv-zero-mean", combine="pooled",
-                            theta_start=theta_start, max_iter=max_iter, tol=tol)
-        res = fit_groups(data, spec, base.theta, max_iter=int(self.max_iter),
-                         tol=float(self.tol))
-        theta = res.pop("theta")
-        n = data.n_groups
-        reason = np.where(np.isfinite(base.theta).all(axis=1), res["reason"], base.reason)
-        return IterationResult(
-            theta=theta, theta_aux=theta.copy(), converged=res["converged"].copy(),
-            iterations=res["iterations"].copy(), reason=reason.astype(object),
-            residual=np.zeros(n), oscillation=np.zeros(n, dtype=bool), start=base.start,
-            info={"base": base, **{f"sw_{k}": v for k, v in res.items()}},
-            history=[theta.copy()] if keep_history else [],
-        )
 
-    def equation_designs(self, data, spec, it, phi, combine):
-        # diagnostics only: the covariance is the likelihood's own
-        return square_designs(data, spec, phi, phi, it.theta[0], zero_mean=False,
-                              combine=combine)
+    def fit_groups_from(self, data: RegressionData, spec: ModelSpec,
+                        theta_start: np.ndarray) -> dict[str, np.ndarray]:
+        return fit_groups(data, spec, theta_start, max_iter=int(self.max_iter),
+                          tol=float(self.tol))
 
-    def own_covariance(self, it: IterationResult) -> np.ndarray | None:
-        return it.info["sw_" + COVARIANCE_KEYS[self.covariance]][0]
-
-    def own_covariance_label(self, it: IterationResult) -> tuple[str, str]:
+    def covariance_label(self) -> tuple[str, str]:
         return covariance_label(self.covariance)
 
     def describe(self, it: IterationResult) -> dict[str, Any]:
