@@ -161,20 +161,9 @@ def markdown(summary: pd.DataFrame, df: pd.DataFrame, args: argparse.Namespace) 
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--runs", type=int, default=200)
-    ap.add_argument("--samples", type=int, default=10_000)
-    ap.add_argument("--seed", type=int, default=7)
-    ap.add_argument("--designs", nargs="+", default=list(DESIGNS))
-    ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "docs")
+    ap = rs.study_parser(__doc__.split("\n\n")[0], runs=200, seed=7, designs=DESIGNS)
     args = ap.parse_args(argv)
-    if args.runs < 2:
-        ap.error("--runs must be at least 2")
-    if args.samples < 200:
-        ap.error("--samples must be at least 200")
-    bad = sorted(set(args.designs) - set(rs.DESIGNS))
-    if bad:
-        ap.error(f"unknown designs {bad}; choose from {list(rs.DESIGNS)}")
+    rs.check_study_args(ap, args)
     rows = []
     root = np.random.SeedSequence(args.seed)
     for j, name in enumerate(args.designs):

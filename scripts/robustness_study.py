@@ -313,16 +313,35 @@ def markdown(summary: pd.DataFrame, ch: pd.DataFrame, ws: pd.DataFrame,
     return "\n".join(lines) + "\n"
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--runs", type=int, default=200)
+def study_parser(description: str, *, runs: int, seed: int,
+                 designs: list[str] | tuple[str, ...]) -> argparse.ArgumentParser:
+    """The options every study over these designs takes: ``--runs``, ``--samples``,
+    ``--seed``, ``--designs`` and ``--out`` (checked by :func:`check_study_args`)."""
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--runs", type=int, default=runs)
     ap.add_argument("--samples", type=int, default=10_000)
-    ap.add_argument("--seed", type=int, default=2024)
-    ap.add_argument("--designs", nargs="+", default=list(DESIGNS))
+    ap.add_argument("--seed", type=int, default=seed)
+    ap.add_argument("--designs", nargs="+", default=list(designs))
+    ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "docs")
+    return ap
+
+
+def check_study_args(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """A one-line reason (``ap.error``, exit 2) for bad :func:`study_parser` options."""
+    if args.runs < 2:
+        ap.error("--runs must be at least 2 (coverage and sd need several runs)")
+    if args.samples < 200:
+        ap.error("--samples must be at least 200")
+    unknown = sorted(set(args.designs) - set(DESIGNS))
+    if unknown:
+        ap.error(f"unknown designs {unknown}; choose from {list(DESIGNS)}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = study_parser(__doc__.split("\n\n")[0], runs=200, seed=2024, designs=list(DESIGNS))
     ap.add_argument("--methods", nargs="+", default=list(METHODS),
                     help="registered estimator names or the study's variants "
                          f"{list(VARIANTS)} (default: %(default)s)")
-    ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "docs")
     ap.add_argument("--raw", type=Path, default=None, help="also write every run's rows")
     ap.add_argument("--update", action="store_true",
                     help="keep the rows of the other methods from --out's robustness.csv "
@@ -331,13 +350,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--from-raw", type=Path, default=None,
                     help="rebuild the tables from a file --raw wrote (no simulation)")
     args = ap.parse_args(argv)
-    if args.runs < 2:
-        ap.error("--runs must be at least 2 (coverage and sd need several runs)")
-    if args.samples < 200:
-        ap.error("--samples must be at least 200")
-    unknown = sorted(set(args.designs) - set(DESIGNS))
-    if unknown:
-        ap.error(f"unknown designs {unknown}; choose from {list(DESIGNS)}")
+    check_study_args(ap, args)
     from vesselid.identify.registry import METHODS as registered
 
     bad = sorted(set(args.methods) - set(registered) - set(VARIANTS))

@@ -49,11 +49,11 @@ import numpy as np
 from vesselid.errors import IdentificationError
 from vesselid.identify.data import RegressionData
 from vesselid.identify.estimators import IterationResult
-from vesselid.identify.pem import COVARIANCES, OneStateLikelihood
+from vesselid.identify.pem import COVARIANCE_KEYS, COVARIANCES, OneStateLikelihood
 from vesselid.model.spec import ModelSpec
 
-__all__ = ["COVARIANCES", "SwitchingCurrent", "fit_groups", "switching_loglik_terms",
-           "vuong_switching"]
+__all__ = ["COVARIANCES", "COVARIANCE_KEYS", "SwitchingCurrent", "fit_groups",
+           "switching_loglik_terms", "vuong_switching"]
 
 NOISE_NAMES = ("mu_w", "c", "p", "sigma_w", "sigma_e")
 
