@@ -214,13 +214,18 @@ def constant_everything(d: Path) -> None:
     (d / "t.csv").write_text("\n".join(out) + "\n")
 
 
+#: The estimators of one state equation without a disturbance sensor (the scale cases
+#: give them the spec without the current meter).
+LIKELIHOOD_METHODS = ("pem", "pem-switching")
+
+
 def scaled(factor: float):
     def setup(d: Path) -> None:
         import pandas as pd
 
         make_log(d, "t.csv", 4000, "--experiments", "2", "--current-mean", "0.1")
-        # the spec without the current meter's [aggregate] relation (for pem, which does
-        # not model a disturbance sensor)
+        # the spec without the current meter's [aggregate] relation (for the likelihood
+        # estimators, which do not model a disturbance sensor)
         (d / "p.toml").write_text(GOOD_SPEC)
         df = pd.read_csv(d / "t.csv")
         for c in df.columns:
@@ -241,13 +246,13 @@ def scale_check(factor: float, method: str, combine: str = "pooled", model: str 
         # x -> s x: a and f unchanged, the modulus coefficient scales by 1/s
         pairs = [(a["w"], b["w"]), (a["w*|w_r|"] if "w*|w_r|" in a else a[list(a)[1]],
                                     b[list(b)[1]] * factor), (a["tau"], b["tau"])]
-        # pem maximises a likelihood by Fisher scoring and stops where the next step is
-        # below 0.01 standard errors (pem.SCORING_TOL): signals in other units take a path
-        # that differs at rounding and may stop elsewhere within that; the closed forms and
-        # the refined iterations agree to 1e-8
+        # the likelihood estimators stop where the next step is below 0.01 standard
+        # errors (pem.SCORING_TOL, switching.TOL): signals in other units take a path that
+        # differs at rounding and may stop elsewhere within that; the closed forms and the
+        # refined iterations agree to 1e-8
         se = json.loads(ref.stdout)["stderr"]["w"]
         for (x, y), key in zip(pairs, ("w", list(a)[1], "tau"), strict=True):
-            tol = 0.01 * se[key] if method == "pem" else 0.0
+            tol = 0.01 * se[key] if method in LIKELIHOOD_METHODS else 0.0
             if not (math.isclose(x, y, rel_tol=1e-8, abs_tol=1e-12) or abs(x - y) <= tol):
                 return f"results change with the units: {a} vs {b} (x{factor:g})"
         return None
@@ -1004,7 +1009,7 @@ def cases(long: bool = False) -> list[Case]:
     for factor in (1e6, 1e-6):
         for method, combine in [(m, "pooled") for m in OPEN_LOOP_METHODS] + [
                 (m, "stacked") for m in ("ls", "iv", "iv-zero-mean")]:
-            model = "p.toml" if method == "pem" else "t.toml"
+            model = "p.toml" if method in LIKELIHOOD_METHODS else "t.toml"
             c.append(Case(f"scale: all signals x{factor:g}, {method} {combine}",
                           ["identify", "s.csv", "--model", model, "--method", method,
                            "--combine", combine, "--json", "-"], expect="any",
