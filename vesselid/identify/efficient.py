@@ -616,7 +616,7 @@ class InstrumentalGMM(Estimator):
             theta[g] = cmp["theta"][j]
             iters[g] += cmp["iterations"][j]
             info["pem_model"][g] = "switching"
-            for key in ("cov", "cov_sandwich", "cov_conservative"):
+            for key in pem.COVARIANCE_KEYS.values():
                 info[f"pem_{key}"][g] = cmp[key][j]
 
     def equation_designs(self, data, spec, it, phi, combine):

@@ -524,21 +524,43 @@ def _score_hac(je: np.ndarray | None, js: np.ndarray | None, eps: np.ndarray,
     """Bartlett HAC long-run variance of the per-sample scores
     ``s(k) = ∂ε/∂ψ ε/S + ½ ∂S/∂ψ (1/S − ε²/S²)`` (the meat of the quasi-ML sandwich;
     Newey–West bandwidth, lags not across experiment boundaries)."""
-    from vesselid.identify._pemkernels import bartlett_lagged, quasi_scores
-    from vesselid.identify.gmm import hac_lags
+    from vesselid.identify._pemkernels import quasi_scores
 
     if je is None or js is None:
         return None
     sc = np.empty((eps.size, je.shape[0]))  # (T, d), 0 where not finite
     quasi_scores(np.ascontiguousarray(je), np.ascontiguousarray(js), eps, var, sc)
+    out = scores_long_run(sc, starts)
+    return out if np.all(np.isfinite(out)) else None
+
+
+def group_units(data: RegressionData, rows: np.ndarray, fac: np.ndarray
+                ) -> tuple[float, np.ndarray, np.ndarray]:
+    """The units a likelihood fit of the group ``rows`` works in: the state's ``cx`` and
+    the inputs' ``cu`` (:func:`_unit`), and ``tscale`` (P,) with ``θ' = θ · tscale`` the
+    parameters of the scaled log. In units of each signal's spread the fit's finite
+    differences and start values are the same whatever units the log is in (results
+    scale exactly)."""
+    cx = _unit(data.target[rows, 0])
+    cu = np.array([_unit(data.u[rows, q]) for q in range(data.u.shape[1])])
+    fscale = np.concatenate([[cx], cu, [cx], cu, [1.0]])  # F = [x, u, |x|, |u|, 1]
+    return cx, cu, fscale[fac[:, 0]] * fscale[fac[:, 1]] / cx
+
+
+def scores_long_run(sc: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """Bartlett HAC long-run variance ``Σ_lag w_lag Σ_k s(k) s(k−lag)ᵀ`` (both signs of
+    the lag) of per-sample scores ``sc`` (T, d): Newey–West bandwidth, lags not across
+    experiment boundaries (``starts``)."""
+    from vesselid.identify._pemkernels import bartlett_lagged
+    from vesselid.identify.gmm import hac_lags
+
     # Σ_lag w_lag Σ_k s(k) s(k−lag)ᵀ = Σ_k s(k) f(k)ᵀ with f(k) = Σ_lag w_lag s(k−lag)
     # (Bartlett weights, pairs within one experiment): one product instead of one a lag
     lagged = np.empty_like(sc)
     bartlett_lagged(sc, np.ascontiguousarray(starts, dtype=np.int64),
                     hac_lags(int(sc.shape[0])), lagged)
     c = sc.T @ lagged
-    out = sc.T @ sc + (c + c.T)
-    return out if np.all(np.isfinite(out)) else None
+    return sc.T @ sc + (c + c.T)
 
 
 def _unit(x: np.ndarray) -> float:
@@ -806,12 +828,7 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
         if not np.all(np.isfinite(th0)):
             continue
         rows, starts = data.group_rows(g)
-        # in units of each signal's spread: the scoring's finite differences and start
-        # values are then the same whatever units the log is in (results scale exactly)
-        cx = _unit(data.target[rows, 0])
-        cu = np.array([_unit(data.u[rows, q]) for q in range(data.u.shape[1])])
-        fscale = np.concatenate([[cx], cu, [cx], cu, [1.0]])  # F = [x, u, |x|, |u|, 1]
-        tscale = fscale[fac[:, 0]] * fscale[fac[:, 1]] / cx  # θ' = θ · tscale
+        cx, cu, tscale = group_units(data, rows, fac)
         y = data.target[rows, 0] / cx
         u = data.u[rows] / cu
         filt = _Filter(y, u, starts, fac, parallel)

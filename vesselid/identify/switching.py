@@ -52,8 +52,8 @@ from vesselid.identify.estimators import IterationResult
 from vesselid.identify.pem import COVARIANCE_KEYS, COVARIANCES, OneStateLikelihood
 from vesselid.model.spec import ModelSpec
 
-__all__ = ["COVARIANCES", "COVARIANCE_KEYS", "SwitchingCurrent", "fit_groups",
-           "switching_loglik_terms", "vuong_switching"]
+__all__ = ["COVARIANCES", "COVARIANCE_KEYS", "SwitchingCurrent", "compare_with_gaussian",
+           "fit_groups", "vuong_switching"]
 
 NOISE_NAMES = ("mu_w", "c", "p", "sigma_w", "sigma_e")
 
@@ -241,9 +241,7 @@ def _maximise(log: _Log, psi0: np.ndarray, max_iter: int, tol: float) -> dict[st
 def _covariances(fit: dict[str, Any], starts: np.ndarray) -> tuple[np.ndarray, ...]:
     """``H⁻¹``, the sandwich ``H⁻¹ Ŝ H⁻¹`` (Bartlett HAC of the scores) and the
     conservative covariance of the full row (scaled units)."""
-    from vesselid.identify._pemkernels import bartlett_lagged
-    from vesselid.identify.gmm import hac_lags
-    from vesselid.identify.pem import conservative_covariance
+    from vesselid.identify.pem import conservative_covariance, scores_long_run
 
     hess, sc = fit["hessian"], fit["scores"]
     d = fit["psi"].size
@@ -255,12 +253,7 @@ def _covariances(fit: dict[str, Any], starts: np.ndarray) -> tuple[np.ndarray, .
     except np.linalg.LinAlgError:
         return nan, nan, nan
     sc = np.ascontiguousarray(np.where(np.isfinite(sc), sc, 0.0))
-    lagged = np.empty_like(sc)
-    bartlett_lagged(sc, np.ascontiguousarray(starts, dtype=np.int64),
-                    hac_lags(int(sc.shape[0])), lagged)
-    c = sc.T @ lagged
-    meat = sc.T @ sc + (c + c.T)
-    sand = hinv @ meat @ hinv
+    sand = hinv @ scores_long_run(sc, starts) @ hinv
     sand = 0.5 * (sand + sand.T)
     return hinv, sand, conservative_covariance(hinv, sand)
 
@@ -269,7 +262,8 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
                max_iter: int = 100, tol: float = TOL,
                groups: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Fit the switching-current model to every group of ``data`` (or the ``groups``
-    mask's) from the rows of ``theta_start`` (G, P).
+    mask's: the others keep NaN arrays and an empty ``reason``) from the rows of
+    ``theta_start`` (G, P).
 
     Returns per-group arrays: ``theta`` (G, P), ``cov``/``cov_sandwich``/
     ``cov_conservative`` (G, P, P), ``noise`` (G, 5: μ_w, c, p, σ_w, σ_e in the log's
@@ -278,7 +272,7 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
     log) and ``terms`` (a list: each group's per-sample log-likelihoods in the log's
     units, for the comparison with another model, :func:`vuong_switching`).
     """
-    from vesselid.identify.pem import _unit
+    from vesselid.identify.pem import group_units
 
     fac = spec.codes.factors
     n_par = spec.n_params
@@ -298,19 +292,19 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
         "terms": [None] * n,
     }
     for g in range(n):
+        if groups is not None and not groups[g]:
+            out["reason"][g] = ""  # not asked for
+            continue
         th0 = np.asarray(theta_start[g], dtype=float)
-        if (groups is not None and not groups[g]) or not np.all(np.isfinite(th0)):
+        if not np.all(np.isfinite(th0)):
             continue
         rows, starts = data.group_rows(g)
-        cx = _unit(data.target[rows, 0])
-        cu = np.array([_unit(data.u[rows, q]) for q in range(data.u.shape[1])])
-        fscale = np.concatenate([[cx], cu, [cx], cu, [1.0]])
-        tscale = fscale[fac[:, 0]] * fscale[fac[:, 1]] / cx
+        cx, cu, tscale = group_units(data, rows, fac)
         log = _Log(data.target[rows, 0] / cx, data.u[rows] / cu, starts, fac)
         psi0, scale = _start(th0 * tscale, log, fac)
         if not scale > EXACT_FIT * max(float(np.max(np.abs(log.y))), 1e-300):
             out["theta"][g] = th0
-            for key in ("cov", "cov_sandwich", "cov_conservative"):
+            for key in COVARIANCE_KEYS.values():
                 out[key][g] = 0.0
             out["model"][g] = "none"
             out["converged"][g] = True
@@ -331,19 +325,13 @@ def fit_groups(data: RegressionData, spec: ModelSpec, theta_start: np.ndarray, *
         first[starts[:-1]] = True
         out["terms"][g] = np.where(first, np.nan, terms - math.log(cx))
         out["theta"][g] = psi[:n_par] / tscale
-        for key, cov in zip(("cov", "cov_sandwich", "cov_conservative"),
-                            _covariances(fit, starts), strict=True):
+        for key, cov in zip(COVARIANCE_KEYS.values(), _covariances(fit, starts),
+                            strict=True):
             out[key][g] = cov[:n_par, :n_par] / np.outer(tscale, tscale)
         out["noise"][g] = [psi[n_par] * cx, math.exp(psi[n_par + 1]) * cx,
                            0.5 / (1.0 + math.exp(-psi[n_par + 2])),
                            math.exp(psi[n_par + 3]) * cx, math.exp(psi[n_par + 4]) * cx]
     return out
-
-
-def switching_loglik_terms(fit: dict[str, Any], g: int) -> np.ndarray | None:
-    """Group ``g``'s per-sample log-likelihoods (NaN at each experiment's first
-    sample), or None."""
-    return fit["terms"][g]
 
 
 def vuong_switching(terms_a: np.ndarray, terms_b: np.ndarray, free_a: int,
@@ -406,38 +394,25 @@ def compare_with_gaussian(data: RegressionData, spec: ModelSpec, theta_start: np
     one) and ``taken``. ``alpha``: :data:`VUONG_ALPHA` unless given."""
     from vesselid.identify._special import norm_ppf
 
-    n = data.n_groups
     candidates = np.asarray(candidates, dtype=bool)
-    out: dict[str, Any] = {"vuong": np.full(n, np.nan), "taken": np.zeros(n, dtype=bool)}
-    n_par = spec.n_params
-    shapes = {"theta": (n_par,), "cov": (n_par, n_par), "cov_sandwich": (n_par, n_par),
-              "cov_conservative": (n_par, n_par), "noise": (5,), "psi": (n_par + 5,),
-              "loglik": ()}
-    for key, shape in shapes.items():
-        out[key] = np.full((n, *shape), np.nan)
-    for key, fill, dtype in (("converged", False, bool), ("iterations", 0, np.int64),
-                             ("reason", "", object), ("model", "", object)):
-        out[key] = np.full(n, fill, dtype=dtype)
-    if not candidates.any():
-        return out
-    fit = fit_groups(data, spec, theta_start, groups=candidates)
+    out = fit_groups(data, spec, theta_start, groups=candidates)
+    out["vuong"] = np.full(data.n_groups, np.nan)
+    out["taken"] = np.zeros(data.n_groups, dtype=bool)
     crit = float(norm_ppf(1.0 - (VUONG_ALPHA if alpha is None else alpha)))
-    fac = spec.codes.factors
+    n_par = spec.n_params
     for g in np.flatnonzero(candidates):
-        for key in (*shapes, "converged", "iterations", "reason", "model"):
-            out[key][g] = fit[key][g]
-        terms = fit["terms"][g]
+        terms = out["terms"][g]
         model = str(pem_res["model"][g])
         if terms is None or model not in GAUSSIAN_FREE:
             continue
-        other = gaussian_terms(data, int(g), pem_res["psi"][g], fac, n_par)
+        other = gaussian_terms(data, int(g), pem_res["psi"][g], spec.codes.factors, n_par)
         if other is None:
             continue
         z = vuong_switching(terms, other, n_par + SWITCHING_FREE,
                             n_par + GAUSSIAN_FREE[model])
         out["vuong"][g] = z
-        out["taken"][g] = bool(fit["converged"][g] and np.isfinite(z) and z > crit
-                               and np.all(np.isfinite(fit["cov_conservative"][g])))
+        out["taken"][g] = bool(out["converged"][g] and np.isfinite(z) and z > crit
+                               and np.all(np.isfinite(out["cov_conservative"][g])))
     return out
 
 
