@@ -82,8 +82,17 @@ def test_local_chunks_taper_and_cover_every_run(monkeypatch):
     assert sizes[0] == mc.DEFAULT_BATCH_SIZE and sizes == sorted(sizes, reverse=True)
     assert min(sizes[:-1]) == mc.MIN_LOCAL_CHUNK and len(chunks) > 4
     assert mc._local_chunks(200) == [(0, 200)]
+    # long runs: no chunk above the samples cap, the same taper below it
+    capped = mc._local_chunks(1000, 10_000)
+    sizes = [b - a for a, b in capped]
+    assert max(sizes) == mc.MAX_WORKER_CHUNK_SAMPLES // 10_000 < mc.DEFAULT_BATCH_SIZE
+    assert capped[-1][1] == 1000 and sizes == sorted(sizes, reverse=True)
+    assert all(b == c for (_, b), (c, _) in itertools.pairwise(capped))
+    assert max(b - a for a, b in mc._local_chunks(1000, 10**9)) == mc.MIN_LOCAL_CHUNK
+    assert mc._local_chunks(1000, 100) == chunks  # short runs: the runs cap binds
     monkeypatch.setattr("vesselid.core.threads.n_threads", lambda: 1)
     assert mc._local_chunks(1000) == mc._chunks(1000, mc.DEFAULT_BATCH_SIZE)
+    assert mc._local_chunks(1000, 10_000) == mc._chunks(1000, mc.DEFAULT_BATCH_SIZE)
 
 
 def test_study_seeds_are_the_root_seeds_children():
