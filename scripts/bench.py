@@ -171,6 +171,17 @@ def bench_identify(repeats: int = 15, methods: tuple[str, ...] = NAMED_ESTIMATOR
     for m in methods:
         out[f"identify_heave_1e4_{m}_ms"] = 1000 * median_time(
             lambda m=m: identify(log, spec, method=m), max(repeats // 2, 3))
+    # the default on white logs of 20 seeds: what it chose (a share of white logs takes the
+    # colour test's guard band) and the median over the logs of each log's median time
+    per_log, choices = [], {}
+    for s in range(20):
+        lg = heave().simulate(10_000, seed=s).to_log()
+        choice = str(identify(lg, spec).diagnostics.get("choice"))
+        choices[choice] = choices.get(choice, 0) + 1
+        per_log.append(1000 * median_time(lambda lg=lg: identify(lg, spec), 5))
+    out["identify_heave_1e4_default_20_logs_median_ms"] = float(np.median(per_log))
+    out["identify_heave_1e4_default_20_logs_max_ms"] = float(np.max(per_log))
+    out["identify_heave_1e4_default_20_logs_choices"] = choices
     return out
 
 
@@ -277,11 +288,13 @@ BENCHES: dict[str, Callable[[], Callable | None]] = {
     "identify_memory": lambda: _load("bench_scaling", "bench_identify_memory"),
     "identify_large_paths": lambda: _load("bench_scaling", "bench_identify_large_paths"),
     "pem_path": lambda: _load("bench_scaling", "bench_pem_path"),
+    "white_path": lambda: _load("bench_scaling", "bench_white_path"),
     "select": lambda: _load("bench_select", "bench_select"),
 }
 
 #: The benchmarks of the generated performance page (``--docs``).
-DOCS_BENCHES = ("single_envs", "mc_threads", "identify_memory", "pem_path", "kernel_paths")
+DOCS_BENCHES = ("single_envs", "mc_threads", "identify_memory", "pem_path", "white_path",
+                "kernel_paths")
 
 
 def _each_in_own_process(names: list[str]) -> dict:

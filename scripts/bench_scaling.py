@@ -21,7 +21,9 @@ CPU clock (``time.process_time``, all threads of the process; children's CPU fro
   three processes), and on the 10⁶-sample log each step of the fit with its CPU time and
   the resident memory at its start and its peak (where the peak is reached);
 * ``pem_path``: ``identify`` (default estimator, which takes ``pem`` there) on a
-  10⁴-sample log with a Gauss–Markov current, in-process.
+  10⁴-sample log with a Gauss–Markov current, in-process;
+* ``white_path``: ``identify`` (default estimator) on white 10⁴-sample heave logs of
+  20 seeds, in-process: what it chose on each and the time per log.
 
 ``python scripts/bench_scaling.py`` prints the figures; ``python scripts/bench.py
 --docs`` runs them and writes ``docs/performance.md`` (:func:`write_docs`).
@@ -48,8 +50,15 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 
-__all__ = ["bench_identify_memory", "bench_mc_threads", "bench_pem_path",
-           "bench_single_envs", "machine", "write_docs"]
+__all__ = [
+    "bench_identify_memory",
+    "bench_mc_threads",
+    "bench_pem_path",
+    "bench_single_envs",
+    "bench_white_path",
+    "machine",
+    "write_docs",
+]
 
 
 def _load() -> float:
@@ -591,6 +600,44 @@ def bench_pem_path(repeats: int = 11) -> dict[str, Any]:
             "identify_ms_cpu_one_thread": med["cpu_1"], "load_average": _load()}
 
 
+def bench_white_path(logs: int = 20, repeats: int = 7) -> dict[str, Any]:
+    """``identify(log, spec)`` (the default estimator) in-process on white 10⁴-sample
+    heave logs (the paper's system, seeds ``0 … logs − 1``): each log's choice and its
+    median wall and CPU time over ``repeats`` calls (the logs in turn, so that a
+    neighbour's burst does not fall on one log alone). The default takes the delayed
+    instruments on most white logs and a likelihood fit where the colour test's p-value
+    falls in its guard band; the figures per choice and over all logs."""
+    from vesselid.identify import identify
+    from vesselid.plant.systems import heave
+
+    warnings.simplefilter("ignore")
+    logs_ = [heave().simulate(10_000, seed=s).to_log() for s in range(logs)]
+    spec = logs_[0].spec
+    choices = [str(identify(lg, spec).diagnostics.get("choice")) for lg in logs_]
+    wall: list[list[float]] = [[] for _ in logs_]
+    cpu: list[list[float]] = [[] for _ in logs_]
+    for _ in range(repeats):
+        for i, lg in enumerate(logs_):
+            c0, t0 = time.process_time(), time.perf_counter()
+            identify(lg, spec)
+            wall[i].append(time.perf_counter() - t0)
+            cpu[i].append(time.process_time() - c0)
+    per_wall = [1000 * statistics.median(w) for w in wall]
+    per_cpu = [1000 * statistics.median(c) for c in cpu]
+    by_choice: dict[str, dict[str, float]] = {}
+    for ch in sorted(set(choices)):
+        idx = [i for i, c in enumerate(choices) if c == ch]
+        by_choice[ch] = {"logs": len(idx),
+                         "wall_ms": statistics.median(per_wall[i] for i in idx),
+                         "cpu_ms": statistics.median(per_cpu[i] for i in idx)}
+    return {"logs": logs, "choices": choices, "per_log_wall_ms": per_wall,
+            "per_log_cpu_ms": per_cpu, "by_choice": by_choice,
+            "median_wall_ms": statistics.median(per_wall),
+            "median_cpu_ms": statistics.median(per_cpu),
+            "seed0_wall_ms": per_wall[0], "seed0_cpu_ms": per_cpu[0],
+            "load_average": _load()}
+
+
 # ----------------------------------------------------------------- the page
 def machine() -> dict[str, Any]:
     """The machine in words: CPU model, cores usable, memory, Python and numpy."""
@@ -825,6 +872,27 @@ def render(results: dict[str, Any], info: dict[str, Any]) -> str:
             + f"(medians; load average {pem['load_average']:.1f}).",
             "",
         ]
+    white = results.get("white_path")
+    if white:
+        lines += [
+            "## The white path",
+            "",
+            f"`identify(log, spec)` in-process on white 10⁴-sample heave logs (the paper's "
+            f"system, seeds 0–{white['logs'] - 1}), each log's median of its calls "
+            f"(load average {white['load_average']:.1f}); per choice of the default "
+            "estimator, the median over its logs:",
+            "",
+            "| choice | logs | wall (ms) | CPU (ms) |",
+            "|---|---:|---:|---:|",
+            *(f"| {ch} | {v['logs']} | {v['wall_ms']:.1f} | {v['cpu_ms']:.1f} |"
+              for ch, v in white["by_choice"].items()),
+            f"| all | {white['logs']} | {white['median_wall_ms']:.1f} | "
+            f"{white['median_cpu_ms']:.1f} |",
+            "",
+            f"The log of seed 0: {white['choices'][0]}, {white['seed0_wall_ms']:.1f} ms wall, "
+            f"{white['seed0_cpu_ms']:.1f} ms CPU.",
+            "",
+        ]
     kp = results.get("kernel_paths")
     if kp:
         lines += render_kernel_paths(kp)
@@ -910,6 +978,7 @@ BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "mc_threads": bench_mc_threads,
     "identify_memory": bench_identify_memory,
     "pem_path": bench_pem_path,
+    "white_path": bench_white_path,
 }
 
 
