@@ -144,6 +144,33 @@ def test_weak_rejection_takes_sriv_and_says_why():
     assert default.diagnostics["choice"].startswith("pem-")
 
 
+def test_colour_guard_sends_the_guard_band_to_sriv_and_says_why():
+    """Where neither test rejects at its level, auto keeps the delayed instruments exactly
+    when the colour test's p-value is at least colour_guard; in the band below it takes
+    SRIV and names the guard. Ten white logs, each decided by its own p-values."""
+    banded = 0
+    for seed in range(10):
+        log = _log(seed, n=3000)
+        off, _ = _fit(log, InstrumentalGMM("auto", noise_order=4, refine=1, pem_fallback=True,
+                                           colour_guard=0.0))
+        res, _ = _fit(log)
+        p_w = off.diagnostics["colour_test"][0]["pvalue"]
+        p_c = off.diagnostics["c_test_lagged"][0]["pvalue"]
+        if p_c < 0.01 or p_w < 0.05:  # a rejection at the level: the guard plays no part
+            assert res.diagnostics["choice"] == off.diagnostics["choice"]
+            continue
+        assert off.diagnostics["choice"] == "combined"
+        if p_w < 0.2:
+            banded += 1
+            assert res.diagnostics["choice"] == "sriv"
+            assert "guard 0.2" in res.diagnostics["choice_reason"]
+            assert "\n" not in res.diagnostics["choice_reason"]
+        else:
+            assert res.diagnostics["choice"] == "combined"
+            np.testing.assert_array_equal(res.params, off.params)
+    assert banded  # the band was exercised
+
+
 def test_conservative_covariance_by_hand():
     from vesselid.identify.pem import conservative_covariance
 
@@ -174,6 +201,10 @@ def test_pem_sandwich_and_fisher_agree_on_its_own_model():
     (lambda: PredictionError(covariance="largest"), "covariance must be one of"),
     (lambda: InstrumentalGMM("auto", pem_level=0.0), "pem_level must be in"),
     (lambda: InstrumentalGMM("auto", pem_level=True), "pem_level must be in"),
+    (lambda: InstrumentalGMM("auto", colour_guard=1.0), "colour_guard must be in"),
+    (lambda: InstrumentalGMM("auto", colour_guard=-0.1), "colour_guard must be in"),
+    (lambda: InstrumentalGMM("auto", colour_guard=True), "colour_guard must be in"),
+    (lambda: InstrumentalGMM("auto", colour_guard="0.2"), "colour_guard must be in"),
 ])
 def test_bad_options_one_line_reasons(make, msg):
     with pytest.raises(IdentificationError, match=msg) as err:

@@ -1,0 +1,213 @@
+"""Does a Hausman test of the delayed instruments catch the coloured logs ``auto``'s
+C and colour tests miss?
+
+``auto`` keeps the delayed measurements as instruments (``combined``) where neither the
+C test of the delayed instruments nor the colour test rejects white disturbances. Under
+coloured sensor noise both tests miss some logs, and there the delayed instruments bias
+the estimate. The Hausman test compares the combined two-step GMM estimate with the
+IV_{E{ζ}=0} estimate (simulated instruments only, consistent whatever the colour,
+Lemma 3.1): under white disturbances the combined estimate is the efficient one, so
+``d = θ̂_c − θ̂_s`` has covariance ``V_s − V_c`` (both HAC) and
+``H = d' (V_s − V_c)⁺ d`` is χ²(rank); unlike the C test, its degrees of freedom are
+those of the parameters, not of the delayed instruments, so a bias in the parameters
+is tested directly.
+
+Per run this script keeps ``auto``'s choice, estimate, reported SE and test p-values,
+the combined and IV_{E{ζ}=0} estimates with their full HAC covariances (the Hausman
+statistic), and the estimate and SE of ``auto``'s SRIV fallback, so any gate built from
+them is evaluated on the same runs without refitting::
+
+    nice -n 10 python scripts/gate_study.py calibration:gm-sensor-random --runs 1000 \\
+        --raw gate_gm_sensor_random.csv
+    python scripts/gate_study.py calibration:gm-sensor-random --from-raw \\
+        gate_gm_sensor_random.csv --md docs/gate_study_gm_sensor_random.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from pem_covariance_study import _logs  # the scripts folder, on the path above
+from robustness_study import wilson
+
+from vesselid.core.fileio import atomic_write_text
+
+Z95 = 1.959964
+
+
+def _full_covariances(data, spec, it, est) -> np.ndarray:
+    """Full HAC covariances (G, P, P) of an estimator's batched estimates (one-state
+    models), computed as :func:`vesselid.studies.calibration.registry_covariances`
+    computes their standard errors."""
+    from vesselid.identify import kernels
+    from vesselid.identify.covariance import DEFAULT_COV_TYPE, get_covariance_estimator
+    from vesselid.studies.calibration import _slice_group
+
+    ce = get_covariance_estimator(DEFAULT_COV_TYPE)
+    fields = {f.name for f in dataclasses.fields(it)}
+    n, p = data.n_groups, spec.n_params
+    out = np.full((n, p, p), np.nan)
+    for g in range(n):
+        if not np.all(np.isfinite(it.theta[g])):
+            continue
+        sl, starts = data.group_rows(g)
+        n_seg = starts.size - 1
+        sub = dataclasses.replace(
+            data, target=data.target[sl], regsig=data.regsig[sl], u=data.u[sl],
+            starts=starts, group=np.zeros(n_seg, np.int64), n_groups=1,
+            experiment_ids=tuple(range(n_seg)),
+            sensor=None if data.sensor is None else data.sensor[sl])
+        it_g = dataclasses.replace(it, **{f: _slice_group(getattr(it, f), g, n)
+                                          for f in fields if f != "history"})
+        phi = kernels.regressor_matrix(sub.regsig, sub.u, sub.starts, spec.codes.factors)
+        designs = est.equation_designs(sub, spec, it_g, phi, "pooled")
+        if len(designs) < spec.n_states:
+            it_g = est.estimate_parameters(sub, spec, combine="pooled", keep_history=True)
+            designs = est.equation_designs(sub, spec, it_g, phi, "pooled")
+        d = designs[0]
+        res = ce.estimate(d.z, d.phi, d.resid, d.starts, weight=d.weight,
+                          zero_mean=d.zero_mean, combine="pooled", skip_first=False,
+                          weight_jacobian=d.weight_jacobian, fixed_b_square=d.fixed_b)
+        out[g] = res.cov
+    return out
+
+
+def hausman(d: np.ndarray, v: np.ndarray) -> tuple[float, int]:
+    """``d' V⁺ d`` over the eigen-directions of ``V`` above 1e-8 of its largest
+    eigenvalue, and their number."""
+    w, q = np.linalg.eigh(0.5 * (v + v.T))
+    keep = w > 1e-8 * max(w.max(), 0.0)
+    if not keep.any():
+        return float("nan"), 0
+    proj = q[:, keep].T @ d
+    return float(np.sum(proj * proj / w[keep])), int(keep.sum())
+
+
+def chunk(design: str, seed: int, start: int, stop: int, samples: int) -> list[dict]:
+    from vesselid.identify import estimate, from_arrays, get_estimator
+    from vesselid.identify.covariance import DEFAULT_COV_TYPE
+    from vesselid.studies.calibration import registry_covariances
+
+    spec, y, u = _logs(design, seed, range(start, stop), samples)
+    data = from_arrays(spec, y, u)
+    auto = get_estimator("auto")
+    it = auto.estimate_parameters(data, spec)
+    base = it.info["base"]
+    se_auto = registry_covariances(data, spec, it, "auto", {"d": (DEFAULT_COV_TYPE, {})},
+                                   estimator=auto)["d"]
+    gmm_est = get_estimator("gmm")
+    it_c = gmm_est.estimate_parameters(data, spec, base=base)
+    cov_c = _full_covariances(data, spec, it_c, gmm_est)
+    ivz = get_estimator("iv-zero-mean")
+    base_it = estimate(data, spec, "iv-zero-mean", combine="pooled")
+    cov_s = _full_covariances(data, spec, base_it, ivz)
+    sriv = get_estimator("sriv")
+    it_r = sriv.estimate_parameters(data, spec, base=base)
+    se_r = registry_covariances(data, spec, it_r, "sriv", {"d": (DEFAULT_COV_TYPE, {})},
+                                estimator=sriv)["d"]
+    used = it.info["instrument_set"]
+    model = it.info.get("pem_model", np.full(data.n_groups, "", dtype=object))
+    theta0 = np.asarray(spec.theta0_vector(), dtype=float)
+    names = [f"{eq}: {term}" for eq, term in spec.param_index]
+    rows = []
+    for g in range(data.n_groups):
+        choice = "pem-" + str(model[g]) if used[g] == "pem" else (
+            {"simulated": "sriv"}.get(str(used[g]), str(used[g])))
+        d = it_c.theta[g] - base_it.theta[g]
+        h, df = hausman(d, cov_s[g] - cov_c[g])
+        for j, p in enumerate(names):
+            rows.append({
+                "design": design, "run": start + g, "choice": choice, "param": p,
+                "theta0": theta0[j], "estimate": it.theta[g, j], "se_reported": se_auto[g, j],
+                "c_p": float(it.info["c_pvalue"][g]),
+                "colour_p": float(it.info["colour_pvalue"][g]),
+                "hausman": h, "hausman_df": df,
+                "hausman_p": float(stats.chi2.sf(h, df)) if df else float("nan"),
+                "z_param": float(d[j] / np.sqrt(max(cov_s[g, j, j] - cov_c[g, j, j], 1e-300))),
+                "combined_estimate": it_c.theta[g, j],
+                "combined_se": float(np.sqrt(cov_c[g, j, j])),
+                "ivz_estimate": base_it.theta[g, j], "ivz_se": float(np.sqrt(cov_s[g, j, j])),
+                "sriv_estimate": it_r.theta[g, j], "sriv_se": se_r[g, j]})
+    return rows
+
+
+def evaluate(df: pd.DataFrame, levels: tuple[float, ...]) -> pd.DataFrame:
+    """Per Hausman level (0: ``auto`` as it is) and parameter: coverage with Wilson
+    interval, RMS error, and how many ``combined`` runs the test sends to SRIV."""
+    out = []
+    for lev in (0.0, *levels):
+        flag = (df["choice"] == "combined") & (df["hausman_p"] < lev)
+        est = np.where(flag, df["sriv_estimate"], df["estimate"])
+        se = np.where(flag, df["sriv_se"], df["se_reported"])
+        err = est - df["theta0"]
+        for p in df["param"].unique():
+            m = (df["param"] == p).to_numpy()
+            e, s = err[m], se[m]
+            hit = int(np.sum(np.abs(e) <= Z95 * s))
+            r = int(m.sum())
+            lo, hi = wilson(hit, r)
+            out.append({"hausman_level": lev, "param": p, "runs": r,
+                        "to_sriv": int(flag[m].sum()),
+                        "combined_left": int(((df["choice"] == "combined") & ~flag)[m].sum()),
+                        "coverage": hit / r, "wilson_lo": lo, "wilson_hi": hi,
+                        "rms_err": float(np.sqrt(np.mean(e * e))),
+                        "median_abs_rel_err": float(np.median(np.abs(e / df["theta0"][m])))})
+    return pd.DataFrame(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("design", help="robustness:<design> or calibration:<scenario>")
+    ap.add_argument("--runs", type=int, default=1000)
+    ap.add_argument("--samples", type=int, default=10_000)
+    ap.add_argument("--seed", type=int, default=None)
+    ap.add_argument("--chunk", type=int, default=25)
+    ap.add_argument("--levels", type=float, nargs="+", default=[0.01, 0.05, 0.1])
+    ap.add_argument("--raw", type=Path, default=None)
+    ap.add_argument("--from-raw", type=Path, default=None)
+    ap.add_argument("--out", type=Path, default=None)
+    args = ap.parse_args(argv)
+    kind = args.design.partition(":")[0]
+    seed = args.seed if args.seed is not None else (2024 if kind == "robustness" else 0)
+    if args.from_raw is not None:
+        df = pd.read_csv(args.from_raw)
+    else:
+        t0 = time.perf_counter()
+        rows: list[dict] = []
+        for a in range(0, args.runs, args.chunk):
+            b = min(a + args.chunk, args.runs)
+            rows += chunk(args.design, seed, a, b, args.samples)
+            print(f"{b} runs: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+        df = pd.DataFrame(rows)
+        if args.raw is not None:
+            atomic_write_text(args.raw, df.to_csv(index=False))
+    res = evaluate(df, tuple(args.levels))
+    pd.set_option("display.width", 200)
+    one = df.drop_duplicates("run")
+    print(f"{args.design}: {one.shape[0]} runs, seed {seed}; choices "
+          f"{one['choice'].value_counts().to_dict()}")
+    comb = one[one["choice"] == "combined"]
+    for lev in args.levels:
+        print(f"Hausman p < {lev:g}: {(comb['hausman_p'] < lev).sum()} of {len(comb)} "
+              "combined runs")
+    print(res.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
+    if args.out is not None:
+        atomic_write_text(args.out, res.to_csv(index=False, float_format="%.5g"))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
