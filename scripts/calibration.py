@@ -146,6 +146,10 @@ def main(argv: list[str] | None = None) -> int:
         old = pd.read_csv(old_csv)
         old = old[~old["scenario"].isin(out["scenario"].unique())]
         out = pd.concat([old, out], ignore_index=True)
+        # the table's order: the heave scenarios as in SCENARIOS, then the sea trial
+        rank = {s: i for i, s in enumerate([*SCENARIOS, "seatrial"])}
+        out = out.sort_values("scenario", kind="stable",
+                              key=lambda c: c.map(rank)).reset_index(drop=True)
     args.out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(args.out / "calibration.csv", out.to_csv(index=False, float_format="%.5g"))
     plot(out, args.out / "calibration.png")

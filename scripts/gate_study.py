@@ -96,9 +96,15 @@ def hausman(d: np.ndarray, v: np.ndarray) -> tuple[float, int]:
     return float(np.sum(proj * proj / w[keep])), int(keep.sum())
 
 
-def chunk(design: str, seed: int, start: int, stop: int, samples: int) -> list[dict]:
-    from vesselid.identify import estimate, from_arrays, get_estimator
+def chunk(design: str, seed: int, start: int, stop: int, samples: int,
+          pem_below: float = 0.0) -> list[dict]:
+    """Per run of ``range(start, stop)`` and parameter: ``auto``'s choice, estimate,
+    reported SE and p-values; the combined, IV_{E{ζ}=0} and SRIV estimates and SEs; the
+    Hausman statistic; and, on the runs ``auto`` kept combined whose colour-test p-value
+    is below ``pem_below``, the estimate and SE of ``auto``'s likelihood fallback."""
+    from vesselid.identify import estimate, from_arrays, get_estimator, pem
     from vesselid.identify.covariance import DEFAULT_COV_TYPE
+    from vesselid.identify.efficient import _subset
     from vesselid.studies.calibration import registry_covariances
 
     spec, y, u = _logs(design, seed, range(start, stop), samples)
@@ -121,6 +127,17 @@ def chunk(design: str, seed: int, start: int, stop: int, samples: int) -> list[d
     used = it.info["instrument_set"]
     model = it.info.get("pem_model", np.full(data.n_groups, "", dtype=object))
     theta0 = np.asarray(spec.theta0_vector(), dtype=float)
+    band = (np.asarray(used) == "combined") & (np.asarray(it.info["colour_pvalue"]) < pem_below)
+    pem_th = np.full((data.n_groups, spec.n_params), np.nan)
+    pem_se = np.full((data.n_groups, spec.n_params), np.nan)
+    if band.any() and pem.supports(spec, data):
+        res = pem.fit_groups(_subset(data, band), spec, base.theta[band], joint=True,
+                             boundary=auto.pem_boundary)
+        ok = res["converged"]
+        idx = np.flatnonzero(band)
+        pem_th[idx[ok]] = res["theta"][ok]
+        cov = res[pem.COVARIANCE_KEYS[auto.pem_cov]]
+        pem_se[idx[ok]] = np.sqrt(np.abs(np.diagonal(cov, axis1=1, axis2=2)))[ok]
     names = [f"{eq}: {term}" for eq, term in spec.param_index]
     rows = []
     for g in range(data.n_groups):
@@ -140,7 +157,8 @@ def chunk(design: str, seed: int, start: int, stop: int, samples: int) -> list[d
                 "combined_estimate": it_c.theta[g, j],
                 "combined_se": float(np.sqrt(cov_c[g, j, j])),
                 "ivz_estimate": base_it.theta[g, j], "ivz_se": float(np.sqrt(cov_s[g, j, j])),
-                "sriv_estimate": it_r.theta[g, j], "sriv_se": se_r[g, j]})
+                "sriv_estimate": it_r.theta[g, j], "sriv_se": se_r[g, j],
+                "pem_estimate": pem_th[g, j], "pem_se": pem_se[g, j]})
     return rows
 
 
@@ -176,6 +194,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=None)
     ap.add_argument("--chunk", type=int, default=25)
     ap.add_argument("--levels", type=float, nargs="+", default=[0.01, 0.05, 0.1])
+    ap.add_argument("--pem-below", type=float, default=0.0,
+                    help="also fit auto's likelihood fallback on the combined runs whose "
+                         "colour-test p-value is below this")
     ap.add_argument("--raw", type=Path, default=None)
     ap.add_argument("--from-raw", type=Path, default=None)
     ap.add_argument("--out", type=Path, default=None)
@@ -189,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
         rows: list[dict] = []
         for a in range(0, args.runs, args.chunk):
             b = min(a + args.chunk, args.runs)
-            rows += chunk(args.design, seed, a, b, args.samples)
+            rows += chunk(args.design, seed, a, b, args.samples, args.pem_below)
             print(f"{b} runs: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
         df = pd.DataFrame(rows)
         if args.raw is not None:
