@@ -144,10 +144,11 @@ def test_weak_rejection_takes_sriv_and_says_why():
     assert default.diagnostics["choice"].startswith("pem-")
 
 
-def test_colour_guard_sends_the_guard_band_to_sriv_and_says_why():
+def test_colour_guard_sends_the_guard_band_to_the_likelihood_fit_and_says_why():
     """Where neither test rejects at its level, auto keeps the delayed instruments exactly
     when the colour test's p-value is at least colour_guard; in the band below it takes
-    SRIV and names the guard. Ten white logs, each decided by its own p-values."""
+    the likelihood fallback (SRIV without it) and names the guard. Ten white logs, each
+    decided by its own p-values."""
     banded = 0
     for seed in range(10):
         log = _log(seed, n=3000)
@@ -162,9 +163,11 @@ def test_colour_guard_sends_the_guard_band_to_sriv_and_says_why():
         assert off.diagnostics["choice"] == "combined"
         if p_w < 0.2:
             banded += 1
-            assert res.diagnostics["choice"] == "sriv"
+            assert res.diagnostics["choice"].startswith("pem-")
             assert "guard 0.2" in res.diagnostics["choice_reason"]
-            assert "\n" not in res.diagnostics["choice_reason"]
+            sriv, _ = _fit(log, InstrumentalGMM("auto", noise_order=4, refine=1))
+            assert sriv.diagnostics["choice"] == "sriv"
+            assert "guard 0.2" in sriv.diagnostics["choice_reason"]
         else:
             assert res.diagnostics["choice"] == "combined"
             np.testing.assert_array_equal(res.params, off.params)
