@@ -166,18 +166,21 @@ class InstrumentalGMM(Estimator):
         but computed on explicit rows (batched, not fused), several times the cost of
         ``auto`` on the Monte Carlo path.
     colour_guard : float
-        ``auto`` keeps the delayed instruments only where the colour test's p-value is
-        at least ``colour_guard`` (a value at most ``colour_alpha``, 0 included: no
-        guard). A log whose p-value lies in ``[colour_alpha, colour_guard)`` takes the
-        likelihood fallback (``pem_fallback``, where it applies; SRIV elsewhere). Under
-        coloured sensor noise the colour test misses some logs at its level, and there
-        the delayed instruments bias the estimate by 1–3.5 standard errors; the default
-        0.2 moves most of them (Gauss–Markov sensor noise, time constant 20 samples,
-        random pulses: 21 of 24 missed logs in 1000 runs). White logs reach the band in
-        about 15 % of runs; the likelihood model nests white disturbances, so its
-        estimate there is as precise as the combined one (the Table 1 design,
-        alternating pulses: Monte Carlo sd of ``n`` 0.01328 against 0.01331 over 1000
-        runs; SRIV's would be 0.01516), at the cost of its fit on those logs
+        ``auto`` on a log the likelihood fallback applies to (``pem_fallback``, one
+        state equation, no disturbance sensor, no low-pass filter) keeps the delayed
+        instruments only where the colour test's p-value is at least ``colour_guard``
+        (a value at most ``colour_alpha``, 0 included: no guard); a p-value in
+        ``[colour_alpha, colour_guard)`` takes the likelihood fallback (SRIV where its fit
+        does not converge). Under coloured sensor noise the colour test misses some logs
+        at its level, and there the delayed instruments bias the estimate by 1–3.5
+        standard errors; the default 0.2 moves most of them (Gauss–Markov sensor noise,
+        time constant 20 samples, random pulses: 21 of 24 missed logs in 1000 runs).
+        White logs reach the band in about 15 % of runs; the likelihood model nests
+        white disturbances, so its estimate there is as precise as the combined one (the
+        Table 1 design, alternating pulses: Monte Carlo sd of ``n`` 0.01328 against
+        0.01331 over 1000 runs), at the cost of its fit on those logs. Where the
+        likelihood fallback does not apply the band keeps the delayed instruments: SRIV
+        there would raise the Monte Carlo sd of ``n`` on white Table 1 logs by 14 %
         (``scripts/gate_study.py``, ``docs/guide/choosing-an-estimator.md``).
     refine : int
         Refinement steps after the converged IV_{E{ζ}=0} iteration (each re-simulates
@@ -542,12 +545,14 @@ class InstrumentalGMM(Estimator):
                             colour_order=int(self.colour_order))
                 c_rej = c_p < float(self.alpha)
                 w_rej = w_p.min(axis=1) < float(self.colour_alpha)
+                applies = bool(self.pem_fallback and pem.supports(spec, data))
                 # the guard band [colour_alpha, colour_guard): the test misses coloured
                 # sensor noise there often enough that the delayed instruments' bias
                 # outweighs their precision; the likelihood model, which nests white
-                # disturbances and coloured sensor noise, takes these logs (SRIV where it
-                # does not apply)
-                info["colour_guarded"] = (~(c_rej | w_rej)
+                # disturbances and coloured sensor noise, takes these logs where it
+                # applies (elsewhere SRIV would cost the white logs in the band their
+                # precision, so the delayed instruments stay)
+                info["colour_guarded"] = (~(c_rej | w_rej) & applies
                                           & (w_p.min(axis=1) < float(self.colour_guard)))
                 reject = c_rej | w_rej | info["colour_guarded"]
                 # a test rejects white disturbances: on a one-state log without a
@@ -561,10 +566,10 @@ class InstrumentalGMM(Estimator):
                                       < float(self.colour_alpha) * float(self.pem_level))
                                    | info["colour_guarded"])
                 info["pem_strong"] = strong
-                if strong.any() and self.pem_fallback and pem.supports(spec, data):
+                if strong.any() and applies:
                     self._pem_fallback(data, spec, theta0, strong, theta, iters, used, info)
                     reject = reject & (used != "pem")
-                info["pem_applies"] = bool(self.pem_fallback and pem.supports(spec, data))
+                info["pem_applies"] = applies
                 if reject.any():
                     sub = _subset(data, reject)
                     phi_s = (phi[_rows(data, reject)] if phi is not None else
@@ -793,7 +798,8 @@ class InstrumentalGMM(Estimator):
                     "its level biases the delayed instruments")
             if used == "simulated":
                 return (f"auto used simulated instruments with an AR noise-model prefilter "
-                        f"(SRIV) because {band}, and SRIV stays consistent under it.")
+                        f"(SRIV) because {band}, and the prediction-error fit did not "
+                        "converge; SRIV stays consistent under coloured sensor noise.")
             if used == "pem" and str(info["pem_model"][0]) != "switching":
                 cov = {"sandwich": "quasi-ML sandwich", "fisher": "inverse Fisher",
                        "conservative": "larger of the quasi-ML sandwich and inverse Fisher"
