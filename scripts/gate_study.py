@@ -1,26 +1,23 @@
-"""Does a Hausman test of the delayed instruments catch the coloured logs ``auto``'s
-C and colour tests miss?
+"""Which gate should keep ``auto`` off the delayed instruments where its tests miss?
 
 ``auto`` keeps the delayed measurements as instruments (``combined``) where neither the
 C test of the delayed instruments nor the colour test rejects white disturbances. Under
 coloured sensor noise both tests miss some logs, and there the delayed instruments bias
-the estimate. The Hausman test compares the combined two-step GMM estimate with the
-IV_{E{ζ}=0} estimate (simulated instruments only, consistent whatever the colour,
-Lemma 3.1): under white disturbances the combined estimate is the efficient one, so
-``d = θ̂_c − θ̂_s`` has covariance ``V_s − V_c`` (both HAC) and
-``H = d' (V_s − V_c)⁺ d`` is χ²(rank); unlike the C test, its degrees of freedom are
-those of the parameters, not of the delayed instruments, so a bias in the parameters
-is tested directly.
+the estimate. This study runs ``auto`` without its colour guard (``colour_guard=0``)
+once per log and keeps, per run, its choice, estimate, reported SE and test p-values;
+the combined and IV_{E{ζ}=0} estimates with their full HAC covariances; the estimate
+and SE of ``auto``'s SRIV fallback; and (``--pem-below``) the estimate and SE of its
+likelihood fallback on the combined runs whose colour-test p-value is below that. Every
+gate is then evaluated on the same estimates: the colour guards ``--guards`` (the
+combined runs with a colour-test p-value below the guard move to SRIV or to the
+likelihood fit; ``auto``'s default is 0.2 with the likelihood fit), a Hausman test
+(``d = θ̂_c − θ̂_s``, ``H = d' (V_s − V_c)⁺ d``, χ²(rank): under white disturbances the
+combined estimate is the efficient one) and SRIV on every combined run::
 
-Per run this script keeps ``auto``'s choice, estimate, reported SE and test p-values,
-the combined and IV_{E{ζ}=0} estimates with their full HAC covariances (the Hausman
-statistic), and the estimate and SE of ``auto``'s SRIV fallback, so any gate built from
-them is evaluated on the same runs without refitting::
-
-    nice -n 10 python scripts/gate_study.py calibration:gm-sensor-random --runs 1000 \\
-        --raw gate_gm_sensor_random.csv
-    python scripts/gate_study.py calibration:gm-sensor-random --from-raw \\
-        gate_gm_sensor_random.csv --md docs/gate_study_gm_sensor_random.md
+    nice -n 10 python scripts/gate_study.py calibration:gm-sensor-random --runs 1000 \
+        --pem-below 0.3 --md docs/gate_study_gm_sensor_random.md
+    nice -n 10 python scripts/gate_study.py calibration:table1-alternating --runs 1000 \
+        --pem-below 0.3 --md docs/gate_study_table1_alternating.md
 """
 
 from __future__ import annotations
