@@ -281,3 +281,14 @@ def test_white_logs_take_the_likelihood_fit_in_the_guard_band_and_coloured_curre
     assert shares["table1-alternating"] <= share + 3 * np.sqrt(share * (1 - share) / 200), \
         shares
     assert shares["gm-current-random"] == 1.0, shares
+
+
+def test_sandwich_fisher_ratio_by_hand():
+    """The guard band's misfit measure: the largest sandwich / inverse-Fisher standard
+    error ratio over the parameters, NaN where the likelihood fit was not made."""
+    from vesselid.identify.efficient import _sandwich_fisher_ratio
+
+    fisher = np.stack([np.diag([1.0, 4.0]), np.full((2, 2), np.nan)])
+    sandwich = np.stack([np.diag([2.25, 4.0]), np.full((2, 2), np.nan)])
+    ratio = _sandwich_fisher_ratio({"pem_cov": fisher, "pem_cov_sandwich": sandwich})
+    assert ratio[0] == 1.5 and np.isnan(ratio[1])
