@@ -209,6 +209,8 @@ def test_pem_sandwich_and_fisher_agree_on_its_own_model():
     (lambda: InstrumentalGMM("auto", colour_guard=-0.1), "colour_guard must be in"),
     (lambda: InstrumentalGMM("auto", colour_guard=True), "colour_guard must be in"),
     (lambda: InstrumentalGMM("auto", colour_guard="0.2"), "colour_guard must be in"),
+    (lambda: InstrumentalGMM("auto", guard_misfit=0.9), "guard_misfit must be"),
+    (lambda: InstrumentalGMM("auto", guard_misfit=float("nan")), "guard_misfit must be"),
 ])
 def test_bad_options_one_line_reasons(make, msg):
     with pytest.raises(IdentificationError, match=msg) as err:

@@ -53,14 +53,6 @@ __all__ = ["InstrumentalGMM", "LaggedIV"]
 
 CLOSED_FORM = "closed form"
 SINGULAR = "instrument matrix singular"
-#: In ``auto``'s colour-guard band the likelihood fit is kept only where its quasi-ML
-#: sandwich standard errors stay within this factor of the inverse-Fisher ones (largest
-#: ratio over the parameters); beyond it the Gaussian model misfits the log and SRIV
-#: takes it. On Student-t₃ sensor noise (the robustness study's heavy-tailed design,
-#: 200 runs) 2 of 30 band fits had ratios of 1.6–4.1 and errors of 5–7 Monte Carlo sd,
-#: the other 28 at most 1.17; on Gauss–Markov sensor noise and white Table 1 logs the
-#: largest ratio of every likelihood fit was 1.53 (1 of 895) and 1.17.
-GUARD_MISFIT = 1.5
 
 
 def _designs_from(sol: gmm.GMMSolution, theta: np.ndarray, spec: ModelSpec,
@@ -174,22 +166,31 @@ class InstrumentalGMM(Estimator):
         but computed on explicit rows (batched, not fused), several times the cost of
         ``auto`` on the Monte Carlo path.
     colour_guard : float
-        ``auto`` on a log the likelihood fallback applies to (``pem_fallback``, one
-        state equation, no disturbance sensor, no low-pass filter) keeps the delayed
-        instruments only where the colour test's p-value is at least ``colour_guard``
-        (a value at most ``colour_alpha``, 0 included: no guard); a p-value in
-        ``[colour_alpha, colour_guard)`` takes the likelihood fallback (SRIV where its fit
-        does not converge). Under coloured sensor noise the colour test misses some logs
-        at its level, and there the delayed instruments bias the estimate by 1–3.5
-        standard errors; the default 0.2 moves most of them (Gauss–Markov sensor noise,
-        time constant 20 samples, random pulses: 21 of 24 missed logs in 1000 runs).
-        White logs reach the band in about 15 % of runs; the likelihood model nests
-        white disturbances, so its estimate there is as precise as the combined one (the
-        Table 1 design, alternating pulses: Monte Carlo sd of ``n`` 0.01328 against
-        0.01331 over 1000 runs), at the cost of its fit on those logs. Where the
-        likelihood fallback does not apply the band keeps the delayed instruments: SRIV
+        ``auto`` on a log the likelihood fallback applies to (``pem_fallback``, one state
+        equation, no disturbance sensor, no low-pass filter) keeps the delayed instruments
+        only where the colour test's p-value is at least ``colour_guard`` (a value at most
+        ``colour_alpha``, 0 included: no guard); a p-value in ``[colour_alpha,
+        colour_guard)`` takes the likelihood fallback (SRIV where its fit does not converge
+        or its Gaussian model misfits the log, ``guard_misfit``). Under coloured sensor
+        noise the colour test misses some logs at its level, and there the delayed
+        instruments bias the estimate by 1–3.5 standard errors; the default 0.2 moves most
+        of them (Gauss–Markov sensor noise, time constant 20 samples, random pulses: 21 of
+        24 missed logs in 1000 runs). White logs reach the band in about 15 % of runs; the
+        likelihood model nests white disturbances, so its estimate there is as precise as
+        the combined one (the Table 1 design, alternating pulses: Monte Carlo sd of ``n``
+        0.01328 against 0.01331 over 1000 runs), at the cost of its fit on those logs. Where
+        the likelihood fallback does not apply the band keeps the delayed instruments: SRIV
         there would raise the Monte Carlo sd of ``n`` on white Table 1 logs by 14 %
         (``scripts/gate_study.py``, ``docs/guide/choosing-an-estimator.md``).
+    guard_misfit : float
+        In the colour-guard band the likelihood fit is kept only where its quasi-ML
+        sandwich standard errors stay within this factor of its inverse-Fisher ones
+        (largest ratio over the parameters; ``inf``: always kept); beyond it the Gaussian
+        model misfits the log and SRIV takes it. On Student-t₃ sensor noise (the
+        robustness study's heavy-tailed design, 200 runs) 2 of 30 band fits had ratios of
+        1.6–4.1 and errors of 5–7 Monte Carlo sd, the other 28 at most 1.17; the largest
+        ratio of any likelihood fit on Gauss–Markov sensor noise (random pulses, 1000
+        runs) was 1.53 (1 of 895 fits) and on white Table 1 logs 1.17.
     refine : int
         Refinement steps after the converged IV_{E{ζ}=0} iteration (each re-simulates
         the instruments from the latest estimate and re-estimates the noise model).
@@ -251,9 +252,10 @@ class InstrumentalGMM(Estimator):
                  colour_order: int = 0, pem_fallback: bool = False,
                  pem_cov: str = "conservative", pem_level: float = 0.1,
                  pem_boundary: str = "auto", pem_switching: bool = True,
-                 colour_guard: float = 0.2) -> None:
+                 colour_guard: float = 0.2, guard_misfit: float = 1.5) -> None:
         super().__init__(instruments=instruments, noise_order=noise_order, alpha=alpha,
-                         colour_alpha=colour_alpha, colour_guard=colour_guard, refine=refine,
+                         colour_alpha=colour_alpha, colour_guard=colour_guard,
+                         guard_misfit=guard_misfit, refine=refine,
                          fallback_refine=fallback_refine, colour_order=colour_order,
                          pem_fallback=pem_fallback, pem_cov=pem_cov, pem_level=pem_level,
                          pem_boundary=pem_boundary, pem_switching=pem_switching)
@@ -268,6 +270,7 @@ class InstrumentalGMM(Estimator):
         self.colour_alpha = colour_alpha
         self.colour_order = colour_order
         self.colour_guard = colour_guard
+        self.guard_misfit = guard_misfit
         self.refine = refine
         self.fallback_refine = fallback_refine
         name = name or f"gmm-{instruments}" + (f"-ar{noise_order}" if noise_order else "")
@@ -298,6 +301,11 @@ class InstrumentalGMM(Estimator):
         if not (isinstance(g, float | int | np.floating | np.integer) and not isinstance(g, bool)
                 and 0 <= float(g) < 1):
             raise IdentificationError(f"colour_guard must be in [0, 1), got {g!r}")
+        m = self.guard_misfit
+        if not (isinstance(m, float | int | np.floating | np.integer) and not isinstance(m, bool)
+                and float(m) >= 1):
+            raise IdentificationError(f"guard_misfit must be a number >= 1 (inf: never), "
+                                      f"got {m!r}")
         if not (isinstance(self.pem_level, float | int | np.floating | np.integer)
                 and not isinstance(self.pem_level, bool) and 0 < float(self.pem_level) <= 1):
             raise IdentificationError(f"pem_level must be in (0, 1], got {self.pem_level!r}")
@@ -580,7 +588,7 @@ class InstrumentalGMM(Estimator):
                         # in the band the evidence of colour is weak: a likelihood fit
                         # whose Gaussian model misfits the log gives way to SRIV
                         misfit = info["colour_guarded"] & (used == "pem") & (
-                            _sandwich_fisher_ratio(info) > GUARD_MISFIT)
+                            _sandwich_fisher_ratio(info) > float(self.guard_misfit))
                         info["pem_guard_misfit"] = misfit
                         used[misfit] = "combined"
                     reject = reject & (used != "pem")
@@ -816,7 +824,7 @@ class InstrumentalGMM(Estimator):
                 why_not = ("the Gaussian likelihood model misfits the log (its quasi-ML "
                            "sandwich standard error exceeds the inverse-Fisher one "
                            f"{float(_sandwich_fisher_ratio(info)[0]):.2g} times, more than "
-                           f"{GUARD_MISFIT:g})" if mis is not None and mis[0] else
+                           f"{float(self.guard_misfit):g})" if mis is not None and mis[0] else
                            "the prediction-error fit did not converge")
                 return (f"auto used simulated instruments with an AR noise-model prefilter "
                         f"(SRIV) because {band}, and {why_not}; SRIV stays consistent "
