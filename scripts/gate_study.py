@@ -259,13 +259,16 @@ def markdown(res: pd.DataFrame, design: str, seed: int, cmd: str,
              "(simulated + delayed) instruments to the named estimate (SRIV, or `auto`'s "
              "likelihood fallback from the same start); every other run keeps `auto`'s "
              "estimate and reported SE. `colour p < g`: the colour test's p-value below "
-             "the guard g (`colour_guard = g`; `auto`'s default 0.2 with the likelihood "
-             "fallback); `Hausman`: the combined against the IV_E{ζ}=0 estimate, "
+             "the guard g (`colour_guard = g`; `auto`'s default is 0.2 with the likelihood "
+             "fallback, and SRIV where that fit's sandwich standard errors exceed its "
+             "inverse-Fisher ones more than 1.5 times, `guard_misfit`, which the rows here "
+             "do not apply); `Hausman`: the combined against the IV_E{ζ}=0 estimate, "
              "`d' (V_s − V_c)⁺ d`, χ²(3).", "",
              "| rule | parameter | moved | coverage [Wilson 95 %] | MC sd | "
              "median rel. err |", "|---|---|---|---|---|---|"]
     for _, r in res.iterrows():
-        lines.append(f"| {r.rule} | {r.param} | {r.moved} | {100 * r.coverage:.1f} % "
+        param = r.param.replace("|", "\\|")  # (w*|w| inside a table cell)
+        lines.append(f"| {r.rule} | {param} | {r.moved} | {100 * r.coverage:.1f} % "
                      f"[{100 * r.wilson_lo:.1f}, {100 * r.wilson_hi:.1f}] | {r.mc_sd:.5f} | "
                      f"{r.median_abs_rel_err:.4f} |")
     return "\n".join(lines) + "\n"
