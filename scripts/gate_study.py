@@ -43,6 +43,8 @@ from robustness_study import wilson
 from vesselid.core.fileio import atomic_write_text
 
 Z95 = 1.959964
+#: Colour-test guards evaluated by default.
+GUARDS = [0.1, 0.15, 0.2, 0.3]
 
 
 def _full_covariances(data, spec, it, est) -> np.ndarray:
@@ -205,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--samples", type=int, default=10_000)
     ap.add_argument("--seed", type=int, default=None)
     ap.add_argument("--chunk", type=int, default=25)
-    ap.add_argument("--guards", type=float, nargs="+", default=[0.1, 0.15, 0.2, 0.3],
+    ap.add_argument("--guards", type=float, nargs="+", default=GUARDS,
                     help="colour-test guards to evaluate")
     ap.add_argument("--pem-below", type=float, default=0.0,
                     help="also fit auto's likelihood fallback on the combined runs whose "
@@ -239,7 +241,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.md is not None:
         cmd = (f"python scripts/gate_study.py {args.design} --runs {one.shape[0]} --seed {seed}"
                f" --samples {args.samples}"
-               + (f" --pem-below {args.pem_below:g}" if args.pem_below else "") + " --md ...")
+               + (f" --pem-below {args.pem_below:g}" if args.pem_below else "")
+               + ("" if args.guards == GUARDS else
+                  " --guards " + " ".join(f"{g:g}" for g in args.guards)) + " --md ...")
         atomic_write_text(args.md, markdown(res, args.design, seed, cmd,
                                             one["choice"].value_counts().to_dict()))
     if args.out is not None:
