@@ -18,6 +18,8 @@ per parameter and scenario with Wilson bars).
         # coverage per choice of ``auto`` on the scenario's first 300 runs (no files)
     python scripts/calibration.py --by-choice gm-sensor-random --runs 300 --pem-level 1
         # the same with ``auto``'s likelihood fallback on any rejection
+    python scripts/calibration.py --by-choice gm-sensor-random --runs 300 --colour-guard 0
+        # the same without ``auto``'s colour guard
 """
 
 from __future__ import annotations
@@ -105,9 +107,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pem-level", type=float, default=None,
                     help="with --by-choice: auto's pem_level (the likelihood fallback where "
                          "a test rejects at this times its level; default: the registered)")
+    ap.add_argument("--colour-guard", type=float, default=None,
+                    help="with --by-choice: auto's colour_guard (0: none; default: the "
+                         "registered)")
     args = ap.parse_args(argv)
     if args.pem_level is not None and not (args.by_choice and 0 < args.pem_level <= 1):
         ap.error("--pem-level needs --by-choice and a value in (0, 1]")
+    if args.colour_guard is not None and not (args.by_choice and 0 <= args.colour_guard < 1):
+        ap.error("--colour-guard needs --by-choice and a value in [0, 1)")
     runs = 40 if args.quick else args.runs
     if args.by_choice is not None:
         if args.by_choice not in SCENARIOS:
@@ -115,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
         if runs < 2:
             ap.error("--runs must be at least 2")
         print(by_choice(args.by_choice, runs, args.samples, args.seed,
-                        args.pem_level).to_string(
+                        args.pem_level, args.colour_guard).to_string(
             index=False, float_format=lambda x: f"{x:.3g}"))
         return 0
     sea_runs = 4 if args.quick else args.seatrial_runs
@@ -146,6 +153,10 @@ def main(argv: list[str] | None = None) -> int:
         old = pd.read_csv(old_csv)
         old = old[~old["scenario"].isin(out["scenario"].unique())]
         out = pd.concat([old, out], ignore_index=True)
+        # the table's order: the heave scenarios as in SCENARIOS, then the sea trial
+        rank = {s: i for i, s in enumerate([*SCENARIOS, "seatrial"])}
+        out = out.sort_values("scenario", kind="stable",
+                              key=lambda c: c.map(rank)).reset_index(drop=True)
     args.out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(args.out / "calibration.csv", out.to_csv(index=False, float_format="%.5g"))
     plot(out, args.out / "calibration.png")
@@ -155,12 +166,14 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def by_choice(scenario: str, runs: int, samples: int, seed: int,
-              pem_level: float | None = None) -> pd.DataFrame:
+              pem_level: float | None = None,
+              colour_guard: float | None = None) -> pd.DataFrame:
     """Coverage of the default covariance per choice of ``auto`` on the first ``runs``
     runs of a heave scenario (the seeds of the table): which branch of the choice loses
     coverage. Per choice: runs, coverage, mean error and root-mean-square error in units
-    of the scenario's Monte Carlo sd, and mean SE / that sd. ``pem_level``: ``auto`` with
-    that option (:class:`vesselid.identify.efficient.InstrumentalGMM`)."""
+    of the scenario's Monte Carlo sd, and mean SE / that sd. ``pem_level``,
+    ``colour_guard``: ``auto`` with that option
+    (:class:`vesselid.identify.efficient.InstrumentalGMM`)."""
     from vesselid.identify import from_arrays, get_estimator
     from vesselid.studies.calibration import heave_scenario, registry_covariances
 
@@ -169,13 +182,15 @@ def by_choice(scenario: str, runs: int, samples: int, seed: int,
     seeds = np.random.SeedSequence(seed + list(SCENARIOS).index(scenario)).spawn(runs)
     sim = system.simulate(samples, run_seeds=seeds)
     data = from_arrays(spec, sim.y, sim.u)
-    if pem_level is None:
+    changed = {k: v for k, v in (("pem_level", pem_level), ("colour_guard", colour_guard))
+               if v is not None}
+    if not changed:
         est = get_estimator("auto")
     else:
         from vesselid.identify.efficient import InstrumentalGMM
         from vesselid.identify.registry import entry
 
-        est = InstrumentalGMM(**{**entry("auto").options, "pem_level": pem_level})
+        est = InstrumentalGMM(**{**entry("auto").options, **changed})
     it = est.estimate_parameters(data, spec)
     se = registry_covariances(data, spec, it, "auto", {"d": (DEFAULT_COV_TYPE, {})})["d"]
     used = it.info["instrument_set"]

@@ -98,15 +98,17 @@ def test_default_covariance_matches_the_spread_on_the_default_sea_trial():
         assert abs(np.log(r["se_ratio"])) <= tol, (r["parameter"], r["se_ratio"], tol)
 
 
-def test_calibration_script_pem_level_needs_by_choice():
-    """``--pem-level`` applies to ``--by-choice`` only, with a value in (0, 1]: a one-line
-    usage error (exit 2) otherwise."""
+def test_calibration_script_pem_level_and_colour_guard_need_by_choice():
+    """``--pem-level`` and ``--colour-guard`` apply to ``--by-choice`` only, with a value in
+    (0, 1] and [0, 1): a one-line usage error (exit 2) otherwise."""
     from _scripts import load_script
 
     script = load_script("calibration")
     for argv in (["--pem-level", "0.5"],
                  ["--by-choice", "gm-sensor-random", "--pem-level", "0"],
-                 ["--by-choice", "gm-sensor-random", "--pem-level", "1.5"]):
+                 ["--by-choice", "gm-sensor-random", "--pem-level", "1.5"],
+                 ["--colour-guard", "0"],
+                 ["--by-choice", "gm-sensor-random", "--colour-guard", "1"]):
         with pytest.raises(SystemExit) as exc:
             script.main(argv)
         assert exc.value.code == 2
