@@ -170,15 +170,16 @@ class InstrumentalGMM(Estimator):
         equation, no disturbance sensor, no low-pass filter) keeps the delayed instruments
         only where the colour test's p-value is at least ``colour_guard`` (a value at most
         ``colour_alpha``, 0 included: no guard); a p-value in ``[colour_alpha,
-        colour_guard)`` takes the likelihood fallback (SRIV where its fit does not converge
-        or its Gaussian model misfits the log, ``guard_misfit``). Under coloured sensor
-        noise the colour test misses some logs at its level, and there the delayed
-        instruments bias the estimate by 1–3.5 standard errors; the default 0.2 moves most
-        of them (Gauss–Markov sensor noise, time constant 20 samples, random pulses: 21 of
-        24 missed logs in 1000 runs). White logs reach the band in about 15 % of runs; the
-        likelihood model nests white disturbances, so its estimate there is as precise as
-        the combined one (the Table 1 design, alternating pulses: Monte Carlo sd of ``n``
-        0.01328 against 0.01331 over 1000 runs), at the cost of its fit on those logs. Where
+        colour_guard)`` takes the likelihood fallback with the sensor-noise model alone
+        (SRIV where its fit does not converge or its Gaussian model misfits the log,
+        ``guard_misfit``). Under coloured sensor noise the colour test misses some logs at
+        its level, and there the delayed instruments bias the estimate by 1–3.5 standard
+        errors; the default 0.2 moves most of them (Gauss–Markov sensor noise, time
+        constant 20 samples, random pulses: 21 of 24 missed logs in 1000 runs). White logs
+        reach the band in about 15 % of runs; the sensor-noise model nests white
+        disturbances, so its estimate there is as precise as the combined one (the Table 1
+        design, alternating pulses: Monte Carlo sd of ``n`` 0.01317 against 0.01331 over
+        1000 runs), at the cost of its fit on those logs (:func:`_guard_band_fits`). Where
         the likelihood fallback does not apply the band keeps the delayed instruments: SRIV
         there would raise the Monte Carlo sd of ``n`` on white Table 1 logs by 14 %
         (``scripts/gate_study.py``, ``docs/guide/choosing-an-estimator.md``).
@@ -188,9 +189,12 @@ class InstrumentalGMM(Estimator):
         (largest ratio over the parameters; ``inf``: always kept); beyond it the Gaussian
         model misfits the log and SRIV takes it. On Student-t₃ sensor noise (the
         robustness study's heavy-tailed design, 200 runs) 2 of 30 band fits had ratios of
-        1.6–4.1 and errors of 5–7 Monte Carlo sd, the other 28 at most 1.17; the largest
-        ratio of any likelihood fit on Gauss–Markov sensor noise (random pulses, 1000
-        runs) was 1.53 (1 of 895 fits) and on white Table 1 logs 1.17.
+        3.9 and 5.0 and errors of 6.8 and 7.4 Monte Carlo sd, the other 28 at most 1.33;
+        the largest ratio of any likelihood fit on Gauss–Markov sensor noise (random
+        pulses, 1000 runs) was 1.53 (1 of 895 fits) and on white Table 1 logs 1.19
+        (``python scripts/pem_covariance_study.py robustness:heavy-tailed --runs 200
+        --auto-option guard_misfit=inf``, ``calibration:gm-sensor-random``,
+        ``calibration:table1-alternating``, ``--runs 1000``).
     refine : int
         Refinement steps after the converged IV_{E{ζ}=0} iteration (each re-simulates
         the instruments from the latest estimate and re-estimates the noise model).
@@ -628,10 +632,15 @@ class InstrumentalGMM(Estimator):
     def _pem_fallback(self, data, spec, theta0, reject, theta, iters, used, info) -> None:
         """The prediction-error estimator on the groups ``reject``, from their IV_{E{ζ}=0}
         estimates; taken where its likelihood maximisation converged (in place; the
-        others fall back to SRIV)."""
+        others fall back to SRIV). A group sent here by the colour test's guard band
+        alone (``info["colour_guarded"]``) fits the sensor-noise model only
+        (:func:`_guard_band_fits`)."""
+        guarded = info.get("colour_guarded")
+        band = (np.asarray(guarded, dtype=bool)[reject] if guarded is not None
+                else np.zeros(int(reject.sum()), dtype=bool))
         sub = _subset(data, reject)
-        res = _on_own_thread(lambda: pem.fit_groups(sub, spec, theta0[reject], joint=True,
-                                                    boundary=self.pem_boundary))
+        res = _on_own_thread(lambda: _guard_band_fits(sub, spec, theta0[reject], band,
+                                                      self.pem_boundary))
         ok = res["converged"] & np.all(np.isfinite(res["theta"]), axis=1)
         idx = np.flatnonzero(reject)
         n = data.n_groups
@@ -834,11 +843,11 @@ class InstrumentalGMM(Estimator):
                 cov = {"sandwich": "quasi-ML sandwich", "fisher": "inverse Fisher",
                        "conservative": "larger of the quasi-ML sandwich and inverse Fisher"
                        }[self.pem_cov]
-                return (f"auto used the prediction-error estimator with a Gauss–Markov "
-                        f"current and Gauss–Markov sensor noise as filter states "
-                        f"({info['pem_model'][0]} model) because {band}; that model nests "
-                        "white disturbances as well, so it stays precise if they are "
-                        f"white; its intervals are the {cov} ones.")
+                return (f"auto used the prediction-error estimator with Gauss–Markov "
+                        f"sensor noise as a filter state ({info['pem_model'][0]} model) "
+                        f"because {band}; that model nests white disturbances as well, so "
+                        f"it stays precise if they are white; its intervals are the {cov} "
+                        "ones.")
         why = " and the ".join(rejected) or "the colour test's guard"
         st = info.get("stability")
         if st is not None and st["rejected"]:
@@ -1033,6 +1042,47 @@ class _ValidityChecks:
             from concurrent.futures import wait
 
             wait([self._job])
+
+
+def _guard_band_fits(data: RegressionData, spec: ModelSpec, theta0: np.ndarray,
+                     band: np.ndarray, boundary: str) -> dict[str, np.ndarray]:
+    """:func:`vesselid.identify.pem.fit_groups` of every group of ``data`` from
+    ``theta0``: the groups of the colour test's guard band (``band``) with the
+    sensor-noise model alone, the others with every model and the joint stage.
+
+    The guard band's alternative is coloured sensor noise that the colour test misses
+    at its level (a coloured current is rejected far below it: the Gauss–Markov,
+    two-process and telegraph currents in every run at 10⁴ samples), and that model
+    nests white disturbances, so a white log in the band keeps the precision of the
+    delayed instruments (the paper's Table 1 design, 1000 runs: Monte Carlo sd of ``n``
+    0.0132 against 0.0133 without the guard); its fit alone costs a fraction of every
+    candidate's and the joint stage's (the Monte Carlo of Table 1 with ``auto``, one
+    worker: 10 s of CPU against 33 s with every candidate in the band, 3.3 s without the
+    guard). The
+    arrays are those of one ``fit_groups`` call over all groups (``loglik`` in the
+    column of each fitted model, the others NaN)."""
+    full = {"joint": True, "boundary": boundary}
+    if not band.any():
+        return pem.fit_groups(data, spec, theta0, **full)
+    sensor = pem.DISTURBANCE_MODELS.index("sensor")
+    out: dict[str, np.ndarray] = {}
+    m = band.size
+    for sel, kw in ((~band, full), (band, {"models": ("sensor",), "joint": False})):
+        if not sel.any():
+            continue
+        res = pem.fit_groups(data if sel.all() else _subset(data, sel), spec, theta0[sel],
+                             **kw)
+        for key, arr in res.items():
+            shape = (len(pem.DISTURBANCE_MODELS),) if key == "loglik" else arr.shape[1:]
+            if key not in out:
+                out[key] = (np.full((m, *shape), "", dtype=object) if arr.dtype == object
+                            else np.zeros((m, *shape), dtype=arr.dtype)
+                            if arr.dtype.kind in "biu" else np.full((m, *shape), np.nan))
+            if key == "loglik" and arr.shape[1] == 1:
+                out[key][sel, sensor] = arr[:, 0]
+            else:
+                out[key][sel] = arr
+    return out
 
 
 def _on_own_thread(fn):

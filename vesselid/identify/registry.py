@@ -100,7 +100,9 @@ class EstimatorEntry:
 
 
 _AUTO_LABEL = ("GMM, simulated + delayed instruments unless the C test or the colour test "
-               "rejects the delayed ones (then PEM on one-state logs, else SRIV)")
+               "rejects the delayed ones (then PEM on one-state logs, else SRIV) or, on "
+               "one-state logs, the colour test's p-value falls below its guard (then PEM "
+               "with the sensor-noise model)")
 
 #: The package's estimators, in the order of ``--method``'s choices.
 _BUILTIN: tuple[EstimatorEntry, ...] = (
