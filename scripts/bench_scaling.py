@@ -925,8 +925,11 @@ def render_kernel_paths(kp: dict[str, Any]) -> list[str]:
         "A `vesselid identify` process on a small log (rows × parameters ≤ 3·10⁵) runs "
         "numpy formulations of the estimation kernels (`identify/_npkernels.py`) "
         "instead of loading numba and its cached kernels; results agree with the "
-        "compiled path to rounding. Whole processes on a 10⁴-sample heave log, "
-        f"{kp['runs_per_path']} runs per path in ABBA order (medians; load average "
+        "compiled path to rounding. Whole processes on a 10⁴-sample heave log "
+        f"(seed {kp.get('seed', 0)}; the default's choice there: {kp.get('choice', '?')}; "
+        "a log in the colour test's guard band, about 15 % of white logs, fits the "
+        "likelihood model, whose filter is compiled only, and loads numba on either "
+        f"path), {kp['runs_per_path']} runs per path in ABBA order (medians; load average "
         f"{kp['load_average']:.1f}); cold: empty numba and generated-kernel caches, "
         f"the first run after an install ({kp['cold_runs_per_path']} runs per path); "
         "`python scripts/bench_startup.py --kernel-paths` measures this section alone.",

@@ -223,17 +223,26 @@ def test_choice_rules(monkeypatch):
     assert not backend.use_numpy(10, 3)
 
 
-def test_small_log_identify_process_loads_no_numba(tmp_path):
-    """``vesselid identify`` on a 10⁴-sample heave log: no numba in the process."""
+@pytest.mark.parametrize(("seed", "choice", "numba"), [(1, "combined", False),
+                                                     (0, "pem-sensor", True)])
+def test_small_log_identify_process_loads_numba_only_for_a_likelihood_fit(
+        tmp_path, seed, choice, numba):
+    """``vesselid identify`` on a 10⁴-sample heave log: no numba in the process where
+    the default keeps its instruments (the numpy kernels); the likelihood filter of a
+    log in the colour test's guard band is compiled only."""
+    import json
+
     log = tmp_path / "heave.csv"
-    get_system("heave").simulate(10_000, seed=0).to_log().save(log)
+    get_system("heave").simulate(10_000, seed=seed).to_log().save(log)
+    out_json = tmp_path / "r.json"
     code = ("import sys\nfrom vesselid.cli import main\n"
-            f"rc = main(['identify', {str(log)!r}])\n"
+            f"rc = main(['identify', {str(log)!r}, '--json', {str(out_json)!r}])\n"
             "print('NUMBA', 'numba' in sys.modules, rc)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True, env={**__import__("os").environ,
                                           "VESSELID_KERNELS": "auto"})
-    assert "NUMBA False 0" in out.stdout
+    assert json.loads(out_json.read_text())["diagnostics"]["choice"] == choice
+    assert f"NUMBA {numba} 0" in out.stdout
 
 
 def test_special_functions_match_scipy(monkeypatch):

@@ -131,13 +131,17 @@ def test_auto_uses_pem_under_a_coloured_current_and_json_is_strict(tmp_path):
         [payload["params"]["w"][t] for t in ("w", "w*|w|", "tau")], res.params.to_numpy())
 
 
-def test_auto_on_white_noise_does_not_call_pem():
+def test_auto_on_white_noise_calls_pem_only_where_a_test_or_the_guard_sends_it():
     data, spec = _batch("table1-alternating", 4000, 8, seed=6)
     it = get_estimator("auto").estimate_parameters(data, spec)
     reject = (it.info["c_pvalue"] < 0.01) | (it.info["colour_pvalue"] < 0.05)
+    band = ~reject & (it.info["colour_pvalue"] < 0.2)  # the colour test's guard band
     used = it.info["instrument_set"]
-    assert (used[~reject] == "combined").all()  # no test rejects: no likelihood model
-    assert np.isin(used[reject], ["pem", "simulated"]).all()
+    # no test rejects and the colour test's p-value reaches its guard: no likelihood model
+    assert (used[~reject & ~band] == "combined").all()
+    assert np.isin(used[reject | band], ["pem", "simulated"]).all()
+    # in the band the sensor-noise model alone
+    assert set(it.info["pem_model"][band & (used == "pem")]) <= {"sensor"}
 
 
 def test_pem_bad_input_one_line_reasons(capsys, tmp_path):
