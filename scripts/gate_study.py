@@ -23,7 +23,6 @@ combined estimate is the efficient one) and SRIV on every combined run::
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import sys
 import time
@@ -53,24 +52,15 @@ def _full_covariances(data, spec, it, est) -> np.ndarray:
     computes their standard errors."""
     from vesselid.identify import kernels
     from vesselid.identify.covariance import DEFAULT_COV_TYPE, get_covariance_estimator
-    from vesselid.studies.calibration import _slice_group
+    from vesselid.studies.calibration import one_group
 
     ce = get_covariance_estimator(DEFAULT_COV_TYPE)
-    fields = {f.name for f in dataclasses.fields(it)}
     n, p = data.n_groups, spec.n_params
     out = np.full((n, p, p), np.nan)
     for g in range(n):
         if not np.all(np.isfinite(it.theta[g])):
             continue
-        sl, starts = data.group_rows(g)
-        n_seg = starts.size - 1
-        sub = dataclasses.replace(
-            data, target=data.target[sl], regsig=data.regsig[sl], u=data.u[sl],
-            starts=starts, group=np.zeros(n_seg, np.int64), n_groups=1,
-            experiment_ids=tuple(range(n_seg)),
-            sensor=None if data.sensor is None else data.sensor[sl])
-        it_g = dataclasses.replace(it, **{f: _slice_group(getattr(it, f), g, n)
-                                          for f in fields if f != "history"})
+        sub, it_g = one_group(data, it, g)
         phi = kernels.regressor_matrix(sub.regsig, sub.u, sub.starts, spec.codes.factors)
         designs = est.equation_designs(sub, spec, it_g, phi, "pooled")
         if len(designs) < spec.n_states:

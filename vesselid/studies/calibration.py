@@ -44,6 +44,7 @@ __all__ = [
     "coverage_table",
     "group_covariances",
     "heave_scenario",
+    "one_group",
     "wilson_interval",
 ]
 
@@ -522,6 +523,23 @@ def default_method() -> str:
     return str(DEFAULT_METHOD)
 
 
+def one_group(data: RegressionData, it: Any, g: int) -> tuple[RegressionData, Any]:
+    """Group ``g`` of a batch as a one-group batch: its regression data and its slice of
+    the batched estimate ``it`` (an :class:`~vesselid.identify.estimators.
+    IterationResult`; its history left out), as the checked one-group path holds them."""
+    sl, starts = data.group_rows(g)
+    n_seg = starts.size - 1
+    sub = dataclasses.replace(
+        data, target=data.target[sl], regsig=data.regsig[sl], u=data.u[sl],
+        starts=starts, group=np.zeros(n_seg, np.int64),
+        n_groups=1, experiment_ids=tuple(range(n_seg)),
+        sensor=None if data.sensor is None else data.sensor[sl])
+    fields = {f.name for f in dataclasses.fields(it)}
+    it_g = dataclasses.replace(it, **{f: _slice_group(getattr(it, f), g, data.n_groups)
+                                      for f in fields if f != "history"})
+    return sub, it_g
+
+
 def _slice_group(obj: Any, g: int, n_groups: int) -> Any:
     if isinstance(obj, np.ndarray) and obj.ndim and obj.shape[0] == n_groups:
         return obj[g:g + 1]
@@ -554,19 +572,10 @@ def registry_covariances(
     n_groups = data.n_groups
     out = {k: np.full((n_groups, spec.n_params), np.nan) for k in covariances}
     cov_est = {k: get_covariance_estimator(c, **dict(cfg)) for k, (c, cfg) in covariances.items()}
-    fields = {f.name for f in dataclasses.fields(it)}
     for g in range(n_groups):
         if not np.all(np.isfinite(it.theta[g])):
             continue
-        sl, starts = data.group_rows(g)
-        n_seg = starts.size - 1
-        sub = dataclasses.replace(
-            data, target=data.target[sl], regsig=data.regsig[sl], u=data.u[sl],
-            starts=starts, group=np.zeros(n_seg, np.int64),
-            n_groups=1, experiment_ids=tuple(range(n_seg)),
-            sensor=None if data.sensor is None else data.sensor[sl])
-        it_g = dataclasses.replace(it, **{f: _slice_group(getattr(it, f), g, n_groups)
-                                          for f in fields if f != "history"})
+        sub, it_g = one_group(data, it, g)
         phi = kernels.regressor_matrix(sub.regsig, sub.u, sub.starts, spec.codes.factors)
         try:
             designs = est.equation_designs(sub, spec, it_g, phi, combine)
