@@ -10,7 +10,9 @@ and SE of ``auto``'s SRIV fallback; and (``--pem-below``) the estimate and SE of
 likelihood fallback on the combined runs whose colour-test p-value is below that. Every
 gate is then evaluated on the same estimates: the colour guards ``--guards`` (the
 combined runs with a colour-test p-value below the guard move to SRIV or to the
-likelihood fit; ``auto``'s default is 0.2 with the likelihood fit), a Hausman test
+likelihood fallback with every candidate model; ``auto``'s default is 0.2 with the
+sensor-noise model alone, ``vesselid.identify.efficient._guard_band_fits``, which the
+calibration table measures), a Hausman test
 (``d = θ̂_c − θ̂_s``, ``H = d' (V_s − V_c)⁺ d``, χ²(rank): under white disturbances the
 combined estimate is the efficient one) and SRIV on every combined run::
 
