@@ -670,9 +670,10 @@ except ImportError:
     pass
 else:
     # Arrow on one thread: with its thread pool started after LLVM's pages were dropped,
-    # about one process in eight aborts at interpreter exit (std::terminate) after every
-    # check here has passed; `vesselid identify`, which reads before numba loads, showed
-    # no abort in 32 runs
+    # about one process in eight aborts at interpreter exit (std::terminate of a joinable
+    # pool thread, Arrow's own exit race: apache/arrow#34314, #39862) after every check
+    # here has passed; `vesselid identify`, which reads before numba loads, showed no
+    # abort in 32 runs
     pa.set_cpu_count(1)
     pa.set_io_thread_count(1)
     buf = io.BytesIO()
