@@ -669,17 +669,18 @@ try:  # Arrow's code as well (the parquet extra): reading runs on after the drop
 except ImportError:
     pass
 else:
-    # Arrow on one thread: with its thread pool started after LLVM's pages were dropped,
-    # about one process in eight aborts at interpreter exit (std::terminate of a joinable
-    # pool thread, Arrow's own exit race: apache/arrow#34314, #39862) after every check
-    # here has passed; `vesselid identify`, which reads before numba loads, showed no
-    # abort in 32 runs
+    # Arrow without its thread pool: with the pool's threads started after LLVM's pages
+    # were dropped, about one process in seven aborted at interpreter exit (std::terminate
+    # of a joinable pool thread, Arrow's own exit race: apache/arrow#34314, #39862) after
+    # every check here had passed (6 of 40; without the pool 0 of 80); `vesselid
+    # identify`, which reads before numba loads, showed no abort in 32 runs
     pa.set_cpu_count(1)
     pa.set_io_thread_count(1)
     buf = io.BytesIO()
     pq.write_table(pa.table({"a": x}), buf)
     assert memory.drop_library_code() > advised
-    assert np.array_equal(pq.read_table(io.BytesIO(buf.getvalue()))["a"].to_numpy(), x)
+    got = pq.read_table(io.BytesIO(buf.getvalue()), use_threads=False)["a"].to_numpy()
+    assert np.array_equal(got, x)
 print("ok")
 """
 
