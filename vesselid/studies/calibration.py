@@ -524,9 +524,11 @@ def default_method() -> str:
 
 
 def one_group(data: RegressionData, it: Any, g: int) -> tuple[RegressionData, Any]:
-    """Group ``g`` of a batch as a one-group batch: its regression data and its slice of
-    the batched estimate ``it`` (an :class:`~vesselid.identify.estimators.
-    IterationResult`; its history left out), as the checked one-group path holds them."""
+    """Group ``g`` of a batch as a one-group batch.
+
+    Returns its regression data and its slice of the batched estimate ``it`` (an
+    :class:`~vesselid.identify.estimators.IterationResult`; its history left out), as
+    the checked one-group path holds them."""
     sl, starts = data.group_rows(g)
     n_seg = starts.size - 1
     sub = dataclasses.replace(
