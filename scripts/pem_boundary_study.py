@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 import warnings
 from pathlib import Path
 
@@ -164,18 +163,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = rs.study_parser(__doc__.split("\n\n")[0], runs=200, seed=7, designs=DESIGNS)
     args = ap.parse_args(argv)
     rs.check_study_args(ap, args)
-    rows = []
-    root = np.random.SeedSequence(args.seed)
-    for j, name in enumerate(args.designs):
-        d = rs.DESIGNS[name]
-        seeds = np.random.SeedSequence(root.entropy,
-                                       spawn_key=(list(rs.DESIGNS).index(name),)
-                                       ).spawn(args.runs)
-        t0 = time.perf_counter()
-        rows += [one_run(d, s, d.samples or args.samples) for s in seeds]
-        print(f"[{j + 1}/{len(args.designs)}] {name}: {time.perf_counter() - t0:.0f} s",
-              file=sys.stderr, flush=True)
-    df = pd.DataFrame(rows)
+    df = pd.DataFrame(rs.run_designs(args, lambda d, s, n: [one_run(d, s, n)]))
     summary = summarise(df)
     pd.set_option("display.width", 200)
     print(summary.to_string(index=False, float_format=lambda x: f"{x:.4g}"))

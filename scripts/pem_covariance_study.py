@@ -58,9 +58,7 @@ def _logs(design: str, seed: int, runs: range, samples: int):
         import robustness_study as rs
 
         d = rs.DESIGNS[name]
-        root = np.random.SeedSequence(seed)
-        seeds = np.random.SeedSequence(root.entropy, spawn_key=(list(rs.DESIGNS).index(name),)
-                                       ).spawn(runs.stop)
+        seeds = rs.design_seeds(seed, name, runs.stop)
         logs = [rs.simulate(d, np.random.default_rng(seeds[r]), d.samples or samples)
                 for r in runs]
         y = np.stack([lg["w"].to_numpy() for lg in logs])[:, :, None]

@@ -40,6 +40,7 @@ import argparse
 import sys
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -326,6 +327,30 @@ def study_parser(description: str, *, runs: int, seed: int,
     return ap
 
 
+def design_seeds(seed: int, name: str, runs: int) -> list[np.random.SeedSequence]:
+    """The seeds of the first ``runs`` runs of design ``name`` under the root ``seed``:
+    each design draws from its own child of the root (its index in :data:`DESIGNS`), so
+    a design's logs do not depend on which other designs a study runs."""
+    root = np.random.SeedSequence(seed)
+    return np.random.SeedSequence(root.entropy, spawn_key=(list(DESIGNS).index(name),)
+                                  ).spawn(runs)
+
+
+def run_designs(args: argparse.Namespace, run: Callable[..., list[dict]]) -> list[dict]:
+    """The rows of ``run(design, seed, samples)`` (a list of rows per run) over the runs of
+    every design of ``args.designs`` (:func:`design_seeds`), with each design's time on
+    stderr."""
+    rows: list[dict] = []
+    for j, name in enumerate(args.designs):
+        d = DESIGNS[name]
+        t0 = time.perf_counter()
+        for s in design_seeds(args.seed, name, args.runs):
+            rows += run(d, s, d.samples or args.samples)
+        print(f"[{j + 1}/{len(args.designs)}] {name}: {time.perf_counter() - t0:.0f} s",
+              file=sys.stderr, flush=True)
+    return rows
+
+
 def check_study_args(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """A one-line reason (``ap.error``, exit 2) for bad :func:`study_parser` options."""
     if args.runs < 2:
@@ -361,18 +386,8 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"--from-raw: no such file {str(args.from_raw)!r}")
         return _report(pd.read_csv(args.from_raw, keep_default_na=False,
                                    na_values=[""]), args)
-    rows = []
-    root = np.random.SeedSequence(args.seed)
-    for j, name in enumerate(args.designs):
-        d = DESIGNS[name]
-        seeds = np.random.SeedSequence(root.entropy, spawn_key=(list(DESIGNS).index(name),)
-                                       ).spawn(args.runs)
-        t0 = time.perf_counter()
-        for s in seeds:
-            rows += one_run(d, s, d.samples or args.samples, tuple(args.methods))
-        print(f"[{j + 1}/{len(args.designs)}] {name}: {time.perf_counter() - t0:.0f} s",
-              file=sys.stderr, flush=True)
-    df = pd.DataFrame(rows)
+    methods = tuple(args.methods)
+    df = pd.DataFrame(run_designs(args, lambda d, s, n: one_run(d, s, n, methods)))
     if args.raw is not None:
         atomic_write_text(args.raw, df.to_csv(index=False))
     return _report(df, args)

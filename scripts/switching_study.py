@@ -123,16 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = rs.study_parser(__doc__.split("\n\n")[0], runs=50, seed=2024, designs=DESIGNS)
     args = ap.parse_args(argv)
     rs.check_study_args(ap, args)
-    rows = []
-    root = np.random.SeedSequence(args.seed)
-    for name in args.designs:
-        d = rs.DESIGNS[name]
-        seeds = np.random.SeedSequence(root.entropy, spawn_key=(list(rs.DESIGNS).index(name),)
-                                       ).spawn(args.runs)
-        t0 = time.perf_counter()
-        rows += [one_run(d, s, d.samples or args.samples) for s in seeds]
-        print(f"{name}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
-    summary = summarise(pd.DataFrame(rows))
+    summary = summarise(pd.DataFrame(rs.run_designs(args, lambda d, s, n: [one_run(d, s, n)])))
     pd.set_option("display.width", 250)
     print(summary.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
     args.out.mkdir(parents=True, exist_ok=True)
