@@ -150,12 +150,15 @@ def bench_identify(repeats: int = 15, methods: tuple[str, ...] = NAMED_ESTIMATOR
     """``identify`` on one 10⁴-sample heave log, in-process: first as a user calls it,
     ``identify(log, spec)`` (default estimator, default HAC covariance, every diagnostic —
     checked below), then each estimator of ``methods`` by name. Median wall and CPU
-    (process) time."""
+    (process) time. The log (seed 1) is one where the default keeps its instruments, so
+    the timed call runs the instrument diagnostics; a white log in the colour test's guard
+    band (about 15 %; seed 0 is one) fits the likelihood model instead (the
+    ``white_path`` item times both over 20 logs)."""
     from vesselid.identify import DEFAULT_METHOD, identify
     from vesselid.plant.systems import heave
 
     warnings.simplefilter("ignore")
-    log = heave().simulate(10_000, seed=0).to_log()
+    log = heave().simulate(10_000, seed=1).to_log()
     spec = log.spec
     res = identify(log, spec)
     diag = res.diagnostics
@@ -171,17 +174,7 @@ def bench_identify(repeats: int = 15, methods: tuple[str, ...] = NAMED_ESTIMATOR
     for m in methods:
         out[f"identify_heave_1e4_{m}_ms"] = 1000 * median_time(
             lambda m=m: identify(log, spec, method=m), max(repeats // 2, 3))
-    # the default on white logs of 20 seeds: what it chose (a share of white logs takes the
-    # colour test's guard band) and the median over the logs of each log's median time
-    per_log, choices = [], {}
-    for s in range(20):
-        lg = heave().simulate(10_000, seed=s).to_log()
-        choice = str(identify(lg, spec).diagnostics.get("choice"))
-        choices[choice] = choices.get(choice, 0) + 1
-        per_log.append(1000 * median_time(lambda lg=lg: identify(lg, spec), 5))
-    out["identify_heave_1e4_default_20_logs_median_ms"] = float(np.median(per_log))
-    out["identify_heave_1e4_default_20_logs_max_ms"] = float(np.max(per_log))
-    out["identify_heave_1e4_default_20_logs_choices"] = choices
+    out["default_choice"] = str(diag.get("choice"))
     return out
 
 
